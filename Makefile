@@ -1,0 +1,44 @@
+# Two commands on a fresh machine:
+#   make demo   creates .venv, installs the apt packages and pinned Python packages, runs the pipeline on the sample
+#   make test   the same setup, then the test suite
+PYTHON ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DEMO_OUT ?= demo-output
+
+# libportaudio2: sounddevice; jackd2: real-time audio with no sound card (tests, benchmarks);
+# libusb-1.0-0: pyrealsense2; the GL/EGL/X11 runtime: pyorbslam3's Pangolin-linked extension.
+APT_PACKAGES := libportaudio2 jackd2 libusb-1.0-0 libgl1 libegl1 libopengl0 libglx0 libsm6 libice6 libx11-6 libxext6
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+.PHONY: all setup apt venv demo test clean
+
+all: test
+
+apt:
+	@missing=$$(for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+		echo "installing apt packages: $$missing"; \
+		$(SUDO) apt-get update -qq && \
+		DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[test]"
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+setup: apt venv
+
+demo: setup
+	$(BIN)/seesys track --source tum:data/sample --mode rgbd --out $(DEMO_OUT)/track-rgbd
+
+test: setup
+	$(BIN)/python -m pytest
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT)

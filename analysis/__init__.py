@@ -1,0 +1,1 @@
+"""Per-condition statistics, tables and plots for user studies and estimator evaluations."""

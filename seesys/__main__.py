@@ -1,0 +1,5 @@
+import sys
+
+from seesys.cli import main
+
+sys.exit(main())

@@ -1,0 +1,193 @@
+"""The wire format between device, estimator and advisory: one module, used by both ends.
+
+Every message travels as a two-part ZeroMQ message ``[topic, body]``. The topic is a kind prefix followed by the
+device id (``F/<device>`` for features, ``E/<device>`` for estimates), so a SUB socket can filter by kind or by
+device. The body is little-endian binary:
+
+``magic "SEES" | u8 protocol version | u8 kind | u8 len + device id (utf-8) | i64 frame index | f64 timestamp``
+followed by the kind's payload:
+
+- :class:`FeatureFrame`: ``i8 tracking state | u16 C + C × f32 RTS row | u8 has_psd``
+  and, when has_psd, ``u16 H | u16 W | u16 L | u32 n + n bytes zlib(PSD)``.
+- :class:`Estimate`: ``f64 error (m) | f64 server time (ms) | u8 len + model version (utf-8)``.
+
+:func:`decode` validates everything (magic, version, kind, lengths, channel count, shape, finiteness) and raises
+:class:`MessageError` naming the problem; a receiver counts and drops such messages, it never dies on them.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from seesys.errors import SeesysError
+from slam_monitor import rts_schema
+from slam_monitor.tracking_state import TrackingState
+
+PROTOCOL_VERSION = 1
+MAGIC = b"SEES"
+FEATURE_TOPIC = b"F/"
+ESTIMATE_TOPIC = b"E/"
+
+_KIND_FEATURE = 1
+_KIND_ESTIMATE = 2
+_HEAD = struct.Struct("<4sBB")
+_FRAME_ID = struct.Struct("<qd")
+_PSD_HEAD = struct.Struct("<HHHI")
+_ESTIMATE = struct.Struct("<dd")
+_PSD_LEVEL = 6
+
+
+class MessageError(SeesysError):
+    """A received message is malformed, of another protocol version, or inconsistent."""
+
+
+@dataclass(frozen=True)
+class FeatureFrame:
+    """Device → estimator: the RTS row and (on some frames) the PSD matrix of one tracked frame."""
+
+    device_id: str
+    frame_index: int
+    timestamp: float
+    tracking_state: TrackingState
+    rts: np.ndarray
+    psd: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Estimator → device and advisories: the estimated pose error of one frame."""
+
+    device_id: str
+    frame_index: int
+    timestamp: float
+    error_m: float
+    model_version: str
+    server_ms: float = math.nan
+
+
+def _pack_text(text: str, what: str) -> bytes:
+    data = text.encode("utf-8")
+    if len(data) > 255:
+        raise ValueError(f"{what} is longer than 255 bytes: {text[:40]!r}...")
+    return bytes([len(data)]) + data
+
+
+def encode(message: FeatureFrame | Estimate) -> list[bytes]:
+    """The ``[topic, body]`` frames of ``message``."""
+    device = _pack_text(message.device_id, "device id")
+    ident = _FRAME_ID.pack(int(message.frame_index), float(message.timestamp))
+    if isinstance(message, FeatureFrame):
+        rts = np.asarray(message.rts, dtype="<f4")
+        if rts.shape != (rts_schema.NUM_CHANNELS,):
+            raise ValueError(f"RTS row must have shape ({rts_schema.NUM_CHANNELS},), got {rts.shape}")
+        parts = [_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_FEATURE), device, ident,
+                 struct.pack("<bH", int(message.tracking_state), rts.size), rts.tobytes()]
+        if message.psd is None:
+            parts.append(b"\x00")
+        else:
+            psd = np.ascontiguousarray(message.psd, dtype=np.uint8)
+            if psd.ndim != 3:
+                raise ValueError(f"PSD must be (H, W, L), got shape {psd.shape}")
+            packed = zlib.compress(psd.tobytes(), _PSD_LEVEL)
+            parts += [b"\x01", _PSD_HEAD.pack(*psd.shape, len(packed)), packed]
+        return [FEATURE_TOPIC + message.device_id.encode("utf-8"), b"".join(parts)]
+    if isinstance(message, Estimate):
+        body = b"".join([_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_ESTIMATE), device, ident,
+                         _ESTIMATE.pack(float(message.error_m), float(message.server_ms)),
+                         _pack_text(message.model_version, "model version")])
+        return [ESTIMATE_TOPIC + message.device_id.encode("utf-8"), body]
+    raise TypeError(f"cannot encode {type(message).__name__}")
+
+
+class _Reader:
+    """Sequential reads from a body that raise MessageError instead of struct.error on truncation."""
+
+    def __init__(self, body: bytes):
+        self.body = memoryview(body)
+        self.pos = 0
+
+    def take(self, n: int, what: str) -> memoryview:
+        if self.pos + n > len(self.body):
+            raise MessageError(f"message truncated while reading {what} ({len(self.body)} bytes)")
+        view = self.body[self.pos:self.pos + n]
+        self.pos += n
+        return view
+
+    def unpack(self, fmt: struct.Struct, what: str) -> tuple:
+        return fmt.unpack(self.take(fmt.size, what))
+
+    def text(self, what: str) -> str:
+        (n,) = self.take(1, what)
+        try:
+            return bytes(self.take(n, what)).decode("utf-8")
+        except UnicodeDecodeError:
+            raise MessageError(f"{what} is not valid UTF-8") from None
+
+    def finish(self) -> None:
+        if self.pos != len(self.body):
+            raise MessageError(f"{len(self.body) - self.pos} unexpected trailing bytes")
+
+
+def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
+    """Parse and validate a ``[topic, body]`` message; raises :class:`MessageError` on any problem."""
+    if len(frames) != 2:
+        raise MessageError(f"expected 2 message parts (topic, body), got {len(frames)}")
+    topic, body = bytes(frames[0]), bytes(frames[1])
+    r = _Reader(body)
+    magic, version, kind = r.unpack(_HEAD, "header")
+    if magic != MAGIC:
+        raise MessageError(f"not a SEESys message (magic {magic!r})")
+    if version != PROTOCOL_VERSION:
+        raise MessageError(f"protocol version {version} is not supported (this end speaks {PROTOCOL_VERSION})")
+    device_id = r.text("device id")
+    frame_index, timestamp = r.unpack(_FRAME_ID, "frame id")
+    if frame_index < 0:
+        raise MessageError(f"negative frame index {frame_index}")
+    if not math.isfinite(timestamp):
+        raise MessageError(f"timestamp is not finite: {timestamp}")
+    expected_topic = {_KIND_FEATURE: FEATURE_TOPIC, _KIND_ESTIMATE: ESTIMATE_TOPIC}.get(kind)
+    if expected_topic is None:
+        raise MessageError(f"unknown message kind {kind}")
+    if topic != expected_topic + device_id.encode("utf-8"):
+        raise MessageError(f"topic {topic!r} does not match the body (kind {kind}, device {device_id!r})")
+    if kind == _KIND_FEATURE:
+        return _decode_feature(r, device_id, frame_index, timestamp)
+    error_m, server_ms = r.unpack(_ESTIMATE, "estimate")
+    model_version = r.text("model version")
+    r.finish()
+    if not math.isfinite(error_m) or error_m < 0:
+        raise MessageError(f"estimated error must be a finite non-negative number of metres, got {error_m}")
+    return Estimate(device_id, frame_index, timestamp, error_m, model_version, server_ms)
+
+
+def _decode_feature(r: _Reader, device_id: str, frame_index: int, timestamp: float) -> FeatureFrame:
+    state_value, n_channels = r.unpack(struct.Struct("<bH"), "tracking state")
+    try:
+        state = TrackingState(state_value)
+    except ValueError:
+        raise MessageError(f"unknown tracking state {state_value}") from None
+    if n_channels != rts_schema.NUM_CHANNELS:
+        raise MessageError(f"RTS row has {n_channels} channels, schema v{rts_schema.SCHEMA_VERSION} has "
+                           f"{rts_schema.NUM_CHANNELS}")
+    rts = np.frombuffer(r.take(4 * n_channels, "RTS row"), dtype="<f4").astype(np.float32)
+    (has_psd,) = r.take(1, "PSD flag")
+    psd = None
+    if has_psd == 1:
+        h, w, layers, n = r.unpack(_PSD_HEAD, "PSD header")
+        packed = bytes(r.take(n, "PSD"))
+        try:
+            raw = zlib.decompress(packed, bufsize=h * w * layers or 1)
+        except zlib.error as e:
+            raise MessageError(f"PSD does not decompress: {e}") from None
+        if len(raw) != h * w * layers:
+            raise MessageError(f"PSD holds {len(raw)} bytes, header says {h}x{w}x{layers}")
+        psd = np.frombuffer(raw, dtype=np.uint8).reshape(h, w, layers)
+    elif has_psd != 0:
+        raise MessageError(f"bad PSD flag {has_psd}")
+    r.finish()
+    return FeatureFrame(device_id, frame_index, timestamp, state, rts, psd)

@@ -1,0 +1,111 @@
+"""The runtime-status (RTS) channels of paper Table 1: order, units, meaning and normalisation.
+
+This module is the one definition of an RTS row. The device writes rows in this order (``rts.csv`` columns and
+the float32 vector on the wire), the dataset builder stores windows in this order, and the estimator normalises
+with :func:`normalise`. Change a channel here and every part follows; bump :data:`SCHEMA_VERSION` when the
+order, units or meaning change so that old logs and models are recognised as incompatible.
+
+Conventions (the authors' code differs; see docs/rts-features.md):
+
+- Image features are computed on the gray frame SLAM tracks, at full resolution, intensities scaled to [0, 1].
+- Relative motion is of the current frame t with respect to the previous tracked frame t−1:
+  R_rel = R_wc(t−1)ᵀ · R_wc(t), and the translation is the camera displacement c(t) − c(t−1) expressed in the
+  current camera frame, R_wc(t)ᵀ · (c(t) − c(t−1)). Camera axes are ORB-SLAM3's optical frame (x right,
+  y down, z forward). The rotation is given as its rotation vector, split on the camera axes: pitch about x,
+  yaw about y, roll about z (the optical axis). Each component keeps its sign; there is no Euler-angle range
+  folding.
+- Depths are z in the current camera frame. In monocular mode all lengths are in map units (arbitrary scale).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One RTS channel: its raw unit and how the estimator normalises it.
+
+    normalised = transform(raw) / scale, where transform is ``identity``, ``log1p`` (raw ≥ 0) or
+    ``signed_log1p`` (sign(x)·log1p(|x|)).
+    """
+
+    name: str
+    category: str
+    unit: str
+    description: str
+    transform: str
+    scale: float
+
+
+CHANNELS: tuple[Channel, ...] = (
+    Channel("brightness", "sensor_input", "fraction of full scale",
+            "mean gray level / 255", "identity", 1.0),
+    Channel("contrast", "sensor_input", "fraction of full scale",
+            "RMS contrast: standard deviation of gray level / 255", "identity", 0.25),
+    Channel("entropy", "sensor_input", "bits",
+            "Shannon entropy of the 256-bin gray-level histogram", "identity", 8.0),
+    Channel("laplacian", "sensor_input", "(gray level)^2",
+            "variance of the 3x3 Laplacian of the 8-bit gray frame (low = blur)", "log1p", 10.0),
+    Channel("matched_inliers", "tracking", "count",
+            "map-point matches kept after pose optimisation", "identity", 500.0),
+    Channel("outliers", "tracking", "count",
+            "map-point matches rejected by pose optimisation", "identity", 100.0),
+    Channel("matches_before_po", "tracking", "count",
+            "map-point matches before pose optimisation", "identity", 500.0),
+    Channel("rel_tx", "tracking", "m/frame (map units in monocular)",
+            "camera displacement since the previous frame, current camera x", "identity", 0.05),
+    Channel("rel_ty", "tracking", "m/frame (map units in monocular)",
+            "camera displacement since the previous frame, current camera y", "identity", 0.05),
+    Channel("rel_tz", "tracking", "m/frame (map units in monocular)",
+            "camera displacement since the previous frame, current camera z", "identity", 0.05),
+    Channel("rel_roll", "tracking", "rad/frame",
+            "relative rotation since the previous frame about the optical axis z", "identity", 0.05),
+    Channel("rel_pitch", "tracking", "rad/frame",
+            "relative rotation since the previous frame about camera x", "identity", 0.05),
+    Channel("rel_yaw", "tracking", "rad/frame",
+            "relative rotation since the previous frame about camera y", "identity", 0.05),
+    Channel("avg_mp_depth", "mapping", "m (map units in monocular)",
+            "mean z of the matched map points in the current camera", "identity", 5.0),
+    Channel("var_mp_depth", "mapping", "m^2 (map units^2 in monocular)",
+            "variance of z of the matched map points in the current camera", "log1p", 2.0),
+    Channel("local_mapping_visual_error", "mapping", "px",
+            "mean reprojection error of the matched map points in the current frame "
+            "(pyorbslam3 does not expose local bundle adjustment residuals)", "log1p", 2.0),
+)
+
+CHANNEL_NAMES: tuple[str, ...] = tuple(c.name for c in CHANNELS)
+NUM_CHANNELS = len(CHANNELS)
+_INDEX = {name: i for i, name in enumerate(CHANNEL_NAMES)}
+
+#: The relative-rotation channels (rad/frame), in roll, pitch, yaw order.
+ROTATION_CHANNELS: tuple[str, str, str] = ("rel_roll", "rel_pitch", "rel_yaw")
+
+
+def index_of(name: str) -> int:
+    """Column of channel ``name`` in an RTS row."""
+    try:
+        return _INDEX[name]
+    except KeyError:
+        raise KeyError(f"unknown RTS channel {name!r}; channels are {', '.join(CHANNEL_NAMES)}") from None
+
+
+_SCALES = np.array([c.scale for c in CHANNELS], dtype=np.float64)
+_LOG1P = np.array([c.transform == "log1p" for c in CHANNELS])
+_SIGNED_LOG1P = np.array([c.transform == "signed_log1p" for c in CHANNELS])
+
+
+def normalise(rows: np.ndarray) -> np.ndarray:
+    """Normalise raw RTS rows (..., NUM_CHANNELS) for the model; NaN (no value) becomes 0."""
+    x = np.asarray(rows, dtype=np.float64)
+    if x.shape[-1] != NUM_CHANNELS:
+        raise ValueError(f"RTS rows must have {NUM_CHANNELS} channels, got shape {x.shape}")
+    out = x.copy()
+    out[..., _LOG1P] = np.log1p(np.maximum(x[..., _LOG1P], 0.0))
+    out[..., _SIGNED_LOG1P] = np.sign(x[..., _SIGNED_LOG1P]) * np.log1p(np.abs(x[..., _SIGNED_LOG1P]))
+    out /= _SCALES
+    return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)

@@ -1,0 +1,62 @@
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from seesys.config import ConfigError, load_section
+from seesys.network import load_network_config
+
+
+@dataclass(frozen=True)
+class Inner:
+    rate: float
+    names: list[str]
+
+
+@dataclass(frozen=True)
+class Outer:
+    port: int
+    inner: Inner
+    label: str | None
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    (tmp_path / "sec.toml").write_text(text)
+    return tmp_path
+
+
+def test_loads_nested_typed_values(tmp_path):
+    d = write(tmp_path, 'port = 5\nlabel = "x"\n[inner]\nrate = 2\nnames = ["a", "b"]\n')
+    cfg = load_section("sec", Outer, d)
+    assert cfg == Outer(5, Inner(2.0, ["a", "b"]), "x")
+    assert isinstance(cfg.inner.rate, float)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ('port = 5\nlabel = "x"\nextra = 1\n[inner]\nrate = 2\nnames = []\n', "unknown key(s) extra"),
+        ('label = "x"\n[inner]\nrate = 2\nnames = []\n', "missing key(s) port"),
+        ('port = 5\nlabel = "x"\n[inner]\nnames = []\n', "sec.toml.inner: missing key(s) rate"),
+        ('port = "5"\nlabel = "x"\n[inner]\nrate = 2\nnames = []\n', "sec.toml.port: expected an integer"),
+        ('port = true\nlabel = "x"\n[inner]\nrate = 2\nnames = []\n', "expected an integer"),
+        ('port = 5\nlabel = "x"\n[inner]\nrate = 2\nnames = [1]\n', "names[0]: expected str"),
+        ("port = = 5\n", "not valid TOML"),
+    ],
+)
+def test_rejects_bad_files_naming_the_problem(tmp_path, text, message):
+    d = write(tmp_path, text)
+    with pytest.raises(ConfigError) as e:
+        load_section("sec", Outer, d)
+    assert message in str(e.value)
+
+
+def test_missing_file_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_section("nope", Outer, tmp_path)
+
+
+def test_shipped_network_config_loads():
+    cfg = load_network_config()
+    assert cfg.features_endpoint.startswith("tcp://")
+    assert cfg.send_high_water_mark > 0

@@ -1,0 +1,89 @@
+import math
+import struct
+
+import numpy as np
+import pytest
+
+from slam_monitor import messages, rts_schema
+from slam_monitor.messages import Estimate, FeatureFrame, MessageError, decode, encode
+from slam_monitor.tracking_state import TrackingState
+
+
+def feature(psd=None):
+    rts = np.arange(rts_schema.NUM_CHANNELS, dtype=np.float32) * 0.5
+    return FeatureFrame("dev-1", 42, 1000.5, TrackingState.OK, rts, psd)
+
+
+def test_feature_round_trip_with_and_without_psd():
+    psd = np.zeros((96, 128, 3), np.uint8)
+    psd[10:20, 30:40, 1] = 255
+    for msg in (feature(), feature(psd)):
+        out = decode(encode(msg))
+        assert out.device_id == "dev-1" and out.frame_index == 42 and out.timestamp == 1000.5
+        assert out.tracking_state is TrackingState.OK
+        np.testing.assert_array_equal(out.rts, msg.rts)
+        if msg.psd is None:
+            assert out.psd is None
+        else:
+            np.testing.assert_array_equal(out.psd, psd)
+
+
+def test_estimate_round_trip_and_topic():
+    msg = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", 3.5)
+    topic, body = encode(msg)
+    assert topic == b"E/dev-1"
+    assert decode([topic, body]) == msg
+
+
+def test_mostly_zero_psd_compresses():
+    psd = np.zeros((96, 128, 3), np.uint8)
+    psd[24:72:3, 32:96:3, 0] = 40
+    _, body = encode(feature(psd))
+    assert len(body) < psd.nbytes / 10
+
+
+@pytest.mark.parametrize(
+    "mangle, message",
+    [
+        (lambda t, b: [t, b[:-3]], "truncated"),
+        (lambda t, b: [t, b + b"x"], "trailing"),
+        (lambda t, b: [t, b"JUNK" + b[4:]], "magic"),
+        (lambda t, b: [t, b[:4] + bytes([99]) + b[5:]], "protocol version 99"),
+        (lambda t, b: [t, b[:5] + bytes([7]) + b[6:]], "unknown message kind"),
+        (lambda t, b: [b"F/other", b], "does not match"),
+        (lambda t, b: [t], "expected 2 message parts"),
+    ],
+)
+def test_malformed_messages_raise_message_error(mangle, message):
+    topic, body = encode(feature())
+    with pytest.raises(MessageError, match=message):
+        decode(mangle(topic, body))
+
+
+def test_wrong_channel_count_and_bad_values_are_rejected():
+    topic, body = encode(feature())
+    head = 4 + 1 + 1 + 1 + len(b"dev-1") + 16
+    wrong = body[:head] + struct.pack("<bH", 2, 3) + body[head + 3:]
+    with pytest.raises(MessageError, match="channels"):
+        decode([topic, wrong])
+    bad_state = body[:head] + struct.pack("<b", 9) + body[head + 1:]
+    with pytest.raises(MessageError, match="tracking state"):
+        decode([topic, bad_state])
+    t, b = encode(Estimate("d", 1, 1.0, 0.01, "m"))
+    with pytest.raises(MessageError, match="non-negative"):
+        decode([t, b.replace(struct.pack("<d", 0.01), struct.pack("<d", -1.0))])
+    with pytest.raises(MessageError, match="not finite"):
+        decode([t, b.replace(struct.pack("<d", 1.0), struct.pack("<d", math.nan))])
+
+
+def test_psd_that_lies_about_its_shape_is_rejected():
+    psd = np.ones((4, 4, 3), np.uint8)
+    topic, body = encode(feature(psd))
+    i = body.index(struct.pack("<HHH", 4, 4, 3))
+    lying = body[:i] + struct.pack("<HHH", 5, 4, 3) + body[i + 6:]
+    with pytest.raises(MessageError, match="PSD"):
+        decode([topic, lying])
+
+
+def test_protocol_constants():
+    assert messages.PROTOCOL_VERSION == 1
