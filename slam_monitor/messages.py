@@ -8,7 +8,7 @@ device. The body is little-endian binary:
 followed by the kind's payload:
 
 - :class:`FeatureFrame`: ``i8 tracking state | u16 C + C × f32 RTS row | u8 has_psd``
-  and, when has_psd, ``u16 H | u16 W | u16 L | u32 n + n bytes zlib(PSD)``.
+  and, when has_psd, the PSD as :func:`pack_psd` writes it (``u16 H | u16 W | u16 L | u32 n + n bytes``).
 - :class:`Estimate`: ``f64 error (m) | f64 server time (ms) | u8 len + model version (utf-8)``.
 
 :func:`decode` validates everything (magic, version, kind, lengths, channel count, shape, finiteness) and raises
@@ -90,11 +90,7 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
         if message.psd is None:
             parts.append(b"\x00")
         else:
-            psd = np.ascontiguousarray(message.psd, dtype=np.uint8)
-            if psd.ndim != 3:
-                raise ValueError(f"PSD must be (H, W, L), got shape {psd.shape}")
-            packed = zlib.compress(psd.tobytes(), _PSD_LEVEL)
-            parts += [b"\x01", _PSD_HEAD.pack(*psd.shape, len(packed)), packed]
+            parts += [b"\x01", pack_psd(message.psd)]
         return [FEATURE_TOPIC + message.device_id.encode("utf-8"), b"".join(parts)]
     if isinstance(message, Estimate):
         body = b"".join([_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_ESTIMATE), device, ident,
@@ -165,6 +161,40 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     return Estimate(device_id, frame_index, timestamp, error_m, model_version, server_ms)
 
 
+def pack_psd(psd: np.ndarray) -> bytes:
+    """The compressed form of a PSD matrix (H, W, L) uint8, as carried in a :class:`FeatureFrame` and in the
+    session's PSD log: ``u16 H | u16 W | u16 L | u32 n | n bytes zlib(layer-planar bytes)``.
+
+    The layers are compressed one after the other (L, H, W) rather than interleaved: each layer is mostly zeros
+    with runs of similar values, which deflate finds far better than in interleaved pixels.
+    """
+    psd = np.asarray(psd)
+    if psd.ndim != 3 or psd.dtype != np.uint8:
+        raise ValueError(f"PSD must be (H, W, L) uint8, got {psd.dtype} {psd.shape}")
+    packed = zlib.compress(np.ascontiguousarray(psd.transpose(2, 0, 1)).tobytes(), _PSD_LEVEL)
+    return _PSD_HEAD.pack(*psd.shape, len(packed)) + packed
+
+
+def _read_psd(r: _Reader) -> np.ndarray:
+    h, w, layers, n = r.unpack(_PSD_HEAD, "PSD header")
+    packed = bytes(r.take(n, "PSD"))
+    try:
+        raw = zlib.decompress(packed, bufsize=h * w * layers or 1)
+    except zlib.error as e:
+        raise MessageError(f"PSD does not decompress: {e}") from None
+    if len(raw) != h * w * layers:
+        raise MessageError(f"PSD holds {len(raw)} bytes, header says {h}x{w}x{layers}")
+    return np.frombuffer(raw, dtype=np.uint8).reshape(layers, h, w).transpose(1, 2, 0)
+
+
+def unpack_psd(data: bytes) -> np.ndarray:
+    """Inverse of :func:`pack_psd`; raises :class:`MessageError` on malformed data."""
+    r = _Reader(data)
+    psd = _read_psd(r)
+    r.finish()
+    return psd
+
+
 def _decode_feature(r: _Reader, device_id: str, frame_index: int, timestamp: float) -> FeatureFrame:
     state_value, n_channels = r.unpack(struct.Struct("<bH"), "tracking state")
     try:
@@ -178,15 +208,7 @@ def _decode_feature(r: _Reader, device_id: str, frame_index: int, timestamp: flo
     (has_psd,) = r.take(1, "PSD flag")
     psd = None
     if has_psd == 1:
-        h, w, layers, n = r.unpack(_PSD_HEAD, "PSD header")
-        packed = bytes(r.take(n, "PSD"))
-        try:
-            raw = zlib.decompress(packed, bufsize=h * w * layers or 1)
-        except zlib.error as e:
-            raise MessageError(f"PSD does not decompress: {e}") from None
-        if len(raw) != h * w * layers:
-            raise MessageError(f"PSD holds {len(raw)} bytes, header says {h}x{w}x{layers}")
-        psd = np.frombuffer(raw, dtype=np.uint8).reshape(h, w, layers)
+        psd = _read_psd(r)
     elif has_psd != 0:
         raise MessageError(f"bad PSD flag {has_psd}")
     r.finish()

@@ -1,0 +1,72 @@
+"""Sensor-input RTS channels of the gray frame SLAM tracked, and the keypoint response used by the PSD.
+
+All four channels are computed on the full-resolution 8-bit gray frame handed to ORB-SLAM3 (the authors
+downscale by 0.2 first and apply CLAHE in their dataset runner; see docs/rts-features.md):
+
+- brightness = mean gray level / 255;
+- contrast   = population standard deviation of the gray level / 255 (RMS contrast);
+- entropy    = Shannon entropy, in bits, of the 256-bin gray-level histogram;
+- laplacian  = variance of the 3×3 Laplacian ``[[0,1,0],[1,-4,1],[0,1,0]]`` of the 8-bit frame, borders
+  reflected without repeating the edge pixel (OpenCV's default), in (gray level)².
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+#: The 16 pixels of the radius-3 Bresenham circle FAST (and ORB) tests around a corner candidate, as (dx, dy).
+FAST_CIRCLE: np.ndarray = np.array(
+    [(0, -3), (1, -3), (2, -2), (3, -1), (3, 0), (3, 1), (2, 2), (1, 3),
+     (0, 3), (-1, 3), (-2, 2), (-3, 1), (-3, 0), (-3, -1), (-2, -2), (-1, -3)], dtype=np.intp)
+_RADIUS = 3
+
+
+@dataclass(frozen=True)
+class ImageFeatures:
+    brightness: float
+    contrast: float
+    entropy: float
+    laplacian: float
+
+
+def _check_gray(gray: np.ndarray) -> None:
+    if gray.ndim != 2 or gray.dtype != np.uint8:
+        raise ValueError(f"expected an (H, W) uint8 gray frame, got {gray.dtype} {gray.shape}")
+
+
+def image_features(gray: np.ndarray) -> ImageFeatures:
+    """The four sensor-input channels of one gray frame."""
+    _check_gray(gray)
+    mean, std = cv2.meanStdDev(gray)
+    hist = cv2.calcHist([gray], [0], None, [256], [0, 256]).ravel()
+    p = hist[hist > 0] / gray.size
+    _, lap_std = cv2.meanStdDev(cv2.Laplacian(gray, cv2.CV_32F, ksize=1))
+    return ImageFeatures(
+        brightness=float(mean[0, 0]) / 255.0,
+        contrast=float(std[0, 0]) / 255.0,
+        entropy=float(-(p * np.log2(p)).sum()),
+        laplacian=float(lap_std[0, 0]) ** 2,
+    )
+
+
+def keypoint_responses(gray: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """FAST-circle contrast of each keypoint: mean |I(circle pixel) − I(centre)| over the 16 FAST circle pixels.
+
+    pyorbslam3 does not expose ORB-SLAM3's keypoint responses, so they are recomputed from the image at the
+    keypoint positions (rounded to the nearest pixel, edge pixels replicated). The value is in gray levels
+    (0–255), like the FAST scores ORB-SLAM3 stores, and higher means a more distinctive corner.
+    """
+    _check_gray(gray)
+    kp = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
+    if kp.size == 0:
+        return np.zeros(0, dtype=np.float32)
+    h, w = gray.shape
+    x = np.clip(np.rint(kp[:, 0]).astype(np.intp), 0, w - 1)
+    y = np.clip(np.rint(kp[:, 1]).astype(np.intp), 0, h - 1)
+    padded = cv2.copyMakeBorder(gray, _RADIUS, _RADIUS, _RADIUS, _RADIUS, cv2.BORDER_REPLICATE)
+    centre = padded[y + _RADIUS, x + _RADIUS].astype(np.int16)
+    ring = padded[y[:, None] + _RADIUS + FAST_CIRCLE[:, 1], x[:, None] + _RADIUS + FAST_CIRCLE[:, 0]]
+    return np.abs(ring.astype(np.int16) - centre[:, None]).mean(axis=1).astype(np.float32)

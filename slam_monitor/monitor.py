@@ -1,0 +1,232 @@
+"""The RTS monitor: an observer of the device worker that turns each tracked frame into a :class:`FeatureFrame`
+(RTS row, and PSD on every tau-th frame), logs it to the session folder and publishes it on the feature stream.
+
+Threading. :meth:`RtsMonitor.on_frame` runs in the tracking loop and only hands references to a bounded queue
+(``queue_size``) with ``put_nowait``: tracking never waits for the monitor. When the queue is full the frame is
+dropped and counted. The monitor's own thread does all the work (features, PSD, logs, stream); ORB-SLAM3
+releases the GIL while it tracks, so the two run in parallel.
+
+Synchronisation. Everything in a FeatureFrame comes from one frame index: the image features from that frame's
+gray image, the tracking features from the SLAM output of the same track call, and the relative motion from
+that frame's pose and the pose of frame index − 1, which the tracking side records for every frame so that a
+dropped frame never makes the motion span two frames.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import statistics
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slam_monitor import rts_schema
+from slam_monitor.frame import Frame
+from slam_monitor.image_features import image_features, keypoint_responses
+from slam_monitor.local_map import LocalMap
+from slam_monitor.messages import FeatureFrame
+from slam_monitor.monitor_config import MonitorConfig
+from slam_monitor.psd import PsdGeometry, build_psd
+from slam_monitor.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
+from slam_monitor.slam_features import (RelativeMotion, SlamFeatures, project, relative_motion, slam_features,
+                                        to_camera)
+from slam_monitor.stream import FeaturePublisher
+from slam_monitor.tracking_state import TrackingState
+
+MONITOR_STATS_JSON = "monitor_stats.json"
+
+
+@dataclass(frozen=True)
+class MonitorInput:
+    """What the tracking loop hands to the monitor for one frame (references, no copies)."""
+
+    frame: Frame
+    state: TrackingState
+    pose_cw: np.ndarray | None
+    pose_wc: np.ndarray | None
+    prev_pose_wc: np.ndarray | None
+    num_tracked_points: int
+    keypoints: np.ndarray
+    map_points: np.ndarray
+
+
+class FeatureExtractor:
+    """Single-threaded core of the monitor: one :class:`MonitorInput` in, one :class:`FeatureFrame` out.
+
+    Holds the monitor's local map, so inputs must come in frame order.
+    """
+
+    def __init__(self, config: MonitorConfig):
+        self.config = config
+        lm = config.local_map
+        self.local_map = LocalMap(lm.voxel, lm.max_age_frames, lm.max_points)
+        self._geometry: PsdGeometry | None = None
+
+    def _psd_geometry(self, width: int, height: int) -> PsdGeometry:
+        if self._geometry is None or (self._geometry.width, self._geometry.height) != (width, height):
+            self._geometry = PsdGeometry(width, height, self.config.psd.patch_px, self.config.psd.expansion)
+        return self._geometry
+
+    def extract(self, item: MonitorInput) -> FeatureFrame:
+        frame, cfg = item.frame, self.config
+        index = frame.index
+        intr = frame.intrinsics
+        channels: dict[str, float] = dict.fromkeys(rts_schema.CHANNEL_NAMES, float("nan"))
+        channels.update(asdict(image_features(frame.gray)))
+
+        slam: SlamFeatures | None = None
+        if item.state.tracked and item.pose_cw is not None and item.pose_wc is not None:
+            self.local_map.update(item.map_points, index)
+            motion = (relative_motion(item.prev_pose_wc, item.pose_wc) if item.prev_pose_wc is not None
+                      else RelativeMotion.still())
+            slam = slam_features(
+                pose_cw=item.pose_cw, motion=motion, matched_inliers=item.num_tracked_points,
+                keypoints=item.keypoints, matched_points_w=item.map_points,
+                lost_points_w=self.local_map.lost_points(), camera_matrix=intr.matrix(),
+                width=intr.width, height=intr.height, match_gate_px=cfg.features.match_gate_px,
+                min_depth=cfg.features.min_depth)
+            channels.update(_slam_channels(slam))
+
+        psd = self._psd(item, slam) if cfg.windows.is_psd_frame(index) else None
+        rts = np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32)
+        return FeatureFrame(cfg.device_id, index, frame.timestamp, item.state, rts, psd)
+
+    def _psd(self, item: MonitorInput, slam: SlamFeatures | None) -> np.ndarray:
+        intr, cfg = item.frame.intrinsics, self.config
+        keypoints = np.asarray(item.keypoints, dtype=np.float64).reshape(-1, 2)
+        map_uv, map_z = np.zeros((0, 2)), np.zeros(0)
+        if slam is not None:
+            points_c = to_camera(self.local_map.points, item.pose_cw)
+            points_c = points_c[points_c[:, 2] > cfg.features.min_depth]
+            map_uv, map_z = project(points_c, intr.matrix()), points_c[:, 2]
+        return build_psd(
+            self._psd_geometry(intr.width, intr.height), keypoints=keypoints,
+            responses=keypoint_responses(item.frame.gray, keypoints),
+            inliers=slam.inlier_keypoints if slam is not None else np.zeros(len(keypoints), dtype=bool),
+            map_points_uv=map_uv, map_points_depth=map_z, near_depth=cfg.psd.near_depth)
+
+
+def _slam_channels(slam: SlamFeatures) -> dict[str, float]:
+    m = slam.motion
+    return {
+        "matched_inliers": slam.matched_inliers, "outliers": slam.outliers,
+        "matches_before_po": slam.matches_before_po,
+        "rel_tx": m.translation[0], "rel_ty": m.translation[1], "rel_tz": m.translation[2],
+        "rel_roll": m.roll, "rel_pitch": m.pitch, "rel_yaw": m.yaw,
+        "avg_mp_depth": slam.avg_mp_depth, "var_mp_depth": slam.var_mp_depth,
+        "local_mapping_visual_error": slam.reprojection_error_px,
+    }
+
+
+@dataclass
+class MonitorStats:
+    """What the monitor did in a session (written to ``monitor_stats.json``)."""
+
+    frames_seen: int = 0
+    frames_processed: int = 0
+    frames_dropped: int = 0
+    psd_matrices: int = 0
+    monitor_ms_mean: float = float("nan")
+    monitor_ms_median: float = float("nan")
+    monitor_ms_p90: float = float("nan")
+    stream: dict[str, Any] | None = None
+    monitor_ms: list[float] = field(default_factory=list, repr=False)
+
+    def summary(self) -> dict[str, Any]:
+        data = asdict(self)
+        del data["monitor_ms"]
+        return data
+
+
+_STOP = object()
+
+
+class RtsMonitor:
+    """Device-worker observer: ``on_frame`` from the tracking loop, ``close`` at the end of the session."""
+
+    def __init__(self, config: MonitorConfig, session_dir: Path | None = None,
+                 publisher: FeaturePublisher | None = None):
+        self.config = config
+        self.session_dir = session_dir
+        self.publisher = publisher
+        self.stats = MonitorStats()
+        self._extractor = FeatureExtractor(config)
+        self._rts_log = RtsCsvWriter(session_dir / RTS_CSV) if session_dir is not None else None
+        self._psd_log = (PsdLogWriter(session_dir / PSD_DIR, config.log.psd_chunk_records)
+                         if session_dir is not None else None)
+        self._queue: queue.Queue = queue.Queue(maxsize=config.queue_size)
+        self._last_pose: tuple[int, np.ndarray | None] = (-2, None)
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="rts-monitor", daemon=True)
+        self._thread.start()
+
+    def on_frame(self, frame: Frame, result: Any) -> None:
+        """Hand one tracked frame to the monitor thread; never blocks (drops and counts when behind).
+
+        ``result`` is the worker's per-frame track output (state, pose_cw, pose_wc, num_tracked_points,
+        keypoints, map_points).
+        """
+        self.stats.frames_seen += 1
+        state = TrackingState(int(result.state))
+        pose_wc = result.pose_wc if state.tracked else None
+        last_index, last_pose = self._last_pose
+        prev = last_pose if last_index == frame.index - 1 else None
+        self._last_pose = (frame.index, pose_wc)
+        item = MonitorInput(frame, state, result.pose_cw, pose_wc, prev, int(result.num_tracked_points),
+                            result.keypoints, result.map_points)
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self.stats.frames_dropped += 1
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is _STOP:
+                return
+            if self._error is not None:
+                continue
+            try:
+                self._process(item)
+            except BaseException as e:  # kept and re-raised by close(): the tracking loop must not die here
+                self._error = e
+
+    def _process(self, item: MonitorInput) -> None:
+        start = time.perf_counter()
+        features = self._extractor.extract(item)
+        if self._rts_log is not None:
+            self._rts_log.write(features)
+        if features.psd is not None:
+            self.stats.psd_matrices += 1
+            if self._psd_log is not None:
+                self._psd_log.write(features.frame_index, features.timestamp, features.psd)
+        if self.publisher is not None:
+            self.publisher.publish(features)
+        self.stats.monitor_ms.append((time.perf_counter() - start) * 1000.0)
+        self.stats.frames_processed += 1
+
+    def close(self) -> MonitorStats:
+        """Process what is queued, stop the thread, close logs and stream, write ``monitor_stats.json``."""
+        self._queue.put(_STOP)
+        self._thread.join()
+        for log in (self._rts_log, self._psd_log):
+            if log is not None:
+                log.close()
+        if self.publisher is not None:
+            self.stats.stream = asdict(self.publisher.stats)
+            self.publisher.close()
+        times = self.stats.monitor_ms
+        if times:
+            self.stats.monitor_ms_mean = statistics.fmean(times)
+            self.stats.monitor_ms_median = statistics.median(times)
+            self.stats.monitor_ms_p90 = float(np.percentile(times, 90))
+        if self.session_dir is not None:
+            (self.session_dir / MONITOR_STATS_JSON).write_text(json.dumps(self.stats.summary(), indent=2) + "\n")
+        if self._error is not None:
+            raise self._error
+        return self.stats

@@ -1,0 +1,148 @@
+"""The monitor's part of the session folder, written as frames come and flushed, so a crash loses nothing
+already written:
+
+- ``rts.csv``: ``frame_index, timestamp, tracking_state`` (state name) and one column per RTS channel, in
+  :mod:`slam_monitor.rts_schema` order and units; ``nan`` where a channel has no value (e.g. motion on a frame
+  without a pose).
+- ``psd/psd_NNNNNN.bin``: the PSD matrices, in chunks of ``psd_chunk_records`` records. A record is
+  ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`slam_monitor.messages.pack_psd` (zlib of the
+  layer-planar matrix, the same bytes as on the wire). A record cut short by a crash at the end of the last chunk
+  is ignored by the reader.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from seesys.errors import SeesysError
+from slam_monitor import rts_schema
+from slam_monitor.messages import FeatureFrame, MessageError, pack_psd, unpack_psd
+from slam_monitor.tracking_state import TrackingState
+
+RTS_CSV = "rts.csv"
+PSD_DIR = "psd"
+RTS_COLUMNS: tuple[str, ...] = ("frame_index", "timestamp", "tracking_state", *rts_schema.CHANNEL_NAMES)
+_RECORD = struct.Struct("<Iqd")
+
+
+class MonitorLogError(SeesysError):
+    """A monitor log in a session folder is missing or malformed."""
+
+
+class RtsCsvWriter:
+    """Appends one ``rts.csv`` row per frame."""
+
+    def __init__(self, path: Path):
+        self._file = open(path, "w", newline="")
+        self._csv = csv.writer(self._file)
+        self._csv.writerow(RTS_COLUMNS)
+        self._file.flush()
+
+    def write(self, frame: FeatureFrame) -> None:
+        values = [repr(float(v)) if math.isfinite(v) else "nan" for v in np.asarray(frame.rts, dtype=np.float64)]
+        self._csv.writerow([frame.frame_index, repr(float(frame.timestamp)), frame.tracking_state.name, *values])
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class PsdLogWriter:
+    """Appends PSD records to chunk files under ``<session>/psd/``."""
+
+    def __init__(self, folder: Path, chunk_records: int):
+        if chunk_records < 1:
+            raise ValueError("chunk_records must be >= 1")
+        self.folder = folder
+        self.chunk_records = chunk_records
+        folder.mkdir(parents=True, exist_ok=True)
+        self._file = None
+        self._records = 0
+        self._chunks = 0
+
+    def write(self, frame_index: int, timestamp: float, psd: np.ndarray) -> None:
+        if self._file is None or self._records == self.chunk_records:
+            self._next_chunk()
+        packed = pack_psd(psd)
+        self._file.write(_RECORD.pack(len(packed), frame_index, timestamp) + packed)
+        self._file.flush()
+        self._records += 1
+
+    def _next_chunk(self) -> None:
+        if self._file is not None:
+            self._file.close()
+        self._file = open(self.folder / f"psd_{self._chunks:06d}.bin", "wb")
+        self._chunks += 1
+        self._records = 0
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+
+
+@dataclass(frozen=True)
+class PsdRecord:
+    frame_index: int
+    timestamp: float
+    psd: np.ndarray
+
+
+def read_psd_log(session: Path) -> Iterator[PsdRecord]:
+    """Every PSD record of a session, in the order written."""
+    folder = Path(session) / PSD_DIR
+    if not folder.is_dir():
+        raise MonitorLogError(f"no PSD log in {session} (missing folder {folder})")
+    chunks = sorted(folder.glob("psd_*.bin"))
+    for n, chunk in enumerate(chunks):
+        data = chunk.read_bytes()
+        pos = 0
+        while pos < len(data):
+            if pos + _RECORD.size > len(data):
+                break
+            size, frame_index, timestamp = _RECORD.unpack_from(data, pos)
+            body = data[pos + _RECORD.size:pos + _RECORD.size + size]
+            if len(body) < size:
+                break
+            try:
+                yield PsdRecord(frame_index, timestamp, unpack_psd(body))
+            except MessageError as e:
+                raise MonitorLogError(f"{chunk}: bad PSD record at byte {pos}: {e}") from None
+            pos += _RECORD.size + size
+        if pos < len(data) and n != len(chunks) - 1:
+            raise MonitorLogError(f"{chunk}: truncated PSD record at byte {pos} in a chunk that is not the last")
+
+
+def read_rts_csv(session: Path) -> pd.DataFrame:
+    """``rts.csv`` of a session as a DataFrame, its columns checked against the schema."""
+    path = Path(session) / RTS_CSV
+    try:
+        table = pd.read_csv(path)
+    except FileNotFoundError:
+        raise MonitorLogError(f"no RTS log in {session} (missing {path})") from None
+    if tuple(table.columns) != RTS_COLUMNS:
+        raise MonitorLogError(f"{path}: columns {list(table.columns)} do not match RTS schema "
+                              f"v{rts_schema.SCHEMA_VERSION} ({', '.join(RTS_COLUMNS)})")
+    return table
+
+
+def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]:
+    """The session's monitor logs as :class:`FeatureFrame` records in frame order, PSD attached where logged
+    (for :func:`slam_monitor.windows.assemble_windows`)."""
+    psds = {r.frame_index: r.psd for r in read_psd_log(session)}
+    table = read_rts_csv(session)
+    rts = table[list(rts_schema.CHANNEL_NAMES)].to_numpy(dtype=np.float32)
+    for k, (index, timestamp, state) in enumerate(zip(table["frame_index"], table["timestamp"],
+                                                      table["tracking_state"])):
+        try:
+            tracking_state = TrackingState[state]
+        except KeyError:
+            raise MonitorLogError(f"{session}/{RTS_CSV}: unknown tracking state {state!r} at frame {index}") from None
+        yield FeatureFrame(device_id, int(index), float(timestamp), tracking_state, rts[k], psds.get(int(index)))

@@ -1,0 +1,128 @@
+"""Model input windows, assembled by frame index (paper §4.2.1): the one definition for device logs, the
+dataset builder and the estimator.
+
+A window ends at a frame t with index ``t % tau == 0`` (a PSD frame) and holds
+
+- the RTS rows of frames t−T+1 … t (T = ``rts_length``), in frame order, a NaN row where a frame is missing;
+- the PSD matrices of frames t−(K_L−1)·tau, …, t−tau, t (K_L = ``psd_samples``, tau = ``psd_stride``).
+
+Rows and matrices are looked up by frame index, never "the latest of each": a window is only emitted when its
+end frame is tracked, every PSD sample is present, and at most ``max_missing_rts`` of the T rows are missing
+or untracked. (The authors pair the newest RTS window with the newest PSD window, unsynchronised.)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from slam_monitor import rts_schema
+from slam_monitor.messages import FeatureFrame
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    rts_length: int
+    psd_samples: int
+    psd_stride: int
+    max_missing_rts: int
+
+    def __post_init__(self) -> None:
+        if self.rts_length < 1 or self.psd_samples < 1 or self.psd_stride < 1:
+            raise ValueError(f"window lengths must be positive: {self}")
+        if not 0 <= self.max_missing_rts < self.rts_length:
+            raise ValueError(f"max_missing_rts must be in [0, rts_length): {self}")
+
+    def is_psd_frame(self, frame_index: int) -> bool:
+        """True on the frames whose PSD is computed, logged, streamed, and that end a window."""
+        return frame_index % self.psd_stride == 0
+
+    def rts_frame_indices(self, end: int) -> np.ndarray:
+        return np.arange(end - self.rts_length + 1, end + 1)
+
+    def psd_frame_indices(self, end: int) -> np.ndarray:
+        return end - self.psd_stride * np.arange(self.psd_samples - 1, -1, -1)
+
+    @property
+    def history(self) -> int:
+        """How many frames before a window's end frame the window reaches back."""
+        return max(self.rts_length - 1, (self.psd_samples - 1) * self.psd_stride)
+
+
+def load_window_config(directory: Path | None = None) -> WindowConfig:
+    """The ``[windows]`` table of ``configs/monitor.toml``."""
+    from slam_monitor.monitor_config import load_monitor_config
+
+    return load_monitor_config(directory).windows
+
+
+@dataclass(frozen=True)
+class WindowSample:
+    """One model input: RTS rows (T, C) float32 (raw, NaN where missing) and PSD matrices (K_L, H, W, 3) uint8."""
+
+    device_id: str
+    frame_index: int
+    timestamp: float
+    rts: np.ndarray
+    rts_frame_indices: np.ndarray
+    psd: np.ndarray
+    psd_frame_indices: np.ndarray
+    missing_rts: int
+
+
+class WindowAssembler:
+    """Collects one device's feature frames and emits a :class:`WindowSample` whenever one is complete."""
+
+    def __init__(self, config: WindowConfig):
+        self.config = config
+        self._rows: dict[int, FeatureFrame] = {}
+        self._psds: dict[int, np.ndarray] = {}
+
+    def add(self, frame: FeatureFrame) -> WindowSample | None:
+        """Store ``frame``; return the window ending at it when it ends one and the window is complete."""
+        index = frame.frame_index
+        self._rows[index] = frame
+        if frame.psd is not None:
+            self._psds[index] = frame.psd
+        sample = self._window(frame) if self.config.is_psd_frame(index) else None
+        self._forget_before(index - self.config.history)
+        return sample
+
+    def _forget_before(self, oldest: int) -> None:
+        for store in (self._rows, self._psds):
+            for old in [i for i in store if i < oldest]:
+                del store[old]
+
+    def _window(self, end: FeatureFrame) -> WindowSample | None:
+        cfg = self.config
+        if not end.tracking_state.tracked or end.psd is None:
+            return None
+        psd_indices = cfg.psd_frame_indices(end.frame_index)
+        if any(int(i) not in self._psds for i in psd_indices):
+            return None
+        rts_indices = cfg.rts_frame_indices(end.frame_index)
+        rts = np.full((cfg.rts_length, rts_schema.NUM_CHANNELS), np.nan, dtype=np.float32)
+        missing = 0
+        for k, i in enumerate(rts_indices):
+            row = self._rows.get(int(i))
+            if row is not None:
+                rts[k] = row.rts
+            if row is None or not row.tracking_state.tracked:
+                missing += 1
+        if missing > cfg.max_missing_rts:
+            return None
+        psd = np.stack([self._psds[int(i)] for i in psd_indices])
+        return WindowSample(end.device_id, end.frame_index, end.timestamp, rts, rts_indices, psd, psd_indices,
+                            missing)
+
+
+def assemble_windows(frames: Iterable[FeatureFrame], config: WindowConfig) -> Iterator[WindowSample]:
+    """Every complete window of a recorded session, given its feature frames in frame order."""
+    assembler = WindowAssembler(config)
+    for frame in frames:
+        sample = assembler.add(frame)
+        if sample is not None:
+            yield sample
