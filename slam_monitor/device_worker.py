@@ -1,0 +1,240 @@
+"""The device's per-frame loop: frame source → pacing → ORB-SLAM3 → session files → observers.
+
+:func:`run_device_session` runs a whole session in the current process. It is normally called in a child
+process by :mod:`slam_monitor.supervisor`, because ORB-SLAM3 may exit or crash the process it runs in.
+
+Observers see every frame after it has been logged. They are built inside the worker from picklable
+:class:`ObserverSpec` records (``"package.module:factory"`` plus keyword settings), so that the supervisor can
+pass them to the child; ``factory(context, **settings)`` returns a :class:`FrameObserver`. Objects may also be
+passed directly to :func:`run_device_session` when it runs in-process.
+"""
+
+from __future__ import annotations
+
+import importlib
+import itertools
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+from seesys.config import as_dict
+from seesys.errors import SeesysError
+from slam_monitor import session
+from slam_monitor.frame import Frame
+from slam_monitor.orbslam_settings import (
+    SlamConfig,
+    SlamMode,
+    build_settings,
+    load_slam_config,
+    vocabulary_path,
+    write_settings,
+)
+from slam_monitor.sources import CameraConfig, FrameSource, SourceError, load_camera_config, open_source, parse_source_spec
+from slam_monitor.tracker import Tracker, TrackOutput
+
+
+@runtime_checkable
+class FrameObserver(Protocol):
+    """Sees every frame and what SLAM made of it, in order, in the worker process."""
+
+    def on_frame(self, frame: Frame, result: TrackOutput) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class ObserverSpec:
+    """How to build an observer in the worker: ``factory`` is ``"package.module:function"``."""
+
+    factory: str
+    settings: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SessionOptions:
+    """One device session. Picklable: it crosses to the worker process.
+
+    ``source`` is ``KIND:PATH``; ``max_frames`` stops early; ``settings_file`` replaces the generated ORB-SLAM3
+    settings; ``vocabulary`` replaces the configured vocabulary; ``pace`` overrides ``[pacing]`` of slam.toml;
+    ``config_dir`` replaces ``configs/``; ``observers`` are built in the worker (the RTS monitor is one).
+    """
+
+    source: str
+    mode: SlamMode
+    out_dir: Path
+    max_frames: int | None = None
+    settings_file: Path | None = None
+    vocabulary: Path | None = None
+    pace: bool | None = None
+    config_dir: Path | None = None
+    observers: tuple[ObserverSpec, ...] = ()
+
+
+@dataclass(frozen=True)
+class SessionContext:
+    """What an observer factory gets: the options and what the worker resolved for this session."""
+
+    options: SessionOptions
+    out_dir: Path
+    mode: SlamMode
+    intrinsics: Any
+    fps: float
+    slam_config: SlamConfig
+    camera_config: CameraConfig
+
+
+@dataclass(frozen=True)
+class SessionStarted:
+    description: str
+    frame_count: int | None
+
+
+@dataclass(frozen=True)
+class FrameTracked:
+    frame_index: int
+    tracked: bool
+
+
+@dataclass(frozen=True)
+class SessionResult:
+    out_dir: Path
+    frames: int
+    frames_tracked: int
+    has_ground_truth: bool
+
+
+ProgressEvent = SessionStarted | FrameTracked
+ProgressCallback = Callable[[ProgressEvent], None]
+
+
+def build_observer(spec: ObserverSpec, context: SessionContext) -> FrameObserver:
+    """Import ``spec.factory`` and call it with the context and the spec's settings."""
+    module_name, _, function_name = spec.factory.partition(":")
+    try:
+        factory = getattr(importlib.import_module(module_name), function_name)
+    except (ImportError, AttributeError) as e:
+        raise SeesysError(f"observer factory {spec.factory!r} cannot be loaded: {e}") from None
+    return factory(context, **spec.settings)
+
+
+class FramePacer:
+    """Holds each frame back until its timestamp, measured from the first frame, has come on the wall clock."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self._origin: tuple[float, float] | None = None
+
+    def wait(self, timestamp: float) -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if self._origin is None:
+            self._origin = (now, timestamp)
+            return
+        delay = self._origin[0] + (timestamp - self._origin[1]) - now
+        if delay > 0:
+            time.sleep(delay)
+
+
+def checked_frames(source: FrameSource, mode: SlamMode) -> Iterator[Frame]:
+    """The source's frames, checked against its intrinsics so that ORB-SLAM3 never sees a mismatched image."""
+    size = (source.intrinsics.height, source.intrinsics.width)
+    for frame in source.frames():
+        if frame.gray.shape != size:
+            raise SourceError(
+                f"frame {frame.index} is {frame.gray.shape[1]}x{frame.gray.shape[0]}, but the source's intrinsics "
+                f"are for {size[1]}x{size[0]}"
+            )
+        if mode is SlamMode.RGBD and frame.depth is None:
+            raise SourceError(f"frame {frame.index} has no depth (needed for RGB-D)")
+        yield frame
+
+
+def _settings_file(options: SessionOptions, source: FrameSource, config: SlamConfig, out_dir: Path) -> Path:
+    """The settings ORB-SLAM3 will read, saved in the session folder either way."""
+    target = out_dir / session.SETTINGS
+    if options.settings_file is not None:
+        if not options.settings_file.is_file():
+            raise SeesysError(f"ORB-SLAM3 settings file not found: {options.settings_file}")
+        target.write_bytes(options.settings_file.read_bytes())
+        return target
+    return write_settings(target, build_settings(source.intrinsics, source.fps, options.mode, config))
+
+
+def run_device_session(
+    options: SessionOptions,
+    observers: Iterable[FrameObserver] = (),
+    progress: ProgressCallback | None = None,
+) -> SessionResult:
+    """Run one session to the end of the source (or ``max_frames``) and return its counts.
+
+    Raises :class:`SeesysError` on bad input; the session files then hold every frame before the problem and
+    ``session.json`` says ``failed`` with the message.
+    """
+    slam_config = load_slam_config(options.config_dir)
+    camera_config = load_camera_config(options.config_dir)
+    spec = parse_source_spec(options.source)
+    out_dir = session.prepare_session_folder(options.out_dir)
+    with open_source(spec, camera_config, with_depth=options.mode is SlamMode.RGBD) as source:
+        vocabulary = options.vocabulary or vocabulary_path(slam_config)
+        writer = session.SessionWriter(out_dir, {
+            "source": str(spec),
+            "source_description": source.description,
+            "mode": options.mode.value,
+            "max_frames": options.max_frames,
+            "intrinsics": as_dict(source.intrinsics),
+            "fps": source.fps,
+            "vocabulary": str(vocabulary),
+            "settings_file": str(options.settings_file or session.SETTINGS),
+            "config": {"slam": as_dict(slam_config), "camera": as_dict(camera_config)},
+        })
+        active: list[FrameObserver] = []
+        try:
+            ground_truth = source.ground_truth()
+            if ground_truth is not None:
+                writer.write_ground_truth(ground_truth)
+            if progress:
+                progress(SessionStarted(source.description, _expected_frames(source, options.max_frames)))
+            settings = _settings_file(options, source, slam_config, out_dir)
+            tracker = Tracker(vocabulary, settings, options.mode, source.intrinsics)
+            context = SessionContext(options, out_dir, options.mode, source.intrinsics, source.fps, slam_config,
+                                     camera_config)
+            active = list(observers) + [build_observer(s, context) for s in options.observers]
+            pace = options.pace if options.pace is not None else slam_config.pacing.paces(options.mode)
+            pacer = FramePacer(pace)
+            try:
+                for frame in itertools.islice(checked_frames(source, options.mode), options.max_frames):
+                    pacer.wait(frame.timestamp)
+                    output = tracker.track(frame)
+                    writer.write_frame(output)
+                    for observer in active:
+                        observer.on_frame(frame, output)
+                    if progress:
+                        progress(FrameTracked(output.frame_index, output.tracked))
+            finally:
+                tracker.shutdown()
+        except SeesysError as e:
+            _close_all(active)
+            writer.finish("failed", error=str(e))
+            raise
+        except KeyboardInterrupt:
+            _close_all(active)
+            writer.finish("interrupted")
+            raise
+        _close_all(active)
+        writer.finish("completed")
+        return SessionResult(out_dir, writer.frames_written, writer.frames_tracked, ground_truth is not None)
+
+
+def _expected_frames(source: FrameSource, max_frames: int | None) -> int | None:
+    count = source.frame_count
+    if count is None:
+        return max_frames
+    return min(count, max_frames) if max_frames is not None else count
+
+
+def _close_all(observers: list[FrameObserver]) -> None:
+    for observer in observers:
+        observer.close()

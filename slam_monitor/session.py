@@ -1,0 +1,129 @@
+"""The device's session folder, written as frames come so that a crash leaves valid files.
+
+- ``session.json``: the manifest (source, mode, resolved configuration, package versions, start time, and at the
+  end the status, frame counts and any error); rewritten atomically, never half-written.
+- ``frames.csv``: ``frame_index,timestamp,state,tracked_points,track_ms`` for every frame given to SLAM.
+- ``trajectory.tum``: ``timestamp tx ty tz qx qy qz qw`` (T_world_camera) for every tracked frame.
+- ``groundtruth.tum``: the source's ground truth (T_world_camera), when it has one.
+- ``orbslam3.yaml`` (the settings used) and ``orbslam3.log`` (ORB-SLAM3's console output).
+
+Every row is flushed when written. Other parts of SEESys add their own files to the same folder.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from seesys.errors import SeesysError
+from slam_monitor.sources.base import GroundTruth
+from slam_monitor.tracker import TrackOutput
+
+MANIFEST = "session.json"
+FRAMES_CSV = "frames.csv"
+TRAJECTORY = "trajectory.tum"
+GROUND_TRUTH = "groundtruth.tum"
+SETTINGS = "orbslam3.yaml"
+SLAM_LOG = "orbslam3.log"
+FRAMES_HEADER = "frame_index,timestamp,state,tracked_points,track_ms"
+TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
+RECORDED_PACKAGES = ("seesys", "pyorbslam3", "numpy", "opencv-python-headless", "pyrealsense2", "evo", "scipy")
+
+
+def utc_now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def package_versions() -> dict[str, str]:
+    versions = {}
+    for name in RECORDED_PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
+def tum_line(timestamp: float, pose: np.ndarray) -> str:
+    """One TUM trajectory row for the 4x4 pose ``pose``."""
+    tx, ty, tz = pose[:3, 3]
+    qx, qy, qz, qw = Rotation.from_matrix(pose[:3, :3]).as_quat()
+    return f"{timestamp:.6f} {tx:.9f} {ty:.9f} {tz:.9f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}"
+
+
+def read_manifest(folder: Path) -> dict[str, Any]:
+    return json.loads((folder / MANIFEST).read_text())
+
+
+def update_manifest(folder: Path, **changes: Any) -> dict[str, Any]:
+    """Merge ``changes`` into ``session.json`` atomically (write a temporary file, then rename it)."""
+    path = folder / MANIFEST
+    manifest = json.loads(path.read_text()) if path.exists() else {}
+    manifest.update(changes)
+    temporary = path.with_suffix(".json.tmp")
+    temporary.write_text(json.dumps(manifest, indent=2, default=str) + "\n")
+    os.replace(temporary, path)
+    return manifest
+
+
+def prepare_session_folder(folder: Path) -> Path:
+    """Create ``folder``, removing the device files of an earlier session in it (other files are kept)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SeesysError(f"cannot create the session folder {folder}: {e.strerror}") from None
+    for name in (MANIFEST, FRAMES_CSV, TRAJECTORY, GROUND_TRUTH, SETTINGS, SLAM_LOG):
+        (folder / name).unlink(missing_ok=True)
+    return folder
+
+
+class SessionWriter:
+    """Appends frames to ``frames.csv`` and ``trajectory.tum`` and keeps ``session.json`` up to date."""
+
+    def __init__(self, folder: Path, manifest: dict[str, Any]):
+        self.folder = folder
+        update_manifest(folder, **manifest, status="running", start_time=utc_now(), packages=package_versions())
+        self._frames = open(folder / FRAMES_CSV, "w", encoding="ascii")
+        self._frames.write(FRAMES_HEADER + "\n")
+        self._frames.flush()
+        self._trajectory = open(folder / TRAJECTORY, "w", encoding="ascii")
+        self._trajectory.write(TUM_HEADER + "\n")
+        self._trajectory.flush()
+        self.frames_written = 0
+        self.frames_tracked = 0
+
+    def write_ground_truth(self, ground_truth: GroundTruth) -> None:
+        rows = np.column_stack([ground_truth.timestamps, ground_truth.positions, ground_truth.quaternions_xyzw])
+        np.savetxt(self.folder / GROUND_TRUTH, rows, fmt="%.9f", header=TUM_HEADER[2:])
+
+    def write_frame(self, output: TrackOutput) -> None:
+        self._frames.write(
+            f"{output.frame_index},{output.timestamp:.6f},{output.state.name},{output.num_tracked_points},"
+            f"{output.track_ms:.3f}\n"
+        )
+        self._frames.flush()
+        self.frames_written += 1
+        if output.tracked:
+            self._trajectory.write(tum_line(output.timestamp, output.pose_wc) + "\n")
+            self._trajectory.flush()
+            self.frames_tracked += 1
+
+    def finish(self, status: str, **details: Any) -> None:
+        """Close the logs and record how the session ended (``completed``, ``failed``, ``interrupted``)."""
+        self._frames.close()
+        self._trajectory.close()
+        update_manifest(
+            self.folder,
+            status=status,
+            end_time=utc_now(),
+            frames=self.frames_written,
+            frames_tracked=self.frames_tracked,
+            **details,
+        )

@@ -1,0 +1,150 @@
+"""Runs a device session in a child process and turns any way it can end into a result or a clear error.
+
+ORB-SLAM3 can take its process down: it calls ``exit`` on a settings problem and segfaults on some bad inputs.
+The session therefore runs in a ``spawn``-ed child (:func:`worker_main`) whose console output (ORB-SLAM3 prints
+a lot) goes to ``orbslam3.log`` in the session folder. The child reports progress and its outcome on a queue;
+the parent maps every ending to a :class:`SessionResult` or a :class:`SeesysError`, records crashes in
+``session.json``, and the files the child already wrote stay as they are.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import queue
+import signal
+import sys
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from seesys.errors import SeesysError
+from slam_monitor import session
+from slam_monitor.device_worker import (
+    FrameTracked,
+    ProgressCallback,
+    SessionOptions,
+    SessionResult,
+    run_device_session,
+)
+
+POLL_S = 0.2
+# ORB-SLAM3 calls exit(-1) when a required setting is missing.
+ORBSLAM_EXIT_STATUS = 255
+
+
+class WorkerCrash(SeesysError):
+    """The device worker process ended without reporting an outcome (ORB-SLAM3 exited or crashed)."""
+
+
+@dataclass(frozen=True)
+class _Failed:
+    message: str
+
+
+@dataclass(frozen=True)
+class _Finished:
+    result: SessionResult
+
+
+def _redirect_console(log_path: Path) -> None:
+    """Send this process's stdout and stderr, including the C++ library's, to ``log_path``."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+
+def worker_main(options: SessionOptions, events: multiprocessing.Queue) -> None:
+    """Child-process entry point: run the session, reporting progress and the outcome on ``events``."""
+    try:
+        options.out_dir.mkdir(parents=True, exist_ok=True)
+        _redirect_console(options.out_dir / session.SLAM_LOG)
+    except OSError as e:
+        events.put(_Failed(f"cannot write the session folder {options.out_dir}: {e.strerror}"))
+        return
+    try:
+        result = run_device_session(options, progress=events.put)
+    except SeesysError as e:
+        events.put(_Failed(str(e)))
+    except KeyboardInterrupt:
+        events.put(_Failed("interrupted"))
+    except Exception as e:  # a bug: keep the traceback in the log, report one line
+        traceback.print_exc()
+        events.put(_Failed(f"internal error in the device worker: {type(e).__name__}: {e} (traceback in "
+                           f"{options.out_dir / session.SLAM_LOG})"))
+    else:
+        events.put(_Finished(result))
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+
+
+def _last_log_line(out_dir: Path) -> str:
+    path = out_dir / session.SLAM_LOG
+    if not path.exists():
+        return ""
+    lines = [line.strip() for line in path.read_text(errors="replace").splitlines() if line.strip()]
+    return lines[-1] if lines else ""
+
+
+def _crash_message(exit_code: int, frame_index: int, out_dir: Path) -> str:
+    if exit_code < 0:
+        how = f"crashed (signal {-exit_code}, {signal.Signals(-exit_code).name})"
+    elif exit_code == ORBSLAM_EXIT_STATUS:
+        how = f"exited with status {exit_code}"
+    else:
+        how = f"ended with status {exit_code}"
+    said = _last_log_line(out_dir)
+    said = f' after printing "{said}"' if said else ""
+    return (f"ORB-SLAM3 {how}{said} at frame {frame_index}; the session files up to frame {frame_index - 1} "
+            f"are kept in {out_dir}")
+
+
+def run_supervised_session(options: SessionOptions, progress: ProgressCallback | None = None,
+                           target: Callable[[SessionOptions, multiprocessing.Queue], None] = worker_main
+                           ) -> SessionResult:
+    """Run ``options`` in a child process; ``progress`` receives the child's progress events in this process.
+
+    Raises :class:`SeesysError` with the child's message on bad input, or :class:`WorkerCrash` when the child
+    died without reporting (ORB-SLAM3 exit or segfault); the session folder keeps what was logged.
+    """
+    context = multiprocessing.get_context("spawn")
+    events: multiprocessing.Queue = context.Queue()
+    child = context.Process(target=target, args=(options, events), name="seesys-device-worker")
+    child.start()
+    next_frame = 0
+    outcome: _Failed | _Finished | None = None
+    try:
+        while outcome is None:
+            try:
+                event = events.get(timeout=POLL_S)
+            except queue.Empty:
+                if not child.is_alive():
+                    break
+                continue
+            if isinstance(event, (_Failed, _Finished)):
+                outcome = event
+            else:
+                if isinstance(event, FrameTracked):
+                    next_frame = event.frame_index + 1
+                if progress:
+                    progress(event)
+        child.join()
+    except KeyboardInterrupt:
+        child.join()  # the child got the same SIGINT and records the interruption itself
+        raise
+    finally:
+        events.close()
+    if isinstance(outcome, _Finished):
+        return outcome.result
+    if isinstance(outcome, _Failed):
+        raise SeesysError(outcome.message)
+    message = _crash_message(child.exitcode, next_frame, options.out_dir)
+    if (options.out_dir / session.MANIFEST).exists():
+        session.update_manifest(options.out_dir, status="crashed", end_time=session.utc_now(), error=message,
+                                frames=next_frame)
+    raise WorkerCrash(message)
