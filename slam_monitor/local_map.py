@@ -55,6 +55,13 @@ class LocalMap:
         self._keys, self.points, self.last_seen = keys[keep], points[keep], seen[keep]
         self._previous_update, self._latest_update = self._latest_update, frame_index
 
+    def clear(self) -> None:
+        """Forget every point (the map moved under them: loop closure, new map)."""
+        self.points = np.zeros((0, 3))
+        self.last_seen = np.zeros(0, dtype=np.int64)
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._previous_update = self._latest_update = None
+
     def lost_points(self) -> np.ndarray:
         """Points matched in the update before the latest one but not in the latest (tracks just lost)."""
         if self._previous_update is None:

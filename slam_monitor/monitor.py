@@ -25,12 +25,14 @@ from typing import Any
 
 import numpy as np
 
+from seesys.config import replace_fields
+from seesys.network import load_network_config
 from slam_monitor import rts_schema
 from slam_monitor.frame import Frame
 from slam_monitor.image_features import image_features, keypoint_responses
 from slam_monitor.local_map import LocalMap
 from slam_monitor.messages import FeatureFrame
-from slam_monitor.monitor_config import MonitorConfig
+from slam_monitor.monitor_config import MonitorConfig, load_monitor_config
 from slam_monitor.psd import PsdGeometry, build_psd
 from slam_monitor.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from slam_monitor.slam_features import (RelativeMotion, SlamFeatures, project, relative_motion, slam_features,
@@ -53,6 +55,7 @@ class MonitorInput:
     num_tracked_points: int
     keypoints: np.ndarray
     map_points: np.ndarray
+    map_changed: bool
 
 
 class FeatureExtractor:
@@ -81,6 +84,10 @@ class FeatureExtractor:
 
         slam: SlamFeatures | None = None
         if item.state.tracked and item.pose_cw is not None and item.pose_wc is not None:
+            if item.map_changed or item.prev_pose_wc is None:
+                # A loop closure or global BA moved the map, or tracking resumes (maybe in a new map): the kept
+                # point positions are stale.
+                self.local_map.clear()
             self.local_map.update(item.map_points, index)
             motion = (relative_motion(item.prev_pose_wc, item.pose_wc) if item.prev_pose_wc is not None
                       else RelativeMotion.still())
@@ -131,10 +138,13 @@ class MonitorStats:
     frames_processed: int = 0
     frames_dropped: int = 0
     psd_matrices: int = 0
+    first_timestamp: float = float("nan")
+    last_timestamp: float = float("nan")
     monitor_ms_mean: float = float("nan")
     monitor_ms_median: float = float("nan")
     monitor_ms_p90: float = float("nan")
     stream: dict[str, Any] | None = None
+    stream_kbit_per_s: float = float("nan")
     monitor_ms: list[float] = field(default_factory=list, repr=False)
 
     def summary(self) -> dict[str, Any]:
@@ -168,8 +178,7 @@ class RtsMonitor:
     def on_frame(self, frame: Frame, result: Any) -> None:
         """Hand one tracked frame to the monitor thread; never blocks (drops and counts when behind).
 
-        ``result`` is the worker's per-frame track output (state, pose_cw, pose_wc, num_tracked_points,
-        keypoints, map_points).
+        ``result`` is the worker's :class:`slam_monitor.tracker.TrackOutput`.
         """
         self.stats.frames_seen += 1
         state = TrackingState(int(result.state))
@@ -178,7 +187,7 @@ class RtsMonitor:
         prev = last_pose if last_index == frame.index - 1 else None
         self._last_pose = (frame.index, pose_wc)
         item = MonitorInput(frame, state, result.pose_cw, pose_wc, prev, int(result.num_tracked_points),
-                            result.keypoints, result.map_points)
+                            result.keypoints, result.map_points, bool(result.map_changed))
         try:
             self._queue.put_nowait(item)
         except queue.Full:
@@ -208,6 +217,9 @@ class RtsMonitor:
         if self.publisher is not None:
             self.publisher.publish(features)
         self.stats.monitor_ms.append((time.perf_counter() - start) * 1000.0)
+        if self.stats.frames_processed == 0:
+            self.stats.first_timestamp = features.timestamp
+        self.stats.last_timestamp = features.timestamp
         self.stats.frames_processed += 1
 
     def close(self) -> MonitorStats:
@@ -219,6 +231,12 @@ class RtsMonitor:
                 log.close()
         if self.publisher is not None:
             self.stats.stream = asdict(self.publisher.stats)
+            frames = self.stats.frames_processed
+            span = self.stats.last_timestamp - self.stats.first_timestamp
+            if frames > 1 and span > 0:
+                # At the camera's rate, whatever the pacing: bits over the sequence time the frames cover.
+                duration_s = span * frames / (frames - 1)
+                self.stats.stream_kbit_per_s = self.publisher.stats.wire_bytes * 8 / 1000 / duration_s
             self.publisher.close()
         times = self.stats.monitor_ms
         if times:
@@ -230,3 +248,18 @@ class RtsMonitor:
         if self._error is not None:
             raise self._error
         return self.stats
+
+
+def create_observer(context: Any, stream: bool = False, device_id: str | None = None) -> RtsMonitor:
+    """Observer factory for :class:`slam_monitor.device_worker.ObserverSpec`: a monitor logging into the
+    session folder and, when ``stream`` is true, publishing on ``features_endpoint`` of network.toml.
+    ``device_id`` replaces the one of monitor.toml."""
+    config_dir = context.options.config_dir
+    config = load_monitor_config(config_dir)
+    if device_id is not None:
+        config = replace_fields(config, device_id=device_id)
+    publisher = None
+    if stream:
+        network = load_network_config(config_dir)
+        publisher = FeaturePublisher(network.features_endpoint, network.send_high_water_mark)
+    return RtsMonitor(config, context.out_dir, publisher)

@@ -1,9 +1,50 @@
-"""Command-line wrappers for the device part (see slam_monitor/cli.py)."""
+"""``seesys monitor run``: a device session (``seesys track``) with the RTS monitor observing every frame and,
+optionally, streaming its features to the estimator."""
 
 from __future__ import annotations
 
 import argparse
+import json
+
+from slam_monitor.device_worker import ObserverSpec
+from slam_monitor.monitor import MONITOR_STATS_JSON
+from slam_monitor.tracking_commands import (add_session_arguments, format_summary, run_session_with_progress,
+                                            session_options_from_args)
+
+MONITOR_FACTORY = "slam_monitor.monitor:create_observer"
+
+
+def format_monitor_stats(stats: dict) -> str:
+    lines = [f"monitor: {stats['frames_processed']} frames processed, {stats['frames_dropped']} dropped, "
+             f"{stats['psd_matrices']} PSD matrices, {stats['monitor_ms_median']:.2f} ms/frame median "
+             f"({stats['monitor_ms_p90']:.2f} p90)"]
+    if stats["stream"] is not None:
+        lines.append(f"stream:  {stats['stream']['messages']} messages, {stats['stream_kbit_per_s']:.1f} kbit/s "
+                     f"at the camera rate, {stats['stream']['dropped']} dropped")
+    return "\n".join(lines)
+
+
+def monitor_run_command(args: argparse.Namespace) -> int:
+    observer = ObserverSpec(MONITOR_FACTORY, {"stream": args.stream, "device_id": args.device_id})
+    options = session_options_from_args(args, observers=[observer])
+    summary = run_session_with_progress(options)
+    print(format_summary(summary))
+    print(format_monitor_stats(json.loads((options.out_dir / MONITOR_STATS_JSON).read_text())))
+    print(f"session: {options.out_dir}")
+    return 0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add these commands to the ``seesys`` command line."""
+    """Add ``seesys monitor run``."""
+    monitor = subparsers.add_parser("monitor", help="the RTS monitor (runtime status + point spatial distribution)")
+    commands = monitor.add_subparsers(dest="monitor_command", metavar="COMMAND")
+    run = commands.add_parser(
+        "run", help="track with ORB-SLAM3 and run the RTS monitor beside it",
+        description="Run ORB-SLAM3 on a frame source (as `seesys track`) with the RTS monitor: writes rts.csv, "
+                    "psd/ and monitor_stats.json into the session folder and, with --stream, publishes one "
+                    "feature message per frame on features_endpoint of configs/network.toml.")
+    add_session_arguments(run)
+    run.add_argument("--stream", action="store_true",
+                     help="publish the features over ZeroMQ (the device keeps going when nobody listens)")
+    run.add_argument("--device-id", metavar="ID", help="device id on the stream (default configs/monitor.toml)")
+    run.set_defaults(func=monitor_run_command)

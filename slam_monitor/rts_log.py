@@ -64,6 +64,8 @@ class PsdLogWriter:
         self.folder = folder
         self.chunk_records = chunk_records
         folder.mkdir(parents=True, exist_ok=True)
+        for stale in folder.glob("psd_*.bin"):  # an earlier session in the same folder
+            stale.unlink()
         self._file = None
         self._records = 0
         self._chunks = 0

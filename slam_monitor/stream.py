@@ -47,6 +47,8 @@ class FeaturePublisher:
         except zmq.ZMQError as e:
             self._socket.close()
             raise StreamError(f"cannot open the feature stream on {endpoint}: {e}") from None
+        #: The endpoint actually bound (differs from ``endpoint`` when that uses a wildcard port, ``tcp://host:*``).
+        self.bound_endpoint = self._socket.getsockopt_string(zmq.LAST_ENDPOINT)
         self.stats = StreamStats()
 
     def publish(self, frame: FeatureFrame) -> None:

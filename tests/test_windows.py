@@ -1,0 +1,66 @@
+"""Window assembly by frame index: RTS rows t−T+1..t and PSDs t−(K_L−1)τ..t, never "the latest of each"."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slam_monitor import rts_schema
+from slam_monitor.messages import FeatureFrame
+from slam_monitor.tracking_state import TrackingState
+from slam_monitor.windows import WindowConfig, assemble_windows, load_window_config
+
+CFG = WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, max_missing_rts=3)
+
+
+def frame(i: int, state: TrackingState = TrackingState.OK) -> FeatureFrame:
+    """A frame whose RTS row and PSD both carry its index, so a window shows which frames it was built from."""
+    psd = np.full((96, 128, 3), i % 256, dtype=np.uint8) if i % 10 == 0 else None
+    return FeatureFrame("dev", i, 100.0 + i / 30, state, np.full(rts_schema.NUM_CHANNELS, i, dtype=np.float32), psd)
+
+
+def test_config_file_has_the_paper_windows():
+    cfg = load_window_config()
+    assert (cfg.rts_length, cfg.psd_samples, cfg.psd_stride) == (30, 4, 10)
+
+
+def test_indices():
+    assert CFG.rts_frame_indices(40).tolist() == list(range(11, 41))
+    assert CFG.psd_frame_indices(40).tolist() == [10, 20, 30, 40]
+    assert CFG.is_psd_frame(30) and not CFG.is_psd_frame(31)
+
+
+def test_windows_of_a_complete_stream():
+    samples = list(assemble_windows((frame(i) for i in range(0, 61)), CFG))
+    # the first window needs frame 0 (PSD) and rows 1..30: it ends at 30
+    assert [s.frame_index for s in samples] == [30, 40, 50, 60]
+    s = samples[-1]
+    assert s.rts.shape == (30, rts_schema.NUM_CHANNELS) and s.psd.shape == (4, 96, 128, 3)
+    np.testing.assert_array_equal(s.rts[:, 0], np.arange(31, 61))
+    assert [int(p[0, 0, 0]) for p in s.psd] == [30, 40, 50, 60]
+    assert s.timestamp == pytest.approx(102.0) and s.missing_rts == 0
+
+
+def test_missing_and_untracked_rows():
+    frames = [frame(i) for i in range(0, 61) if i not in (45, 46)]
+    frames = [frame(i, TrackingState.RECENTLY_LOST) if i == 50 else f for i, f in
+              zip([f.frame_index for f in frames], frames)]
+    s = {w.frame_index: w for w in assemble_windows(frames, CFG)}
+    assert s[60].missing_rts == 3
+    row = list(s[60].rts_frame_indices).index(45)
+    assert np.isnan(s[60].rts[row]).all()       # a missing frame is a NaN row, not its neighbour's row
+    assert 50 not in s                          # the end frame must be tracked
+
+
+def test_too_many_missing_rows_or_a_missing_psd_gives_no_window():
+    frames = [frame(i) for i in range(0, 61) if not 52 <= i <= 55]
+    assert [s.frame_index for s in assemble_windows(frames, CFG)] == [30, 40, 50]
+    frames = [frame(i) for i in range(0, 61) if i != 20]
+    assert [s.frame_index for s in assemble_windows(frames, CFG)] == [60]
+
+
+def test_rejects_inconsistent_config():
+    with pytest.raises(ValueError):
+        WindowConfig(rts_length=30, psd_samples=4, psd_stride=0, max_missing_rts=3)
+    with pytest.raises(ValueError):
+        WindowConfig(rts_length=5, psd_samples=4, psd_stride=10, max_missing_rts=5)
