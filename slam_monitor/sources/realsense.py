@@ -19,6 +19,8 @@ from slam_monitor.sources.base import DepthLimits, FrameSource, SourceError, che
 from slam_monitor.sources.settings import RealSenseSettings, RecordingSettings
 
 MS_PER_S = 1000.0
+# Frames are awaited in slices of this many ms, so that the end of a recording is noticed promptly.
+WAIT_SLICE_MS = 100
 
 
 def _rs():
@@ -47,12 +49,12 @@ class RealSenseSource(FrameSource):
     """Frames from a started ``rs.pipeline``; use :func:`open_realsense_camera` or :func:`open_realsense_recording`."""
 
     def __init__(self, pipeline, profile, image_stream: str, with_depth: bool, timeout_ms: int,
-                 depth_limits: DepthLimits, description: str, is_recording: bool):
+                 depth_limits: DepthLimits, description: str, playback=None):
         rs = _rs()
         self._pipeline = pipeline
         self._timeout_ms = timeout_ms
         self._depth_limits = depth_limits
-        self._is_recording = is_recording
+        self._playback = playback
         self.description = description
         self._stream = rs.stream.color if image_stream == "color" else rs.stream.infrared
         image_profile = profile.get_stream(self._stream, 1 if image_stream == "infrared" else -1)
@@ -67,15 +69,27 @@ class RealSenseSource(FrameSource):
             return frameset.get_color_frame()
         return frameset.get_infrared_frame(1)
 
+    def _next_frameset(self):
+        """The next frameset, or ``None`` at the end of a recording; a silent camera is an error."""
+        rs = _rs()
+        waited = 0
+        while waited < self._timeout_ms:
+            ok, frameset = self._pipeline.try_wait_for_frames(WAIT_SLICE_MS)
+            if ok:
+                return frameset
+            if self._playback is not None and self._playback.current_status() == rs.playback_status.stopped:
+                return None
+            waited += WAIT_SLICE_MS
+        if self._playback is not None:
+            return None
+        raise SourceError(f"the RealSense camera delivered no frame for {self._timeout_ms} ms (unplugged?)")
+
     def frames(self) -> Iterator[Frame]:
+        if self._playback is not None:
+            self._playback.resume()
         last_number = -1
         index = 0
-        while True:
-            ok, frameset = self._pipeline.try_wait_for_frames(self._timeout_ms)
-            if not ok:
-                if self._is_recording:
-                    return
-                raise SourceError(f"the RealSense camera delivered no frame for {self._timeout_ms} ms (unplugged?)")
+        while (frameset := self._next_frameset()) is not None:
             if self._align is not None:
                 frameset = self._align.process(frameset)
             image = self._image_frame(frameset)
@@ -133,7 +147,7 @@ def open_realsense_camera(serial: str, settings: RealSenseSettings, depth_limits
                           f"@{settings.fps}: {e}") from None
     name = profile.get_device().get_info(rs.camera_info.name)
     return RealSenseSource(pipeline, profile, settings.stream, depth, settings.frame_timeout_ms, depth_limits,
-                           f"RealSense {name} ({profile.get_device().get_info(rs.camera_info.serial_number)})", False)
+                           f"RealSense {name} ({profile.get_device().get_info(rs.camera_info.serial_number)})")
 
 
 def open_realsense_recording(path: Path, preferred_stream: str, settings: RecordingSettings,
@@ -152,6 +166,8 @@ def open_realsense_recording(path: Path, preferred_stream: str, settings: Record
         raise SourceError(f"cannot play RealSense recording {path}: {e}") from None
     playback = profile.get_device().as_playback()
     playback.set_real_time(settings.real_time)
+    # Held until frames() is iterated: in real time, frames played while SLAM starts up would be lost.
+    playback.pause()
     recorded = {p.stream_type() for p in profile.get_streams()}
     fallback = "infrared" if preferred_stream == "color" else "color"
     stream_of = {"color": rs.stream.color, "infrared": rs.stream.infrared}
@@ -163,4 +179,4 @@ def open_realsense_recording(path: Path, preferred_stream: str, settings: Record
         pipeline.stop()
         raise SourceError(f"RealSense recording {path} has no depth stream (needed for RGB-D)")
     return RealSenseSource(pipeline, profile, image_stream, with_depth, settings.frame_timeout_ms, depth_limits,
-                           f"RealSense recording {path}", True)
+                           f"RealSense recording {path}", playback)
