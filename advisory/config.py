@@ -1,0 +1,113 @@
+"""The advisory's settings: ``configs/advisory.toml`` as typed, frozen dataclasses, checked for consistency."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from seesys.config import load_section
+from seesys.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Equation2Config:
+    alpha_m: float
+    beta_m: float
+    pulses_per_metre: float
+    pulse_s: float
+    interval_s: float
+    error_resolution_m: float
+
+
+@dataclass(frozen=True)
+class RotationConfig:
+    degrees_per_step: float
+    steps_below_first_pulse: int
+    speed_resolution_deg_s: float
+    max_frame_gap_s: float
+
+
+@dataclass(frozen=True)
+class TimingConfig:
+    window_s: float
+    cadence_hz: float
+    buffer_s: float
+    stale_after_s: float
+    device_id: str
+
+    @property
+    def cadence_s(self) -> float:
+        return 1.0 / self.cadence_hz
+
+
+@dataclass(frozen=True)
+class AudioConfig:
+    sample_rate: int
+    tone_hz: float
+    level: float
+    host_api: str
+    output_device: str
+    channels: int
+    blocksize: int
+    schedule_latency_s: float
+    device_retry_s: float
+
+
+@dataclass(frozen=True)
+class HandoffConfig:
+    endpoint: str
+    poll_ms: int
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    replay_device_id: str
+    replay_model_version: str
+    replay_settle_s: float
+
+
+@dataclass(frozen=True)
+class SupervisorConfig:
+    restart_delay_s: float
+    session_folder: str
+
+
+@dataclass(frozen=True)
+class AdvisoryConfig:
+    equation2: Equation2Config
+    rotation: RotationConfig
+    timing: TimingConfig
+    audio: AudioConfig
+    handoff: HandoffConfig
+    replay: ReplayConfig
+    supervisor: SupervisorConfig
+
+
+def _check(cfg: AdvisoryConfig, where: str) -> None:
+    eq, tm, au = cfg.equation2, cfg.timing, cfg.audio
+    problems = []
+    if not 0 < eq.alpha_m < eq.beta_m:
+        problems.append(f"equation2 needs 0 < alpha_m < beta_m (got {eq.alpha_m}, {eq.beta_m})")
+    if eq.pulse_s <= 0 or eq.interval_s < 0 or eq.pulse_s + eq.interval_s > tm.buffer_s:
+        problems.append("equation2 needs pulse_s > 0, interval_s >= 0 and one pulse + interval within buffer_s")
+    positive = {"pulses_per_metre": eq.pulses_per_metre, "error_resolution_m": eq.error_resolution_m,
+                "degrees_per_step": cfg.rotation.degrees_per_step,
+                "speed_resolution_deg_s": cfg.rotation.speed_resolution_deg_s,
+                "max_frame_gap_s": cfg.rotation.max_frame_gap_s, "window_s": tm.window_s,
+                "cadence_hz": tm.cadence_hz, "stale_after_s": tm.stale_after_s, "sample_rate": au.sample_rate,
+                "tone_hz": au.tone_hz, "channels": au.channels, "blocksize": au.blocksize,
+                "schedule_latency_s": au.schedule_latency_s, "device_retry_s": au.device_retry_s}
+    problems += [f"{name} must be positive (got {value})" for name, value in positive.items() if value <= 0]
+    if tm.buffer_s > tm.cadence_s + 1e-9:
+        problems.append(f"buffer_s ({tm.buffer_s}) must not exceed the cadence period ({tm.cadence_s:.4f} s)")
+    if not 0 < au.level <= 1:
+        problems.append(f"level must be in (0, 1] (got {au.level})")
+    if problems:
+        raise ConfigError(f"{where}: " + "; ".join(problems))
+
+
+def load_advisory_config(directory: Path | None = None) -> AdvisoryConfig:
+    """Load and check ``configs/advisory.toml`` (``directory`` overrides the config folder)."""
+    cfg = load_section("advisory", AdvisoryConfig, directory)
+    _check(cfg, "advisory.toml")
+    return cfg

@@ -1,0 +1,123 @@
+"""The receiver/generator process (paper §7.2, process a).
+
+It subscribes to the condition's input (estimates, or the device's features), keeps the moving average, and every
+1/3 s (and at once when a new input changes N, see ``advisory.scheduler``) synthesises a buffer and publishes it
+to the player over the hand-off socket. It never waits on the player: PUB drops when nobody listens. Every buffer
+is logged to ``advisory.csv``; status changes and bad messages to ``advisory_events.csv``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from advisory.conditions import Condition, ConditionInput, condition_input
+from advisory.config import AdvisoryConfig
+from advisory.handoff import AudioBuffer, bind_publisher, connect_subscriber, encode_buffer
+from advisory.logs import ADVISORY_COLUMNS, ADVISORY_CSV, CsvLog, EventLog
+from advisory.scheduler import Decision, PulseScheduler
+from advisory.synth import synthesise
+from seesys.network import NetworkConfig
+from slam_monitor.messages import MessageError, decode
+
+# Bad messages: the first few are logged one by one, then one line per this many, so a broken sender cannot
+# flood the log.
+_BAD_MESSAGE_LOG_EVERY = 100
+_BAD_MESSAGES_LOGGED_IN_FULL = 10
+
+
+class Generator:
+    """One generator: sockets, scheduler and logs for a condition, run until ``stop`` is set."""
+
+    def __init__(self, cfg: AdvisoryConfig, network: NetworkConfig, condition: Condition, out: Path):
+        self._cfg = cfg
+        self._condition = condition
+        self._input: ConditionInput = condition_input(condition, cfg, network)
+        self._events = EventLog(out, "generator")
+        self._log = CsvLog(out / ADVISORY_CSV, ADVISORY_COLUMNS)
+        self._ctx = zmq.Context()
+        self._pub = bind_publisher(self._ctx, cfg.handoff.endpoint, "advisory hand-off")
+        self._sub = connect_subscriber(self._ctx, self._input.endpoint, self._input.topic, conflate=False)
+        self._scheduler = PulseScheduler(self._input.rule, cfg.timing.window_s, cfg.timing.cadence_s,
+                                         cfg.timing.stale_after_s, time.monotonic())
+        self._status = self._scheduler.status
+        self._buffers: dict[int, np.ndarray] = {}
+        self._next_id = 0
+        self._bad_messages = 0
+        self._events.event("started", f"condition={condition.value} input={self._input.endpoint} "
+                                      f"handoff={cfg.handoff.endpoint}")
+
+    def _samples(self, n: int) -> np.ndarray:
+        if n not in self._buffers:
+            self._buffers[n] = synthesise(n, self._cfg.equation2, self._cfg.audio, self._cfg.timing.buffer_s)
+        return self._buffers[n]
+
+    def _emit(self, d: Decision) -> None:
+        played = d.n_pulses if self._condition.audible else 0
+        buf = AudioBuffer(self._next_id, d.trigger, d.n_pulses, played, self._cfg.audio.sample_rate, d.time,
+                          d.time + self._cfg.audio.schedule_latency_s, d.arrival, self._samples(played))
+        self._next_id += 1
+        self._pub.send(encode_buffer(buf))
+        self._log.write(time.time(), d.time, self._condition.value, d.status, d.trigger, d.value, d.n_pulses,
+                        played, buf.buffer_id, d.arrival, buf.play_at)
+
+    def _note_status(self) -> None:
+        status = self._scheduler.status
+        if status != self._status:
+            self._events.event("input " + status, f"{self._status} -> {status} "
+                                                  f"(stale after {self._cfg.timing.stale_after_s} s)")
+            self._status = status
+
+    def _bad_message(self, error: MessageError) -> None:
+        self._bad_messages += 1
+        n = self._bad_messages
+        if n <= _BAD_MESSAGES_LOGGED_IN_FULL or n % _BAD_MESSAGE_LOG_EVERY == 0:
+            self._events.event("bad message", f"#{n}: {error}")
+
+    def _receive(self) -> None:
+        """Take every message waiting on the input socket."""
+        while True:
+            try:
+                frames = self._sub.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            arrival = time.monotonic()
+            try:
+                message = decode(frames)
+            except MessageError as e:
+                self._bad_message(e)
+                continue
+            value = self._input.sample(message)
+            if value is None or not math.isfinite(value):
+                continue
+            decision = self._scheduler.add(arrival, value)
+            self._note_status()
+            if decision is not None:
+                self._emit(decision)
+
+    def run(self, stop: threading.Event) -> None:
+        poll_s = self._cfg.handoff.poll_ms / 1000.0
+        try:
+            while not stop.is_set():
+                wait = min(max(self._scheduler.next_tick - time.monotonic(), 0.0), poll_s)
+                if self._sub.poll(int(math.ceil(wait * 1000))):
+                    self._receive()
+                now = time.monotonic()
+                if now >= self._scheduler.next_tick:
+                    self._emit(self._scheduler.tick(now))
+                    self._note_status()
+        finally:
+            self._events.event("stopped", f"{self._next_id} buffers, {self._bad_messages} bad messages")
+            self._close()
+
+    def _close(self) -> None:
+        self._sub.close()
+        self._pub.close()
+        self._ctx.term()
+        self._log.close()
+        self._events.close()

@@ -1,0 +1,170 @@
+"""The player process (paper §7.2, process b): plays the latest buffer through a ``sounddevice`` stream.
+
+A receiver thread takes buffers off the conflating SUB socket and puts the newest in a one-slot hand-off; the audio
+callback reads that slot and never waits on anything. A new buffer replaces the one playing, starting at the
+sample whose DAC time is the buffer's ``play_at`` (or as soon as possible when that is already past), so the
+cadence is exact to the sample and does not depend on the audio block size. When a buffer ends and no new one has
+come, the output is silent: a generator that stops leaves no stale advice playing.
+
+``playback.csv`` gets one row per buffer that started, with the DAC time of its first sample (the callback's
+``outputBufferDacTime`` mapped onto CLOCK_MONOTONIC). ``--capture`` also writes what the callback wrote to a WAV
+file, on the DAC's timeline: a block the audio server skipped (an xrun) is a gap of silence there, as the listener
+heard it. A stream that stops on its own (device unplugged, audio server gone) is logged and ends the process with
+status :data:`DEVICE_LOST_EXIT`; the supervisor restarts it. PortAudio cannot be closed or re-initialised once
+its JACK server has died (both calls hang), so a fresh process is the only clean way back.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from advisory.audio_device import find_output_device, open_output_stream
+from advisory.config import AdvisoryConfig
+from advisory.handoff import AudioBuffer, HandoffError, connect_subscriber, decode_buffer
+from advisory.logs import PLAYBACK_COLUMNS, PLAYBACK_CSV, CsvLog, EventLog
+from advisory.wav import DacTimelineWav
+
+DEVICE_LOST_EXIT = 3
+# The stream clock → monotonic clock offset is measured at each callback, late by however long the callback waited
+# for the CPU; the smallest recent measurement is the best. The estimate may creep up by this much per callback,
+# which follows any real drift between the clocks (ppm) while ignoring late callbacks.
+_OFFSET_CREEP_S = 1e-6
+
+
+class PlaybackState:
+    """What the receiver thread and the audio callback share; the callback only reads the one-slot hand-off."""
+
+    def __init__(self, sample_rate: int, capture: bool):
+        self.latest: AudioBuffer | None = None  # written by the receiver thread only
+        self._rate = sample_rate
+        self._current: AudioBuffer | None = None
+        self._pos = 0
+        self._capture = capture
+        self._offset = math.inf
+        self.started: deque[tuple[AudioBuffer, float]] = deque()  # (buffer, DAC time of its first sample)
+        # (DAC time of the block on the stream's own clock, which is exact to the sample, and what it holds)
+        self.blocks: deque[tuple[float, np.ndarray]] = deque()
+        self.status_flags: deque[str] = deque()
+
+    def _fill(self, out: np.ndarray, start: int, end: int) -> None:
+        cur = self._current
+        if cur is None or start >= end:
+            return
+        n = min(end - start, cur.samples.size - self._pos)
+        if n > 0:
+            out[start:start + n] = cur.samples[self._pos:self._pos + n]
+            self._pos += n
+
+    def callback(self, outdata: np.ndarray, frames: int, time_info, status) -> None:
+        self._offset = min(time.monotonic() - time_info.currentTime, self._offset + _OFFSET_CREEP_S)
+        block_dac = time_info.outputBufferDacTime + self._offset
+        out = outdata[:, 0]
+        out.fill(0.0)
+        pending = self.latest
+        switch_at = frames
+        if pending is not None and pending is not self._current:
+            switch_at = min(max(int(round((pending.play_at - block_dac) * self._rate)), 0), frames)
+        self._fill(out, 0, switch_at)
+        if switch_at < frames:
+            self._current, self._pos = pending, 0
+            self.started.append((pending, block_dac + switch_at / self._rate))
+            self._fill(out, switch_at, frames)
+        if outdata.shape[1] > 1:
+            outdata[:, 1:] = out[:, None]
+        if self._capture:
+            self.blocks.append((time_info.outputBufferDacTime, out.copy()))
+        if status:
+            self.status_flags.append(str(status))
+
+
+class Player:
+    """One player: the output stream, the hand-off receiver and the logs."""
+
+    def __init__(self, cfg: AdvisoryConfig, out: Path, capture: Path | None = None):
+        self._cfg = cfg
+        device = find_output_device(cfg.audio)
+        self._state = PlaybackState(cfg.audio.sample_rate, capture is not None)
+        self._stream = open_output_stream(cfg.audio, device, self._state.callback, lambda: None)
+        self._events = EventLog(out, "player")
+        self._log = CsvLog(out / PLAYBACK_CSV, PLAYBACK_COLUMNS)
+        self._wav = DacTimelineWav(capture, cfg.audio.sample_rate) if capture else None
+        self._ctx = zmq.Context()
+        self._sub = connect_subscriber(self._ctx, cfg.handoff.endpoint, b"", conflate=True)
+        self._receiver_notes: deque[tuple[str, str]] = deque()
+        self._device = device
+
+    def _receive(self, stop: threading.Event) -> None:
+        poll_ms = self._cfg.handoff.poll_ms
+        while not stop.is_set():
+            if not self._sub.poll(poll_ms):
+                continue
+            body = self._sub.recv()
+            try:
+                buf = decode_buffer(body)
+            except HandoffError as e:
+                self._receiver_notes.append(("bad buffer", str(e)))
+                continue
+            if buf.sample_rate != self._cfg.audio.sample_rate:
+                self._receiver_notes.append(("bad buffer", f"sample rate {buf.sample_rate} Hz, the stream runs at "
+                                                           f"{self._cfg.audio.sample_rate} Hz"))
+                continue
+            self._state.latest = buf
+
+    def _drain(self) -> None:
+        """Write what the callback and the receiver left: playback rows, captured audio, notes."""
+        state = self._state
+        while state.started:
+            buf, dac = state.started.popleft()
+            self._log.write(time.time(), buf.buffer_id, buf.time, buf.trigger, buf.n_pulses, buf.played_pulses,
+                            buf.arrival, buf.play_at, dac)
+        while state.blocks and self._wav is not None:
+            self._wav.write_at(*state.blocks.popleft())
+        flags = []
+        while state.status_flags:
+            flags.append(state.status_flags.popleft())
+        if flags:
+            self._events.event("stream status", f"{len(flags)} callback(s) flagged: {', '.join(sorted(set(flags)))}")
+        while self._receiver_notes:
+            self._events.event(*self._receiver_notes.popleft())
+
+    def run(self, stop: threading.Event) -> None:
+        """Play until ``stop`` is set; if the stream dies, log it and end the process (see the module doc)."""
+        receiver_stop = threading.Event()
+        receiver = threading.Thread(target=self._receive, args=(receiver_stop,), name="handoff-receiver",
+                                    daemon=True)
+        receiver.start()
+        self._stream.start()
+        self._events.event("started", f"device={self._device.name!r} ({self._device.host_api}) "
+                                      f"rate={self._cfg.audio.sample_rate} latency={self._stream.latency:.4f}s "
+                                      f"handoff={self._cfg.handoff.endpoint}")
+        poll_s = self._cfg.handoff.poll_ms / 1000.0
+        while not stop.wait(poll_s):
+            self._drain()
+            if not self._stream.active:
+                self._events.event("audio device lost", f"the stream on {self._device.name!r} stopped by itself")
+                self._close_files()
+                os._exit(DEVICE_LOST_EXIT)  # a normal exit would hang in Pa_Terminate (see the module doc)
+        receiver_stop.set()
+        receiver.join()
+        self._stream.stop()
+        self._stream.close()
+        self._drain()
+        self._events.event("stopped")
+        self._sub.close()
+        self._ctx.term()
+        self._close_files()
+
+    def _close_files(self) -> None:
+        self._log.close()
+        self._events.close()
+        if self._wav is not None:
+            self._wav.close()
+

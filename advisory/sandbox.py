@@ -1,0 +1,113 @@
+"""An isolated advisory set-up for tests, benchmarks and demos on a machine with no sound card.
+
+- :class:`JackDummy`: a private JACK server with the ``dummy`` backend (paced in real time, no hardware), under its
+  own server name so that it cannot clash with another JACK server on the machine. Processes find it through
+  ``JACK_DEFAULT_SERVER`` in :meth:`JackDummy.env`.
+- :func:`write_config_dir`: a copy of ``configs/`` with some keys changed (e.g. private ``ipc://`` endpoints and
+  the JACK host API), for ``SEESYS_CONFIG_DIR``.
+- :func:`process_env`: the environment of an advisory process in the sandbox.
+
+PortAudio scans devices when ``sounddevice`` is imported, so the server must run before the audio process starts;
+that is why the audio always runs in child processes here.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import time
+import uuid
+from pathlib import Path
+
+from seesys.config import CONFIG_DIR_ENV, config_dir
+from seesys.errors import SeesysError
+
+JACK_HOST_API = "JACK Audio Connection Kit"
+_JACK_WAIT_S = 5
+
+
+class JackDummy:
+    """A ``jackd -d dummy`` server of its own name, started on enter and killed (by its pid) on exit."""
+
+    def __init__(self, sample_rate: int, period: int):
+        self.name = f"seesys-{uuid.uuid4().hex[:8]}"
+        self._command = ["jackd", "-n", self.name, "--no-realtime", "-d", "dummy", "-r", str(sample_rate),
+                         "-p", str(period)]
+        self._proc: subprocess.Popen | None = None
+
+    @staticmethod
+    def available() -> bool:
+        return shutil.which("jackd") is not None and shutil.which("jack_wait") is not None
+
+    def env(self) -> dict[str, str]:
+        return {"JACK_DEFAULT_SERVER": self.name, "JACK_NO_AUDIO_RESERVATION": "1"}
+
+    def start(self) -> None:
+        if not self.available():
+            raise SeesysError("jackd is not installed (apt package jackd2)")
+        self._proc = subprocess.Popen(self._command, env={**os.environ, **self.env()}, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.PIPE)
+        ready = subprocess.run(["jack_wait", "-w", "-t", str(_JACK_WAIT_S), "-s", self.name],
+                               env={**os.environ, **self.env()}, capture_output=True, text=True)
+        if ready.returncode != 0 or self._proc.poll() is not None:
+            self.stop()
+            raise SeesysError(f"the JACK dummy server did not start: {ready.stdout.strip()} {ready.stderr.strip()}")
+
+    def stop(self) -> None:
+        if self._proc is None:
+            return
+        if self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(_JACK_WAIT_S)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+        self._proc.stderr.close()
+        self._proc = None
+
+    def __enter__(self) -> JackDummy:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def write_config_dir(destination: Path, overrides: dict[str, object]) -> Path:
+    """Copy ``configs/*.toml`` into ``destination`` with each ``key = value`` of ``overrides`` replaced.
+
+    Keys are found by name (the advisory's keys are unique across its tables); an unknown key is an error, so a
+    renamed key cannot silently leave a test on the defaults.
+    """
+    destination.mkdir(parents=True, exist_ok=True)
+    left = dict(overrides)
+    for source in sorted(config_dir().glob("*.toml")):
+        text = source.read_text()
+        for key in list(left):
+            pattern = re.compile(rf"^{re.escape(key)} = .*$", re.MULTILINE)
+            if pattern.search(text):
+                text = pattern.sub(lambda _: f"{key} = {json.dumps(left.pop(key))}", text, count=1)
+        (destination / source.name).write_text(text)
+    if left:
+        raise KeyError(f"no such configuration key(s): {', '.join(left)}")
+    return destination
+
+
+def process_env(config: Path, jack: JackDummy | None) -> dict[str, str]:
+    """The environment of an advisory process using ``config`` and, if given, the JACK server."""
+    return {**os.environ, CONFIG_DIR_ENV: str(config), **(jack.env() if jack else {})}
+
+
+def wait_for(predicate, timeout_s: float, interval_s: float = 0.05) -> bool:
+    """Poll ``predicate`` until it is true or ``timeout_s`` passes; returns its last value."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if predicate():
+            return True
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(interval_s)
