@@ -1,8 +1,8 @@
 """How many pulses a buffer holds: Equation 2 of the paper for pose-error estimates, and the study's rotation rule.
 
-Both rules compare a real-valued input against thresholds and floor a product. In binary floating point
-``250 * 0.008`` or a moving average of ``0.008`` values can land a hair below the integer it stands for, which would
-drop a pulse exactly at a threshold. The input is therefore rounded to a configured resolution (1 nm, 1e-6 °/s)
+Both rules compare a real-valued input against thresholds and floor a product. In binary floating point the mean
+of ten 0.012 m estimates is 0.011999999999999999, a hair below β, which would drop a pulse exactly at a
+threshold. The input is therefore rounded to a configured resolution (1 nm, 1e-6 °/s)
 and everything after that is exact decimal arithmetic on the shortest decimal form of each number, so the
 thresholds behave as written: ``e = 0.004`` gives 1 pulse, ``0.0039999`` gives 0, ``0.008`` gives 2, ``0.012`` gives
 3 and ``0.011999`` gives 2.

@@ -1,0 +1,190 @@
+"""The generator's logic with a simulated clock: moving average, 3 Hz cadence, prompt changes, stale input; the
+rotation speed; the offline renderer; the hand-off codec; the estimate-log reader."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from advisory.conditions import Condition, pulse_rule
+from advisory.config import load_advisory_config
+from advisory.estimate_log import read_estimate_log
+from advisory.handoff import AudioBuffer, HandoffError, decode_buffer, encode_buffer
+from advisory.render import render_estimates
+from advisory.rotation import RotationSpeed
+from advisory.scheduler import CHANGE, LIVE, STALE, TICK, WAITING, PulseScheduler
+from advisory.wav import read_wav
+from audio_fixtures import PUBLISH_HZ, pulse_onsets, pulse_trains, rotation_frame
+from seesys.errors import SeesysError
+from slam_monitor.messages import FeatureFrame
+from slam_monitor.tracking_state import TrackingState
+
+CFG = load_advisory_config()
+PERIOD = CFG.timing.cadence_s
+
+
+def scheduler(start=0.0):
+    t = CFG.timing
+    return PulseScheduler(pulse_rule(Condition.SEESYS, CFG), t.window_s, t.cadence_s, t.stale_after_s, start)
+
+
+def test_ticks_every_third_of_a_second_on_schedule_even_when_woken_late():
+    s = scheduler()
+    times = []
+    for k in range(6):
+        d = s.tick(s.next_tick + 0.004)  # the caller wakes 4 ms late
+        times.append(d.time)
+        assert d.trigger == TICK and d.status == WAITING and d.n_pulses == 0 and math.isnan(d.value)
+    assert np.allclose(np.diff(times), PERIOD)
+
+
+def test_moving_average_over_the_window_decides_n_at_the_tick():
+    s = scheduler()
+    s.tick(0.0)
+    # 0.002 for a while, then 0.006: the mean over (t − 0.33, t] crosses α after half the window.
+    for k in range(1, 10):
+        assert s.add(k / 30, 0.002) is None
+    d = s.tick(s.next_tick)
+    assert d.status == LIVE and d.value == pytest.approx(0.002) and d.n_pulses == 0
+
+
+def test_a_change_of_n_is_emitted_at_once_and_restarts_the_cadence():
+    s = scheduler()
+    s.tick(0.0)
+    t = 0.0
+    for k in range(10):
+        t = 0.01 + k / 30
+        s.add(t, 0.002)
+    changes = []
+    for k in range(10):
+        t += 1 / 30
+        d = s.add(t, 0.006)
+        if d:
+            changes.append(d)
+    assert len(changes) == 1
+    d = changes[0]
+    assert d.trigger == CHANGE and d.n_pulses == 1 and d.arrival == d.time
+    assert d.value == pytest.approx(0.004, abs=0.0005)  # the first mean that reached α
+    assert s.next_tick == pytest.approx(d.time + PERIOD)
+
+
+def test_flip_back_within_a_period_waits_for_the_tick():
+    s = scheduler()
+    s.tick(0.0)
+    first = s.add(0.1, 0.006)  # mean 0.006 → N = 1, emitted at once
+    assert first is not None and first.n_pulses == 1
+    back = s.add(0.12, 0.0)  # mean 0.003 → N = 0 would undo the change 20 ms later: left to the tick
+    assert back is None
+    d = s.tick(s.next_tick)
+    assert d.trigger == TICK and d.n_pulses == 0
+
+
+def test_slow_input_holds_the_newest_value_until_it_is_stale_then_recovers():
+    s = scheduler()
+    s.add(0.0, 0.010)
+    assert s.tick(0.5).n_pulses == 2 and s.status == LIVE  # window empty: the newest sample stands in
+    d = s.tick(1.2)
+    assert d.status == STALE and d.n_pulses == 0 and s.status == STALE
+    d = s.add(2.0, 0.010)
+    assert s.status == LIVE and d is not None and d.n_pulses == 2 and d.trigger == CHANGE
+
+
+def frame(index, t, state=TrackingState.OK, per_axis=0.01):
+    return FeatureFrame("d", index, t, state, rotation_frame(index, t, 0.0).rts + np.float32(per_axis))
+
+
+def test_rotation_speed_is_rms_of_roll_pitch_yaw_in_degrees_per_second():
+    speed = RotationSpeed(CFG.rotation)
+    assert speed.update(rotation_frame(0, 0.0, 120.0)) is None  # no previous frame
+    assert speed.update(rotation_frame(1, 1 / PUBLISH_HZ, 120.0)) == pytest.approx(120.0, rel=1e-5)
+    rts = rotation_frame(2, 0.1, 0.0).rts.copy()
+    from slam_monitor import rts_schema
+    rts[rts_schema.index_of("rel_roll")] = 0.03  # RMS of (0.03, 0, 0) = 0.03/√3 rad over 1/30 s
+    got = speed.update(FeatureFrame("test-device", 2, 2 / PUBLISH_HZ, TrackingState.OK, rts))
+    assert got == pytest.approx(math.degrees(0.03 / math.sqrt(3)) * PUBLISH_HZ, rel=1e-5)
+
+
+def test_rotation_speed_handles_untracked_frames_gaps_and_bad_values():
+    speed = RotationSpeed(CFG.rotation)
+    speed.update(frame(0, 0.0))
+    assert speed.update(frame(1, 0.033, TrackingState.LOST, per_axis=math.nan)) is None
+    # The next tracked frame's rotation spans the untracked one: Δt is from the last tracked frame.
+    assert speed.update(frame(2, 0.066)) == pytest.approx(math.degrees(0.01) / 0.066, rel=1e-4)
+    assert speed.update(frame(3, 0.066 + CFG.rotation.max_frame_gap_s + 0.01)) is None  # a pause
+    assert speed.update(frame(4, 0.0)) is None  # time went backwards (device restarted)
+    assert speed.update(frame(5, 0.033, per_axis=math.inf)) is None
+
+
+def write_log(path, timestamps, errors):
+    pd.DataFrame({"timestamp": timestamps, "error_m": errors}).to_csv(path, index=False)
+    return path
+
+
+def steps_log(tmp_path):
+    t = np.arange(0, 4, 1 / 30)
+    e = np.select([t < 1, t < 2, t < 3], [0.002, 0.006, 0.010], 0.02)
+    return write_log(tmp_path / "est.csv", t + 1000.0, e)
+
+
+def test_render_gives_the_pulses_a_listener_hears(tmp_path):
+    rate = CFG.audio.sample_rate
+    rendering = render_estimates(read_estimate_log(steps_log(tmp_path)), CFG)
+    onsets = pulse_onsets(rendering.samples, rate)
+    trains = pulse_trains(onsets, round(0.1 * rate), tolerance=0)
+    sizes = [len(t) for t in trains]
+    # Silence for the first second, then N = 1, 2, 3 as the mean crosses 4, 8 and 12 mm.
+    # (the fifth 6 mm estimate, at 1 + 4/30 s, makes five of the ten in the window).
+    assert onsets[0] / rate == pytest.approx(1.0 + 4 / 30, abs=1 / rate)
+    assert sizes == [1, 1, 1, 2, 2, 2, 3, 3, 3, 3, 3]
+    starts = np.array([t[0] for t in trains]) / rate
+    # Ticks 1/3 s apart except where a change restarted the cadence.
+    changes = [d.time for d in rendering.decisions if d.trigger == CHANGE]
+    assert len(changes) == 3
+    for a, b in zip(starts[:-1], starts[1:]):
+        assert b - a == pytest.approx(PERIOD, abs=1 / rate) or any(abs(b - c) < 1 / rate for c in changes)
+
+
+def test_cli_render_writes_a_wav(tmp_path):
+    out = tmp_path / "out.wav"
+    result = subprocess.run([sys.executable, "-m", "seesys", "advisory", "render", "--estimates",
+                             str(steps_log(tmp_path)), "--out", str(out)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "24 pulses" in result.stdout
+    x, rate = read_wav(out)
+    assert rate == CFG.audio.sample_rate and len(pulse_onsets(x, rate)) == 24
+
+
+@pytest.mark.parametrize("text, message", [
+    ("time,error\n1,0.1\n", "missing column(s) timestamp, error_m"),
+    ("timestamp,error_m\n", "no estimates"),
+    ("timestamp,error_m\n1,0.1\n2,-0.1\n", "row 3: error_m"),
+    ("timestamp,error_m\n1,0.1\n2,abc\n", "row 3: error_m"),
+    ("timestamp,error_m\n2,0.1\n1,0.1\n", "row 3: timestamps go backwards"),
+])
+def test_bad_estimate_logs_are_named_errors(tmp_path, text, message):
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    with pytest.raises(SeesysError) as e:
+        read_estimate_log(path)
+    assert message in str(e.value)
+
+
+def test_missing_estimate_log_is_a_clear_cli_error(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "seesys", "advisory", "render", "--estimates",
+                             str(tmp_path / "nope.csv"), "--out", str(tmp_path / "x.wav")], capture_output=True,
+                            text=True)
+    assert result.returncode == 2 and "seesys: error: estimate log not found" in result.stderr
+
+
+def test_handoff_buffer_round_trip_and_rejects_garbage():
+    b = AudioBuffer(7, CHANGE, 2, 2, 48000, 1.5, 1.525, 1.49, np.arange(10, dtype=np.float32))
+    back = decode_buffer(encode_buffer(b))
+    assert back.samples.tolist() == b.samples.tolist()
+    assert (back.buffer_id, back.trigger, back.n_pulses, back.play_at) == (7, CHANGE, 2, 1.525)
+    body = encode_buffer(b)
+    for bad in (body[:10], b"XXXX" + body[4:], body[:-4]):
+        with pytest.raises(HandoffError):
+            decode_buffer(bad)
