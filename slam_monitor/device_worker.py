@@ -176,35 +176,32 @@ def run_device_session(
     slam_config = load_slam_config(options.config_dir)
     camera_config = load_camera_config(options.config_dir)
     spec = parse_source_spec(options.source)
-    out_dir = session.prepare_session_folder(options.out_dir)
-    with open_source(spec, camera_config, with_depth=options.mode is SlamMode.RGBD) as source:
-        vocabulary = options.vocabulary or vocabulary_path(slam_config)
-        writer = session.SessionWriter(out_dir, {
-            "source": str(spec),
-            "source_description": source.description,
-            "mode": options.mode.value,
-            "max_frames": options.max_frames,
-            "intrinsics": as_dict(source.intrinsics),
-            "fps": source.fps,
-            "vocabulary": str(vocabulary),
-            "settings_file": str(options.settings_file or session.SETTINGS),
-            "config": {"slam": as_dict(slam_config), "camera": as_dict(camera_config)},
-        })
-        active: list[FrameObserver] = []
-        try:
+    vocabulary = options.vocabulary or vocabulary_path(slam_config)
+    writer = session.SessionWriter(session.prepare_session_folder(options.out_dir), {
+        "source": str(spec),
+        "mode": options.mode.value,
+        "max_frames": options.max_frames,
+        "vocabulary": str(vocabulary),
+        "settings_file": str(options.settings_file or session.SETTINGS),
+        "config": {"slam": as_dict(slam_config), "camera": as_dict(camera_config)},
+    })
+    active: list[FrameObserver] = []
+    try:
+        with open_source(spec, camera_config, with_depth=options.mode is SlamMode.RGBD) as source:
+            writer.describe_source(source.description, as_dict(source.intrinsics), source.fps)
             ground_truth = source.ground_truth()
             if ground_truth is not None:
                 writer.write_ground_truth(ground_truth)
             if progress:
                 progress(SessionStarted(source.description, _expected_frames(source, options.max_frames)))
-            settings = _settings_file(options, source, slam_config, out_dir)
+            settings = _settings_file(options, source, slam_config, writer.folder)
             tracker = Tracker(vocabulary, settings, options.mode, source.intrinsics)
-            context = SessionContext(options, out_dir, options.mode, source.intrinsics, source.fps, slam_config,
-                                     camera_config)
-            active = list(observers) + [build_observer(s, context) for s in options.observers]
-            pace = options.pace if options.pace is not None else slam_config.pacing.paces(options.mode)
-            pacer = FramePacer(pace)
             try:
+                context = SessionContext(options, writer.folder, options.mode, source.intrinsics, source.fps,
+                                         slam_config, camera_config)
+                active = list(observers) + [build_observer(s, context) for s in options.observers]
+                pace = options.pace if options.pace is not None else slam_config.pacing.paces(options.mode)
+                pacer = FramePacer(pace)
                 for frame in itertools.islice(checked_frames(source, options.mode), options.max_frames):
                     pacer.wait(frame.timestamp)
                     output = tracker.track(frame)
@@ -215,17 +212,17 @@ def run_device_session(
                         progress(FrameTracked(output.frame_index, output.tracked))
             finally:
                 tracker.shutdown()
-        except SeesysError as e:
-            _close_all(active)
-            writer.finish("failed", error=str(e))
-            raise
-        except KeyboardInterrupt:
-            _close_all(active)
-            writer.finish("interrupted")
-            raise
+    except SeesysError as e:
         _close_all(active)
-        writer.finish("completed")
-        return SessionResult(out_dir, writer.frames_written, writer.frames_tracked, ground_truth is not None)
+        writer.finish("failed", error=str(e))
+        raise
+    except KeyboardInterrupt:
+        _close_all(active)
+        writer.finish("interrupted")
+        raise
+    _close_all(active)
+    writer.finish("completed")
+    return SessionResult(writer.folder, writer.frames_written, writer.frames_tracked, ground_truth is not None)
 
 
 def _expected_frames(source: FrameSource, max_frames: int | None) -> int | None:

@@ -74,12 +74,15 @@ def update_manifest(folder: Path, **changes: Any) -> dict[str, Any]:
 
 
 def prepare_session_folder(folder: Path) -> Path:
-    """Create ``folder``, removing the device files of an earlier session in it (other files are kept)."""
+    """Create ``folder``, removing the device files of an earlier session in it (other files are kept).
+
+    ``orbslam3.log`` is left alone: the worker process has already started it for this session.
+    """
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise SeesysError(f"cannot create the session folder {folder}: {e.strerror}") from None
-    for name in (MANIFEST, FRAMES_CSV, TRAJECTORY, GROUND_TRUTH, SETTINGS, SLAM_LOG):
+    for name in (MANIFEST, FRAMES_CSV, TRAJECTORY, GROUND_TRUTH, SETTINGS):
         (folder / name).unlink(missing_ok=True)
     return folder
 
@@ -98,6 +101,10 @@ class SessionWriter:
         self._trajectory.flush()
         self.frames_written = 0
         self.frames_tracked = 0
+
+    def describe_source(self, description: str, intrinsics: dict[str, Any], fps: float) -> None:
+        """Record what the source turned out to be once it is open."""
+        update_manifest(self.folder, source_description=description, intrinsics=intrinsics, fps=fps)
 
     def write_ground_truth(self, ground_truth: GroundTruth) -> None:
         rows = np.column_stack([ground_truth.timestamps, ground_truth.positions, ground_truth.quaternions_xyzw])

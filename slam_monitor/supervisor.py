@@ -22,7 +22,6 @@ from pathlib import Path
 from seesys.errors import SeesysError
 from slam_monitor import session
 from slam_monitor.device_worker import (
-    FrameTracked,
     ProgressCallback,
     SessionOptions,
     SessionResult,
@@ -49,10 +48,10 @@ class _Finished:
 
 
 def _redirect_console(log_path: Path) -> None:
-    """Send this process's stdout and stderr, including the C++ library's, to ``log_path``."""
+    """Send this process's stdout and stderr, including the C++ library's, to ``log_path`` (started afresh)."""
     sys.stdout.flush()
     sys.stderr.flush()
-    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
     os.close(fd)
@@ -91,6 +90,14 @@ def _last_log_line(out_dir: Path) -> str:
     return lines[-1] if lines else ""
 
 
+def _frames_logged(out_dir: Path) -> int:
+    path = out_dir / session.FRAMES_CSV
+    if not path.exists():
+        return 0
+    with open(path, "rb") as f:
+        return max(0, sum(1 for _ in f) - 1)  # minus the header
+
+
 def _crash_message(exit_code: int, frame_index: int, out_dir: Path) -> str:
     if exit_code < 0:
         how = f"crashed (signal {-exit_code}, {signal.Signals(-exit_code).name})"
@@ -116,7 +123,6 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
     events: multiprocessing.Queue = context.Queue()
     child = context.Process(target=target, args=(options, events), name="seesys-device-worker")
     child.start()
-    next_frame = 0
     outcome: _Failed | _Finished | None = None
     try:
         while outcome is None:
@@ -128,11 +134,8 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
                 continue
             if isinstance(event, (_Failed, _Finished)):
                 outcome = event
-            else:
-                if isinstance(event, FrameTracked):
-                    next_frame = event.frame_index + 1
-                if progress:
-                    progress(event)
+            elif progress:
+                progress(event)
         child.join()
     except KeyboardInterrupt:
         child.join()  # the child got the same SIGINT and records the interruption itself
@@ -143,6 +146,8 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
         return outcome.result
     if isinstance(outcome, _Failed):
         raise SeesysError(outcome.message)
+    # The frame being processed when the process died is the first one not in frames.csv.
+    next_frame = _frames_logged(options.out_dir)
     message = _crash_message(child.exitcode, next_frame, options.out_dir)
     if (options.out_dir / session.MANIFEST).exists():
         session.update_manifest(options.out_dir, status="crashed", end_time=session.utc_now(), error=message,

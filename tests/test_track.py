@@ -1,0 +1,83 @@
+"""Real ORB-SLAM3 on the embedded sample, through the CLI and through the library's observer hook."""
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import SAMPLE, run_seesys
+
+from slam_monitor import session
+from slam_monitor.device_worker import SessionOptions, run_device_session
+from slam_monitor.orbslam_settings import SlamMode
+from slam_monitor.tracking_state import TrackingState
+from slam_monitor.trajectory_metrics import summarize_session
+
+pytestmark = pytest.mark.slam
+
+
+def test_rgbd_on_the_sample_tracks_every_frame_within_2_cm(tmp_path):
+    out = tmp_path / "rgbd"
+    result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--mode", "rgbd", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "frames:  150" in result.stdout and "SE(3) alignment" in result.stdout
+    summary = summarize_session(out, SlamMode.RGBD)
+    assert summary.frames == 150
+    assert summary.tracked_percent >= 99.0
+    assert summary.ate.rmse_m < 0.02
+    manifest = session.read_manifest(out)
+    assert manifest["status"] == "completed" and manifest["frames_tracked"] == summary.frames_tracked
+    assert manifest["config"]["slam"]["rgbd"]["th_depth"] == 20.0
+    assert (out / session.SETTINGS).read_text().count("Stereo.b: 0.08") == 1
+
+
+def test_mono_on_the_sample_initialises_and_tracks_within_5_cm_after_sim3(tmp_path):
+    out = tmp_path / "mono"
+    result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--mode", "mono", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    summary = summarize_session(out, SlamMode.MONO)
+    # monocular needs a few frames to initialise; thresholds leave room for a CPU shared with other tests
+    assert summary.tracked_percent >= 90.0
+    assert summary.ate.alignment == "Sim(3)" and summary.ate.rmse_m < 0.05
+    frames = pd.read_csv(out / session.FRAMES_CSV)
+    assert frames.state.iloc[0] == TrackingState.NOT_INITIALIZED.name
+
+
+class RecordingObserver:
+    def __init__(self):
+        self.seen = []
+        self.closed = 0
+
+    def on_frame(self, frame, result):
+        self.seen.append((frame, result))
+
+    def close(self):
+        self.closed += 1
+
+
+def test_observers_see_every_frame_with_slam_internals(tmp_path):
+    observer = RecordingObserver()
+    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, tmp_path / "s", max_frames=20)
+    result = run_device_session(options, observers=[observer])
+    assert (result.frames, observer.closed) == (20, 1)
+    assert [f.index for f, _ in observer.seen] == list(range(20))
+    frame, out = observer.seen[10]
+    assert out.frame_index == frame.index == 10 and out.timestamp == frame.timestamp
+    assert out.state is TrackingState.OK and out.tracked
+    assert out.pose_wc.shape == (4, 4)
+    np.testing.assert_allclose(out.pose_wc @ out.pose_cw, np.eye(4), atol=1e-5)
+    assert out.keypoints.dtype == np.float32 and out.keypoints.shape[1] == 2 and len(out.keypoints) > 500
+    assert out.map_points.dtype == np.float32 and out.map_points.shape[1] == 3
+    assert len(out.map_points) == pytest.approx(out.num_tracked_points, rel=0.05)
+    assert out.track_ms > 0 and isinstance(out.map_changed, bool)
+    rows = pd.read_csv(tmp_path / "s" / session.FRAMES_CSV)
+    assert list(rows.tracked_points) == [o.num_tracked_points for _, o in observer.seen]
+
+
+def test_max_frames_and_explicit_settings_file(tmp_path):
+    first = tmp_path / "first"
+    assert run_seesys("track", "--source", f"tum:{SAMPLE}", "--out", str(first), "--max-frames", "5").returncode == 0
+    again = tmp_path / "again"
+    result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--out", str(again), "--max-frames", "8",
+                        "--settings", str(first / session.SETTINGS))
+    assert result.returncode == 0, result.stderr
+    assert "frames:  8" in result.stdout
+    assert session.read_manifest(again)["settings_file"] == str(first / session.SETTINGS)

@@ -1,0 +1,84 @@
+"""ORB-SLAM3 taking the worker process down (exit status 255, SIGSEGV) becomes a clear error, and the session
+files written before it stay valid. The crash is caused inside the real worker by an observer built from a spec,
+exactly where a crash inside ORB-SLAM3's track call would happen."""
+
+import ctypes
+import os
+
+import pandas as pd
+import pytest
+from conftest import SAMPLE
+from evo.tools import file_interface
+
+from slam_monitor import session
+from slam_monitor.device_worker import ObserverSpec, SessionOptions
+from slam_monitor.orbslam_settings import SlamMode
+from slam_monitor.supervisor import WorkerCrash, run_supervised_session
+
+pytestmark = pytest.mark.slam
+
+
+class Crasher:
+    def __init__(self, at_frame, how):
+        self.at_frame, self.how = at_frame, how
+
+    def on_frame(self, frame, result):
+        if frame.index == self.at_frame - 1:  # frame at_frame - 1 is logged, frame at_frame never will be
+            print("Stereo.b required parameter does not exist, aborting...", flush=True)
+            if self.how == "exit":
+                os._exit(255)
+            ctypes.string_at(0)  # a real segmentation fault
+
+    def close(self):
+        pass
+
+
+def crasher(context, at_frame, how):
+    return Crasher(at_frame, how)
+
+
+class Counter:
+    def __init__(self, path):
+        self.path = path
+        self.count = 0
+
+    def on_frame(self, frame, result):
+        self.count += 1
+
+    def close(self):
+        self.path.write_text(str(self.count))
+
+
+def counter(context):
+    return Counter(context.out_dir / "observed.txt")
+
+
+@pytest.mark.parametrize(
+    "how, expected",
+    [("segfault", "ORB-SLAM3 crashed (signal 11, SIGSEGV)"), ("exit", "ORB-SLAM3 exited with status 255")],
+)
+def test_crash_is_a_clear_error_and_keeps_the_logged_frames(tmp_path, how, expected):
+    out = tmp_path / "s"
+    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out,
+                             observers=(ObserverSpec("test_track_isolation:crasher", {"at_frame": 6, "how": how}),))
+    with pytest.raises(WorkerCrash) as error:
+        run_supervised_session(options)
+    message = str(error.value)
+    assert message.startswith(expected)
+    assert 'after printing "Stereo.b required parameter does not exist, aborting..."' in message
+    assert f"at frame 6; the session files up to frame 5 are kept in {out}" in message
+    frames = pd.read_csv(out / session.FRAMES_CSV)
+    assert list(frames.frame_index) == list(range(6))
+    assert file_interface.read_tum_trajectory_file(str(out / session.TRAJECTORY)).num_poses == 6
+    manifest = session.read_manifest(out)
+    assert (manifest["status"], manifest["error"], manifest["frames"]) == ("crashed", message, 6)
+
+
+def test_observer_specs_are_built_in_the_worker(tmp_path):
+    out = tmp_path / "s"
+    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out, max_frames=7,
+                             observers=(ObserverSpec("test_track_isolation:counter"),))
+    events = []
+    result = run_supervised_session(options, progress=events.append)
+    assert result.frames == 7 and (out / "observed.txt").read_text() == "7"
+    assert events[0].frame_count == 7 and [e.frame_index for e in events[1:]] == list(range(7))
