@@ -18,7 +18,6 @@ import os
 import re
 import shutil
 import subprocess
-import time
 import uuid
 from pathlib import Path
 
@@ -101,13 +100,3 @@ def process_env(config: Path, jack: JackDummy | None) -> dict[str, str]:
     """The environment of an advisory process using ``config`` and, if given, the JACK server."""
     return {**os.environ, CONFIG_DIR_ENV: str(config), **(jack.env() if jack else {})}
 
-
-def wait_for(predicate, timeout_s: float, interval_s: float = 0.05) -> bool:
-    """Poll ``predicate`` until it is true or ``timeout_s`` passes; returns its last value."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        if predicate():
-            return True
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(interval_s)

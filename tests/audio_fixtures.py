@@ -45,9 +45,11 @@ class Sandbox:
     def __init__(self, jack: JackDummy | None, **overrides: object):
         self.root = Path(tempfile.mkdtemp(prefix="sadv", dir="/tmp"))
         self.session = self.root / "session"
+        self.estimates_endpoint = f"ipc://{self.root}/estimates"
+        self.features_endpoint = f"ipc://{self.root}/features"
         settings = {"host_api": JACK_HOST_API if jack else "", "endpoint": f"ipc://{self.root}/handoff",
-                    "estimates_endpoint": f"ipc://{self.root}/estimates",
-                    "features_endpoint": f"ipc://{self.root}/features", **overrides}
+                    "estimates_endpoint": self.estimates_endpoint, "features_endpoint": self.features_endpoint,
+                    **overrides}
         self.config_dir = write_config_dir(self.root / "configs", settings)
         self.cfg: AdvisoryConfig = load_advisory_config(self.config_dir)
         self.env = process_env(self.config_dir, jack)

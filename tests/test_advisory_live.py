@@ -1,0 +1,183 @@
+"""The two advisory processes on a real sounddevice stream under a JACK dummy server (paced in real time), fed
+real Estimate and FeatureFrame messages over real ZeroMQ sockets; the player tees what its callback wrote."""
+
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from advisory.player import DEVICE_LOST_EXIT
+from advisory.process import advisory_command
+from advisory.pulses import error_pulses
+from advisory.sandbox import JackDummy
+from audio_fixtures import (Publisher, estimate_message, jack, make_sandbox, pulse_onsets,  # noqa: F401
+                            pulse_trains, rotation_frame, run_lengths, wait_started)
+
+pytestmark = pytest.mark.audio
+
+
+def trains_of(sandbox, capture="capture.wav"):
+    """Pulse trains in the captured audio (one per buffer), every pulse of a train exactly p + i after the one
+    before, and their sizes. Trains cut short are left out: a buffer replaced by a change less than a period after
+    it started, and the last one (the player was stopped)."""
+    x, rate = sandbox.capture(capture)
+    spacing = round((sandbox.cfg.equation2.pulse_s + sandbox.cfg.equation2.interval_s) * rate)
+    trains = pulse_trains(pulse_onsets(x, rate), spacing, tolerance=1)
+    period = round(sandbox.cfg.timing.cadence_s * rate)
+    whole = [t for t, following in zip(trains[:-1], trains[1:]) if following[0] - t[0] >= period - 0.005 * rate]
+    return whole, [len(t) for t in whole], rate
+
+
+def start_both(sandbox, condition="seesys"):
+    player = sandbox.player()
+    wait_started(sandbox, "player")
+    generator = sandbox.generator(condition)
+    wait_started(sandbox, "generator")
+    return player, generator
+
+
+def test_pulses_follow_the_estimate_and_go_silent_when_it_stops(jack, make_sandbox):
+    sandbox = make_sandbox(jack, stale_after_s=0.6)
+    start_both(sandbox)
+    with Publisher(sandbox.estimates_endpoint, estimate_message) as pub:
+        for value in (0.002, 0.006, 0.010, 0.020, None, 0.006):
+            pub.value = value
+            time.sleep(1.4)
+    time.sleep(0.5)
+    sandbox.stop_all()
+
+    trains, sizes, rate = trains_of(sandbox)
+    # N follows Equation 2 on the moving average: nothing at 2 mm, then 1, 2, 3 pulses per buffer; silence while
+    # the estimates stop; 1 again when they come back.
+    assert run_lengths(sizes) == [1, 2, 3, 1], sizes
+    assert sizes.count(1) >= 5 and sizes.count(2) >= 3 and sizes.count(3) >= 3
+    starts = np.array([t[0] for t in trains]) / rate
+    longest_silence = np.diff(starts).max()
+    # 1.4 s without estimates; the last value stands in for 0.6 s (stale_after_s), then silence until they return.
+    assert longest_silence > 1.4 - 0.6
+
+    advisory, playback, events = sandbox.advisory(), sandbox.playback(), sandbox.events()
+    assert advisory.buffer_id.tolist() == list(range(len(advisory)))  # every buffer logged
+    assert set(advisory.condition) == {"seesys"}
+    live = advisory[advisory.status == "live"]
+    eq, buffer_s = sandbox.cfg.equation2, sandbox.cfg.timing.buffer_s
+    assert live.n_pulses.tolist() == [error_pulses(e, eq, buffer_s) for e in live.input_value]
+    assert (advisory[advisory.status == "stale"].n_pulses == 0).all()
+    assert list(events[events.event.str.startswith("input")].event) == ["input live", "input stale", "input live"]
+    # The player started every buffer it received within a block of the time it was scheduled for.
+    late_ms = (playback.dac_mono - playback.play_at_mono) * 1000
+    assert (late_ms.abs() < 1000 * sandbox.cfg.audio.blocksize / sandbox.cfg.audio.sample_rate).mean() > 0.9
+    ticks = playback[playback.trigger == "tick"].dac_mono.to_numpy()
+    assert np.median(np.diff(ticks)) == pytest.approx(1 / 3, abs=0.001)
+
+
+def test_rotation_condition_counts_pulses_from_the_angular_speed(jack, make_sandbox):
+    sandbox = make_sandbox(jack)
+    start_both(sandbox, "rotation")
+    with Publisher(sandbox.features_endpoint, rotation_frame) as pub:
+        for speed in (80.0, 120.0, 170.0, 400.0):
+            pub.value = speed
+            time.sleep(1.2)
+    sandbox.stop_all()
+    _, sizes, _ = trains_of(sandbox)
+    assert run_lengths(sizes) == [1, 2, 3], sizes  # 80 °/s: none; 120: 1; 170: 2; 400: capped at 3
+    advisory = sandbox.advisory()
+    live = advisory[advisory.status == "live"]
+    assert set(advisory.condition) == {"rotation"}
+    assert live.input_value.max() == pytest.approx(400.0, rel=1e-3)
+
+
+def test_none_condition_is_silent_but_logs_what_it_would_have_played(jack, make_sandbox):
+    sandbox = make_sandbox(jack)
+    start_both(sandbox, "none")
+    with Publisher(sandbox.estimates_endpoint, estimate_message) as pub:
+        pub.value = 0.010
+        time.sleep(1.5)
+    sandbox.stop_all()
+    x, rate = sandbox.capture()
+    assert x.size > rate and len(pulse_onsets(x, rate)) == 0
+    advisory = sandbox.advisory()
+    assert (advisory.played_pulses == 0).all() and (advisory[advisory.status == "live"].n_pulses == 2).all()
+    assert (advisory.status == "live").sum() >= 3
+
+
+def test_each_process_survives_the_others_restart(jack, make_sandbox):
+    sandbox = make_sandbox(jack)
+    player, generator = start_both(sandbox)
+    with Publisher(sandbox.estimates_endpoint, estimate_message) as pub:
+        pub.value = 0.010  # N = 2
+        time.sleep(1.5)
+        generator.kill()  # no goodbye: SIGKILL
+        generator.wait()
+        time.sleep(1.0)
+        assert player.poll() is None
+        sandbox.generator()
+        wait_started(sandbox, "generator", count=2)
+        time.sleep(1.5)
+        player.kill()
+        player.wait()
+        rows_before = len(sandbox.advisory())
+        time.sleep(1.0)
+        assert len(sandbox.advisory()) > rows_before  # the generator kept going without a player
+        sandbox.player(capture="capture2.wav", name="player2")
+        wait_started(sandbox, "player", count=2)
+        time.sleep(1.5)
+    sandbox.stop_all()
+    trains, sizes, rate = trains_of(sandbox)
+    starts = np.array([t[0] for t in trains]) / rate
+    gap = np.argmax(np.diff(starts))
+    assert np.diff(starts)[gap] > 1.0  # silence while the generator was down ...
+    assert set(sizes) == {2} and gap >= 2 and len(sizes) - gap - 1 >= 2  # ... 2 pulses before and after
+    _, sizes2, _ = trains_of(sandbox, "capture2.wav")
+    assert set(sizes2) == {2} and len(sizes2) >= 3  # the restarted player plays the running generator's buffers
+
+
+def test_supervisor_restarts_a_killed_process_and_stops_cleanly(jack, make_sandbox):
+    sandbox = make_sandbox(jack, restart_delay_s=0.3)
+    run = sandbox.start("run", "--condition", "seesys", "--out", str(sandbox.session), name="run")
+    wait_started(sandbox, "player")
+    wait_started(sandbox, "generator")
+    events = sandbox.events()
+    player_pid = int(events[events.process.str.startswith("player[")].process.iloc[0][7:-1])
+    os.kill(player_pid, signal.SIGKILL)
+    wait_started(sandbox, "player", count=2)
+    events = sandbox.events()
+    assert "player exited" in set(events.event) and "player restarted" in set(events.event)
+    run.send_signal(signal.SIGTERM)
+    assert run.wait(15) == 0
+    events = sandbox.events()
+    stopped = set(events[events.event == "stopped"].process.str.split("[").str[0])
+    assert stopped == {"generator", "player", "supervisor"}
+
+
+def test_lost_audio_device_is_logged_and_ends_the_player(make_sandbox):
+    if not JackDummy.available():
+        pytest.skip("jackd is not installed")
+    with JackDummy(48000, 256) as server:
+        sandbox = make_sandbox(server)
+        player = sandbox.player()
+        wait_started(sandbox, "player")
+    # The server is gone: the stream stops by itself.
+    assert player.wait(10) == DEVICE_LOST_EXIT
+    events = sandbox.events()
+    assert "audio device lost" in set(events.event)
+
+
+def test_missing_audio_device_is_a_clear_error_at_start(make_sandbox, tmp_path):
+    # An ALSA null PCM as the only device (no sound card, no JACK): a named device that does not exist fails at
+    # once with a one-line message listing what there is.
+    (tmp_path / "alsa").mkdir()
+    (tmp_path / "alsa" / "asoundrc").write_text("pcm.!default {\n    type null\n}\n")
+    sandbox = make_sandbox(None, output_device="headphones")
+    sandbox.env["XDG_CONFIG_HOME"] = str(tmp_path)
+    sandbox.env["JACK_DEFAULT_SERVER"] = "no-such-server"
+    for args in (["player", "--out", str(sandbox.session)], ["run", "--condition", "seesys", "--out",
+                                                            str(sandbox.session)]):
+        result = subprocess.run(advisory_command(*args), env=sandbox.env, capture_output=True, text=True,
+                                timeout=60)
+        assert result.returncode == 2, result.stderr
+        assert "seesys: error: audio output device 'headphones' not found" in result.stderr
+        assert "'default'" in result.stderr and "Traceback" not in result.stderr
