@@ -92,7 +92,7 @@ def format_summary(summary: SessionSummary) -> str:
         lines.append(f"ATE:     {summary.ate.rmse_m * CM_PER_M:.2f} cm RMSE ({summary.ate.alignment} alignment, "
                      f"{summary.ate.pairs} poses, scale {summary.ate.scale:.3f})")
     else:
-        lines.append("ATE:     n/a (no ground truth, or fewer than 3 tracked poses)")
+        lines.append("ATE:     n/a (no ground truth, or too few tracked poses to align)")
     return "\n".join(lines)
 
 

@@ -41,8 +41,10 @@ class SessionSummary:
 
 
 def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode) -> AteResult | None:
-    """ATE of ``estimate`` against ``ground_truth`` (TUM files), or ``None`` with fewer than 3 pairs."""
+    """ATE of ``estimate`` against ``ground_truth`` (TUM files), or ``None`` when it cannot be aligned: fewer than
+    3 pairs, or positions on a line (a short straight path), for which Umeyama's alignment is undetermined."""
     from evo.core import metrics, sync
+    from evo.core.geometry import GeometryException
     from evo.tools import file_interface
 
     try:
@@ -57,7 +59,10 @@ def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode
         return None
     aligned = copy.deepcopy(estimated)
     with_scale = mode is SlamMode.MONO
-    _, _, scale = aligned.align(reference, correct_scale=with_scale)
+    try:
+        _, _, scale = aligned.align(reference, correct_scale=with_scale)
+    except GeometryException:
+        return None
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((reference, aligned))
     return AteResult(float(ape.get_statistic(metrics.StatisticsType.rmse)), aligned.num_poses,

@@ -78,3 +78,19 @@ def test_corrupt_files_are_rejected(tmp_path, text, message):
     path.write_text(text)
     with pytest.raises(VocabularyError, match=message):
         validate_vocabulary(path)
+
+
+@pytest.mark.slam
+def test_cli_trained_vocabulary_loads_into_orbslam3_and_tracks(small_tum, tmp_path):
+    from conftest import run_seesys
+
+    vocabulary = tmp_path / "voc.txt"
+    trained = run_seesys("vocab", "train", "--source", f"tum:{small_tum}", "--out", str(vocabulary), "--levels", "3")
+    assert trained.returncode == 0, trained.stderr
+    assert "k=10, L=3" in trained.stdout and "trained on 12 images" in trained.stdout
+    assert validate_vocabulary(vocabulary).levels == 3
+    out = tmp_path / "s"
+    tracked = run_seesys("track", "--source", f"tum:{small_tum}", "--out", str(out), "--vocabulary", str(vocabulary))
+    assert tracked.returncode == 0, tracked.stderr
+    assert "tracked: 12 (100.0 %)" in tracked.stdout
+    assert "Vocabulary loaded" in (out / "orbslam3.log").read_text()

@@ -130,14 +130,15 @@ def open_realsense_camera(serial: str, settings: RealSenseSettings, depth_limits
         raise SourceError("no RealSense camera connected")
     if serial and serial not in serials:
         raise SourceError(f"no RealSense camera with serial {serial} connected (connected: {', '.join(serials)})")
+    if with_depth and not settings.depth:
+        raise SourceError("RGB-D mode needs depth, but configs/camera.toml has realsense.depth = false")
     config = rs.config()
     if serial:
         config.enable_device(serial)
     index = 1 if settings.stream == "infrared" else -1
     stream = rs.stream.color if settings.stream == "color" else rs.stream.infrared
     config.enable_stream(stream, index, settings.width, settings.height, _image_format(rs, settings.stream), settings.fps)
-    depth = with_depth and settings.depth
-    if depth:
+    if with_depth:
         config.enable_stream(rs.stream.depth, settings.width, settings.height, rs.format.z16, settings.fps)
     pipeline = rs.pipeline()
     try:
@@ -146,7 +147,7 @@ def open_realsense_camera(serial: str, settings: RealSenseSettings, depth_limits
         raise SourceError(f"cannot start the RealSense camera with {settings.stream} {settings.width}x{settings.height}"
                           f"@{settings.fps}: {e}") from None
     name = profile.get_device().get_info(rs.camera_info.name)
-    return RealSenseSource(pipeline, profile, settings.stream, depth, settings.frame_timeout_ms, depth_limits,
+    return RealSenseSource(pipeline, profile, settings.stream, with_depth, settings.frame_timeout_ms, depth_limits,
                            f"RealSense {name} ({profile.get_device().get_info(rs.camera_info.serial_number)})")
 
 
