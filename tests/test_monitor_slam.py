@@ -128,6 +128,17 @@ def test_rgbd_session_logs_and_streams_every_frame(tmp_path):
     assert len(list(assemble_windows(logged.values(), monitor.config.windows))) >= 8
 
 
+def configs_with_endpoint(tmp_path: Path, endpoint: str) -> Path:
+    """A copy of configs/ whose network.toml puts the feature stream on ``endpoint``."""
+    configs = tmp_path / "configs"
+    shutil.copytree(config_dir(), configs)
+    network = (configs / "network.toml").read_text().splitlines()
+    (configs / "network.toml").write_text("\n".join(
+        f'features_endpoint = "{endpoint}"' if line.startswith("features_endpoint") else line for line in network)
+        + "\n")
+    return configs
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -135,13 +146,8 @@ def _free_port() -> int:
 
 
 def test_monitor_run_command_mono_with_stream(tmp_path):
-    configs = tmp_path / "configs"
-    shutil.copytree(config_dir(), configs)
     endpoint = f"tcp://127.0.0.1:{_free_port()}"
-    network = (configs / "network.toml").read_text()
-    (configs / "network.toml").write_text(
-        "\n".join(f'features_endpoint = "{endpoint}"' if line.startswith("features_endpoint") else line
-                  for line in network.splitlines()) + "\n")
+    configs = configs_with_endpoint(tmp_path, endpoint)
     collector = Collector(endpoint)
     collector.start()
     out = tmp_path / "mono"
@@ -159,3 +165,16 @@ def test_monitor_run_command_mono_with_stream(tmp_path):
     # correlation.
     check_session(out, min_tracked=0.3, min_rotation_corr=None)
     assert collector.frames and {f.device_id for f in collector.frames} == {"phone-1"}
+
+
+def test_stream_endpoint_in_use_is_a_one_line_error(tmp_path):
+    squatter = FeaturePublisher("tcp://127.0.0.1:*", send_high_water_mark=1)
+    configs = configs_with_endpoint(tmp_path, squatter.bound_endpoint)
+    run = subprocess.run(
+        [sys.executable, "-m", "seesys", "monitor", "run", "--source", f"tum:{SAMPLE}", "--out", str(tmp_path / "s"),
+         "--max-frames", "5", "--stream"],
+        capture_output=True, text=True, timeout=300, env={**os.environ, "SEESYS_CONFIG_DIR": str(configs)})
+    squatter.close()
+    assert run.returncode == 2
+    assert run.stderr.strip().splitlines()[-1].startswith("seesys: error: cannot open the feature stream on")
+    assert "Traceback" not in run.stderr

@@ -1,0 +1,183 @@
+"""RTS monitor overhead, in the layout of paper Table 4: the same sequence tracked by ORB-SLAM3 alone, with the
+monitor, and with the monitor streaming to a listening subscriber.
+
+Each run is a fresh worker process (``run_device_session``, paced at the camera rate as on a device). A sampler
+thread reads the worker's CPU % (of one core; 200 % = two cores busy) and resident memory with psutil while it
+tracks; per-frame tracking latency is ``track_ms`` of ``frames.csv``; the monitor's own time per frame and the
+stream's bandwidth come from ``monitor_stats.json``. Configurations alternate run by run so that slow drifts in
+machine load hit all of them alike.
+
+    .venv/bin/python benchmarks/monitor_overhead.py [--source tum:data/sample] [--mode rgbd] [--runs 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import statistics
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import psutil
+from rich.console import Console
+from rich.table import Table
+
+from seesys.network import load_network_config
+from slam_monitor.device_worker import ObserverSpec, SessionOptions, run_device_session
+from slam_monitor.monitor import MONITOR_STATS_JSON
+from slam_monitor.monitor_commands import MONITOR_FACTORY
+from slam_monitor.orbslam_settings import SlamMode
+from slam_monitor.session import FRAMES_CSV
+from slam_monitor.stream import FeatureSubscriber
+
+REPO = Path(__file__).resolve().parent.parent
+CONFIGURATIONS = {
+    "SLAM": None,
+    "SLAM+RTS": {"stream": False},
+    "SLAM+RTS+stream": {"stream": True},
+}
+SAMPLE_PERIOD_S = 0.1
+
+
+@dataclass
+class Measurements:
+    cpu_percent: list[float] = field(default_factory=list)
+    memory_mb: list[float] = field(default_factory=list)
+    track_ms: list[float] = field(default_factory=list)
+    monitor: list[dict] = field(default_factory=list)
+    received: int = 0
+
+
+def _worker(options: SessionOptions) -> None:
+    # ORB-SLAM3 prints to stdout and stderr: keep the benchmark's output readable (a failing worker is reported
+    # by its exit code; `seesys monitor run` on the same source shows the message).
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.dup2(devnull, 2)
+    run_device_session(options)
+
+
+def _sample(pid: int, frames_csv: Path, into: Measurements, done: threading.Event) -> None:
+    """CPU % and RSS of the worker from its first tracked frame (vocabulary loading and imports excluded)."""
+    process = psutil.Process(pid)
+    while not done.is_set() and not (frames_csv.is_file() and frames_csv.read_text().count("\n") > 1):
+        time.sleep(0.01)
+    try:
+        process.cpu_percent(None)
+        while not done.wait(SAMPLE_PERIOD_S):
+            into.cpu_percent.append(process.cpu_percent(None))
+            into.memory_mb.append(process.memory_info().rss / 2**20)
+    except psutil.NoSuchProcess:
+        pass
+
+
+def _listen(endpoint: str, into: Measurements, done: threading.Event) -> None:
+    subscriber = FeatureSubscriber(endpoint)
+    while not done.is_set():
+        if subscriber.receive(timeout_ms=100) is not None:
+            into.received += 1
+    subscriber.close()
+
+
+def run_once(name: str, source: str, mode: SlamMode, max_frames: int | None, into: Measurements) -> None:
+    settings = CONFIGURATIONS[name]
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "session"
+        observers = (ObserverSpec(MONITOR_FACTORY, settings),) if settings is not None else ()
+        options = SessionOptions(source=source, mode=mode, out_dir=out, max_frames=max_frames, pace=True,
+                                 observers=observers)
+        done = threading.Event()
+        listener = None
+        if settings and settings["stream"]:
+            listener = threading.Thread(target=_listen, args=(load_network_config().features_endpoint, into, done))
+            listener.start()
+        worker = multiprocessing.get_context("spawn").Process(target=_worker, args=(options,))
+        worker.start()
+        sampler = threading.Thread(target=_sample, args=(worker.pid, out / FRAMES_CSV, into, done))
+        sampler.start()
+        worker.join()
+        done.set()
+        sampler.join()
+        if listener is not None:
+            listener.join()
+        if worker.exitcode != 0:
+            raise SystemExit(f"{name}: the worker failed (exit code {worker.exitcode})")
+        into.track_ms += pd.read_csv(out / FRAMES_CSV)["track_ms"].tolist()
+        if settings is not None:
+            into.monitor.append(json.loads((out / MONITOR_STATS_JSON).read_text()))
+
+
+def _ratio(value: float, base: float) -> str:
+    return f"{value:.1f} ({(value / base - 1) * 100:+.1f} %)"
+
+
+def report(results: dict[str, Measurements], console: Console) -> dict:
+    table = Table(title="RTS monitor overhead (paper Table 4 layout)")
+    table.add_column("Metric")
+    for name in results:
+        table.add_column(name, justify="right")
+    rows = {
+        "Average CPU usage (%)": lambda m: statistics.fmean(m.cpu_percent),
+        "Median CPU usage (%)": lambda m: statistics.median(m.cpu_percent),
+        "Average memory usage (MB)": lambda m: statistics.fmean(m.memory_mb),
+        "Median memory usage (MB)": lambda m: statistics.median(m.memory_mb),
+        "Average tracking latency (ms)": lambda m: statistics.fmean(m.track_ms),
+        "Median tracking latency (ms)": lambda m: statistics.median(m.track_ms),
+    }
+    base = results["SLAM"]
+    figures: dict = {}
+    for label, metric in rows.items():
+        values = {name: metric(m) for name, m in results.items()}
+        figures[label] = values
+        table.add_row(label, *[f"{values['SLAM']:.1f}" if name == "SLAM" else _ratio(v, metric(base))
+                               for name, v in values.items()])
+    console.print(table)
+    for name, m in results.items():
+        if not m.monitor:
+            continue
+        ms = [s["monitor_ms_median"] for s in m.monitor]
+        p90 = [s["monitor_ms_p90"] for s in m.monitor]
+        dropped = sum(s["frames_dropped"] for s in m.monitor)
+        processed = sum(s["frames_processed"] for s in m.monitor)
+        line = (f"{name}: monitor {np.median(ms):.2f} ms/frame median (p90 {np.median(p90):.2f}), "
+                f"{processed} frames processed, {dropped} dropped")
+        figures[name] = {"monitor_ms_median": float(np.median(ms)), "monitor_ms_p90": float(np.median(p90)),
+                         "frames_dropped": dropped, "frames_processed": processed}
+        streams = [s for s in m.monitor if s["stream"] is not None]
+        if streams:
+            kbit = [s["stream_kbit_per_s"] for s in streams]
+            sent = sum(s["stream"]["messages"] for s in streams)
+            line += f"; stream {np.mean(kbit):.1f} kbit/s, {sent} messages sent, {m.received} received"
+            figures[name].update(stream_kbit_per_s=float(np.mean(kbit)), messages_sent=sent, received=m.received)
+        console.print(line)
+    return figures
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--source", default=f"tum:{REPO / 'data' / 'sample'}", help="KIND:PATH (default the sample)")
+    parser.add_argument("--mode", choices=[m.value for m in SlamMode], default=SlamMode.RGBD.value)
+    parser.add_argument("--runs", type=int, default=3, help="runs per configuration (alternating)")
+    parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--json", type=Path, help="also write the figures to this file")
+    args = parser.parse_args()
+    console = Console()
+    results = {name: Measurements() for name in CONFIGURATIONS}
+    for run in range(args.runs):
+        for name in CONFIGURATIONS:
+            console.print(f"run {run + 1}/{args.runs}: {name}")
+            run_once(name, args.source, SlamMode(args.mode), args.max_frames, results[name])
+    figures = report(results, console)
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
