@@ -22,7 +22,7 @@ from typing import Any, Protocol, runtime_checkable
 from seesys.config import as_dict
 from seesys.errors import SeesysError
 from slam_monitor import session
-from slam_monitor.frame import Frame
+from slam_monitor.frame import Frame, Intrinsics
 from slam_monitor.orbslam_settings import (
     SlamConfig,
     SlamMode,
@@ -79,7 +79,7 @@ class SessionContext:
     options: SessionOptions
     out_dir: Path
     mode: SlamMode
-    intrinsics: Any
+    intrinsics: Intrinsics
     fps: float
     slam_config: SlamConfig
     camera_config: CameraConfig

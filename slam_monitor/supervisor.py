@@ -15,7 +15,6 @@ import queue
 import signal
 import sys
 import traceback
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -111,9 +110,7 @@ def _crash_message(exit_code: int, frame_index: int, out_dir: Path) -> str:
             f"are kept in {out_dir}")
 
 
-def run_supervised_session(options: SessionOptions, progress: ProgressCallback | None = None,
-                           target: Callable[[SessionOptions, multiprocessing.Queue], None] = worker_main
-                           ) -> SessionResult:
+def run_supervised_session(options: SessionOptions, progress: ProgressCallback | None = None) -> SessionResult:
     """Run ``options`` in a child process; ``progress`` receives the child's progress events in this process.
 
     Raises :class:`SeesysError` with the child's message on bad input, or :class:`WorkerCrash` when the child
@@ -121,7 +118,7 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
     """
     context = multiprocessing.get_context("spawn")
     events: multiprocessing.Queue = context.Queue()
-    child = context.Process(target=target, args=(options, events), name="seesys-device-worker")
+    child = context.Process(target=worker_main, args=(options, events), name="seesys-device-worker")
     child.start()
     outcome: _Failed | _Finished | None = None
     try:

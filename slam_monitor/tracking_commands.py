@@ -14,6 +14,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from seesys.config import replace_fields
 from slam_monitor.device_worker import FrameTracked, ObserverSpec, SessionOptions, SessionStarted
 from slam_monitor.orbslam_settings import SlamMode, load_slam_config
 from slam_monitor.sources import load_camera_config, open_source, parse_source_spec, source_kinds_help
@@ -67,7 +68,7 @@ def run_session_with_progress(options: SessionOptions, console: Console | None =
     console = console or Console(stderr=True)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("tracked {task.fields[tracked]}"), TimeElapsedColumn(), console=console,
-                  transient=True) as bar:
+                  transient=True, disable=not console.is_terminal) as bar:
         task = bar.add_task("starting ORB-SLAM3", total=None, tracked=0)
         tracked = 0
 
@@ -110,14 +111,14 @@ def vocab_train_command(args: argparse.Namespace) -> int:
     slam_config = load_slam_config()
     training = slam_config.vocabulary_training
     if args.branching or args.levels:
-        training = vocabulary.TrainingConfig(args.branching or training.branching, args.levels or training.levels,
-                                             training.max_iterations, training.frame_step, training.seed)
+        training = replace_fields(training, branching=args.branching or training.branching,
+                                  levels=args.levels or training.levels)
     orb = slam_config.orb
     extractor = vocabulary.orb_extractor(orb.features, orb.scale_factor, orb.levels, orb.ini_fast_threshold)
     console = Console(stderr=True)
     with open_source(parse_source_spec(args.source), load_camera_config(), with_depth=False) as source:
         with Progress(TextColumn("extracting ORB features"), BarColumn(), MofNCompleteColumn(), console=console,
-                      transient=True) as bar:
+                      transient=True, disable=not console.is_terminal) as bar:
             total = min(filter(None, (source.frame_count, args.max_frames)), default=None)
             frames = bar.track(itertools.islice(source.frames(), args.max_frames), total=total)
             descriptors = vocabulary.extract_descriptors(frames, extractor, training.frame_step)

@@ -14,19 +14,10 @@ CALIBRATION_FILE = "calibration.yaml"
 
 @dataclass(frozen=True)
 class FileSourceDefaults:
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    distortion: tuple[float, ...]
+    intrinsics: Intrinsics
     fps: float
     depth_units_per_metre: float
     association_max_dt_s: float
-
-    def intrinsics(self) -> Intrinsics:
-        return Intrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy, _distortion(self.distortion))
 
 
 @dataclass(frozen=True)
@@ -79,7 +70,7 @@ def folder_calibration(folder: Path, defaults: FileSourceDefaults) -> FolderCali
     """The calibration of a dataset folder: its ``calibration.yaml`` if present, else the configured defaults."""
     path = folder / CALIBRATION_FILE
     if not path.is_file():
-        return FolderCalibration(defaults.intrinsics(), None, defaults.depth_units_per_metre)
+        return FolderCalibration(defaults.intrinsics, None, defaults.depth_units_per_metre)
     import yaml
 
     try:
