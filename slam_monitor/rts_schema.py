@@ -8,6 +8,8 @@ order, units or meaning change so that old logs and models are recognised as inc
 Conventions (the authors' code differs; see docs/rts-features.md):
 
 - Image features are computed on the gray frame SLAM tracks, at full resolution, intensities scaled to [0, 1].
+- Every value of a row comes from the same frame index (see slam_monitor/monitor.py); channels without a value on
+  a frame (tracking and mapping channels on a frame without a tracked pose) are NaN.
 - Relative motion is of the current frame t with respect to the previous tracked frame t−1:
   R_rel = R_wc(t−1)ᵀ · R_wc(t), and the translation is the camera displacement c(t) − c(t−1) expressed in the
   current camera frame, R_wc(t)ᵀ · (c(t) − c(t−1)). Camera axes are ORB-SLAM3's optical frame (x right,
@@ -54,9 +56,10 @@ CHANNELS: tuple[Channel, ...] = (
     Channel("matched_inliers", "tracking", "count",
             "map-point matches kept after pose optimisation", "identity", 500.0),
     Channel("outliers", "tracking", "count",
-            "map-point matches rejected by pose optimisation", "identity", 100.0),
+            "proxy for matches rejected by pose optimisation: non-inlier keypoints onto which a map point "
+            "matched in the previous frame projects within the match gate", "identity", 100.0),
     Channel("matches_before_po", "tracking", "count",
-            "map-point matches before pose optimisation", "identity", 500.0),
+            "proxy for map-point matches before pose optimisation: matched_inliers + outliers", "identity", 500.0),
     Channel("rel_tx", "tracking", "m/frame (map units in monocular)",
             "camera displacement since the previous frame, current camera x", "identity", 0.05),
     Channel("rel_ty", "tracking", "m/frame (map units in monocular)",
