@@ -120,22 +120,27 @@ def build_observer(spec: ObserverSpec, context: SessionContext) -> FrameObserver
 
 
 class FramePacer:
-    """Holds each frame back until its timestamp, measured from the first frame, has come on the wall clock."""
+    """Feeds frames no faster than the camera took them: consecutive frames are at least their timestamp
+    difference apart on the wall clock.
+
+    Spacing is measured from the previous frame's feed, not from a fixed origin, so a slow frame is never followed
+    by a burst of catch-up frames: monocular ORB-SLAM3's local mapping falls behind under exactly such bursts
+    (and on a busy CPU), and tracking degrades. Sources that a clock already paces (a live camera, real-time
+    playback) are not paced again.
+    """
 
     def __init__(self, enabled: bool):
         self.enabled = enabled
-        self._origin: tuple[float, float] | None = None
+        self._previous: tuple[float, float] | None = None  # (wall time fed, frame timestamp)
 
     def wait(self, timestamp: float) -> None:
         if not self.enabled:
             return
-        now = time.perf_counter()
-        if self._origin is None:
-            self._origin = (now, timestamp)
-            return
-        delay = self._origin[0] + (timestamp - self._origin[1]) - now
-        if delay > 0:
-            time.sleep(delay)
+        if self._previous is not None:
+            delay = self._previous[0] + (timestamp - self._previous[1]) - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+        self._previous = (time.perf_counter(), timestamp)
 
 
 def checked_frames(source: FrameSource, mode: SlamMode) -> Iterator[Frame]:
@@ -201,7 +206,7 @@ def run_device_session(
                                          slam_config, camera_config)
                 active = list(observers) + [build_observer(s, context) for s in options.observers]
                 pace = options.pace if options.pace is not None else slam_config.pacing.paces(options.mode)
-                pacer = FramePacer(pace)
+                pacer = FramePacer(pace and not source.paced_by_clock)
                 for frame in itertools.islice(checked_frames(source, options.mode), options.max_frames):
                     pacer.wait(frame.timestamp)
                     output = tracker.track(frame)

@@ -2,11 +2,12 @@
 through the same pipeline code as a live camera."""
 
 import dataclasses
+import shutil
 import time
 
 import numpy as np
 import pytest
-from conftest import record_realsense, run_seesys, sample_frames
+from conftest import REPO, record_realsense, run_seesys, sample_frames
 
 from slam_monitor.sources import SourceError, load_camera_config, open_source, parse_source_spec
 
@@ -72,12 +73,18 @@ def test_live_camera_missing_is_a_clear_error():
 
 @pytest.mark.slam
 def test_track_cli_on_a_recording_tracks_like_the_dataset(tmp_path):
-    # recorded like a 30 fps camera and played in real time (configs/camera.toml), as a camera would deliver it
-    path = record_realsense(tmp_path / "walk.db3", sample_frames(45), push_period_s=1 / 30)
+    path = record_realsense(tmp_path / "walk.db3", sample_frames(45))
+    # as-fast-as-possible playback (configs/camera.toml [recording]) keeps the test independent of CPU load;
+    # real-time playback is covered above
+    configs = tmp_path / "configs"
+    shutil.copytree(REPO / "configs", configs)
+    camera = configs / "camera.toml"
+    camera.write_text(camera.read_text().replace("real_time = true", "real_time = false"))
     out = tmp_path / "session"
-    result = run_seesys("track", "--source", f"rsbag:{path}", "--mode", "rgbd", "--out", str(out))
+    result = run_seesys("track", "--source", f"rsbag:{path}", "--mode", "rgbd", "--out", str(out),
+                        env={"SEESYS_CONFIG_DIR": str(configs)})
     assert result.returncode == 0, result.stderr
     rows = (out / "frames.csv").read_text().splitlines()[1:]
-    assert len(rows) >= 30  # a busy CPU may drop frames in real-time playback, as with a camera
+    assert len(rows) >= 44  # the first frameset of a .db3 may be dropped by pipeline playback
     assert sum(",OK," in row for row in rows) >= 0.95 * len(rows)
     assert f"frames:  {len(rows)}" in result.stdout

@@ -108,3 +108,16 @@ def test_config_with_a_missing_key(tmp_path):
     slam.write_text(slam.read_text().replace("th_depth = 20.0\n", ""))
     result = track(f"tum:{SAMPLE}", tmp_path / "s", env={"SEESYS_CONFIG_DIR": str(configs)})
     assert_one_line_error(result, "slam.toml.rgbd: missing key(s) th_depth")
+
+
+def test_calibration_that_does_not_fit_the_images(tmp_path):
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for n in range(3):
+        shutil.copyfile(next(SAMPLE.glob("rgb/*.jpg")), folder / f"{n}.jpg")
+    (folder / "timestamps.txt").write_text("".join(f"{n / 30:.6f} {n}.jpg\n" for n in range(3)))
+    (folder / "calibration.yaml").write_text("width: 320\nheight: 240\nfx: 260.0\nfy: 260.0\ncx: 160.0\ncy: 120.0\n")
+    out = tmp_path / "s"
+    result = run_seesys("track", "--source", f"images:{folder}", "--mode", "mono", "--out", str(out))
+    line = assert_one_line_error(result, "frame 0 is 640x480, but the source's intrinsics are for 320x240")
+    assert_failed_session(out, 0, line)

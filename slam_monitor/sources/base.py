@@ -35,7 +35,8 @@ class FrameSource(abc.ABC):
     """One stream of frames with fixed intrinsics.
 
     ``fps`` is the nominal frame rate (ORB-SLAM3's ``Camera.fps``); ``has_depth`` says whether frames carry
-    metric depth; ``frame_count`` is the number of frames when known in advance (files), else ``None``.
+    metric depth; ``frame_count`` is the number of frames when known in advance (files), else ``None``;
+    ``paced_by_clock`` says whether frames come at camera rate by themselves.
     Use as a context manager, or call :meth:`close`.
     """
 
@@ -47,6 +48,11 @@ class FrameSource(abc.ABC):
     @property
     def frame_count(self) -> int | None:
         return None
+
+    @property
+    def paced_by_clock(self) -> bool:
+        """True when frames arrive at camera rate by themselves (a live camera, real-time playback)."""
+        return False
 
     def ground_truth(self) -> GroundTruth | None:
         """Ground-truth camera poses when the source has them."""

@@ -69,6 +69,10 @@ class RealSenseSource(FrameSource):
             return frameset.get_color_frame()
         return frameset.get_infrared_frame(1)
 
+    @property
+    def paced_by_clock(self) -> bool:
+        return self._playback is None or self._playback.is_real_time()
+
     def _next_frameset(self):
         """The next frameset, or ``None`` at the end of a recording; a silent camera is an error."""
         rs = _rs()
