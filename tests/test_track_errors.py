@@ -37,9 +37,16 @@ def track(source, out, *extra, env=None):
     return run_seesys("track", "--source", source, "--mode", "rgbd", "--out", str(out), *extra, env=env)
 
 
-def test_missing_folder(tmp_path):
+@pytest.mark.parametrize(
+    "source, fragment",
+    [
+        ("tum:/no/such/folder", "TUM source folder not found: /no/such/folder"),  # missing folder
+        ("realsense:", "no RealSense camera connected"),  # camera not connected
+    ],
+)
+def test_source_that_cannot_open(tmp_path, source, fragment):
     out = tmp_path / "s"
-    line = assert_one_line_error(track("tum:/no/such/folder", out), "TUM source folder not found: /no/such/folder")
+    line = assert_one_line_error(track(source, out), fragment)
     assert_failed_session(out, 0, line)
 
 
@@ -92,12 +99,6 @@ def test_settings_missing_a_key(small_tum, tmp_path):
     out = tmp_path / "s"
     line = assert_one_line_error(track(f"tum:{small_tum}", out, "--settings", str(settings)),
                                  "lack the required key Stereo.b (rgbd mode)")
-    assert_failed_session(out, 0, line)
-
-
-def test_camera_not_connected(tmp_path):
-    out = tmp_path / "s"
-    line = assert_one_line_error(track("realsense:", out), "no RealSense camera connected")
     assert_failed_session(out, 0, line)
 
 
