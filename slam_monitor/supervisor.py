@@ -106,6 +106,8 @@ def _crash_message(exit_code: int, frame_index: int, out_dir: Path) -> str:
         how = f"ended with status {exit_code}"
     said = _last_log_line(out_dir)
     said = f' after printing "{said}"' if said else ""
+    if frame_index == 0:
+        return f"ORB-SLAM3 {how}{said} before the first frame; see {out_dir / session.SLAM_LOG}"
     return (f"ORB-SLAM3 {how}{said} at frame {frame_index}; the session files up to frame {frame_index - 1} "
             f"are kept in {out_dir}")
 
@@ -123,10 +125,11 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
     outcome: _Failed | _Finished | None = None
     try:
         while outcome is None:
+            alive = child.is_alive()  # checked before the read, so a last message sent before exiting is not missed
             try:
                 event = events.get(timeout=POLL_S)
             except queue.Empty:
-                if not child.is_alive():
+                if not alive:
                     break
                 continue
             if isinstance(event, (_Failed, _Finished)):

@@ -82,3 +82,17 @@ def test_observer_specs_are_built_in_the_worker(tmp_path):
     result = run_supervised_session(options, progress=events.append)
     assert result.frames == 7 and (out / "observed.txt").read_text() == "7"
     assert events[0].frame_count == 7 and [e.frame_index for e in events[1:]] == list(range(7))
+
+
+def crash_at_start(context):
+    os._exit(255)
+
+
+def test_crash_before_the_first_frame(tmp_path):
+    out = tmp_path / "s"
+    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out,
+                             observers=(ObserverSpec("test_track_isolation:crash_at_start"),))
+    with pytest.raises(WorkerCrash, match=r"^ORB-SLAM3 exited with status 255 .*before the first frame; see "):
+        run_supervised_session(options)
+    assert session.read_manifest(out)["status"] == "crashed"
+    assert (out / session.FRAMES_CSV).read_text().splitlines() == [session.FRAMES_HEADER]
