@@ -51,6 +51,7 @@ class Measurements:
     cpu_percent: list[float] = field(default_factory=list)
     memory_mb: list[float] = field(default_factory=list)
     track_ms: list[float] = field(default_factory=list)
+    cpu_ms_per_frame: list[float] = field(default_factory=list)
     monitor: list[dict] = field(default_factory=list)
     received: int = 0
 
@@ -64,18 +65,37 @@ def _worker(options: SessionOptions) -> None:
     run_device_session(options)
 
 
+def _frames_logged(frames_csv: Path) -> int:
+    try:
+        return frames_csv.read_bytes().count(b"\n") - 1
+    except FileNotFoundError:
+        return -1
+
+
+def _cpu_seconds(process: psutil.Process) -> float:
+    times = process.cpu_times()
+    return times.user + times.system
+
+
 def _sample(pid: int, frames_csv: Path, into: Measurements, done: threading.Event) -> None:
-    """CPU % and RSS of the worker from its first tracked frame (vocabulary loading and imports excluded)."""
+    """CPU % and RSS of the worker from its first tracked frame (vocabulary loading and imports excluded), and
+    the CPU time it spends per frame: unlike CPU %, the CPU time a piece of work takes hardly changes when other
+    processes compete for the cores."""
     process = psutil.Process(pid)
-    while not done.is_set() and not (frames_csv.is_file() and frames_csv.read_text().count("\n") > 1):
+    while not done.is_set() and _frames_logged(frames_csv) < 1:
         time.sleep(0.01)
+    first = last = (0.0, 0)
     try:
         process.cpu_percent(None)
+        first = last = (_cpu_seconds(process), _frames_logged(frames_csv))
         while not done.wait(SAMPLE_PERIOD_S):
             into.cpu_percent.append(process.cpu_percent(None))
             into.memory_mb.append(process.memory_info().rss / 2**20)
+            last = (_cpu_seconds(process), _frames_logged(frames_csv))
     except psutil.NoSuchProcess:
         pass
+    if last[1] > first[1]:
+        into.cpu_ms_per_frame.append((last[0] - first[0]) * 1000 / (last[1] - first[1]))
 
 
 def _listen(endpoint: str, into: Measurements, done: threading.Event) -> None:
@@ -130,6 +150,7 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
         "Median memory usage (MB)": lambda m: statistics.median(m.memory_mb),
         "Average tracking latency (ms)": lambda m: statistics.fmean(m.track_ms),
         "Median tracking latency (ms)": lambda m: statistics.median(m.track_ms),
+        "CPU time per frame (ms)": lambda m: statistics.median(m.cpu_ms_per_frame),
     }
     base = results["SLAM"]
     figures: dict = {}

