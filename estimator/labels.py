@@ -1,0 +1,237 @@
+"""The pose-error label of a frame: the one definition used by the dataset builder and the label report.
+
+Definition (docs/labels.md explains the choices and how they differ from the authors' code):
+
+- **Error.** evo's relative pose error (RPE), ``PoseRelation.translation_part``, over ``delta_frames`` frames
+  (10, ≈ 0.33 s at 30 Hz): for the pair (i, j = i + Δ), ``E = (G_i⁻¹ G_j)⁻¹ (P_i⁻¹ P_j)`` with G the ground truth
+  and P the estimate, and the label is ‖translation(E)‖ in metres. It is assigned to the *end* frame j, the frame
+  whose RTS window ends the pair.
+- **Pairs only inside a tracked stretch.** A stretch is a maximal run of consecutive frames that SLAM reports
+  as tracked (``TrackingState.tracked``) and that have a ground-truth pose within ``association_max_dt_s``.
+  A pair whose frames are not both in one stretch gets no label.
+- **Alignment.** RGB-D: SE(3). A rigid change of the world frame leaves every relative pose unchanged, so the
+  SE(3)-aligned RPE equals the unaligned one and no alignment is computed (tests/test_labels.py checks this
+  against evo with the alignment). Monocular: the scale of each
+  pair is fitted (Sim(3), Umeyama) on ``mono_scale_window_frames`` frames centred on the pair, clipped to its
+  stretch. This follows ORB-SLAM3's slow scale drift without the jumps of fixed segments, so the label measures the
+  local error of the 10-frame motion, not an arbitrary segment's average scale. The fitted scale is kept per
+  frame (``scale``) for whoever wants scale drift as its own target.
+- **No cleaning.** No clipping, no dropping of large errors, no smoothing, no ground-truth substitution when an
+  alignment fails (the frame is flagged instead).
+- **Frames around tracking loss are flagged, not labelled:** every frame gets a :class:`LabelStatus`; only
+  ``labelled`` frames carry an error and belong to the regression target.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from seesys.config import load_section
+from seesys.errors import SeesysError
+from slam_monitor.tracking_state import TrackingState
+
+
+@dataclass(frozen=True)
+class LabelConfig:
+    delta_frames: int
+    association_max_dt_s: float
+    mono_scale_window_frames: int
+    min_alignment_frames: int
+
+
+def load_label_config(directory: Path | None = None) -> LabelConfig:
+    return load_section("labels", LabelConfig, directory)
+
+
+class LabelStatus(str, Enum):
+    """Why a frame has, or has no, label."""
+
+    LABELLED = "labelled"
+    NOT_TRACKED = "not_tracked"  # SLAM did not report the frame as tracked (initialising, lost, relocalising)
+    WARMUP = "warmup"  # tracked, but fewer than delta frames into its tracked stretch
+    NO_GROUND_TRUTH = "no_ground_truth"  # no ground-truth pose within the association tolerance
+    UNALIGNED = "unaligned"  # monocular: too few frames or degenerate motion to fit the pair's scale
+
+
+class LabelError(SeesysError):
+    """Inputs to the labeller are inconsistent (lengths, order, too little ground truth)."""
+
+
+@dataclass(frozen=True)
+class PoseSeries:
+    """Timestamped poses T_world_camera: positions (N×3) and unit quaternions (N×4, x y z w)."""
+
+    timestamps: np.ndarray
+    positions: np.ndarray
+    quaternions_xyzw: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.timestamps)
+        if self.positions.shape != (n, 3) or self.quaternions_xyzw.shape != (n, 4):
+            raise LabelError(f"pose series shapes disagree: {n} timestamps, positions {self.positions.shape}, "
+                             f"quaternions {self.quaternions_xyzw.shape}")
+
+    @classmethod
+    def from_tum(cls, path: Path) -> PoseSeries:
+        """A TUM file ``t tx ty tz qx qy qz qw``."""
+        try:
+            data = np.loadtxt(path, comments="#", ndmin=2)
+        except (OSError, ValueError) as e:
+            raise LabelError(f"cannot read TUM trajectory {path}: {e}") from None
+        if data.shape[1] != 8:
+            raise LabelError(f"{path}: expected 8 columns (t tx ty tz qx qy qz qw), found {data.shape[1]}")
+        return cls(data[:, 0], data[:, 1:4], data[:, 4:8])
+
+    def take(self, index: np.ndarray):
+        """An evo PosePath3D of the poses at ``index``."""
+        from evo.core.trajectory import PosePath3D
+
+        return PosePath3D(positions_xyz=self.positions[index],
+                          orientations_quat_wxyz=self.quaternions_xyzw[index][:, [3, 0, 1, 2]])
+
+
+@dataclass(frozen=True)
+class FrameLabels:
+    """Per SLAM frame: the label (metres, NaN unless ``labelled``), its status and the fitted scale."""
+
+    timestamps: np.ndarray
+    error_m: np.ndarray
+    status: np.ndarray  # LabelStatus values (str)
+    scale: np.ndarray
+
+    def to_frame(self) -> pd.DataFrame:
+        return pd.DataFrame({"timestamp": self.timestamps, "error_m": self.error_m, "status": self.status,
+                             "scale": self.scale})
+
+    @property
+    def labelled(self) -> np.ndarray:
+        return self.status == LabelStatus.LABELLED.value
+
+
+def _state(value: object) -> TrackingState:
+    """A tracking state given as its number or its name (session logs write names)."""
+    try:
+        return TrackingState[value] if isinstance(value, str) else TrackingState(int(value))
+    except (KeyError, ValueError):
+        raise LabelError(f"unknown tracking state {value!r}") from None
+
+
+def tracked_stretches(tracked: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs [start, stop) of True in ``tracked``."""
+    padded = np.concatenate([[False], tracked.astype(bool), [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
+
+
+def label_frames(estimate: PoseSeries, states: np.ndarray, ground_truth: PoseSeries, monocular: bool,
+                 config: LabelConfig) -> FrameLabels:
+    """Label every frame of one SLAM run (``estimate`` has one pose per frame, ``states`` its tracking states)."""
+    from evo.core import sync
+
+    n = len(estimate.timestamps)
+    if len(states) != n:
+        raise LabelError(f"{len(states)} tracking states for {n} frames")
+    if n and np.any(np.diff(estimate.timestamps) <= 0):
+        raise LabelError("frame timestamps must increase strictly")
+    est_idx, gt_idx = sync.matching_time_indices(estimate.timestamps, ground_truth.timestamps,
+                                                 max_diff=config.association_max_dt_s)
+    gt_of_frame = np.full(n, -1)
+    gt_of_frame[np.asarray(est_idx, int)] = np.asarray(gt_idx, int)
+
+    tracked = np.array([_state(s).tracked for s in states], bool)
+    status = np.where(tracked, LabelStatus.WARMUP.value, LabelStatus.NOT_TRACKED.value).astype(object)
+    status[tracked & (gt_of_frame < 0)] = LabelStatus.NO_GROUND_TRUTH.value
+    error = np.full(n, np.nan)
+    scale = np.full(n, np.nan)
+    delta = config.delta_frames
+    for start, stop in tracked_stretches(tracked & (gt_of_frame >= 0)):
+        if stop - start <= delta:
+            continue
+        frames = np.arange(start, stop)
+        ends = frames[delta:]
+        pair_scales = (_window_scales(estimate, ground_truth, frames, gt_of_frame, config) if monocular
+                       else np.ones(len(ends)))
+        ok = np.isfinite(pair_scales)
+        status[ends[~ok]] = LabelStatus.UNALIGNED.value
+        if ok.any():
+            error[ends[ok]] = _pair_errors(estimate, ground_truth, ends[ok] - delta, ends[ok], gt_of_frame,
+                                           pair_scales[ok])
+            status[ends[ok]] = LabelStatus.LABELLED.value
+        scale[ends] = pair_scales
+    return FrameLabels(estimate.timestamps.copy(), error, status.astype(str), scale)
+
+
+def _window_scales(estimate: PoseSeries, ground_truth: PoseSeries, frames: np.ndarray, gt_of_frame: np.ndarray,
+                   config: LabelConfig) -> np.ndarray:
+    """Monocular: the Sim(3) scale fitted on the window centred on each pair, clipped to the stretch."""
+    from evo.core.geometry import GeometryException, umeyama_alignment
+
+    delta, window = config.delta_frames, config.mono_scale_window_frames
+    est_xyz = estimate.positions[frames]
+    gt_xyz = ground_truth.positions[gt_of_frame[frames]]
+    scales = []
+    for end in range(delta, len(frames)):
+        centre = end - delta / 2
+        lo = int(max(0, min(round(centre - window / 2), len(frames) - window)))
+        hi = min(len(frames), lo + window)
+        if hi - lo < config.min_alignment_frames:
+            scales.append(np.nan)
+            continue
+        try:
+            _, _, s = umeyama_alignment(est_xyz[lo:hi].T, gt_xyz[lo:hi].T, with_scale=True)
+        except GeometryException:
+            s = np.nan
+        scales.append(s if np.isfinite(s) and s > 0 else np.nan)
+    return np.array(scales)
+
+
+def _pair_errors(estimate: PoseSeries, ground_truth: PoseSeries, starts: np.ndarray, ends: np.ndarray,
+                 gt_of_frame: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """evo RPE (translation part) of each pair (starts[k], ends[k]) with the estimate scaled by scales[k].
+
+    The pairs are laid out as one interleaved path [s₀P_a₀, s₀P_b₀, s₁P_a₁, s₁P_b₁, …] (and the same for the
+    ground truth) and evo's RPE with delta 1 over all pairs is evaluated on it; the even-numbered pairs are
+    the wanted ones (the odd ones join two different pairs and are dropped).
+    """
+    from evo.core import metrics
+    from evo.core.trajectory import PosePath3D
+
+    order = np.column_stack([starts, ends]).ravel()
+    gt = ground_truth.take(gt_of_frame[order])
+    est = PosePath3D(positions_xyz=estimate.positions[order] * np.repeat(scales, 2)[:, None],
+                     orientations_quat_wxyz=estimate.quaternions_xyzw[order][:, [3, 0, 1, 2]])
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames,
+                      all_pairs=True)
+    rpe.process_data((gt, est))
+    return np.asarray(rpe.error)[0::2]
+
+
+@dataclass(frozen=True)
+class LabelSummary:
+    """Distribution of labels (metres) over labelled frames, and the share of frames tracked."""
+
+    frames: int
+    labelled: int
+    tracked_fraction: float
+    median_m: float
+    p90_m: float
+    p99_m: float
+    max_m: float
+    fraction_above: dict[float, float]
+
+    @classmethod
+    def of(cls, labels: pd.DataFrame, thresholds_m: tuple[float, ...]) -> LabelSummary:
+        """Summary of a label table (``to_frame`` rows of one or many runs)."""
+        errors = labels.loc[labels.status == LabelStatus.LABELLED.value, "error_m"].to_numpy()
+        tracked = (labels.status != LabelStatus.NOT_TRACKED.value).mean() if len(labels) else float("nan")
+        if len(errors) == 0:
+            nan = float("nan")
+            return cls(len(labels), 0, float(tracked), nan, nan, nan, nan, {t: nan for t in thresholds_m})
+        p50, p90, p99 = np.percentile(errors, [50, 90, 99])
+        return cls(len(labels), len(errors), float(tracked), float(p50), float(p90), float(p99),
+                   float(errors.max()), {t: float((errors > t).mean()) for t in thresholds_m})

@@ -1,0 +1,76 @@
+"""Render many sequences: every environment × motion × seed, one TUM folder each.
+
+Folder names are ``<environment>__<motion>__s<seed>`` (``real:`` written as ``real-``), so that a batch can be
+resumed: a folder whose ``metadata.json`` exists is complete (it is written last) and is skipped.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from estimator.synth.config import SynthConfig
+from estimator.synth.sequence import REAL_PREFIX, SequenceSpec, render_sequence
+from estimator.synth.trajectories import MOTION_GROUPS
+
+ALL = "all"
+REAL = "real"
+
+
+def expand_environments(names: list[str], config: SynthConfig) -> list[str]:
+    """``all`` → every preset; other names are checked against the presets."""
+    if names == [ALL]:
+        return [p.name for p in config.presets]
+    return [config.preset(n).name for n in names]
+
+
+def expand_motions(names: list[str], config: SynthConfig) -> list[str]:
+    """``all`` → the three groups and every real trajectory; ``real`` → every real trajectory."""
+    out: list[str] = []
+    for name in names:
+        if name == ALL:
+            out += list(MOTION_GROUPS) + [REAL_PREFIX + r.name for r in config.real_trajectories]
+        elif name == REAL:
+            out += [REAL_PREFIX + r.name for r in config.real_trajectories]
+        else:
+            out.append(name)
+    return out
+
+
+def sequence_folder_name(spec: SequenceSpec) -> str:
+    return f"{spec.environment}__{spec.motion.replace(REAL_PREFIX, 'real-')}__s{spec.seed}"
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    rendered: list[Path]
+    skipped: list[Path]
+    frames: int
+    seconds: float
+
+    @property
+    def frames_per_second(self) -> float:
+        return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+
+def render_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
+                 config: SynthConfig, root: Path, processes: int | None = None) -> BatchResult:
+    """Render environments × motions × seeds under ``root`` (``template`` gives length, size, lens, blur).
+
+    Each sequence gets its own seed, derived from the batch seed, the environment and the motion, so that two
+    environments rendered with the same batch seed still get different trajectories.
+    """
+    rendered, skipped, frames = [], [], 0
+    start = time.perf_counter()
+    for seed in seeds:
+        for e, env in enumerate(environments):
+            for m, motion in enumerate(motions):
+                spec = replace(template, environment=env, motion=motion, seed=seed * 1000 + e * 37 + m)
+                folder = root / sequence_folder_name(replace(spec, seed=seed))
+                if (folder / "metadata.json").is_file():
+                    skipped.append(folder)
+                    continue
+                frames += len(render_sequence(spec, config, folder, processes))
+                rendered.append(folder)
+    return BatchResult(rendered, skipped, frames, time.perf_counter() - start)

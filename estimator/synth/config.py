@@ -1,0 +1,153 @@
+"""The typed form of ``configs/synth.toml``: camera, sensor model, trajectory placement, motion groups and the
+environment presets."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+from seesys.config import config_dir, load_section
+from seesys.errors import ConfigError
+from slam_monitor.frame import Intrinsics
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    fps: float
+    depth_factor: float
+    near_m: float
+    distortion: tuple[float, float, float, float, float]
+
+    def scaled(self, width: int, height: int) -> CameraConfig:
+        """The same lens on a sensor of ``width``×``height`` (focal lengths and centre scaled)."""
+        sx, sy = width / self.width, height / self.height
+        return dataclasses.replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
+                                   cx=(self.cx + 0.5) * sx - 0.5, cy=(self.cy + 0.5) * sy - 0.5)
+
+    def intrinsics(self, distorted: bool) -> Intrinsics:
+        """The intrinsics a render is written with; the distortion only when the render applies it."""
+        distortion = self.distortion if distorted else (0.0, 0.0, 0.0, 0.0, 0.0)
+        return Intrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy, distortion)
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    base_exposure_ms: tuple[float, float]
+    exposure_min_ms: float
+    exposure_max_ms: float
+    light_modulation: tuple[float, float]
+    light_modulation_period_s: tuple[float, float]
+    auto_exposure_strength: float
+    signal_scale: float
+    gain: tuple[float, float]
+    shot_noise_dn_per_e: tuple[float, float]
+    read_noise_dn: tuple[float, float]
+    black_level_dn: float
+    blur_max_samples: int
+    texture_levels: int
+    texture_size: int
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    duration_s: float
+    wall_margin_m: float
+    box_clearance_m: float
+    real_fill: float
+    camera_height_m: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class MotionGroupConfig:
+    """Parameters of one generated motion group (paper Table 2); ranges are drawn per sequence."""
+
+    walk_speed_mps: tuple[float, float]
+    yaw_rate_dps: tuple[float, float]
+    speed_scale: tuple[float, float]
+    shake_deg: float
+    shake_m: float
+    shake_hz: tuple[float, float]
+    wave_deg: float
+    wave_hz: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    patrol: MotionGroupConfig
+    aiming: MotionGroupConfig
+    rapid: MotionGroupConfig
+
+
+@dataclass(frozen=True)
+class EnvironmentPreset:
+    """How one kind of environment looks: size, clutter, texture statistics and lighting."""
+
+    name: str
+    room_m: tuple[float, float, float]
+    boxes: int
+    box_m: tuple[float, float]
+    texture_density: float
+    texture_contrast: float
+    texture_scale_m: float
+    poor_walls: int
+    bare_floor_ceiling: bool
+    poor_boxes: float
+    light: float
+    falloff_m: float
+    ambient: float
+    albedo: float
+
+
+@dataclass(frozen=True)
+class RealTrajectory:
+    """A real trajectory file under ``trajectory_dir``, and the Table 2 motion group it counts in."""
+
+    name: str
+    file: str
+    format: str
+    group: str
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    processes: int
+    start_time_s: float
+    trajectory_dir: str
+    camera: CameraConfig
+    sensor: SensorConfig
+    trajectory: TrajectoryConfig
+    motion: MotionConfig
+    real_trajectories: list[RealTrajectory]
+    presets: list[EnvironmentPreset]
+
+    def preset(self, name: str) -> EnvironmentPreset:
+        """The preset called ``name``; a :class:`ConfigError` lists the known ones otherwise."""
+        for preset in self.presets:
+            if preset.name == name:
+                return preset
+        known = ", ".join(p.name for p in self.presets)
+        raise ConfigError(f"unknown environment preset {name!r} (configs/synth.toml has: {known})")
+
+
+    def real_trajectory(self, name: str) -> RealTrajectory:
+        for real in self.real_trajectories:
+            if real.name == name:
+                return real
+        known = ", ".join(r.name for r in self.real_trajectories)
+        raise ConfigError(f"unknown real trajectory {name!r} (configs/synth.toml has: {known})")
+
+    def trajectory_path(self, real: RealTrajectory) -> Path:
+        """Where the file of ``real`` is: ``trajectory_dir`` is relative to the project root."""
+        return config_dir().parent / self.trajectory_dir / real.file
+
+
+def load_synth_config(directory: Path | None = None) -> SynthConfig:
+    """Load ``configs/synth.toml``."""
+    return load_section("synth", SynthConfig, directory)

@@ -1,0 +1,236 @@
+"""Camera trajectories for rendering: real handheld/MAV ground truth placed into a room, and generated handheld
+motion in the three motion groups of the paper's Table 2.
+
+A :class:`Trajectory` holds T_world_camera (optical frame: x right, y down, z forward) at increasing
+timestamps and interpolates it (linear position, slerp rotation), so that a renderer can ask for the pose at any
+sub-frame time of an exposure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from estimator.synth.config import MotionGroupConfig, TrajectoryConfig
+from seesys.errors import SeesysError
+
+MOTION_GROUPS = ("patrol", "aiming", "rapid")
+# Sampling rate of generated motion before it is interpolated to frame and exposure times.
+GENERATED_RATE_HZ = 240.0
+
+
+class TrajectoryError(SeesysError):
+    """A trajectory file is missing or malformed, or a trajectory cannot be placed."""
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    times: np.ndarray  # (N,) seconds, increasing
+    positions: np.ndarray  # (N, 3) camera centres in the world
+    rotations: Rotation  # N rotations R_world_camera
+
+    def __post_init__(self) -> None:
+        if len(self.times) < 2 or np.any(np.diff(self.times) <= 0):
+            raise TrajectoryError("a trajectory needs at least 2 poses with strictly increasing timestamps")
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1] - self.times[0])
+
+    def interpolate(self, times: np.ndarray) -> tuple[np.ndarray, Rotation]:
+        """Positions (M×3) and rotations at ``times`` (clamped to the trajectory's time span)."""
+        t = np.clip(times, self.times[0], self.times[-1])
+        positions = np.column_stack([np.interp(t, self.times, self.positions[:, k]) for k in range(3)])
+        return positions, Slerp(self.times, self.rotations)(t)
+
+    def window(self, start: float, duration: float) -> Trajectory:
+        """The part from ``start`` (relative to the first pose) lasting ``duration``, re-timed to start at 0."""
+        t0 = self.times[0] + start
+        keep = (self.times >= t0) & (self.times <= t0 + duration)
+        return Trajectory(self.times[keep] - t0, self.positions[keep], self.rotations[np.flatnonzero(keep)])
+
+
+def load_tum(path: Path) -> Trajectory:
+    """A TUM trajectory file: ``t tx ty tz qx qy qz qw`` per line, ``#`` comments."""
+    data = _load_table(path, delimiter=None)
+    return _deduplicated(data[:, 0], data[:, 1:4], Rotation.from_quat(data[:, 4:8]))
+
+
+def load_euroc(path: Path) -> Trajectory:
+    """A EuRoC ground-truth CSV: ``t[ns], px, py, pz, qw, qx, qy, qz`` (further columns ignored)."""
+    data = _load_table(path, delimiter=",")
+    return _deduplicated(data[:, 0] * 1e-9, data[:, 1:4], Rotation.from_quat(data[:, [5, 6, 7, 4]]))
+
+
+def _load_table(path: Path, delimiter: str | None) -> np.ndarray:
+    try:
+        data = np.loadtxt(path, comments="#", delimiter=delimiter, ndmin=2)
+    except FileNotFoundError:
+        raise TrajectoryError(f"trajectory file not found: {path}") from None
+    except ValueError as e:
+        raise TrajectoryError(f"{path}: not a trajectory table: {e}") from None
+    if data.shape[1] < 8:
+        raise TrajectoryError(f"{path}: expected at least 8 columns, found {data.shape[1]}")
+    return data
+
+
+def _deduplicated(times: np.ndarray, positions: np.ndarray, rotations: Rotation) -> Trajectory:
+    order = np.argsort(times, kind="stable")
+    times = times[order]
+    keep = np.concatenate([[True], np.diff(times) > 0])
+    idx = order[keep]
+    return Trajectory(times[keep], positions[idx], rotations[idx])
+
+
+def _look_rotation(forward: np.ndarray) -> Rotation:
+    """R_world_camera for an optical camera looking along ``forward`` (N×3) with the world z axis up."""
+    f = forward / np.linalg.norm(forward, axis=1, keepdims=True)
+    right = np.cross(f, np.array([0.0, 0.0, 1.0]))
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    down = np.cross(f, right)
+    return Rotation.from_matrix(np.stack([right, down, f], axis=2))
+
+
+def place_real(trajectory: Trajectory, room_lo: np.ndarray, room_hi: np.ndarray, config: TrajectoryConfig,
+               rng: np.random.Generator) -> Trajectory:
+    """Place a real trajectory in a room: level it, turn it to face a random direction, scale it down to fit
+    and move it inside the room, clear of the walls.
+
+    The camera's mean "up" (−y of the optical frame) becomes the world z axis, and the mean viewing direction is
+    turned to a random heading; positions are scaled by ``min(1, fill·room / extent)`` so that a large
+    (MAV, walking) trajectory fits a small room; the camera's height is set inside the configured range.
+    """
+    matrices = trajectory.rotations.as_matrix()
+    up = -matrices[:, :, 1].mean(axis=0)
+    level = Rotation.align_vectors([[0.0, 0.0, 1.0]], [up])[0]
+    view = level.apply(matrices[:, :, 2].mean(axis=0))
+    heading = rng.uniform(-np.pi, np.pi)
+    turn = Rotation.from_euler("z", heading - np.arctan2(view[1], view[0]))
+    place = turn * level
+    centred = place.apply(trajectory.positions - trajectory.positions.mean(axis=0))
+
+    inner_lo, inner_hi = room_lo + config.wall_margin_m, room_hi - config.wall_margin_m
+    extent = np.maximum(centred.max(axis=0) - centred.min(axis=0), 1e-6)
+    room_span = inner_hi - inner_lo
+    scale = min(1.0, *(config.real_fill * room_span[:2] / extent[:2]), 0.9 * room_span[2] / extent[2])
+    scaled = centred * scale
+    lo, hi = scaled.min(axis=0), scaled.max(axis=0)
+    # Anywhere the whole path fits horizontally; the height so that the mean lies in the configured range.
+    offset = np.array([rng.uniform(inner_lo[k] - lo[k], max(inner_hi[k] - hi[k], inner_lo[k] - lo[k]))
+                       for k in range(2)] + [rng.uniform(*config.camera_height_m)])
+    positions = np.clip(scaled + offset, inner_lo, inner_hi)
+    return Trajectory(trajectory.times - trajectory.times[0], positions, place * trajectory.rotations)
+
+
+def _smooth_noise(rng: np.random.Generator, t: np.ndarray, band_hz: tuple[float, float], components: int = 4,
+                  ) -> np.ndarray:
+    """Band-limited noise with unit RMS: a sum of sinusoids at random frequencies in ``band_hz``."""
+    freqs = rng.uniform(*band_hz, components)
+    phases = rng.uniform(0, 2 * np.pi, components)
+    return np.sqrt(2.0 / components) * np.sin(2 * np.pi * freqs[:, None] * t[None, :] + phases[:, None]).sum(axis=0)
+
+
+def _min_jerk(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x**3 * (10 - 15 * x + 6 * x**2)
+
+
+def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, room_hi: np.ndarray,
+                    config: TrajectoryConfig, duration: float, rng: np.random.Generator) -> Trajectory:
+    """Generated handheld motion of one Table 2 group inside a room.
+
+    - ``patrol``: walking round the room on a wobbly loop, looking ahead and out towards the walls, with gait bob.
+    - ``aiming``: standing at a few spots, aiming at points on the walls with smooth (minimum-jerk) re-aims and
+      small arcs around each spot.
+    - ``rapid``: slow walking with waving (wave_deg at wave_hz, in bursts) and fast turns.
+
+    All groups add hand shake (shake_deg, shake_m at shake_hz). ``speed_scale`` speeds the whole motion up; it is
+    drawn per sequence in its configured range.
+    """
+    if group not in MOTION_GROUPS:
+        raise TrajectoryError(f"unknown motion group {group!r} (expected one of {', '.join(MOTION_GROUPS)})")
+    speed = rng.uniform(*motion.speed_scale)
+    t = np.arange(0.0, duration + 1.0 / GENERATED_RATE_HZ, 1.0 / GENERATED_RATE_HZ)
+    s = t * speed  # motion time: the same paths, run faster
+    inner_lo, inner_hi = room_lo + config.wall_margin_m, room_hi - config.wall_margin_m
+    centre = 0.5 * (inner_lo + inner_hi)
+    half = 0.5 * (inner_hi - inner_lo)
+    walk = rng.uniform(*motion.walk_speed_mps)
+    yaw_rate = np.radians(rng.uniform(*motion.yaw_rate_dps))
+    height = rng.uniform(*config.camera_height_m)
+
+    if group == "aiming":
+        positions, yaw, pitch = _aiming(rng, s, centre, half, walk, yaw_rate, height)
+    else:
+        positions, yaw, pitch = _walking(rng, s, centre, half, walk, yaw_rate, height)
+        if group == "rapid":
+            envelope = _min_jerk(0.5 + 0.8 * _smooth_noise(rng, s, (0.05, 0.15), 2))
+            amplitude = np.radians(motion.wave_deg)
+            yaw = yaw + amplitude * envelope * _smooth_noise(rng, s, motion.wave_hz, 2)
+            pitch = pitch + 0.5 * amplitude * envelope * _smooth_noise(rng, s, motion.wave_hz, 2)
+
+    shake_hz = motion.shake_hz
+    positions = positions + motion.shake_m * np.column_stack([_smooth_noise(rng, s, shake_hz) for _ in range(3)])
+    forward = np.column_stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
+    roll = np.radians(3.0) * _smooth_noise(rng, s, (0.1, 0.4), 2)
+    shake = np.radians(motion.shake_deg) * np.column_stack([_smooth_noise(rng, s, shake_hz) for _ in range(3)])
+    shake[:, 2] += roll
+    rotations = _look_rotation(forward) * Rotation.from_rotvec(shake)
+    return Trajectory(t, np.clip(positions, inner_lo, inner_hi), rotations)
+
+
+def _walking(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: np.ndarray, walk: float,
+             yaw_rate: float, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A loop round the room at walking speed, looking ahead and turning towards the walls."""
+    radii = half[:2] * rng.uniform(0.45, 0.9, 2)
+    mean_radius = float(np.mean(radii))
+    direction = rng.choice([-1.0, 1.0])
+    phase = rng.uniform(0, 2 * np.pi) + direction * walk * s / mean_radius
+    wobble = 1.0 + 0.15 * _smooth_noise(rng, s, (0.03, 0.1), 2)
+    x = centre[0] + radii[0] * wobble * np.cos(phase)
+    y = centre[1] + radii[1] * wobble * np.sin(phase)
+    z = height + 0.015 * np.sin(2 * np.pi * 1.8 * s * walk / 0.5 + rng.uniform(0, 2 * np.pi))
+    heading = np.unwrap(np.arctan2(np.gradient(y), np.gradient(x)))
+    # Turning the head towards the walls (mostly outwards, sometimes across the room) and back.
+    look_freq = rng.uniform(0.05, 0.2)
+    look_amp = min(yaw_rate / (2 * np.pi * look_freq), np.radians(80))
+    outward = -direction * np.radians(rng.uniform(-30, 70))
+    yaw = heading + outward + look_amp * np.sin(2 * np.pi * look_freq * s + rng.uniform(0, 2 * np.pi))
+    pitch = np.radians(-8.0) + np.radians(8.0) * _smooth_noise(rng, s, (0.05, 0.2), 2)
+    return np.column_stack([x, y, z]), yaw, pitch
+
+
+def _aiming(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: np.ndarray, walk: float,
+            yaw_rate: float, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Standing spots with small arcs, aiming at wall points; re-aims are minimum-jerk turns."""
+    spot = centre[:2] + half[:2] * rng.uniform(-0.6, 0.6, 2)
+    arc_radius = rng.uniform(0.05, 0.25)
+    arc_phase = walk * s / max(arc_radius, 1e-3) * rng.choice([-1.0, 1.0])
+    x = spot[0] + arc_radius * np.cos(arc_phase) + 0.3 * half[0] * _smooth_noise(rng, s, (0.01, 0.03), 2)
+    y = spot[1] + arc_radius * np.sin(arc_phase) + 0.3 * half[1] * _smooth_noise(rng, s, (0.01, 0.03), 2)
+    z = height + 0.05 * _smooth_noise(rng, s, (0.05, 0.2), 2)
+    positions = np.column_stack([x, y, z])
+
+    # Aim points on the walls; each aim holds a few seconds, then a minimum-jerk turn to the next one.
+    yaw = np.zeros_like(s)
+    pitch = np.zeros_like(s)
+    aim_yaw, aim_pitch = rng.uniform(-np.pi, np.pi), np.radians(rng.uniform(-25, 5))
+    start = 0.0
+    while start < s[-1]:
+        hold = rng.uniform(2.0, 5.0)
+        next_yaw = aim_yaw + rng.choice([-1.0, 1.0]) * np.radians(rng.uniform(30, 120))
+        next_pitch = np.radians(rng.uniform(-30, 10))
+        turn = max(0.4, 1.875 * abs(next_yaw - aim_yaw) / yaw_rate)
+        sel = s >= start
+        blend = _min_jerk((s[sel] - start - hold) / turn)
+        yaw[sel] = aim_yaw + blend * (next_yaw - aim_yaw)
+        pitch[sel] = aim_pitch + blend * (next_pitch - aim_pitch)
+        aim_yaw, aim_pitch = next_yaw, next_pitch
+        start += hold + turn
+    # Small scanning motion around each aim point while holding it.
+    yaw += np.radians(4.0) * _smooth_noise(rng, s, (0.2, 0.6), 3)
+    pitch += np.radians(3.0) * _smooth_noise(rng, s, (0.2, 0.6), 3)
+    return positions, yaw, pitch
