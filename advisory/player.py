@@ -8,8 +8,8 @@ come, the output is silent: a generator that stops leaves no stale advice playin
 
 ``playback.csv`` gets one row per buffer that started, with the DAC time of its first sample (the callback's
 ``outputBufferDacTime`` mapped onto CLOCK_MONOTONIC). ``--capture`` also writes what the callback wrote to a WAV
-file, on the DAC's timeline: a block the audio server skipped (an xrun) is a gap of silence there, as the listener
-heard it. A stream that stops on its own (device unplugged, audio server gone) is logged and ends the process with
+file, block after block (a cycle the audio server skipped, an xrun, is not in it: the DAC times in
+``playback.csv`` give the timeline). A stream that stops on its own (device unplugged, audio server gone) is logged and ends the process with
 status :data:`DEVICE_LOST_EXIT`; the supervisor restarts it. PortAudio cannot be closed or re-initialised once
 its JACK server has died (both calls hang), so a fresh process is the only clean way back.
 """
@@ -30,7 +30,7 @@ from advisory.audio_device import find_output_device, open_output_stream
 from advisory.config import AdvisoryConfig
 from advisory.handoff import AudioBuffer, HandoffError, connect_subscriber, decode_buffer
 from advisory.logs import PLAYBACK_COLUMNS, PLAYBACK_CSV, CsvLog, EventLog
-from advisory.wav import DacTimelineWav
+from advisory.wav import WavWriter
 
 DEVICE_LOST_EXIT = 3
 # The stream clock → monotonic clock offset is measured at each callback, late by however long the callback waited
@@ -43,15 +43,17 @@ class PlaybackState:
     """What the receiver thread and the audio callback share; the callback only reads the one-slot hand-off."""
 
     def __init__(self, sample_rate: int, capture: bool):
-        self.latest: AudioBuffer | None = None  # written by the receiver thread only
+        # (buffer, monotonic time of its receipt), written by the receiver thread only
+        self.latest: tuple[AudioBuffer, float] | None = None
         self._rate = sample_rate
+        self._current_entry: tuple[AudioBuffer, float] | None = None
         self._current: AudioBuffer | None = None
         self._pos = 0
         self._capture = capture
         self._offset = math.inf
-        self.started: deque[tuple[AudioBuffer, float]] = deque()  # (buffer, DAC time of its first sample)
-        # (DAC time of the block on the stream's own clock, which is exact to the sample, and what it holds)
-        self.blocks: deque[tuple[float, np.ndarray]] = deque()
+        # (buffer, its receipt, DAC time of its first sample), one per buffer that started
+        self.started: deque[tuple[AudioBuffer, float, float]] = deque()
+        self.blocks: deque[np.ndarray] = deque()  # what the callback wrote, block by block
         self.status_flags: deque[str] = deque()
 
     def _fill(self, out: np.ndarray, start: int, end: int) -> None:
@@ -70,17 +72,17 @@ class PlaybackState:
         out.fill(0.0)
         pending = self.latest
         switch_at = frames
-        if pending is not None and pending is not self._current:
-            switch_at = min(max(int(round((pending.play_at - block_dac) * self._rate)), 0), frames)
+        if pending is not None and pending is not self._current_entry:
+            switch_at = min(max(int(round((pending[0].play_at - block_dac) * self._rate)), 0), frames)
         self._fill(out, 0, switch_at)
         if switch_at < frames:
-            self._current, self._pos = pending, 0
-            self.started.append((pending, block_dac + switch_at / self._rate))
+            self._current_entry, self._current, self._pos = pending, pending[0], 0
+            self.started.append((*pending, block_dac + switch_at / self._rate))
             self._fill(out, switch_at, frames)
         if outdata.shape[1] > 1:
             outdata[:, 1:] = out[:, None]
         if self._capture:
-            self.blocks.append((time_info.outputBufferDacTime, out.copy()))
+            self.blocks.append(out.copy())
         if status:
             self.status_flags.append(str(status))
 
@@ -95,7 +97,7 @@ class Player:
         self._stream = open_output_stream(cfg.audio, device, self._state.callback, lambda: None)
         self._events = EventLog(out, "player")
         self._log = CsvLog(out / PLAYBACK_CSV, PLAYBACK_COLUMNS)
-        self._wav = DacTimelineWav(capture, cfg.audio.sample_rate) if capture else None
+        self._wav = WavWriter(capture, cfg.audio.sample_rate) if capture else None
         self._ctx = zmq.Context()
         self._sub = connect_subscriber(self._ctx, cfg.handoff.endpoint, b"", conflate=True)
         self._receiver_notes: deque[tuple[str, str]] = deque()
@@ -116,17 +118,17 @@ class Player:
                 self._receiver_notes.append(("bad buffer", f"sample rate {buf.sample_rate} Hz, the stream runs at "
                                                            f"{self._cfg.audio.sample_rate} Hz"))
                 continue
-            self._state.latest = buf
+            self._state.latest = (buf, time.monotonic())
 
     def _drain(self) -> None:
         """Write what the callback and the receiver left: playback rows, captured audio, notes."""
         state = self._state
         while state.started:
-            buf, dac = state.started.popleft()
+            buf, received, dac = state.started.popleft()
             self._log.write(time.time(), buf.buffer_id, buf.time, buf.trigger, buf.n_pulses, buf.played_pulses,
-                            buf.arrival, buf.play_at, dac)
+                            buf.arrival, received, buf.play_at, dac)
         while state.blocks and self._wav is not None:
-            self._wav.write_at(*state.blocks.popleft())
+            self._wav.write(state.blocks.popleft())
         flags = []
         while state.status_flags:
             flags.append(state.status_flags.popleft())

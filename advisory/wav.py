@@ -35,34 +35,6 @@ class WavWriter:
         self._wav.close()
 
 
-class DacTimelineWav:
-    """A capture of played blocks in which a block the audio server skipped (an xrun) leaves silence, not a splice.
-
-    Blocks are written back to back; only when a block's DAC time lies more than half a block beyond the end of
-    what is written (the server skipped cycles) is the gap filled with silence. Smaller differences are the jitter
-    of the DAC time stamps, not of the audio, and are ignored so that the capture stays exact to the sample.
-    """
-
-    def __init__(self, path: Path, sample_rate: int):
-        self._wav = WavWriter(path, sample_rate)
-        self._rate = sample_rate
-        self._first_dac: float | None = None
-        self._written = 0
-
-    def write_at(self, dac: float, block: np.ndarray) -> None:
-        if self._first_dac is None:
-            self._first_dac = dac
-        gap = int(round((dac - self._first_dac) * self._rate)) - self._written
-        if gap > block.size // 2:
-            self._wav.write(np.zeros(gap, dtype=np.float32))
-            self._written += gap
-        self._wav.write(block)
-        self._written += block.size
-
-    def close(self) -> None:
-        self._wav.close()
-
-
 def read_wav(path: Path) -> tuple[np.ndarray, int]:
     """A mono 16-bit WAV as float samples in [-1, 1] and its sample rate."""
     with wave.open(str(path), "rb") as w:

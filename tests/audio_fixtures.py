@@ -99,7 +99,16 @@ class Sandbox:
                 proc.wait()
 
 
-def wait_started(sandbox: Sandbox, process: str, count: int = 1, timeout_s: float = 20.0) -> None:
+def wait_until(predicate, what: str, timeout_s: float = 30.0) -> None:
+    """Poll ``predicate`` until true; a generous timeout, as the machine may be shared and loaded."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.1)
+
+
+def wait_started(sandbox: Sandbox, process: str, count: int = 1, timeout_s: float = 30.0) -> None:
     """Wait until ``count`` processes named ``process`` have logged 'started' (imports take a while)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:

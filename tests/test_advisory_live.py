@@ -11,23 +11,24 @@ import pytest
 
 from advisory.player import DEVICE_LOST_EXIT
 from advisory.process import advisory_command
-from advisory.pulses import error_pulses
+from advisory.pulses import error_pulses, max_pulses
 from advisory.sandbox import JackDummy
 from audio_fixtures import (Publisher, estimate_message, jack, make_sandbox, pulse_onsets,  # noqa: F401
-                            pulse_trains, rotation_frame, run_lengths, wait_started)
+                            pulse_trains, rotation_frame, run_lengths, wait_started, wait_until)
 
 pytestmark = pytest.mark.audio
 
 
 def trains_of(sandbox, capture="capture.wav"):
     """Pulse trains in the captured audio (one per buffer), every pulse of a train exactly p + i after the one
-    before, and their sizes. Trains cut short are left out: a buffer replaced by a change less than a period after
-    it started, and the last one (the player was stopped)."""
+    before, and their sizes. Trains that may have been cut short are left out: one followed by the next before a
+    full buffer's last pulse ended (a change replaced it), and the last one (the player was stopped)."""
     x, rate = sandbox.capture(capture)
-    spacing = round((sandbox.cfg.equation2.pulse_s + sandbox.cfg.equation2.interval_s) * rate)
+    eq = sandbox.cfg.equation2
+    spacing = round((eq.pulse_s + eq.interval_s) * rate)
     trains = pulse_trains(pulse_onsets(x, rate), spacing, tolerance=1)
-    period = round(sandbox.cfg.timing.cadence_s * rate)
-    whole = [t for t, following in zip(trains[:-1], trains[1:]) if following[0] - t[0] >= period - 0.005 * rate]
+    longest = (max_pulses(eq, sandbox.cfg.timing.buffer_s) - 1) * spacing + round(eq.pulse_s * rate)
+    whole = [t for t, following in zip(trains[:-1], trains[1:]) if following[0] - t[0] > longest]
     return whole, [len(t) for t in whole], rate
 
 
@@ -107,24 +108,34 @@ def test_none_condition_is_silent_but_logs_what_it_would_have_played(jack, make_
 def test_each_process_survives_the_others_restart(jack, make_sandbox):
     sandbox = make_sandbox(jack)
     player, generator = start_both(sandbox)
+
+    def live_rows_since(row: int) -> int:
+        return int((sandbox.advisory().iloc[row:].status == "live").sum())
+
+    def played_since(row: int) -> int:
+        return int((sandbox.playback().iloc[row:].played_pulses == 2).sum())
+
     with Publisher(sandbox.estimates_endpoint, estimate_message) as pub:
         pub.value = 0.010  # N = 2
-        time.sleep(1.5)
+        wait_until(lambda: played_since(0) >= 4, "buffers played before the generator is killed")
         generator.kill()  # no goodbye: SIGKILL
         generator.wait()
         time.sleep(1.0)
         assert player.poll() is None
+        rows = len(sandbox.advisory())
         sandbox.generator()
         wait_started(sandbox, "generator", count=2)
-        time.sleep(1.5)
+        played = len(sandbox.playback())
+        wait_until(lambda: played_since(played) >= 4, "buffers of the restarted generator played")
         player.kill()
         player.wait()
-        rows_before = len(sandbox.advisory())
-        time.sleep(1.0)
-        assert len(sandbox.advisory()) > rows_before  # the generator kept going without a player
+        assert live_rows_since(rows) >= 4
+        rows = len(sandbox.advisory())
+        wait_until(lambda: live_rows_since(rows) >= 3, "the generator going on without a player")
         sandbox.player(capture="capture2.wav", name="player2")
         wait_started(sandbox, "player", count=2)
-        time.sleep(1.5)
+        played = len(sandbox.playback())
+        wait_until(lambda: played_since(played) >= 4, "buffers played by the restarted player")
     sandbox.stop_all()
     trains, sizes, rate = trains_of(sandbox)
     starts = np.array([t[0] for t in trains]) / rate
