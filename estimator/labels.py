@@ -24,6 +24,7 @@ Definition (docs/labels.md explains the choices and how they differ from the aut
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
@@ -80,9 +81,13 @@ class PoseSeries:
     def from_tum(cls, path: Path) -> PoseSeries:
         """A TUM file ``t tx ty tz qx qy qz qw``."""
         try:
-            data = np.loadtxt(path, comments="#", ndmin=2)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # numpy warns on a file of comments only
+                data = np.loadtxt(path, comments="#", ndmin=2)
         except (OSError, ValueError) as e:
             raise LabelError(f"cannot read TUM trajectory {path}: {e}") from None
+        if data.size == 0:
+            return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))
         if data.shape[1] != 8:
             raise LabelError(f"{path}: expected 8 columns (t tx ty tz qx qy qz qw), found {data.shape[1]}")
         return cls(data[:, 0], data[:, 1:4], data[:, 4:8])
@@ -209,6 +214,36 @@ def _pair_errors(estimate: PoseSeries, ground_truth: PoseSeries, starts: np.ndar
                       all_pairs=True)
     rpe.process_data((gt, est))
     return np.asarray(rpe.error)[0::2]
+
+
+def label_session(folder: Path, monocular: bool, config: LabelConfig) -> FrameLabels:
+    """Labels of a device session folder (docs/device.md): ``frames.csv`` (every frame and its state),
+    ``trajectory.tum`` (poses of the tracked frames) and ``groundtruth.tum``.
+
+    A frame reported tracked but absent from ``trajectory.tum`` (no valid pose) counts as not tracked.
+    """
+    from slam_monitor import session
+
+    try:
+        frames = pd.read_csv(folder / session.FRAMES_CSV)
+    except (OSError, pd.errors.ParserError) as e:
+        raise LabelError(f"cannot read {folder / session.FRAMES_CSV}: {e}") from None
+    ground_truth = folder / session.GROUND_TRUTH
+    if not ground_truth.is_file():
+        raise LabelError(f"{folder} has no {session.GROUND_TRUTH}: the source had no ground truth")
+    poses = PoseSeries.from_tum(folder / session.TRAJECTORY)
+    times = frames["timestamp"].to_numpy(float)
+    positions = np.zeros((len(times), 3))
+    quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1))
+    has_pose = np.zeros(len(times), bool)
+    if len(poses.timestamps):
+        row = np.clip(np.searchsorted(poses.timestamps, times), 0, len(poses.timestamps) - 1)
+        has_pose = np.isclose(poses.timestamps[row], times, atol=1e-6, rtol=0.0)
+        positions[has_pose] = poses.positions[row[has_pose]]
+        quaternions[has_pose] = poses.quaternions_xyzw[row[has_pose]]
+    states = np.where(has_pose, frames["state"].to_numpy(object), TrackingState.LOST.name)
+    estimate = PoseSeries(times, positions, quaternions)
+    return label_frames(estimate, states, PoseSeries.from_tum(ground_truth), monocular, config)
 
 
 @dataclass(frozen=True)

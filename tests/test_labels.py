@@ -12,6 +12,7 @@ from evo.core.trajectory import PoseTrajectory3D
 from scipy.spatial.transform import Rotation
 
 from estimator.labels import (LabelConfig, LabelError, LabelStatus, LabelSummary, PoseSeries, label_frames,
+                              label_session,
                               load_label_config)
 from estimator.synth.config import load_synth_config
 from estimator.synth.trajectories import load_tum
@@ -172,3 +173,36 @@ def test_summary_and_bad_input(ground_truth, config):
         label_frames(estimate, np.full(10, OK), ground_truth, False, config)
     with pytest.raises(LabelError, match="unknown tracking state"):
         label_frames(estimate, np.array(["FINE"] * 600), ground_truth, False, config)
+
+
+def test_label_session_reads_a_device_session_folder(ground_truth, config, tmp_path):
+    """A session folder as the device writes it: every frame in frames.csv, poses only for tracked frames."""
+    from slam_monitor import session
+
+    estimate = _moved(ground_truth, WORLD, OFFSET)
+    states = np.array(["OK"] * 600, object)
+    states[:5] = "NOT_INITIALIZED"
+    states[300:303] = "RECENTLY_LOST"
+    with open(tmp_path / session.FRAMES_CSV, "w") as f:
+        f.write(session.FRAMES_HEADER + "\n")
+        for i, (t, s) in enumerate(zip(estimate.timestamps, states)):
+            f.write(f"{i},{t:.6f},{s},500,10.0\n")
+
+    def write_tum(path, series, rows):
+        with open(path, "w") as f:
+            f.write(session.TUM_HEADER + "\n")
+            for i in rows:
+                p, q = series.positions[i], series.quaternions_xyzw[i]
+                f.write(f"{series.timestamps[i]:.6f} " + " ".join(f"{v:.9f}" for v in (*p, *q)) + "\n")
+
+    tracked = [i for i in range(600) if states[i] == "OK" and i != 450]  # frame 450: OK but no valid pose
+    write_tum(tmp_path / session.TRAJECTORY, estimate, tracked)
+    write_tum(tmp_path / session.GROUND_TRUTH, ground_truth, range(600))
+    labels = label_session(tmp_path, monocular=False, config=config)
+    assert (labels.status[:5] == LabelStatus.NOT_TRACKED.value).all()
+    assert labels.status[450] == LabelStatus.NOT_TRACKED.value
+    assert labels.labelled[15:300].all() and labels.labelled[313:450].all()
+    np.testing.assert_allclose(labels.error_m[labels.labelled], 0.0, atol=1e-6)
+
+    write_tum(tmp_path / session.TRAJECTORY, estimate, [])
+    assert not label_session(tmp_path, monocular=False, config=config).labelled.any()

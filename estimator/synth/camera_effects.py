@@ -97,8 +97,8 @@ class LensDistortion:
         u, v = np.meshgrid(np.arange(grid.width, dtype=np.float64), np.arange(grid.height, dtype=np.float64))
         distorted = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
         # For each pixel of the distorted image, the point of the undistorted render it shows.
-        undistorted = cv2.undistortPointsIter(distorted, k, np.array(coefficients), None, k,
-                                              (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6))
+        undistorted = cv2.undistortPoints(distorted, k, np.array(coefficients), None, None, k,
+                                          (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6))
         maps = undistorted.reshape(grid.height, grid.width, 2).astype(np.float32)
         return cls(np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]))
 

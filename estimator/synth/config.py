@@ -103,6 +103,7 @@ class EnvironmentPreset:
     falloff_m: float
     ambient: float
     albedo: float
+    shot_noise_scale: float
 
 
 @dataclass(frozen=True)

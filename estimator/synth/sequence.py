@@ -125,7 +125,7 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
                        sensor.exposure_max_ms / 1000.0)
     gain = _draw_range(rng, sensor.gain)
     signal = sensor.signal_scale * gain * light * exposure / base
-    photometry = Photometry(sensor.signal_scale, _draw_range(rng, sensor.shot_noise_dn_per_e),
+    photometry = Photometry(sensor.signal_scale, _draw_range(rng, sensor.shot_noise_dn_per_e) * preset.shot_noise_scale,
                             _draw_range(rng, sensor.read_noise_dn), sensor.black_level_dn)
     return SequencePlan(spec, camera, scene, trajectory, group, name, frame_times, exposure, light, signal, gain,
                         photometry)

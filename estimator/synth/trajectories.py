@@ -96,20 +96,17 @@ def _look_rotation(forward: np.ndarray) -> Rotation:
 
 def place_real(trajectory: Trajectory, room_lo: np.ndarray, room_hi: np.ndarray, config: TrajectoryConfig,
                rng: np.random.Generator) -> Trajectory:
-    """Place a real trajectory in a room: level it, turn it to face a random direction, scale it down to fit
-    and move it inside the room, clear of the walls.
+    """Place a real trajectory in a room: turn it about the vertical to face a random heading, scale it down to
+    fit and move it inside the room, clear of the walls.
 
-    The camera's mean "up" (−y of the optical frame) becomes the world z axis, and the mean viewing direction is
-    turned to a random heading; positions are scaled by ``min(1, fill·room / extent)`` so that a large
-    (MAV, walking) trajectory fits a small room; the camera's height is set inside the configured range.
+    The source world frames are gravity-aligned with z up (TUM motion capture, EuRoC Vicon), so the camera's
+    tilt is kept and only the heading of its mean viewing direction changes; positions are scaled by
+    ``min(1, fill·room / extent)`` so that a large (MAV, walking) trajectory fits a small room; the camera's mean
+    height is set inside the configured range.
     """
-    matrices = trajectory.rotations.as_matrix()
-    up = -matrices[:, :, 1].mean(axis=0)
-    level = Rotation.align_vectors([[0.0, 0.0, 1.0]], [up])[0]
-    view = level.apply(matrices[:, :, 2].mean(axis=0))
+    view = trajectory.rotations.as_matrix()[:, :, 2].mean(axis=0)
     heading = rng.uniform(-np.pi, np.pi)
-    turn = Rotation.from_euler("z", heading - np.arctan2(view[1], view[0]))
-    place = turn * level
+    place = Rotation.from_euler("z", heading - np.arctan2(view[1], view[0]))
     centred = place.apply(trajectory.positions - trajectory.positions.mean(axis=0))
 
     inner_lo, inner_hi = room_lo + config.wall_margin_m, room_hi - config.wall_margin_m

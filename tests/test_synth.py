@@ -1,0 +1,172 @@
+"""The synthetic renderer: scenes, exact depth, camera effects, trajectories, TUM output, determinism, CLI.
+Sequences here are tiny (64×48, a few frames) so that the file runs in seconds."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from estimator.synth.camera_effects import LensDistortion
+from estimator.synth.config import load_synth_config
+from estimator.synth.environments import build_scene
+from estimator.synth.renderer import RayGrid, render
+from estimator.synth.sequence import SequenceSpec, render_sequence
+from estimator.synth.trajectories import MOTION_GROUPS, generate_motion, load_euroc, load_tum, place_real
+
+
+@pytest.fixture(scope="module")
+def config():
+    return load_synth_config()
+
+
+def test_at_least_nine_presets_that_differ(config):
+    assert len(config.presets) >= 9
+    for field in ("room_m", "light", "falloff_m", "texture_density", "texture_contrast", "texture_scale_m", "boxes"):
+        assert len({getattr(p, field) for p in config.presets}) >= 4, field
+    assert any(p.poor_walls > 0 for p in config.presets)
+
+
+def test_depth_is_exact_z_of_the_wall_ahead(config):
+    """Camera 1 m in front of the room centre, looking at the +x wall with a 20° yaw: depth of every wall pixel
+    is the z-distance to the plane x = W/2."""
+    scene = build_scene(config.preset("office"), 3, config.sensor)
+    empty = scene.without_boxes_near(np.array([[0.0, 0.0, 1.0]]), 100.0)
+    assert len(empty.boxes) == 0 and len(empty.faces) == 6
+    camera = config.camera.scaled(64, 48)
+    grid = RayGrid.for_camera(camera)
+    forward = np.array([np.cos(0.35), np.sin(0.35), 0.0])
+    right = np.cross(forward, [0, 0, 1.0])
+    rotation = np.column_stack([right, np.cross(forward, right), forward])
+    centre = np.array([1.0, 0.0, 1.4])
+    out = render(empty, rotation, centre, grid)
+    width = empty.room[0]
+    # Rays (x, y, 1) in the camera frame; the wall x = W/2 is hit at z = (W/2 − cx) / (R · ray)_x.
+    ray_x = rotation[0, 0] * grid.x + rotation[0, 1] * grid.y + rotation[0, 2]
+    expected = (width / 2 - centre[0]) / ray_x
+    on_wall = (out.depth > 0) & np.isclose(out.depth, expected, rtol=1e-4)
+    assert on_wall[20:28, 28:36].all()
+    assert (out.radiance > 0).all()
+
+
+def test_generated_motion_groups_stay_in_the_room_and_differ_in_speed(config):
+    scene = build_scene(config.preset("living_room"), 0, config.sensor)
+    lo, hi = scene.room_bounds()
+    speeds = {}
+    for group in MOTION_GROUPS:
+        traj = generate_motion(group, getattr(config.motion, group), lo, hi, config.trajectory, 20.0,
+                               np.random.default_rng(5))
+        margin = config.trajectory.wall_margin_m
+        assert (traj.positions >= lo + margin - 1e-9).all() and (traj.positions <= hi - margin + 1e-9).all()
+        rel = traj.rotations[:-1].inv() * traj.rotations[1:]
+        ang = np.degrees(rel.magnitude()) / np.diff(traj.times)
+        lin = np.linalg.norm(np.diff(traj.positions, axis=0), axis=1) / np.diff(traj.times)
+        speeds[group] = (np.mean(ang), np.mean(lin))
+    assert speeds["rapid"][0] > speeds["patrol"][0]
+    assert speeds["aiming"][1] < speeds["patrol"][1]
+    assert 10 < speeds["patrol"][0] < 120
+
+
+def test_real_trajectories_are_placed_inside_the_smallest_room(config):
+    scene = build_scene(config.preset("studio"), 0, config.sensor)
+    lo, hi = scene.room_bounds()
+    margin = config.trajectory.wall_margin_m
+    for real in config.real_trajectories:
+        loader = load_tum if real.format == "tum" else load_euroc
+        full = loader(config.trajectory_path(real))
+        placed = place_real(full.window(0.0, 30.0), lo, hi, config.trajectory, np.random.default_rng(1))
+        assert (placed.positions >= lo + margin - 1e-9).all() and (placed.positions <= hi - margin + 1e-9).all()
+        # Only turned about the vertical: the camera's tilt (z of its viewing direction) is kept.
+        np.testing.assert_allclose(placed.rotations.as_matrix()[:, 2, 2],
+                                   full.window(0.0, 30.0).rotations.as_matrix()[:, 2, 2], atol=1e-9)
+        # Placement is a similarity: relative rotations are kept.
+        rel_full = (full.rotations[0].inv() * full.rotations[5]).magnitude()
+        rel_placed = (placed.rotations[0].inv() * placed.rotations[5]).magnitude()
+        assert rel_placed == pytest.approx(rel_full, abs=1e-9)
+
+
+def test_lens_distortion_keeps_the_centre_and_bends_the_edges(config):
+    grid = RayGrid.for_camera(config.camera)
+    lens = LensDistortion.for_camera(grid, config.camera.distortion)
+    cy, cx = int(config.camera.cy), int(config.camera.cx)
+    assert abs(lens.map_x[cy, cx] - cx) < 0.5 and abs(lens.map_y[cy, cx] - cy) < 0.5
+    # Barrel distortion (k1 < 0): a corner pixel of the image shows a point farther out in the pinhole render.
+    assert lens.map_x[0, 0] < 0 and lens.map_y[0, 0] < 0
+
+
+def _tiny(motion: str, **kw) -> SequenceSpec:
+    return SequenceSpec("lab", motion, 7, frames=6, width=64, height=48, **kw)
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*.png"))}
+
+
+def test_sequence_is_deterministic_tum_layout_with_metadata(config, tmp_path):
+    one = tmp_path / "one"
+    two = tmp_path / "two"
+    records = render_sequence(_tiny("rapid", distortion=True), config, one, processes=1, show_progress=False)
+    render_sequence(_tiny("rapid", distortion=True), config, two, processes=2, show_progress=False)
+    assert _files(one) == _files(two) and len(_files(one)) == 12
+
+    for name in ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "calibration.yaml",
+                 "metadata.json", "render_log.csv"):
+        assert (one / name).is_file(), name
+    assoc = [line.split() for line in (one / "associations.txt").read_text().splitlines()]
+    assert len(assoc) == 6
+    gray = cv2.imread(str(one / assoc[0][1]), cv2.IMREAD_UNCHANGED)
+    depth = cv2.imread(str(one / assoc[0][3]), cv2.IMREAD_UNCHANGED)
+    assert gray.dtype == np.uint8 and gray.shape == (48, 64)
+    assert depth.dtype == np.uint16 and depth.shape == (48, 64) and depth.max() > 0
+    gt = np.loadtxt(one / "groundtruth.txt")
+    assert gt.shape == (6, 8) and np.allclose(np.diff(gt[:, 0]), 1 / 30, atol=2e-6)
+    assert np.allclose(np.linalg.norm(gt[:, 4:], axis=1), 1.0, atol=1e-5)
+    meta = json.loads((one / "metadata.json").read_text())
+    assert meta["environment"] == "lab" and meta["motion_group"] == "rapid" and meta["seed"] == 7
+    calibration = (one / "calibration.yaml").read_text()
+    assert "width: 64" in calibration and "fx: 52.5" in calibration and "-0.12" in calibration
+    assert all(config.sensor.exposure_min_ms <= r.exposure_ms <= config.sensor.exposure_max_ms for r in records)
+
+
+def test_motion_blur_comes_from_the_true_motion(config, tmp_path):
+    """Same frames with and without blur: blur smooths the image (lower Laplacian variance) by an amount that
+    the logged streak length accounts for."""
+    blurred = render_sequence(_tiny("rapid"), config, tmp_path / "b", processes=1, show_progress=False)
+    render_sequence(_tiny("rapid", blur=False), config, tmp_path / "s", processes=1, show_progress=False)
+    assert max(r.blur_p99_px for r in blurred) > 0.5
+
+    def lapvar(folder: Path) -> float:
+        return float(np.mean([cv2.Laplacian(cv2.imread(str(p), 0), cv2.CV_64F).var()
+                              for p in sorted((folder / "rgb").glob("*.png"))]))
+
+    assert lapvar(tmp_path / "b") < lapvar(tmp_path / "s")
+
+
+def test_cli_render_diversity_and_errors(tmp_path):
+    seesys = [sys.executable, "-m", "seesys", "synth"]
+    out = subprocess.run(seesys + ["render", "--env", "gallery", "--motion", "real:tum_fr1_xyz", "--seed", "1",
+                                   "--out", str(tmp_path / "seqs" / "a"), "--frames", "5", "--size", "64x48",
+                                   "--processes", "1"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "frames/s" in out.stdout
+    meta = json.loads((tmp_path / "seqs" / "a" / "metadata.json").read_text())
+    assert meta["trajectory"] == "tum_fr1_xyz" and meta["motion_group"] == "aiming"
+
+    out = subprocess.run(seesys + ["diversity", str(tmp_path / "seqs"), "--out", str(tmp_path / "rep"),
+                                   "--stride", "1"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert (tmp_path / "rep" / "diversity.png").stat().st_size > 1000
+    assert "| gallery | 5 |" in (tmp_path / "rep" / "diversity.md").read_text()
+
+    out = subprocess.run(seesys + ["render", "--env", "moon", "--motion", "patrol", "--out", str(tmp_path / "x")],
+                         capture_output=True, text=True)
+    assert out.returncode == 2 and "unknown environment preset 'moon'" in out.stderr
+    out = subprocess.run(seesys + ["render", "--env", "lab", "--motion", "jumping", "--out", str(tmp_path / "x")],
+                         capture_output=True, text=True)
+    assert out.returncode == 2 and "unknown motion 'jumping'" in out.stderr
