@@ -50,7 +50,7 @@ class AudioConfig:
     channels: int
     blocksize: int
     schedule_latency_s: float
-    device_retry_s: float
+    stall_after_s: float
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ def _check(cfg: AdvisoryConfig, where: str) -> None:
                 "max_frame_gap_s": cfg.rotation.max_frame_gap_s, "window_s": tm.window_s,
                 "cadence_hz": tm.cadence_hz, "stale_after_s": tm.stale_after_s, "sample_rate": au.sample_rate,
                 "tone_hz": au.tone_hz, "channels": au.channels, "blocksize": au.blocksize,
-                "schedule_latency_s": au.schedule_latency_s, "device_retry_s": au.device_retry_s}
+                "schedule_latency_s": au.schedule_latency_s, "stall_after_s": au.stall_after_s}
     problems += [f"{name} must be positive (got {value})" for name, value in positive.items() if value <= 0]
     if tm.buffer_s > tm.cadence_s + 1e-9:
         problems.append(f"buffer_s ({tm.buffer_s}) must not exceed the cadence period ({tm.cadence_s:.4f} s)")

@@ -9,9 +9,10 @@ come, the output is silent: a generator that stops leaves no stale advice playin
 ``playback.csv`` gets one row per buffer that started, with the DAC time of its first sample (the callback's
 ``outputBufferDacTime`` mapped onto CLOCK_MONOTONIC). ``--capture`` also writes what the callback wrote to a WAV
 file, block after block (a cycle the audio server skipped, an xrun, is not in it: the DAC times in
-``playback.csv`` give the timeline). A stream that stops on its own (device unplugged, audio server gone) is logged and ends the process with
-status :data:`DEVICE_LOST_EXIT`; the supervisor restarts it. PortAudio cannot be closed or re-initialised once
-its JACK server has died (both calls hang), so a fresh process is the only clean way back.
+``playback.csv`` give the timeline). A stream that stops on its own (device unplugged, audio server gone), or whose
+callbacks stop coming (a JACK server that dropped the client), is logged and ends the process with status
+:data:`DEVICE_LOST_EXIT`; the supervisor restarts it. PortAudio cannot be closed or re-initialised once its JACK
+server has died (both calls hang), so a fresh process is the only clean way back.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ class PlaybackState:
         self.started: deque[tuple[AudioBuffer, float, float]] = deque()
         self.blocks: deque[np.ndarray] = deque()  # what the callback wrote, block by block
         self.status_flags: deque[str] = deque()
+        self.callbacks = 0
 
     def _fill(self, out: np.ndarray, start: int, end: int) -> None:
         cur = self._current
@@ -66,6 +68,7 @@ class PlaybackState:
             self._pos += n
 
     def callback(self, outdata: np.ndarray, frames: int, time_info, status) -> None:
+        self.callbacks += 1
         self._offset = min(time.monotonic() - time_info.currentTime, self._offset + _OFFSET_CREEP_S)
         block_dac = time_info.outputBufferDacTime + self._offset
         out = outdata[:, 0]
@@ -138,7 +141,7 @@ class Player:
             self._events.event(*self._receiver_notes.popleft())
 
     def run(self, stop: threading.Event) -> None:
-        """Play until ``stop`` is set; if the stream dies, log it and end the process (see the module doc)."""
+        """Play until ``stop`` is set; if the stream dies or stalls, log it and end the process (see module doc)."""
         receiver_stop = threading.Event()
         receiver = threading.Thread(target=self._receive, args=(receiver_stop,), name="handoff-receiver",
                                     daemon=True)
@@ -148,10 +151,16 @@ class Player:
                                       f"rate={self._cfg.audio.sample_rate} latency={self._stream.latency:.4f}s "
                                       f"handoff={self._cfg.handoff.endpoint}")
         poll_s = self._cfg.handoff.poll_ms / 1000.0
+        callbacks, last_callback = self._state.callbacks, time.monotonic()
         while not stop.wait(poll_s):
             self._drain()
-            if not self._stream.active:
-                self._events.event("audio device lost", f"the stream on {self._device.name!r} stopped by itself")
+            now = time.monotonic()
+            if self._state.callbacks != callbacks:
+                callbacks, last_callback = self._state.callbacks, now
+            stalled = now - last_callback > self._cfg.audio.stall_after_s
+            if not self._stream.active or stalled:
+                why = "no callback for {:.1f} s".format(now - last_callback) if stalled else "the stream stopped"
+                self._events.event("audio device lost", f"{self._device.name!r}: {why}")
                 self._close_files()
                 os._exit(DEVICE_LOST_EXIT)  # a normal exit would hang in Pa_Terminate (see the module doc)
         receiver_stop.set()

@@ -47,7 +47,7 @@ def error_pulses(error_m: float, eq: Equation2Config, buffer_s: float) -> int:
 
 
 def rotation_pulses(speed_deg_s: float, rot: RotationConfig, eq: Equation2Config, buffer_s: float) -> int:
-    """The rotation baseline: N = max(⌊θ / 50°⌋ − 1, 0), capped at Equation 2's maximum; θ in degrees/second."""
+    """The rotation baseline: N = max(⌊θ/50°⌋ − 1, 0), capped at Equation 2's maximum; θ in degrees/second."""
     theta = _quantise(speed_deg_s, rot.speed_resolution_deg_s)
     steps = _floor(theta / _decimal(rot.degrees_per_step)) - rot.steps_below_first_pulse
     return min(max(steps, 0), max_pulses(eq, buffer_s))

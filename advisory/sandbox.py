@@ -18,6 +18,7 @@ import os
 import re
 import shutil
 import subprocess
+import tempfile
 import uuid
 from pathlib import Path
 
@@ -36,6 +37,7 @@ class JackDummy:
         self._command = ["jackd", "-n", self.name, "--no-realtime", "-d", "dummy", "-r", str(sample_rate),
                          "-p", str(period)]
         self._proc: subprocess.Popen | None = None
+        self._log: tempfile._TemporaryFileWrapper | None = None
 
     @staticmethod
     def available() -> bool:
@@ -47,13 +49,16 @@ class JackDummy:
     def start(self) -> None:
         if not self.available():
             raise SeesysError("jackd is not installed (apt package jackd2)")
-        self._proc = subprocess.Popen(self._command, env={**os.environ, **self.env()}, stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.PIPE)
+        # jackd reports every xrun: its output goes to a file, as a pipe nobody reads would fill up and block it.
+        self._log = tempfile.NamedTemporaryFile(prefix="jackd-", suffix=".log")
+        self._proc = subprocess.Popen(self._command, env={**os.environ, **self.env()}, stdout=self._log,
+                                      stderr=subprocess.STDOUT)
         ready = subprocess.run(["jack_wait", "-w", "-t", str(_JACK_WAIT_S), "-s", self.name],
                                env={**os.environ, **self.env()}, capture_output=True, text=True)
         if ready.returncode != 0 or self._proc.poll() is not None:
+            output = Path(self._log.name).read_text(errors="replace")[-500:]
             self.stop()
-            raise SeesysError(f"the JACK dummy server did not start: {ready.stdout.strip()} {ready.stderr.strip()}")
+            raise SeesysError(f"the JACK dummy server did not start: {ready.stdout.strip()} {output.strip()}")
 
     def stop(self) -> None:
         if self._proc is None:
@@ -65,8 +70,8 @@ class JackDummy:
             except subprocess.TimeoutExpired:
                 self._proc.kill()
                 self._proc.wait()
-        self._proc.stderr.close()
         self._proc = None
+        self._log.close()
 
     def __enter__(self) -> JackDummy:
         self.start()

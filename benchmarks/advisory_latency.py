@@ -132,7 +132,8 @@ def main() -> None:
           f"{cfg.audio.sample_rate} Hz / {cfg.audio.blocksize}-frame periods, schedule_latency_s="
           f"{cfg.audio.schedule_latency_s}")
     print(f"buffers generated {len(generated)}, played {len(played)} "
-          f"({(generated.trigger == 'change').sum()} changes of N); callbacks flagged (xruns): {underflows:.0f}")
+          f"({(generated.trigger == 'change').sum()} changes of N); callbacks flagged (xruns): {underflows:.0f}; "
+          f"device lost: {(events.event == 'audio device lost').sum()}")
     print(f"estimate arrival -> sound (DAC), changes of N: {percentiles(arrival_to_dac)}")
     print(f"estimate sent -> sound (DAC), changes of N:    {percentiles(send_to_dac)}")
     print(f"estimate arrival -> buffer at the player:      {percentiles(arrival_to_player)}")
