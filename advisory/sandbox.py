@@ -43,6 +43,10 @@ class JackDummy:
     def available() -> bool:
         return shutil.which("jackd") is not None and shutil.which("jack_wait") is not None
 
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid if self._proc else None
+
     def env(self) -> dict[str, str]:
         return {"JACK_DEFAULT_SERVER": self.name, "JACK_NO_AUDIO_RESERVATION": "1"}
 

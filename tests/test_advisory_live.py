@@ -177,6 +177,22 @@ def test_lost_audio_device_is_logged_and_ends_the_player(make_sandbox):
     assert "audio device lost" in set(events.event)
 
 
+def test_stalled_audio_server_is_logged_as_a_lost_device(make_sandbox):
+    if not JackDummy.available():
+        pytest.skip("jackd is not installed")
+    with JackDummy(48000, 256) as server:
+        sandbox = make_sandbox(server, stall_after_s=0.5)
+        player = sandbox.player()
+        wait_started(sandbox, "player")
+        os.kill(server.pid, signal.SIGSTOP)  # the server stops running cycles; the stream still says active
+        try:
+            assert player.wait(15) == DEVICE_LOST_EXIT
+        finally:
+            os.kill(server.pid, signal.SIGCONT)
+    lost = sandbox.events().query("event == 'audio device lost'")
+    assert len(lost) == 1 and "no callback for" in lost.detail.iloc[0]
+
+
 def test_missing_audio_device_is_a_clear_error_at_start(make_sandbox, tmp_path):
     # An ALSA null PCM as the only device (no sound card, no JACK): a named device that does not exist fails at
     # once with a one-line message listing what there is.
