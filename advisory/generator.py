@@ -42,7 +42,8 @@ class Generator:
         self._log = CsvLog(out / ADVISORY_CSV, ADVISORY_COLUMNS)
         self._ctx = zmq.Context()
         self._pub = bind_publisher(self._ctx, cfg.handoff.endpoint, "advisory hand-off")
-        self._sub = connect_subscriber(self._ctx, self._input.endpoint, self._input.topic, conflate=False)
+        self._sub = connect_subscriber(self._ctx, self._input.endpoint, self._input.topic, conflate=False,
+                                       what=f"{condition.value} input")
         self._scheduler = PulseScheduler(self._input.rule, cfg.timing.window_s, cfg.timing.cadence_s,
                                          cfg.timing.stale_after_s, time.monotonic())
         self._status = self._scheduler.status

@@ -102,7 +102,7 @@ class Player:
         self._log = CsvLog(out / PLAYBACK_CSV, PLAYBACK_COLUMNS)
         self._wav = WavWriter(capture, cfg.audio.sample_rate) if capture else None
         self._ctx = zmq.Context()
-        self._sub = connect_subscriber(self._ctx, cfg.handoff.endpoint, b"", conflate=True)
+        self._sub = connect_subscriber(self._ctx, cfg.handoff.endpoint, b"", conflate=True, what="advisory hand-off")
         self._receiver_notes: deque[tuple[str, str]] = deque()
         self._device = device
 

@@ -1,4 +1,5 @@
-"""``seesys advisory replay`` publishes an estimate log at its pace; the generator runs live on it (no audio)."""
+"""The generator over real ZeroMQ sockets, with no audio: fed by ``seesys advisory replay`` (an estimate log at its
+pace), fed garbage, and started on an endpoint that is taken."""
 
 import subprocess
 import time
@@ -9,7 +10,7 @@ import zmq
 
 from advisory.process import advisory_command
 from audio_fixtures import make_sandbox, wait_started  # noqa: F401
-from slam_monitor.messages import ESTIMATE_TOPIC, Estimate, decode
+from slam_monitor.messages import ESTIMATE_TOPIC, Estimate, decode, encode
 
 
 def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make_sandbox):
@@ -45,3 +46,41 @@ def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make
     live = sandbox.advisory().query("status == 'live'")
     # 6 mm → 1 pulse; 20 mm → 3, through 2 while the moving average passes 8 mm.
     assert live.n_pulses.iloc[0] == 1 and live.n_pulses.iloc[-1] == 3 and live.n_pulses.is_monotonic_increasing
+
+
+def test_generator_drops_malformed_messages_and_keeps_going(make_sandbox):
+    sandbox = make_sandbox(None)
+    sandbox.generator("none")
+    wait_started(sandbox, "generator")
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.bind(sandbox.estimates_endpoint)
+    time.sleep(0.5)
+    good = encode(Estimate("test-device", 0, 0.0, 0.006, "test"))
+    for frames in ([ESTIMATE_TOPIC + b"x", b"not a message"], [good[0], good[1][:-3]], good):
+        pub.send_multipart(frames)
+    time.sleep(0.6)
+    pub.close()
+    ctx.term()
+    sandbox.stop_all()
+    bad = sandbox.events().query("event == 'bad message'")
+    assert len(bad) == 2 and "not a SEESys message" in bad.detail.iloc[0]
+    assert 1 in set(sandbox.advisory().n_pulses)  # the good estimate after the bad ones still counted
+
+
+def test_generator_on_a_taken_hand_off_endpoint_is_a_clear_error(make_sandbox):
+    # TCP: an ipc:// bind takes the socket file over from its owner instead of failing (which is also why a
+    # generator restarted after a crash gets its endpoint back).
+    ctx = zmq.Context()
+    taken = ctx.socket(zmq.PUB)
+    port = taken.bind_to_random_port("tcp://127.0.0.1")
+    sandbox = make_sandbox(None, endpoint=f"tcp://127.0.0.1:{port}")
+    try:
+        result = subprocess.run(advisory_command("generator", "--condition", "seesys", "--out",
+                                                 str(sandbox.session)), env=sandbox.env, capture_output=True,
+                                text=True, timeout=60)
+    finally:
+        taken.close()
+        ctx.term()
+    assert result.returncode == 2
+    assert "seesys: error: cannot bind the advisory hand-off endpoint" in result.stderr
