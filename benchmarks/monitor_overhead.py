@@ -91,7 +91,9 @@ def _sample(pid: int, frames_csv: Path, into: Measurements, done: threading.Even
         while not done.wait(SAMPLE_PERIOD_S):
             into.cpu_percent.append(process.cpu_percent(None))
             into.memory_mb.append(process.memory_info().rss / 2**20)
-            last = (_cpu_seconds(process), _frames_logged(frames_csv))
+            now = (_cpu_seconds(process), _frames_logged(frames_csv))
+            if now[1] > last[1]:  # not the shutdown tail, where ORB-SLAM3 works on with no new frames
+                last = now
     except psutil.NoSuchProcess:
         pass
     if last[1] > first[1]:
