@@ -1,6 +1,7 @@
 """The generator over real ZeroMQ sockets, with no audio: fed by ``seesys advisory replay`` (an estimate log at its
 pace), fed garbage, and started on an endpoint that is taken."""
 
+import signal
 import subprocess
 import time
 
@@ -84,3 +85,13 @@ def test_generator_on_a_taken_hand_off_endpoint_is_a_clear_error(make_sandbox):
         ctx.term()
     assert result.returncode == 2
     assert "seesys: error: cannot bind the advisory hand-off endpoint" in result.stderr
+
+
+def test_run_none_starts_only_the_generator_and_needs_no_audio_device(make_sandbox):
+    sandbox = make_sandbox(None, output_device="no-such-device")
+    run = sandbox.start("run", "--condition", "none", "--out", str(sandbox.session), name="run")
+    wait_started(sandbox, "generator")
+    run.send_signal(signal.SIGTERM)
+    assert run.wait(15) == 0
+    processes = set(sandbox.events().process.str.split("[").str[0])
+    assert processes == {"supervisor", "generator"}
