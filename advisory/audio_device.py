@@ -67,13 +67,12 @@ def find_output_device(audio: AudioConfig) -> OutputDevice:
     return OutputDevice(index, devices[index]["name"], host_apis[devices[index]["hostapi"]]["name"])
 
 
-def open_output_stream(audio: AudioConfig, device: OutputDevice, callback: Callable, finished: Callable):
+def open_output_stream(audio: AudioConfig, device: OutputDevice, callback: Callable):
     """An unstarted float32 ``sd.OutputStream`` on ``device``; AudioDeviceError if PortAudio refuses it."""
     sd = _sounddevice()
     try:
         return sd.OutputStream(device=device.index, samplerate=audio.sample_rate, channels=audio.channels,
-                               blocksize=audio.blocksize, dtype="float32", latency="low", callback=callback,
-                               finished_callback=finished)
+                               blocksize=audio.blocksize, dtype="float32", latency="low", callback=callback)
     except sd.PortAudioError as e:
         raise AudioDeviceError(f"cannot open audio output {device.name!r} ({device.host_api}) at "
                                f"{audio.sample_rate} Hz: {e}") from None

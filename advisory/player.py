@@ -97,7 +97,7 @@ class Player:
         self._cfg = cfg
         device = find_output_device(cfg.audio)
         self._state = PlaybackState(cfg.audio.sample_rate, capture is not None)
-        self._stream = open_output_stream(cfg.audio, device, self._state.callback, lambda: None)
+        self._stream = open_output_stream(cfg.audio, device, self._state.callback)
         self._events = EventLog(out, "player")
         self._log = CsvLog(out / PLAYBACK_CSV, PLAYBACK_COLUMNS)
         self._wav = WavWriter(capture, cfg.audio.sample_rate) if capture else None
@@ -159,7 +159,7 @@ class Player:
                 callbacks, last_callback = self._state.callbacks, now
             stalled = now - last_callback > self._cfg.audio.stall_after_s
             if not self._stream.active or stalled:
-                why = "no callback for {:.1f} s".format(now - last_callback) if stalled else "the stream stopped"
+                why = f"no callback for {now - last_callback:.1f} s" if stalled else "the stream stopped"
                 self._events.event("audio device lost", f"{self._device.name!r}: {why}")
                 self._close_files()
                 os._exit(DEVICE_LOST_EXIT)  # a normal exit would hang in Pa_Terminate (see the module doc)
