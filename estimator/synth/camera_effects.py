@@ -46,21 +46,17 @@ def motion_blur(image: np.ndarray, grid: RayGrid, flow_start: np.ndarray, flow_e
     streak = np.linalg.norm(flow_end[::4, ::4] - flow_start[::4, ::4], axis=-1)
     p99 = float(np.percentile(streak, 99))
     samples = int(np.clip(np.ceil(p99), 1, max_samples))
-    if samples == 1:
-        flow = 0.5 * (flow_start + flow_end)
-        return _warp(image, grid, flow), p99
+    # Backward-warp maps: pixel − flow(s), flow(s) = start + s · (end − start).
+    base_x = grid.x * np.float32(grid.fx) + np.float32(grid.cx) - flow_start[..., 0]
+    base_y = grid.y * np.float32(grid.fy) + np.float32(grid.cy) - flow_start[..., 1]
+    step_x = flow_start[..., 0] - flow_end[..., 0]
+    step_y = flow_start[..., 1] - flow_end[..., 1]
+    fractions = np.linspace(0.0, 1.0, samples, dtype=np.float32) if samples > 1 else np.array([0.5], np.float32)
     acc = np.zeros_like(image, np.float32)
-    for s in np.linspace(0.0, 1.0, samples, dtype=np.float32):
-        acc += _warp(image, grid, (1.0 - s) * flow_start + s * flow_end)
-    return acc / samples, p99
-
-
-def _warp(image: np.ndarray, grid: RayGrid, flow: np.ndarray) -> np.ndarray:
-    u = grid.x * grid.fx + grid.cx
-    v = grid.y * grid.fy + grid.cy
-    map_x = (u - flow[..., 0]).astype(np.float32)
-    map_y = (v - flow[..., 1]).astype(np.float32)
-    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    for s in fractions:
+        acc += cv2.remap(image, base_x + s * step_x, base_y + s * step_y, cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REFLECT)
+    return acc / np.float32(len(fractions)), p99
 
 
 @dataclass(frozen=True)
