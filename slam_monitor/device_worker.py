@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import importlib
 import itertools
-import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +30,7 @@ from slam_monitor.orbslam_settings import (
     vocabulary_path,
     write_settings,
 )
+from slam_monitor.pacing import FramePacer, ThreadDemand
 from slam_monitor.sources import CameraConfig, FrameSource, SourceError, load_camera_config, open_source, parse_source_spec
 from slam_monitor.tracker import Tracker, TrackOutput
 
@@ -119,30 +119,6 @@ def build_observer(spec: ObserverSpec, context: SessionContext) -> FrameObserver
     return factory(context, **spec.settings)
 
 
-class FramePacer:
-    """Feeds frames no faster than the camera took them: consecutive frames are at least their timestamp
-    difference apart on the wall clock.
-
-    Spacing is measured from the previous frame's feed, not from a fixed origin, so a slow frame is never followed
-    by a burst of catch-up frames: monocular ORB-SLAM3's local mapping falls behind under exactly such bursts
-    (and on a busy CPU), and tracking degrades. Sources that a clock already paces (a live camera, real-time
-    playback) are not paced again.
-    """
-
-    def __init__(self, enabled: bool):
-        self.enabled = enabled
-        self._previous: tuple[float, float] | None = None  # (wall time fed, frame timestamp)
-
-    def wait(self, timestamp: float) -> None:
-        if not self.enabled:
-            return
-        if self._previous is not None:
-            delay = self._previous[0] + (timestamp - self._previous[1]) - time.perf_counter()
-            if delay > 0:
-                time.sleep(delay)
-        self._previous = (time.perf_counter(), timestamp)
-
-
 def checked_frames(source: FrameSource, mode: SlamMode) -> Iterator[Frame]:
     """The source's frames, checked against its intrinsics so that ORB-SLAM3 never sees a mismatched image."""
     size = (source.intrinsics.height, source.intrinsics.width)
@@ -206,7 +182,8 @@ def run_device_session(
                                          slam_config, camera_config)
                 active = list(observers) + [build_observer(s, context) for s in options.observers]
                 pace = options.pace if options.pace is not None else slam_config.pacing.paces(options.mode)
-                pacer = FramePacer(pace and not source.paced_by_clock)
+                pacer = FramePacer(slam_config.pacing, pace and not source.paced_by_clock,
+                                   ThreadDemand(tracker.background_thread_ids))
                 for frame in itertools.islice(checked_frames(source, options.mode), options.max_frames):
                     pacer.wait(frame.timestamp)
                     output = tracker.track(frame)
@@ -226,7 +203,7 @@ def run_device_session(
         writer.finish("interrupted")
         raise
     _close_all(active)
-    writer.finish("completed")
+    writer.finish("completed", mapping_wait_s=round(pacer.mapping_wait_s, 3))
     return SessionResult(writer.folder, writer.frames_written, writer.frames_tracked, ground_truth is not None)
 
 

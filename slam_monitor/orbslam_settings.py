@@ -52,8 +52,14 @@ class RgbdConfig:
 
 @dataclass(frozen=True)
 class PacingConfig:
+    """``[pacing]``: which modes are paced, and the wait for ORB-SLAM3's mapping (slam_monitor/pacing.py)."""
+
     mono: bool
     rgbd: bool
+    wait_for_mapping: bool
+    idle_window_s: float
+    idle_busy_fraction: float
+    max_mapping_wait_s: float
 
     def paces(self, mode: SlamMode) -> bool:
         return self.mono if mode is SlamMode.MONO else self.rgbd

@@ -14,6 +14,7 @@ import numpy as np
 
 from slam_monitor.frame import Frame, Intrinsics
 from slam_monitor.orbslam_settings import SlamMode, validate_settings_file
+from slam_monitor.pacing import thread_ids
 from slam_monitor.tracking_state import TrackingState
 from slam_monitor.vocabulary import validate_vocabulary
 
@@ -57,7 +58,10 @@ class Tracker:
 
         sensor = pyorbslam3.Sensor.RGBD if mode is SlamMode.RGBD else pyorbslam3.Sensor.MONOCULAR
         self.mode = mode
+        existing = thread_ids()
         self._slam = pyorbslam3.Slam(vocabulary, settings, sensor, use_viewer=False)
+        # ORB-SLAM3's local-mapping and loop-closing threads, watched by the pacer
+        self.background_thread_ids = thread_ids() - existing
 
     def track(self, frame: Frame) -> TrackOutput:
         start = time.perf_counter()

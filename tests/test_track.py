@@ -1,5 +1,7 @@
 """Real ORB-SLAM3 on the embedded sample, through the CLI and through the library's observer hook."""
 
+import dataclasses
+import threading
 import time
 
 import numpy as np
@@ -9,7 +11,8 @@ from conftest import SAMPLE, run_seesys
 
 from slam_monitor import session
 from slam_monitor.device_worker import SessionOptions, run_device_session
-from slam_monitor.orbslam_settings import SlamMode
+from slam_monitor.orbslam_settings import SlamMode, load_slam_config
+from slam_monitor.pacing import FramePacer, ThreadDemand
 from slam_monitor.tracking_state import TrackingState
 from slam_monitor.trajectory_metrics import summarize_session
 
@@ -31,13 +34,17 @@ def test_rgbd_on_the_sample_tracks_every_frame_within_2_cm(tmp_path):
 
 @pytest.mark.slam
 def test_mono_on_the_sample_initialises_and_tracks_within_5_cm_after_sim3(tmp_path):
-    out = tmp_path / "mono"
-    result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--mode", "mono", "--out", str(out))
-    assert result.returncode == 0, result.stderr
-    summary = summarize_session(out, SlamMode.MONO)
-    # monocular needs a few frames to initialise (~97 % on a quiet machine); the threshold leaves room for a CPU
-    # shared with other tests, under which ORB-SLAM3's local mapping falls behind
-    assert summary.tracked_percent >= 80.0
+    # Monocular ORB-SLAM3 is multi-threaded and not deterministic: on a CPU shared with other work an occasional
+    # run stops inserting keyframes and loses track (docs/device.md). One retry keeps the test meaningful:
+    # two such runs in a row mean something is wrong.
+    for attempt in range(2):
+        out = tmp_path / f"mono{attempt}"
+        result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--mode", "mono", "--out", str(out))
+        assert result.returncode == 0, result.stderr
+        summary = summarize_session(out, SlamMode.MONO)
+        if summary.tracked_percent >= 90.0:  # ~97 %: it needs a few frames to initialise
+            break
+    assert summary.tracked_percent >= 90.0
     assert summary.ate.alignment == "Sim(3)" and summary.ate.rmse_m < 0.05
     frames = pd.read_csv(out / session.FRAMES_CSV)
     assert frames.state.iloc[0] == TrackingState.NOT_INITIALIZED.name
@@ -87,16 +94,56 @@ def test_max_frames_and_explicit_settings_file(tmp_path):
     assert session.read_manifest(again)["settings_file"] == str(first / session.SETTINGS)
 
 
-def test_pacer_holds_frames_to_their_timestamps():
-    from slam_monitor.device_worker import FramePacer
+def pacing(**changes):
+    return dataclasses.replace(load_slam_config().pacing, **changes)
 
-    pacer = FramePacer(enabled=True)
+
+def test_pacer_spaces_frames_by_their_timestamps_without_catching_up():
+    pacer = FramePacer(pacing(wait_for_mapping=False), enabled=True, background=None)
     start = time.perf_counter()
     for n in range(4):
         pacer.wait(50.0 + n * 0.05)
     assert time.perf_counter() - start >= 0.15  # frame 3 is due 0.15 s after frame 0
-    unpaced = FramePacer(enabled=False)
+    time.sleep(0.2)  # a slow frame...
+    start = time.perf_counter()
+    pacer.wait(50.2)
+    pacer.wait(50.25)
+    assert time.perf_counter() - start >= 0.05  # ...is not followed by a burst: the next is still 0.05 s later
+    unpaced = FramePacer(pacing(), enabled=False, background=None)
     start = time.perf_counter()
     for n in range(4):
         unpaced.wait(50.0 + n * 10.0)
     assert time.perf_counter() - start < 1.0
+
+
+def background_thread(busy):
+    stop = threading.Event()
+    started = threading.Event()
+    ids = []
+
+    def run():
+        ids.append(str(threading.get_native_id()))
+        started.set()
+        while not stop.is_set():
+            if not busy:
+                stop.wait()
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    started.wait()
+    return ThreadDemand(set(ids)), stop
+
+
+@pytest.mark.parametrize("busy", [True, False])
+def test_pacer_waits_for_busy_background_threads_up_to_the_limit(busy):
+    demand, stop = background_thread(busy)
+    try:
+        pacer = FramePacer(pacing(max_mapping_wait_s=0.3), enabled=True, background=demand)
+        pacer.wait(10.0)
+        pacer.wait(10.01)
+    finally:
+        stop.set()
+    if busy:
+        assert pacer.mapping_wait_s >= 0.3
+    else:
+        assert pacer.mapping_wait_s < 0.3
