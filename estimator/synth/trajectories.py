@@ -142,7 +142,7 @@ def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, 
     - ``patrol``: walking round the room on a wobbly loop, looking ahead and out towards the walls, with gait bob.
     - ``aiming``: standing at a few spots, aiming at points on the walls with smooth (minimum-jerk) re-aims and
       small arcs around each spot.
-    - ``rapid``: slow walking with waving (wave_deg at wave_hz, in bursts) and fast turns.
+    - ``rapid``: walking with fast turns and waving (RMS wave_deg at wave_hz in real time, in bursts).
 
     All groups add hand shake (shake_deg, shake_m at shake_hz). ``speed_scale`` speeds the whole motion up; it is
     drawn per sequence in its configured range.
@@ -164,16 +164,21 @@ def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, 
     else:
         positions, yaw, pitch = _walking(rng, s, centre, half, walk, yaw_rate, height)
         if group == "rapid":
-            envelope = _min_jerk(0.5 + 0.8 * _smooth_noise(rng, s, (0.05, 0.15), 2))
+            # Waving runs at its own rate (wave_hz in real time, not sped up), in bursts.
+            envelope = _min_jerk(0.5 + 0.8 * _smooth_noise(rng, t, (0.05, 0.15), 2))
             amplitude = np.radians(motion.wave_deg)
-            yaw = yaw + amplitude * envelope * _smooth_noise(rng, s, motion.wave_hz, 2)
-            pitch = pitch + 0.5 * amplitude * envelope * _smooth_noise(rng, s, motion.wave_hz, 2)
+            yaw = yaw + amplitude * envelope * _smooth_noise(rng, t, motion.wave_hz, 2)
+            pitch = pitch + 0.5 * amplitude * envelope * _smooth_noise(rng, t, motion.wave_hz, 2)
 
+    # Hand shake (in real time, like the waving): shake_m and shake_deg are the RMS of the 3-D offset and angle.
+    per_axis = 1.0 / np.sqrt(3.0)
     shake_hz = motion.shake_hz
-    positions = positions + motion.shake_m * np.column_stack([_smooth_noise(rng, s, shake_hz) for _ in range(3)])
+    positions = positions + per_axis * motion.shake_m * np.column_stack(
+        [_smooth_noise(rng, t, shake_hz) for _ in range(3)])
     forward = np.column_stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
     roll = np.radians(3.0) * _smooth_noise(rng, s, (0.1, 0.4), 2)
-    shake = np.radians(motion.shake_deg) * np.column_stack([_smooth_noise(rng, s, shake_hz) for _ in range(3)])
+    shake = per_axis * np.radians(motion.shake_deg) * np.column_stack(
+        [_smooth_noise(rng, t, shake_hz) for _ in range(3)])
     shake[:, 2] += roll
     rotations = _look_rotation(forward) * Rotation.from_rotvec(shake)
     return Trajectory(t, np.clip(positions, inner_lo, inner_hi), rotations)
