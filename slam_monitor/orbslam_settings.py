@@ -57,6 +57,7 @@ class PacingConfig:
     mono: bool
     rgbd: bool
     wait_for_mapping: bool
+    contention_fraction: float
     idle_window_s: float
     idle_busy_fraction: float
     max_mapping_wait_s: float

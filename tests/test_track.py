@@ -134,17 +134,22 @@ def background_thread(busy):
     return ThreadDemand(set(ids)), stop
 
 
-@pytest.mark.parametrize("busy", [True, False])
-def test_pacer_waits_for_busy_background_threads_up_to_the_limit(busy):
+@pytest.mark.parametrize(
+    "busy, contention_fraction, waits",
+    [
+        (True, 0.0, True),  # contention_fraction 0: always contended (a test machine may have a free core)
+        (False, 0.0, False),  # contended but idle: no wait
+        (True, 1e9, False),  # never contended: camera rate only, however busy the threads
+    ],
+)
+def test_pacer_waits_for_busy_background_threads_up_to_the_limit(busy, contention_fraction, waits):
     demand, stop = background_thread(busy)
     try:
         # a 20 ms window: a busy thread gets more than 10 % of it even on a CPU shared with other work
-        pacer = FramePacer(pacing(max_mapping_wait_s=0.3, idle_window_s=0.02), enabled=True, background=demand)
+        pacer = FramePacer(pacing(max_mapping_wait_s=0.3, idle_window_s=0.02, contention_fraction=contention_fraction),
+                           enabled=True, background=demand)
         pacer.wait(10.0)
         pacer.wait(10.01)
     finally:
         stop.set()
-    if busy:
-        assert pacer.mapping_wait_s >= 0.3
-    else:
-        assert pacer.mapping_wait_s < 0.3
+    assert (pacer.mapping_wait_s >= 0.3) == waits
