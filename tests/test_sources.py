@@ -149,3 +149,13 @@ def test_bad_depth_is_reported(small_tum, damage, message):
     with open_spec(f"tum:{small_tum}", with_depth=True) as source:
         with pytest.raises(SourceError, match=message):
             next(source.frames())
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [("width: 640\nheight: 480\nfy: 1.0\ncx: 1.0\ncy: 1.0\n", "missing key fx"), ("width: [640\n", "not valid YAML")],
+)
+def test_bad_calibration_file(small_tum, text, message):
+    (small_tum / "calibration.yaml").write_text(text)
+    with pytest.raises(SourceError, match=message):
+        open_spec(f"tum:{small_tum}")

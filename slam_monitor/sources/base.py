@@ -152,6 +152,33 @@ def check_depth(depth_m: np.ndarray, gray: np.ndarray, limits: DepthLimits, wher
     return np.ascontiguousarray(depth_m, dtype=np.float32)
 
 
+def _node_value(node):
+    if node.isMap():
+        return {key: _node_value(node.getNode(key)) for key in node.keys()}
+    if node.isSeq():
+        return [_node_value(node.at(i)) for i in range(node.size())]
+    if node.isString():
+        return node.string()
+    if node.isInt() or node.isReal():
+        return node.real()
+    return None
+
+
+def read_yaml(path: Path) -> dict:
+    """A YAML calibration file (OpenCV's ``%YAML:1.0`` dialect or plain YAML) as nested dicts, lists, floats."""
+    import cv2
+
+    require_file(path, "calibration file")
+    try:
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as e:  # the binding wraps the parser's cv2.error in a SystemError
+        raise SourceError(f"{path}: not valid YAML ({str(e.__cause__ or e).strip().splitlines()[-1]})") from None
+    try:
+        return _node_value(storage.root())
+    finally:
+        storage.release()
+
+
 def read_timestamped_list(path: Path) -> list[tuple[float, str]]:
     """Read a TUM-style list file: ``timestamp filename`` per line, ``#`` comments."""
     require_file(path, "list file")

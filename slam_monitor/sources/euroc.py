@@ -15,23 +15,12 @@ from slam_monitor.sources.base import (
     SourceError,
     read_gray,
     read_timestamped_list,
+    read_yaml,
     require_file,
     require_folder,
 )
 
 NS_PER_S = 1e9
-
-
-def _read_sensor_yaml(path: Path) -> dict:
-    import yaml
-
-    text = require_file(path, "EuRoC camera file").read_text()
-    # EuRoC files start with OpenCV's "%YAML:1.0" directive, which is not standard YAML.
-    lines = [line for line in text.splitlines() if not line.startswith("%YAML")]
-    try:
-        return yaml.safe_load("\n".join(lines))
-    except yaml.YAMLError as e:
-        raise SourceError(f"{path}: not valid YAML ({e})") from None
 
 
 class EurocSource(FrameSource):
@@ -43,7 +32,7 @@ class EurocSource(FrameSource):
         folder = require_folder(folder, "EuRoC")
         self.mav0 = folder / "mav0" if (folder / "mav0").is_dir() else folder
         self.cam0 = require_folder(self.mav0 / "cam0", "EuRoC cam0")
-        sensor = _read_sensor_yaml(self.cam0 / "sensor.yaml")
+        sensor = read_yaml(require_file(self.cam0 / "sensor.yaml", "EuRoC camera file"))
         try:
             fu, fv, cu, cv = (float(v) for v in sensor["intrinsics"])
             width, height = (int(v) for v in sensor["resolution"])

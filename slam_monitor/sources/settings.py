@@ -7,7 +7,7 @@ from pathlib import Path
 
 from seesys.config import load_section
 from slam_monitor.frame import Intrinsics
-from slam_monitor.sources.base import DepthLimits, SourceError
+from slam_monitor.sources.base import DepthLimits, SourceError, read_yaml
 
 CALIBRATION_FILE = "calibration.yaml"
 
@@ -71,10 +71,8 @@ def folder_calibration(folder: Path, defaults: FileSourceDefaults) -> FolderCali
     path = folder / CALIBRATION_FILE
     if not path.is_file():
         return FolderCalibration(defaults.intrinsics, None, defaults.depth_units_per_metre)
-    import yaml
-
+    data = read_yaml(path)
     try:
-        data = yaml.safe_load(path.read_text())
         intrinsics = Intrinsics(
             int(data["width"]),
             int(data["height"]),
@@ -84,7 +82,7 @@ def folder_calibration(folder: Path, defaults: FileSourceDefaults) -> FolderCali
             float(data["cy"]),
             _distortion(data.get("distortion", [])),
         )
-    except (yaml.YAMLError, TypeError, ValueError) as e:
+    except (TypeError, ValueError) as e:
         raise SourceError(f"{path}: not a valid calibration file ({e})") from None
     except KeyError as e:
         raise SourceError(f"{path}: missing key {e.args[0]}") from None
