@@ -194,13 +194,15 @@ def run_device_session(
                         progress(FrameTracked(output.frame_index, output.tracked))
             finally:
                 tracker.shutdown()
-    except SeesysError as e:
-        _close_all(active)
-        writer.finish("failed", error=str(e))
-        raise
-    except KeyboardInterrupt:
-        _close_all(active)
-        writer.finish("interrupted")
+    except BaseException as e:  # record how the session ended, whatever ended it, then let it propagate
+        interrupted = isinstance(e, KeyboardInterrupt)
+        try:
+            _close_all(active)
+        finally:
+            if interrupted:
+                writer.finish("interrupted")
+            else:
+                writer.finish("failed", error=str(e) if isinstance(e, SeesysError) else f"{type(e).__name__}: {e}")
         raise
     _close_all(active)
     writer.finish("completed", mapping_wait_s=round(pacer.mapping_wait_s, 3))

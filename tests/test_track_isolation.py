@@ -10,6 +10,7 @@ import pytest
 from conftest import SAMPLE
 from evo.tools import file_interface
 
+from seesys.errors import SeesysError
 from slam_monitor import session
 from slam_monitor.device_worker import ObserverSpec, SessionOptions
 from slam_monitor.orbslam_settings import SlamMode
@@ -96,3 +97,27 @@ def test_crash_before_the_first_frame(tmp_path):
         run_supervised_session(options)
     assert session.read_manifest(out)["status"] == "crashed"
     assert (out / session.FRAMES_CSV).read_text().splitlines() == [session.FRAMES_HEADER]
+
+
+class Faulty:
+    def on_frame(self, frame, result):
+        if frame.index == 2:
+            raise ZeroDivisionError("observer bug")
+
+    def close(self):
+        pass
+
+
+def faulty(context):
+    return Faulty()
+
+
+def test_a_bug_in_the_worker_is_reported_in_one_line_and_the_session_marked_failed(tmp_path):
+    out = tmp_path / "s"
+    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out, observers=(ObserverSpec("test_track_isolation:faulty"),))
+    with pytest.raises(SeesysError, match=r"^internal error in the device worker: ZeroDivisionError: observer bug "
+                                          r"\(traceback in .*orbslam3.log\)$"):
+        run_supervised_session(options)
+    manifest = session.read_manifest(out)
+    assert (manifest["status"], manifest["error"], manifest["frames"]) == ("failed", "ZeroDivisionError: observer bug", 3)
+    assert "Traceback" in (out / session.SLAM_LOG).read_text()
