@@ -133,13 +133,22 @@ def checked_frames(source: FrameSource, mode: SlamMode) -> Iterator[Frame]:
         yield frame
 
 
-def _settings_file(options: SessionOptions, source: FrameSource, config: SlamConfig, out_dir: Path) -> Path:
+def _read_user_settings(options: SessionOptions) -> bytes | None:
+    """The ``--settings`` file's content, read before the session folder (which may hold it) is reset."""
+    if options.settings_file is None:
+        return None
+    try:
+        return options.settings_file.read_bytes()
+    except OSError:
+        raise SeesysError(f"ORB-SLAM3 settings file not found or unreadable: {options.settings_file}") from None
+
+
+def _settings_file(options: SessionOptions, user_settings: bytes | None, source: FrameSource, config: SlamConfig,
+                   out_dir: Path) -> Path:
     """The settings ORB-SLAM3 will read, saved in the session folder either way."""
     target = out_dir / session.SETTINGS
-    if options.settings_file is not None:
-        if not options.settings_file.is_file():
-            raise SeesysError(f"ORB-SLAM3 settings file not found: {options.settings_file}")
-        target.write_bytes(options.settings_file.read_bytes())
+    if user_settings is not None:
+        target.write_bytes(user_settings)
         return target
     return write_settings(target, build_settings(source.intrinsics, source.fps, options.mode, config))
 
@@ -158,6 +167,7 @@ def run_device_session(
     camera_config = load_camera_config(options.config_dir)
     spec = parse_source_spec(options.source)
     vocabulary = options.vocabulary or vocabulary_path(slam_config)
+    user_settings = _read_user_settings(options)
     writer = session.SessionWriter(session.prepare_session_folder(options.out_dir), {
         "source": str(spec),
         "mode": options.mode.value,
@@ -175,7 +185,7 @@ def run_device_session(
                 writer.write_ground_truth(ground_truth)
             if progress:
                 progress(SessionStarted(source.description, _expected_frames(source, options.max_frames)))
-            settings = _settings_file(options, source, slam_config, writer.folder)
+            settings = _settings_file(options, user_settings, source, slam_config, writer.folder)
             tracker = Tracker(vocabulary, settings, options.mode, source.intrinsics)
             try:
                 context = SessionContext(options, writer.folder, options.mode, source.intrinsics, source.fps,
