@@ -25,7 +25,7 @@ EVENTS_CSV = "advisory_events.csv"
 ADVISORY_COLUMNS = ("wall_time", "time_mono", "condition", "status", "trigger", "input_value", "n_pulses",
                     "played_pulses", "buffer_id", "arrival_mono", "play_at_mono")
 PLAYBACK_COLUMNS = ("wall_time", "buffer_id", "time_mono", "trigger", "n_pulses", "played_pulses", "arrival_mono",
-                    "received_mono", "play_at_mono", "dac_mono")
+                    "received_mono", "play_at_mono", "dac_mono", "stream_sample")
 EVENT_COLUMNS = ("wall_time", "time_mono", "process", "event", "detail")
 
 

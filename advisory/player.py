@@ -6,18 +6,20 @@ sample whose DAC time is the buffer's ``play_at`` (or as soon as possible when t
 cadence is exact to the sample and does not depend on the audio block size. When a buffer ends and no new one has
 come, the output is silent: a generator that stops leaves no stale advice playing.
 
-``playback.csv`` gets one row per buffer that started, with the DAC time of its first sample (the callback's
-``outputBufferDacTime`` mapped onto CLOCK_MONOTONIC). ``--capture`` also writes what the callback wrote to a WAV
-file, block after block (a cycle the audio server skipped, an xrun, is not in it: the DAC times in
-``playback.csv`` give the timeline). A stream that stops on its own (device unplugged, audio server gone), or whose
-callbacks stop coming (a JACK server that dropped the client), is logged and ends the process with status
-:data:`DEVICE_LOST_EXIT`; the supervisor restarts it. PortAudio cannot be closed or re-initialised once its JACK
-server has died (both calls hang), so a fresh process is the only clean way back.
+``playback.csv`` gets one row per buffer that started, with the DAC time of its first sample (CLOCK_MONOTONIC in
+the callback plus the output latency PortAudio reports, ``outputBufferDacTime − currentTime``) and the index of
+that sample in the stream's output, which is its position in the capture. ``--capture`` also writes what the
+callback wrote to a WAV file, block after block (a cycle the audio server skipped, an xrun, is not in it: the DAC
+times in ``playback.csv`` give the timeline).
+
+A stream that stops on its own (device unplugged, audio server gone), or whose callbacks stop coming (a JACK
+server that dropped the client), is logged and ends the process with status :data:`DEVICE_LOST_EXIT`; the
+supervisor restarts it. PortAudio cannot be closed or re-initialised once its JACK server has died (both calls
+hang), so a fresh process is the only clean way back.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import threading
 import time
@@ -34,10 +36,6 @@ from advisory.logs import PLAYBACK_COLUMNS, PLAYBACK_CSV, CsvLog, EventLog
 from advisory.wav import WavWriter
 
 DEVICE_LOST_EXIT = 3
-# The stream clock → monotonic clock offset is measured at each callback, late by however long the callback waited
-# for the CPU; the smallest recent measurement is the best. The estimate may creep up by this much per callback,
-# which follows any real drift between the clocks (ppm) while ignoring late callbacks.
-_OFFSET_CREEP_S = 1e-6
 
 
 class PlaybackState:
@@ -51,9 +49,10 @@ class PlaybackState:
         self._current: AudioBuffer | None = None
         self._pos = 0
         self._capture = capture
-        self._offset = math.inf
-        # (buffer, its receipt, DAC time of its first sample), one per buffer that started
-        self.started: deque[tuple[AudioBuffer, float, float]] = deque()
+        # (buffer, its receipt, DAC time of its first sample, index of that sample in the stream's output), one per
+        # buffer that started
+        self.started: deque[tuple[AudioBuffer, float, float, int]] = deque()
+        self._samples_out = 0
         self.blocks: deque[np.ndarray] = deque()  # what the callback wrote, block by block
         self.status_flags: deque[str] = deque()
         self.callbacks = 0
@@ -69,8 +68,9 @@ class PlaybackState:
 
     def callback(self, outdata: np.ndarray, frames: int, time_info, status) -> None:
         self.callbacks += 1
-        self._offset = min(time.monotonic() - time_info.currentTime, self._offset + _OFFSET_CREEP_S)
-        block_dac = time_info.outputBufferDacTime + self._offset
+        # Now plus the output latency PortAudio reports for this block. Not the stream clock itself: under a loaded
+        # JACK dummy server its times jump by tens of milliseconds both ways, while this difference stays put.
+        block_dac = time.monotonic() + (time_info.outputBufferDacTime - time_info.currentTime)
         out = outdata[:, 0]
         out.fill(0.0)
         pending = self.latest
@@ -80,10 +80,11 @@ class PlaybackState:
         self._fill(out, 0, switch_at)
         if switch_at < frames:
             self._current_entry, self._current, self._pos = pending, pending[0], 0
-            self.started.append((*pending, block_dac + switch_at / self._rate))
+            self.started.append((*pending, block_dac + switch_at / self._rate, self._samples_out + switch_at))
             self._fill(out, switch_at, frames)
         if outdata.shape[1] > 1:
             outdata[:, 1:] = out[:, None]
+        self._samples_out += frames
         if self._capture:
             self.blocks.append(out.copy())
         if status:
@@ -127,9 +128,9 @@ class Player:
         """Write what the callback and the receiver left: playback rows, captured audio, notes."""
         state = self._state
         while state.started:
-            buf, received, dac = state.started.popleft()
+            buf, received, dac, sample = state.started.popleft()
             self._log.write(time.time(), buf.buffer_id, buf.time, buf.trigger, buf.n_pulses, buf.played_pulses,
-                            buf.arrival, received, buf.play_at, dac)
+                            buf.arrival, received, buf.play_at, dac, sample)
         while state.blocks and self._wav is not None:
             self._wav.write(state.blocks.popleft())
         flags = []

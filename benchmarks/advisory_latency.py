@@ -6,7 +6,8 @@ session logs and prints:
 
 - **estimate → sound**: from the arrival at the generator of the estimate that changed N (``advisory.csv``
   ``arrival_mono``) to the DAC time of the first sample of the buffer carrying the new N (``playback.csv``
-  ``dac_mono``: the callback's ``outputBufferDacTime`` on CLOCK_MONOTONIC); also from the publisher's send.
+  ``dac_mono``: CLOCK_MONOTONIC in the callback + ``outputBufferDacTime − currentTime``); also from the
+  publisher's send.
 - **estimate → buffer at the player** (generator + hand-off) and the **margin** left before the buffer is due:
   every buffer is scheduled `schedule_latency_s` after the moment it stands for, so the sound latency is that
   constant unless the margin runs out (a late buffer starts at once and shows as a larger latency).

@@ -19,6 +19,7 @@ import zmq
 from advisory.config import AdvisoryConfig, load_advisory_config
 from advisory.logs import ADVISORY_CSV, EVENTS_CSV, PLAYBACK_CSV
 from advisory.process import advisory_command
+from advisory.synth import pulse_onsets as buffer_onsets
 from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
 from advisory.wav import read_wav
 from slam_monitor import rts_schema
@@ -85,6 +86,12 @@ class Sandbox:
 
     def capture(self, name: str = "capture.wav") -> tuple[np.ndarray, int]:
         return read_wav(self.root / name)
+
+    def print_diagnostics(self) -> None:
+        """The events log and every process's stderr, for a failing test's report."""
+        for path in [self.session / EVENTS_CSV, *sorted(self.root.glob("*.err"))]:
+            if path.exists():
+                print(f"--- {path.name}\n{path.read_text()[-4000:]}")
 
     def stop_all(self) -> None:
         """SIGTERM every process still running (they close their logs), then wait; kill any that hangs."""
@@ -179,15 +186,25 @@ def pulse_onsets(x: np.ndarray, sample_rate: int, threshold: float = 0.1, merge_
     return loud[starts]
 
 
-def pulse_trains(onsets: np.ndarray, spacing: int, tolerance: int = 1) -> list[np.ndarray]:
-    """Split onsets into trains (one per buffer): consecutive onsets ``spacing`` ± ``tolerance`` samples apart."""
-    trains: list[list[int]] = []
-    for onset in onsets:
-        if trains and abs(onset - trains[-1][-1] - spacing) <= tolerance:
-            trains[-1].append(int(onset))
-        else:
-            trains.append([int(onset)])
-    return [np.array(t) for t in trains]
+def pulses_per_buffer(x: np.ndarray, rate: int, starts, pulses, eq) -> list[int]:
+    """Check audio buffer by buffer and return the pulse counts of the buffers that played whole.
+
+    Buffer k starts at sample ``starts[k]`` and owns the audio up to the next start; ``pulses[k]`` is the number of
+    pulses it holds. Its stretch must hold exactly those pulses, one every p + i from its first sample, to the
+    sample; only the first ones when the next buffer replaced it early. Nothing may sound before the first buffer.
+    """
+    starts = np.asarray(starts, dtype=int)
+    ends = np.append(starts[1:], x.size)
+    assert len(pulse_onsets(x[:starts[0]], rate)) == 0
+    pulse_length = round(eq.pulse_s * rate)
+    whole = []
+    for n, start, end in zip(pulses, starts, ends):
+        expected = buffer_onsets(int(n), eq, rate)
+        got = pulse_onsets(x[start:end], rate).tolist()
+        assert got == [o for o in expected if o < end - start], (n, start, end, got)
+        if not expected or expected[-1] + pulse_length <= end - start:
+            whole.append(int(n))
+    return whole
 
 
 def run_lengths(values: list[int]) -> list[int]:
@@ -208,4 +225,5 @@ def make_sandbox():
     yield make
     for sandbox in made:
         sandbox.stop_all()
+        sandbox.print_diagnostics()  # captured: pytest shows it only when the test failed
         shutil.rmtree(sandbox.root, ignore_errors=True)

@@ -17,7 +17,7 @@ from advisory.render import render_estimates
 from advisory.rotation import RotationSpeed
 from advisory.scheduler import CHANGE, LIVE, STALE, TICK, WAITING, PulseScheduler
 from advisory.wav import read_wav
-from audio_fixtures import PUBLISH_HZ, pulse_onsets, pulse_trains, rotation_frame
+from audio_fixtures import PUBLISH_HZ, pulse_onsets, pulses_per_buffer, rotation_frame, run_lengths
 from seesys.errors import SeesysError
 from slam_monitor.messages import FeatureFrame
 from slam_monitor.tracking_state import TrackingState
@@ -132,19 +132,19 @@ def steps_log(tmp_path):
 def test_render_gives_the_pulses_a_listener_hears(tmp_path):
     rate = CFG.audio.sample_rate
     rendering = render_estimates(read_estimate_log(steps_log(tmp_path)), CFG)
-    onsets = pulse_onsets(rendering.samples, rate)
-    trains = pulse_trains(onsets, round(0.1 * rate), tolerance=0)
-    sizes = [len(t) for t in trains]
-    # Silence for the first second, then N = 1, 2, 3 as the mean crosses 4, 8 and 12 mm.
+    decisions = rendering.decisions
+    starts = [round(d.time * rate) for d in decisions]
+    sizes = pulses_per_buffer(rendering.samples, rate, starts, [d.n_pulses for d in decisions], CFG.equation2)
+    # Silence for the first second, then N = 1, 2, 3 as the mean crosses 4, 8 and 12 mm, each change at once
     # (the fifth 6 mm estimate, at 1 + 4/30 s, makes five of the ten in the window).
-    assert onsets[0] / rate == pytest.approx(1.0 + 4 / 30, abs=1 / rate)
-    assert sizes == [1, 1, 1, 2, 2, 2, 3, 3, 3, 3, 3]
-    starts = np.array([t[0] for t in trains]) / rate
-    # Ticks 1/3 s apart except where a change restarted the cadence.
-    changes = [d.time for d in rendering.decisions if d.trigger == CHANGE]
-    assert len(changes) == 3
-    for a, b in zip(starts[:-1], starts[1:]):
-        assert b - a == pytest.approx(PERIOD, abs=1 / rate) or any(abs(b - c) < 1 / rate for c in changes)
+    assert run_lengths(sizes) == [0, 1, 2, 3]
+    changes = [d for d in decisions if d.trigger == CHANGE]
+    assert [d.n_pulses for d in changes] == [1, 2, 3]
+    assert changes[0].time == pytest.approx(1.0 + 4 / 30)
+    assert pulse_onsets(rendering.samples, rate)[0] == round((1.0 + 4 / 30) * rate)
+    # Ticks 1/3 s apart, restarting from each change.
+    for a, b in zip(decisions[:-1], decisions[1:]):
+        assert b.trigger == CHANGE or b.time - a.time == pytest.approx(PERIOD)
 
 
 def test_cli_render_writes_a_wav(tmp_path):
