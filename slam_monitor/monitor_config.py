@@ -47,3 +47,8 @@ class MonitorConfig:
 
 def load_monitor_config(directory: Path | None = None) -> MonitorConfig:
     return load_section("monitor", MonitorConfig, directory)
+
+
+def load_window_config(directory: Path | None = None) -> WindowConfig:
+    """The model windows (``[windows]`` of ``configs/monitor.toml``), for the estimator and the dataset builder."""
+    return load_monitor_config(directory).windows

@@ -9,13 +9,15 @@ A window ends at a frame t with index ``t % tau == 0`` (a PSD frame) and holds
 Rows and matrices are looked up by frame index, never "the latest of each": a window is only emitted when its
 end frame is tracked, every PSD sample is present, and at most ``max_missing_rts`` of the T rows are missing
 or untracked. (The authors pair the newest RTS window with the newest PSD window, unsynchronised.)
+
+The configured windows are ``load_window_config()`` of :mod:`slam_monitor.monitor_config` (``[windows]`` of
+``configs/monitor.toml``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -50,13 +52,6 @@ class WindowConfig:
     def history(self) -> int:
         """How many frames before a window's end frame the window reaches back."""
         return max(self.rts_length - 1, (self.psd_samples - 1) * self.psd_stride)
-
-
-def load_window_config(directory: Path | None = None) -> WindowConfig:
-    """The ``[windows]`` table of ``configs/monitor.toml``."""
-    from slam_monitor.monitor_config import load_monitor_config
-
-    return load_monitor_config(directory).windows
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,8 @@ import pytest
 from slam_monitor import rts_schema
 from slam_monitor.messages import FeatureFrame
 from slam_monitor.tracking_state import TrackingState
-from slam_monitor.windows import WindowConfig, assemble_windows, load_window_config
+from slam_monitor.monitor_config import load_window_config
+from slam_monitor.windows import WindowConfig, assemble_windows
 
 CFG = WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, max_missing_rts=3)
 
