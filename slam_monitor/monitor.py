@@ -4,7 +4,8 @@
 Threading. :meth:`RtsMonitor.on_frame` runs in the tracking loop and only hands references to a bounded queue
 (``queue_size``) with ``put_nowait``: tracking never waits for the monitor. When the queue is full the frame is
 dropped and counted. The monitor's own thread does all the work (features, PSD, logs, stream); ORB-SLAM3
-releases the GIL while it tracks, so the two run in parallel.
+releases the GIL while it tracks, so the two run in parallel. An exception in the monitor thread stops the
+monitor, not tracking; it is recorded in ``monitor_stats.json``.
 
 Synchronisation. Everything in a FeatureFrame comes from one frame index: the image features from that frame's
 gray image, the tracking features from the SLAM output of the same track call, and the relative motion from
@@ -19,6 +20,7 @@ import queue
 import statistics
 import threading
 import time
+import traceback
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -146,6 +148,8 @@ class MonitorStats:
     monitor_cpu_ms_mean: float = float("nan")
     stream: dict[str, Any] | None = None
     stream_kbit_per_s: float = float("nan")
+    error: str | None = None
+    error_traceback: str | None = None
     monitor_ms: list[float] = field(default_factory=list, repr=False)
     monitor_cpu_ms: list[float] = field(default_factory=list, repr=False)
 
@@ -173,7 +177,6 @@ class RtsMonitor:
                          if session_dir is not None else None)
         self._queue: queue.Queue = queue.Queue(maxsize=config.queue_size)
         self._last_pose: tuple[int, np.ndarray | None] = (-2, None)
-        self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="rts-monitor", daemon=True)
         self._thread.start()
 
@@ -200,12 +203,13 @@ class RtsMonitor:
             item = self._queue.get()
             if item is _STOP:
                 return
-            if self._error is not None:
+            if self.stats.error is not None:
                 continue
             try:
                 self._process(item)
-            except BaseException as e:  # kept and re-raised by close(): the tracking loop must not die here
-                self._error = e
+            except Exception as e:  # a monitor bug must not stop tracking: recorded, the monitor stops
+                self.stats.error = f"frame {item.frame.index}: {type(e).__name__}: {e}"
+                self.stats.error_traceback = traceback.format_exc()
 
     def _process(self, item: MonitorInput) -> None:
         start, start_cpu = time.perf_counter(), time.thread_time()
@@ -227,7 +231,11 @@ class RtsMonitor:
         self.stats.frames_processed += 1
 
     def close(self) -> MonitorStats:
-        """Process what is queued, stop the thread, close logs and stream, write ``monitor_stats.json``."""
+        """Process what is queued, stop the thread, close logs and stream, write ``monitor_stats.json``.
+
+        Never raises for a failure inside the monitor thread (the device worker must still finish its session
+        files): such a failure is in ``stats.error`` / ``error_traceback`` and ``monitor_stats.json``.
+        """
         self._queue.put(_STOP)
         self._thread.join()
         for log in (self._rts_log, self._psd_log):
@@ -250,8 +258,6 @@ class RtsMonitor:
             self.stats.monitor_cpu_ms_mean = statistics.fmean(self.stats.monitor_cpu_ms)
         if self.session_dir is not None:
             (self.session_dir / MONITOR_STATS_JSON).write_text(json.dumps(self.stats.summary(), indent=2) + "\n")
-        if self._error is not None:
-            raise self._error
         return self.stats
 
 

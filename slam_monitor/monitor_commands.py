@@ -6,12 +6,17 @@ from __future__ import annotations
 import argparse
 import json
 
+from seesys.errors import SeesysError
 from slam_monitor.device_worker import ObserverSpec
 from slam_monitor.monitor import MONITOR_STATS_JSON
 from slam_monitor.tracking_commands import (add_session_arguments, format_summary, run_session_with_progress,
                                             session_options_from_args)
 
 MONITOR_FACTORY = "slam_monitor.monitor:create_observer"
+
+
+class MonitorFailed(SeesysError):
+    """The RTS monitor stopped during a session (tracking went on)."""
 
 
 def format_monitor_stats(stats: dict) -> str:
@@ -28,9 +33,13 @@ def monitor_run_command(args: argparse.Namespace) -> int:
     observer = ObserverSpec(MONITOR_FACTORY, {"stream": args.stream, "device_id": args.device_id})
     options = session_options_from_args(args, observers=[observer])
     summary = run_session_with_progress(options)
+    stats = json.loads((options.out_dir / MONITOR_STATS_JSON).read_text())
     print(format_summary(summary))
-    print(format_monitor_stats(json.loads((options.out_dir / MONITOR_STATS_JSON).read_text())))
+    print(format_monitor_stats(stats))
     print(f"session: {options.out_dir}")
+    if stats["error"] is not None:
+        raise MonitorFailed(f"the RTS monitor stopped at {stats['error']}; tracking went on, its logs up to there "
+                            f"are in {options.out_dir} (traceback in {MONITOR_STATS_JSON})")
     return 0
 
 

@@ -6,6 +6,7 @@ The real-SLAM runs are in test_monitor_slam.py; here the inputs are constructed 
 from __future__ import annotations
 
 import dataclasses
+import json
 import types
 
 import numpy as np
@@ -144,9 +145,13 @@ def test_bad_rts_log_is_a_clear_error(tmp_path):
         read_rts_csv(tmp_path)
 
 
-def test_a_failure_in_the_monitor_thread_surfaces_at_close(tmp_path):
-    monitor = RtsMonitor(CONFIG, tmp_path)
-    bad = track_output(0, TrackingState.OK, pose_wc(0, 0), np.zeros((0, 3)), np.zeros((0, 2)))
-    monitor.on_frame(Frame(0, 0.0, np.zeros((480, 640, 3), dtype=np.uint8), INTR), bad)
-    with pytest.raises(ValueError, match="uint8 gray"):
-        monitor.close()
+def test_a_failure_in_the_monitor_thread_stops_the_monitor_not_the_session(tmp_path):
+    monitor = RtsMonitor(replace_fields(CONFIG, queue_size=100), tmp_path)
+    _feed(monitor, 3)
+    bad = track_output(3, TrackingState.OK, pose_wc(0, 0), np.zeros((0, 3)), np.zeros((0, 2)))
+    monitor.on_frame(Frame(3, 0.1, np.zeros((480, 640, 3), dtype=np.uint8), INTR), bad)
+    stats = monitor.close()
+    assert stats.error.startswith("frame 3: ValueError") and "uint8 gray" in stats.error
+    assert "Traceback" in stats.error_traceback
+    assert read_rts_csv(tmp_path)["frame_index"].tolist() == [0, 1, 2]
+    assert json.loads((tmp_path / "monitor_stats.json").read_text())["error"] == stats.error
