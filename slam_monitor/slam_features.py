@@ -109,8 +109,7 @@ def slam_features(*, pose_cw: np.ndarray, motion: RelativeMotion, matched_inlier
     tree = cKDTree(kp) if len(kp) else None
 
     matched_c = to_camera(matched_points_w, pose_cw)
-    in_front = matched_c[:, 2] > min_depth
-    matched_c = matched_c[in_front]
+    matched_c = matched_c[matched_c[:, 2] > min_depth]
     depth = matched_c[:, 2]
     matched = nearest_keypoints(tree, project(matched_c, camera_matrix))
     inliers = np.zeros(len(kp), dtype=bool)
