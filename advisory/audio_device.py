@@ -76,3 +76,14 @@ def open_output_stream(audio: AudioConfig, device: OutputDevice, callback: Calla
     except sd.PortAudioError as e:
         raise AudioDeviceError(f"cannot open audio output {device.name!r} ({device.host_api}) at "
                                f"{audio.sample_rate} Hz: {e}") from None
+
+
+def check_output_device(audio: AudioConfig) -> OutputDevice:
+    """:func:`find_output_device` for a process that will not play (the supervisor): PortAudio is shut down again
+    at once, while its audio server is surely alive, so that this process cannot hang at exit in ``Pa_Terminate``
+    if the server dies later."""
+    try:
+        return find_output_device(audio)
+    finally:
+        sd = _sounddevice()
+        sd._terminate()

@@ -13,7 +13,7 @@ import threading
 import time
 from pathlib import Path
 
-from advisory.audio_device import find_output_device
+from advisory.audio_device import check_output_device
 from advisory.conditions import Condition
 from advisory.config import AdvisoryConfig
 from advisory.logs import EventLog
@@ -34,7 +34,7 @@ def process_commands(condition: Condition, out: Path) -> dict[str, list[str]]:
 
 def supervise(cfg: AdvisoryConfig, condition: Condition, out: Path, stop: threading.Event) -> None:
     if condition.audible:
-        find_output_device(cfg.audio)
+        check_output_device(cfg.audio)
     commands = process_commands(condition, out)
     events = EventLog(out, "supervisor")
     events.event("started", f"condition={condition.value}")
