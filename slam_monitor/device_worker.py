@@ -204,6 +204,7 @@ def run_device_session(
                         progress(FrameTracked(output.frame_index, output.tracked))
             finally:
                 tracker.shutdown()
+        _close_all(active)
     except BaseException as e:  # record how the session ended, whatever ended it, then let it propagate
         interrupted = isinstance(e, KeyboardInterrupt)
         try:
@@ -214,7 +215,6 @@ def run_device_session(
             else:
                 writer.finish("failed", error=str(e) if isinstance(e, SeesysError) else f"{type(e).__name__}: {e}")
         raise
-    _close_all(active)
     writer.finish("completed", mapping_wait_s=round(pacer.mapping_wait_s, 3))
     return SessionResult(writer.folder, writer.frames_written, writer.frames_tracked, ground_truth is not None)
 
@@ -227,5 +227,16 @@ def _expected_frames(source: FrameSource, max_frames: int | None) -> int | None:
 
 
 def _close_all(observers: list[FrameObserver]) -> None:
-    for observer in observers:
-        observer.close()
+    """Close every observer still open, even when one fails, then re-raise the first failure.
+
+    Closed observers leave the list, so the failure path after a failed close does not close them twice.
+    """
+    first_failure: BaseException | None = None
+    while observers:
+        observer = observers.pop(0)
+        try:
+            observer.close()
+        except BaseException as e:
+            first_failure = first_failure or e
+    if first_failure is not None:
+        raise first_failure

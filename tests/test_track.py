@@ -82,6 +82,24 @@ def test_observers_see_every_frame_with_slam_internals(tmp_path):
     assert list(rows.tracked_points) == [o.num_tracked_points for _, o in observer.seen]
 
 
+class FailingCloseObserver(RecordingObserver):
+    def close(self):
+        super().close()
+        raise RuntimeError("observer could not flush")
+
+
+@pytest.mark.slam
+def test_an_observer_failing_to_close_still_closes_the_others_and_marks_the_session(tmp_path):
+    failing, later = FailingCloseObserver(), RecordingObserver()
+    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, tmp_path / "s", max_frames=3)
+    with pytest.raises(RuntimeError, match="could not flush"):
+        run_device_session(options, observers=[failing, later])
+    assert (failing.closed, later.closed) == (1, 1)
+    manifest = session.read_manifest(tmp_path / "s")
+    assert manifest["status"] == "failed" and "could not flush" in manifest["error"]
+    assert len(pd.read_csv(tmp_path / "s" / session.FRAMES_CSV)) == 3
+
+
 @pytest.mark.slam
 def test_max_frames_and_explicit_settings_file(tmp_path):
     first = tmp_path / "first"
