@@ -1,0 +1,207 @@
+"""Build the labelled dataset: render, then play every sequence through ORB-SLAM3 + the RTS monitor, label, store.
+
+Order matters: every sequence is rendered first (:func:`estimator.synth.batch.render_batch`), and only then are
+the SLAM runs made, one at a time, each in its own child process (:func:`run_supervised_session`), at camera
+pace. Rendering while SLAM runs would take the CPU from ORB-SLAM3's threads and change the errors being
+measured (monocular tracking collapses; synthetic-error-spread.md).
+
+Each (sequence, mode, trial) becomes one run of the store (:mod:`estimator.dataset.store`); a finished run is
+never redone, so an interrupted build continues where it stopped. A run whose SLAM session fails (ORB-SLAM3
+crash, bad input) is recorded with its error and skipped, never post-processed.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from estimator.dataset.config import DatasetConfig
+from estimator.dataset.store import (COMPLETED, CRASHED, RunArrays, RunInfo, read_run_info, record_crashed_run,
+                                     run_folder, run_name, write_run)
+from estimator.labels import LabelConfig, LabelStatus, label_session
+from estimator.synth.batch import expand_environments, expand_motions, render_batch
+from estimator.synth.config import SynthConfig
+from estimator.synth.sequence import SequenceSpec
+from seesys.errors import SeesysError
+from slam_monitor import rts_schema, session
+from slam_monitor.device_worker import FrameTracked, ObserverSpec, SessionOptions, SessionStarted
+from slam_monitor.orbslam_settings import SlamMode
+from slam_monitor.rts_log import read_feature_frames
+from slam_monitor.supervisor import run_supervised_session
+from slam_monitor.windows import WindowConfig, assemble_windows
+
+SEQUENCES_DIR = "sequences"
+SESSIONS_DIR = "sessions"
+DATASET_JSON = "dataset.json"
+SEQUENCE_METADATA = "metadata.json"
+MONITOR_OBSERVER = "slam_monitor.monitor:create_observer"
+
+
+@dataclass(frozen=True)
+class BuildPlan:
+    """What to build: the render template (length, size, lens) and the batch, the SLAM modes and trials."""
+
+    template: SequenceSpec
+    environments: list[str]
+    motions: list[str]
+    seeds: list[int]
+    modes: list[SlamMode]
+    trials: int
+    render_processes: int | None = None
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    sequences: int
+    rendered_frames: int
+    render_seconds: float
+    runs_done: list[RunInfo]
+    runs_skipped: int
+    slam_seconds: float
+
+    @property
+    def crashed(self) -> list[RunInfo]:
+        return [r for r in self.runs_done if r.status == CRASHED]
+
+
+def plan_from_config(config: DatasetConfig, synth: SynthConfig, template: SequenceSpec,
+                     environments: list[str] | None = None, motions: list[str] | None = None,
+                     seeds: list[int] | None = None, modes: list[str] | None = None, trials: int | None = None,
+                     render_processes: int | None = None) -> BuildPlan:
+    """The build plan: arguments given override configs/dataset.toml; names are checked here, before any work."""
+    trials = config.trials if trials is None else trials
+    if trials < 1:
+        raise SeesysError(f"trials must be at least 1, got {trials}")
+    try:
+        slam_modes = [SlamMode(m) for m in (modes or config.modes)]
+    except ValueError as e:
+        raise SeesysError(f"unknown SLAM mode: {e}") from None
+    return BuildPlan(template, expand_environments(list(environments or config.environments), synth),
+                     expand_motions(list(motions or config.motions), synth), list(seeds or config.seeds),
+                     slam_modes, trials, render_processes)
+
+
+def _sequence_metadata(folder: Path) -> dict:
+    try:
+        return json.loads((folder / SEQUENCE_METADATA).read_text())
+    except (OSError, ValueError) as e:
+        raise SeesysError(f"rendered sequence {folder} has no readable {SEQUENCE_METADATA}: {e}") from None
+
+
+def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, windows: WindowConfig,
+              max_missing_usable: int) -> RunArrays:
+    """Samples of one finished session: every complete model window, with the label of its end frame.
+
+    A sample is ``usable`` (part of the regression target) when its end frame is ``labelled`` and at most
+    ``max_missing_usable`` rows of its RTS window are missing or untracked.
+    """
+    labels = label_session(session_dir, mode is SlamMode.MONO, label_config).to_frame()
+    states = pd.read_csv(session_dir / session.FRAMES_CSV)
+    frames = pd.concat([states[["frame_index", "state"]].reset_index(drop=True),
+                        labels.drop(columns="timestamp")], axis=1)
+    frames.insert(1, "timestamp", labels.timestamp)
+    row_of_frame = {int(f): k for k, f in enumerate(frames.frame_index)}
+    rts, psd, rows = [], [], []
+    for window in assemble_windows(read_feature_frames(session_dir, session_dir.name), windows):
+        label = frames.iloc[row_of_frame[window.frame_index]]
+        usable = label.status == LabelStatus.LABELLED.value and window.missing_rts <= max_missing_usable
+        rows.append((len(rows), window.frame_index, window.timestamp, label.error_m, label.status, label.scale,
+                     window.missing_rts, usable))
+        rts.append(window.rts)
+        psd.append(window.psd)
+    samples = pd.DataFrame(rows, columns=["sample", "frame_index", "timestamp", "error_m", "status", "scale",
+                                          "missing_rts", "usable"])
+    rts_array = (np.stack(rts) if rts else
+                 np.zeros((0, windows.rts_length, rts_schema.NUM_CHANNELS), np.float32))
+    psd_array = np.stack(psd) if psd else np.zeros((0, windows.psd_samples, 0, 0, 3), np.uint8)
+    return RunArrays(rts_array, psd_array, samples, frames)
+
+
+class DatasetBuilder:
+    """Renders a plan's sequences into ``root/sequences`` and stores one run per (sequence, mode, trial)."""
+
+    def __init__(self, root: Path, config: DatasetConfig, synth: SynthConfig, label_config: LabelConfig,
+                 windows: WindowConfig, config_dir: Path | None = None):
+        self.root = Path(root)
+        self.config = config
+        self.synth = synth
+        self.label_config = label_config
+        self.windows = windows
+        self.config_dir = config_dir
+
+    def build(self, plan: BuildPlan) -> BuildResult:
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._write_description(plan)
+        batch = render_batch(plan.template, plan.environments, plan.motions, plan.seeds, self.synth,
+                             self.root / SEQUENCES_DIR, plan.render_processes)
+        sequences = sorted(batch.rendered + batch.skipped)
+        jobs = [(seq, mode, trial) for seq in sequences for mode in plan.modes for trial in range(plan.trials)]
+        todo = [job for job in jobs if read_run_info(run_folder(self.root, run_name(job[0].name, job[1].value,
+                                                                                     job[2]))) is None]
+        done: list[RunInfo] = []
+        start = time.perf_counter()
+        columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+        with Progress(*columns) as progress:
+            runs_task = progress.add_task("SLAM runs", total=len(todo))
+            frames_task = progress.add_task("frames", total=None)
+            for sequence, mode, trial in todo:
+                name = run_name(sequence.name, mode.value, trial)
+                progress.update(frames_task, description=name, completed=0, total=None)
+
+                def on_event(event, task=frames_task):
+                    if isinstance(event, SessionStarted):
+                        progress.update(task, total=event.frame_count)
+                    elif isinstance(event, FrameTracked):
+                        progress.update(task, completed=event.frame_index + 1)
+
+                done.append(self._run(sequence, mode, trial, on_event))
+                progress.advance(runs_task)
+        return BuildResult(len(sequences), batch.frames, batch.seconds, done, len(jobs) - len(todo),
+                           time.perf_counter() - start)
+
+    def _write_description(self, plan: BuildPlan) -> None:
+        """``dataset.json``: what the samples are (channels, windows, label definition) and how they were built."""
+        description = {
+            "rts_channels": list(rts_schema.CHANNEL_NAMES),
+            "rts_schema_version": rts_schema.SCHEMA_VERSION,
+            "windows": asdict(self.windows),
+            "labels": asdict(self.label_config),
+            "samples": asdict(self.config.samples),
+            "pace": self.config.pace,
+            "plan": {"template": asdict(plan.template), "environments": plan.environments, "motions": plan.motions,
+                     "seeds": plan.seeds, "modes": [m.value for m in plan.modes], "trials": plan.trials},
+        }
+        (self.root / DATASET_JSON).write_text(json.dumps(description, indent=2) + "\n")
+
+    def _run(self, sequence: Path, mode: SlamMode, trial: int, on_event) -> RunInfo:
+        meta = _sequence_metadata(sequence)
+        name = run_name(sequence.name, mode.value, trial)
+        info = RunInfo(name, sequence.name, meta["environment"], meta["motion_group"], meta["trajectory"],
+                       mode.value, trial, COMPLETED)
+        session_dir = self.root / SESSIONS_DIR / name
+        shutil.rmtree(session_dir, ignore_errors=True)
+        options = SessionOptions(f"tum:{sequence}", mode, session_dir, pace=self.config.pace,
+                                 config_dir=self.config_dir,
+                                 observers=(ObserverSpec(MONITOR_OBSERVER, {"stream": False, "device_id": name}),))
+        start = time.perf_counter()
+        try:
+            result = run_supervised_session(options, progress=on_event)
+        except SeesysError as e:
+            crashed = replace(info, status=CRASHED, error=str(e), slam_seconds=time.perf_counter() - start)
+            record_crashed_run(self.root, crashed)
+            return crashed
+        seconds = time.perf_counter() - start
+        arrays = label_run(session_dir, mode, self.label_config, self.windows, self.config.samples.max_missing_rts_usable)
+        info = replace(info, frames=result.frames, frames_tracked=result.frames_tracked, samples=len(arrays.samples),
+                       slam_seconds=seconds)
+        write_run(self.root, info, arrays)
+        if not self.config.keep_sessions:
+            shutil.rmtree(session_dir, ignore_errors=True)
+        return info

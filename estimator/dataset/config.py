@@ -1,0 +1,60 @@
+"""``configs/dataset.toml`` as typed records."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from seesys.config import load_section
+
+
+@dataclass(frozen=True)
+class SampleConfig:
+    max_missing_rts_usable: int
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    thresholds_m: tuple[float, ...]
+    histogram_range_m: tuple[float, float]
+    histogram_bins: int
+    top_features: int
+    scatter_plots: int
+    min_samples: int
+
+
+@dataclass(frozen=True)
+class TargetConfig:
+    median_m: tuple[float, float]
+    p90_m: tuple[float, float]
+    p99_min_m: float
+    above_12mm_fraction: tuple[float, float]
+    tracked_min_fraction: float
+    spearman_min_abs: float
+
+
+@dataclass(frozen=True)
+class SplitConfig:
+    rounds: int
+    seed: int
+    heldout_environments: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    environments: tuple[str, ...]
+    motions: tuple[str, ...]
+    seeds: tuple[int, ...]
+    trials: int
+    modes: tuple[str, ...]
+    pace: bool
+    keep_sessions: bool
+    samples: SampleConfig
+    report: ReportConfig
+    targets: TargetConfig
+    splits: SplitConfig
+
+
+def load_dataset_config(directory: Path | None = None) -> DatasetConfig:
+    """Load ``configs/dataset.toml``."""
+    return load_section("dataset", DatasetConfig, directory)
