@@ -58,19 +58,22 @@ def test_depth_is_exact_z_of_the_wall_ahead(config):
 def test_generated_motion_groups_stay_in_the_room_and_differ_in_speed(config):
     scene = build_scene(config.preset("living_room"), 0, config.sensor)
     lo, hi = scene.room_bounds()
-    speeds = {}
-    for group in MOTION_GROUPS:
-        traj = generate_motion(group, getattr(config.motion, group), lo, hi, config.trajectory, 20.0,
-                               np.random.default_rng(5))
-        margin = config.trajectory.wall_margin_m
-        assert (traj.positions >= lo + margin - 1e-9).all() and (traj.positions <= hi - margin + 1e-9).all()
-        rel = traj.rotations[:-1].inv() * traj.rotations[1:]
-        ang = np.degrees(rel.magnitude()) / np.diff(traj.times)
-        lin = np.linalg.norm(np.diff(traj.positions, axis=0), axis=1) / np.diff(traj.times)
-        speeds[group] = (np.mean(ang), np.mean(lin))
-    assert speeds["rapid"][0] > speeds["patrol"][0]
-    assert speeds["aiming"][1] < speeds["patrol"][1]
-    assert 10 < speeds["patrol"][0] < 120
+    speeds = {group: [] for group in MOTION_GROUPS}
+    for seed in range(3):
+        for group in MOTION_GROUPS:
+            traj = generate_motion(group, getattr(config.motion, group), lo, hi, config.trajectory, 20.0,
+                                   np.random.default_rng(seed))
+            margin = config.trajectory.wall_margin_m
+            assert (traj.positions >= lo + margin - 1e-9).all() and (traj.positions <= hi - margin + 1e-9).all()
+            rel = traj.rotations[:-1].inv() * traj.rotations[1:]
+            ang = np.degrees(rel.magnitude()) / np.diff(traj.times)
+            lin = np.linalg.norm(np.diff(traj.positions, axis=0), axis=1) / np.diff(traj.times)
+            speeds[group].append((np.mean(ang), np.mean(lin)))
+    mean = {group: np.mean(values, axis=0) for group, values in speeds.items()}
+    assert mean["rapid"][0] > mean["patrol"][0] and mean["rapid"][0] > mean["aiming"][0]
+    assert mean["aiming"][1] < mean["patrol"][1]
+    # Handheld range (synthetic-error-spread.md): 25-60 deg/s for the bulk, faster for rapid motion.
+    assert 20 < mean["patrol"][0] < 60 and 20 < mean["aiming"][0] < 60 and mean["rapid"][0] < 100
 
 
 def test_real_trajectories_are_placed_inside_the_smallest_room(config):

@@ -61,6 +61,7 @@ class TrajectoryConfig:
     wall_margin_m: float
     box_clearance_m: float
     real_fill: float
+    real_speed_scale: tuple[float, float]
     camera_height_m: tuple[float, float]
 
 
@@ -76,6 +77,8 @@ class MotionGroupConfig:
     shake_hz: tuple[float, float]
     wave_deg: float
     wave_hz: tuple[float, float]
+    jerk_rate_hz: float
+    jerk_deg: float
 
 
 @dataclass(frozen=True)

@@ -94,9 +94,12 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
         if loader is None:
             raise TrajectoryError(f"real trajectory {real.name}: unknown format {real.format!r} (tum or euroc)")
         full = loader(config.trajectory_path(real))
-        length = min(duration + margin, full.duration)
+        speed = _draw_range(rng, config.trajectory.real_speed_scale)
+        length = min((duration + margin) * speed, full.duration)
         start = float(rng.uniform(0.0, full.duration - length))
-        trajectory = place_real(full.window(start, length), lo, hi, config.trajectory, rng)
+        recorded = full.window(start, length)
+        faster = Trajectory(recorded.times / speed, recorded.positions, recorded.rotations)
+        trajectory = place_real(faster, lo, hi, config.trajectory, rng)
         group, name = real.group, real.name
         duration = min(duration, trajectory.duration - margin)
     elif spec.motion in MOTION_GROUPS:

@@ -130,6 +130,19 @@ def _smooth_noise(rng: np.random.Generator, t: np.ndarray, band_hz: tuple[float,
     return np.sqrt(2.0 / components) * np.sin(2 * np.pi * freqs[:, None] * t[None, :] + phases[:, None]).sum(axis=0)
 
 
+def _jerks(rng: np.random.Generator, t: np.ndarray, rate_hz: float, amplitude: float) -> np.ndarray:
+    """Sudden out-and-back turns of the hand (yaw, pitch offsets, 2×N): Poisson events at ``rate_hz``, each a
+    sin² bump of 0.5-1 × ``amplitude`` lasting 0.15-0.35 s (peak rates of 100-300 deg/s for 15°). They are
+    rare and short, and with the exposure they make the motion-blur bursts of real handheld footage."""
+    out = np.zeros((2, len(t)))
+    for _ in range(rng.poisson(rate_hz * (t[-1] - t[0]))):
+        start, length = rng.uniform(t[0], t[-1]), rng.uniform(0.15, 0.35)
+        size = amplitude * rng.uniform(0.5, 1.0) * rng.choice([-1.0, 1.0])
+        inside = (t >= start) & (t <= start + length)
+        out[0 if rng.uniform() < 0.7 else 1, inside] += size * np.sin(np.pi * (t[inside] - start) / length) ** 2
+    return out
+
+
 def _min_jerk(x: np.ndarray) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
     return x**3 * (10 - 15 * x + 6 * x**2)
@@ -144,7 +157,7 @@ def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, 
       small arcs around each spot.
     - ``rapid``: walking with fast turns and waving (RMS wave_deg at wave_hz in real time, in bursts).
 
-    All groups add hand shake (shake_deg, shake_m at shake_hz). ``speed_scale`` speeds the whole motion up; it is
+    All groups add hand shake (shake_deg, shake_m at shake_hz) and rare sudden turns (jerk_rate_hz, jerk_deg). ``speed_scale`` speeds the whole motion up; it is
     drawn per sequence in its configured range.
     """
     if group not in MOTION_GROUPS:
@@ -172,6 +185,8 @@ def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, 
 
     # Hand shake (in real time, like the waving): shake_m and shake_deg are the RMS of the 3-D offset and angle.
     per_axis = 1.0 / np.sqrt(3.0)
+    bumps = _jerks(rng, t, motion.jerk_rate_hz, np.radians(motion.jerk_deg))
+    yaw, pitch = yaw + bumps[0], pitch + bumps[1]
     shake_hz = motion.shake_hz
     positions = positions + per_axis * motion.shake_m * np.column_stack(
         [_smooth_noise(rng, t, shake_hz) for _ in range(3)])
@@ -187,7 +202,7 @@ def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, 
 def _walking(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: np.ndarray, walk: float,
              yaw_rate: float, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A loop round the room at walking speed, looking ahead and turning towards the walls."""
-    radii = half[:2] * rng.uniform(0.45, 0.9, 2)
+    radii = half[:2] * rng.uniform(0.6, 0.9, 2)
     mean_radius = float(np.mean(radii))
     direction = rng.choice([-1.0, 1.0])
     phase = rng.uniform(0, 2 * np.pi) + direction * walk * s / mean_radius
