@@ -1,0 +1,111 @@
+"""``seesys dataset build | report | splits | sample``: thin wrappers over :mod:`estimator.dataset`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from estimator.dataset.build import DatasetBuilder, plan_from_config
+from estimator.dataset.config import load_dataset_config
+from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
+from estimator.dataset.splits import write_splits
+from estimator.labels import load_label_config
+from estimator.synth.config import load_synth_config
+from estimator.synth.sequence import SequenceSpec
+from seesys.config import replace_fields
+from seesys.errors import SeesysError
+from slam_monitor.monitor_config import load_window_config
+
+
+def _names(text: str) -> list[str]:
+    return [n.strip() for n in text.split(",") if n.strip()]
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    return width, height
+
+
+def _build(args: argparse.Namespace) -> int:
+    config = load_dataset_config()
+    synth = load_synth_config()
+    if args.frames is not None and args.frames < 1:
+        raise SeesysError("--frames must be at least 1")
+    if args.no_keep_sessions:
+        config = replace_fields(config, keep_sessions=False)
+    width, height = args.size or (None, None)
+    template = SequenceSpec("", "", 0, args.frames, width, height, True, args.distortion)
+    plan = plan_from_config(config, synth, template, args.envs, args.motions,
+                            [int(s) for s in args.seeds] if args.seeds else None, args.modes, args.trials,
+                            args.processes)
+    builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
+    result = builder.build(plan)
+    completed = [r for r in result.runs_done if r not in result.crashed]
+    render_rate = result.rendered_frames / result.render_seconds if result.rendered_frames else 0.0
+    print(f"{result.sequences} sequences ({result.rendered_frames} frames rendered in {result.render_seconds:.0f} s, "
+          f"{render_rate:.1f} frames/s); {len(completed)} runs stored, {len(result.crashed)} crashed, "
+          f"{result.runs_skipped} already done; SLAM + labelling {result.slam_seconds:.0f} s; under {args.out}")
+    for run in result.crashed:
+        print(f"  crashed: {run.run}: {run.error}")
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    config = load_dataset_config()
+    report = write_report(args.roots, config.report, config.targets, args.out)
+    print((args.out / REPORT_MD).read_text(), end="")
+    main = report.main_mode()
+    print(f"{main.mode}: median {MM_PER_M * main.summary.median_m:.1f} mm; wrote the report under {args.out}")
+    return 0
+
+
+def _splits(args: argparse.Namespace) -> int:
+    config = load_dataset_config().splits
+    if args.heldout is not None:
+        config = replace_fields(config, heldout_environments=tuple(args.heldout))
+    if args.rounds is not None:
+        config = replace_fields(config, rounds=args.rounds)
+    splits = write_splits(args.roots, config, args.out)
+    for k, r in enumerate(splits.rounds):
+        print(f"round {k}: train {len(r.train)} runs, validation {len(r.validation)} "
+              f"({', '.join(r.validation_trajectories)}), test {len(r.test)} ({', '.join(r.test_trajectories)}), "
+              f"excluded {len(r.excluded)}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``seesys dataset`` to the command line."""
+    dataset = subparsers.add_parser("dataset", help="build the labelled training dataset, split it, report on it")
+    sub = dataset.add_subparsers(dest="dataset_command", metavar="DATASET_COMMAND", required=True)
+
+    p = sub.add_parser("build", help="render sequences, run ORB-SLAM3 + RTS monitor on each, label, store samples "
+                                     "(resumable)")
+    p.add_argument("--out", type=Path, required=True, help="dataset folder (created; an existing one is resumed)")
+    p.add_argument("--envs", type=_names, help="comma-separated presets or all (default: configs/dataset.toml)")
+    p.add_argument("--motions", type=_names,
+                   help="comma-separated: patrol, aiming, rapid, real:<name>, real, all (default: configs/dataset.toml)")
+    p.add_argument("--seeds", type=_names, help="comma-separated batch seeds (default: configs/dataset.toml)")
+    p.add_argument("--modes", type=_names, help="comma-separated SLAM modes: rgbd, mono (default: configs/dataset.toml)")
+    p.add_argument("--trials", type=int, help="SLAM runs per sequence and mode (default: configs/dataset.toml)")
+    p.add_argument("--frames", type=int, help="frames per sequence (default: configs/synth.toml duration)")
+    p.add_argument("--size", type=_size, help="image size WIDTHxHEIGHT (default: configs/synth.toml camera)")
+    p.add_argument("--processes", type=int, help="render processes (default: configs/synth.toml)")
+    p.add_argument("--distortion", action="store_true", help="render with the configured lens distortion")
+    p.add_argument("--no-keep-sessions", action="store_true", help="delete each device session folder once stored")
+    p.set_defaults(func=_build)
+
+    p = sub.add_parser("report", help="label distribution against the targets, feature-vs-error correlations")
+    p.add_argument("roots", type=Path, nargs="+", help="dataset folders")
+    p.add_argument("--out", type=Path, required=True, help="folder for label_report.md, CSV tables and PNG plots")
+    p.set_defaults(func=_report)
+
+    p = sub.add_parser("splits", help="grouped cross-validation splits by trajectory and motion group (JSON)")
+    p.add_argument("roots", type=Path, nargs="+", help="dataset folders split together (e.g. pretraining + others)")
+    p.add_argument("--out", type=Path, required=True, help="JSON file to write")
+    p.add_argument("--heldout", type=_names, help="held-out environments (default: configs/dataset.toml; '' for none)")
+    p.add_argument("--rounds", type=int, help="cross-validation rounds (default: configs/dataset.toml)")
+    p.set_defaults(func=_splits)

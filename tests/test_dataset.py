@@ -1,0 +1,215 @@
+"""The dataset builder end to end on a tiny dataset (3 environments × patrol × 1 trial, 60 frames of 320×240)
+with real rendering, real ORB-SLAM3 + RTS monitor, evo labels; then the store, resume, a failed run,
+the splits and the label report. Built once per module (about 40 s on 2 cores)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from estimator import dataset_commands
+from estimator.dataset.build import SESSIONS_DIR, DatasetBuilder, plan_from_config
+from estimator.dataset.config import SplitConfig, load_dataset_config
+from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
+from estimator.dataset.splits import SplitError, check_no_leak, make_splits, run_table
+from estimator.dataset.store import (COMPLETED, CRASHED, PSD_NPY, RUNS_DIR, DatasetError, DatasetReader, list_runs,
+                                     read_run_info, run_folder)
+from estimator.labels import LabelStatus, label_session, load_label_config
+from estimator.synth.config import load_synth_config
+from estimator.synth.sequence import SequenceSpec
+from seesys.config import replace_fields
+from slam_monitor import rts_schema
+from slam_monitor.monitor_config import load_window_config
+
+ENVIRONMENTS = ["lab", "office", "living_room"]
+FRAMES = 60
+TEMPLATE = SequenceSpec("", "", 0, FRAMES, 320, 240)
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _builder(root: Path, config_dir: Path | None = None) -> DatasetBuilder:
+    return DatasetBuilder(root, load_dataset_config(), load_synth_config(), load_label_config(), load_window_config(),
+                          config_dir)
+
+
+def _plan(environments: list[str], modes: list[str] | None = None):
+    return plan_from_config(load_dataset_config(), load_synth_config(), TEMPLATE, environments, ["patrol"], [0],
+                            modes or ["rgbd"], 1)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> tuple[Path, object]:
+    root = tmp_path_factory.mktemp("dataset")
+    return root, _builder(root).build(_plan(ENVIRONMENTS))
+
+
+def test_build_stores_every_run_with_windows_and_labels(tiny):
+    root, result = tiny
+    assert result.sequences == 3 and result.rendered_frames == 3 * FRAMES
+    assert [r.status for r in result.runs_done] == [COMPLETED] * 3, [r.error for r in result.runs_done]
+    windows = load_window_config()
+    for info in list_runs(root):
+        folder = run_folder(root, info.run)
+        rts = np.load(folder / "rts.npy", mmap_mode="r")
+        psd = np.load(folder / PSD_NPY, mmap_mode="r")
+        samples = pd.read_csv(folder / "samples.csv")
+        frames = pd.read_csv(folder / "frames.csv")
+        assert info.environment in ENVIRONMENTS and info.motion_group == "patrol" and info.mode == "rgbd"
+        assert len(frames) == info.frames == FRAMES
+        # A window ends on every psd_stride-th tracked frame that has its full history.
+        assert len(samples) == info.samples >= 2
+        assert rts.dtype == np.float32 and rts.shape == (len(samples), windows.rts_length, rts_schema.NUM_CHANNELS)
+        assert psd.dtype == np.uint8 and psd.shape[:2] == (len(samples), windows.psd_samples) and psd.shape[-1] == 3
+        assert (samples.frame_index % windows.psd_stride == 0).all()
+        # Each sample carries the label of its end frame, as labelled from the session folder.
+        labels = label_session(root / SESSIONS_DIR / info.run, False, load_label_config()).to_frame()
+        expected = labels.error_m.to_numpy()[samples.frame_index.to_numpy()]
+        np.testing.assert_allclose(samples.error_m.to_numpy(), expected, equal_nan=True)
+        usable = (samples.status == LabelStatus.LABELLED.value) & (samples.missing_rts == 0)
+        assert (samples.usable == usable).all()
+        # The RTS rows of a window are the monitor's rows of frames t-29 … t.
+        rts_csv = pd.read_csv(root / SESSIONS_DIR / info.run / "rts.csv")
+        end = int(samples.frame_index.iloc[-1])
+        np.testing.assert_allclose(rts[-1], rts_csv[list(rts_schema.CHANNEL_NAMES)].to_numpy(np.float32)[end - 29:end + 1],
+                                   equal_nan=True)
+
+
+def test_reader_gives_lazy_random_access(tiny):
+    root, _ = tiny
+    reader = DatasetReader(root)
+    assert len(reader) == sum(i.samples for i in list_runs(root))
+    assert set(reader.index.environment) == set(ENVIRONMENTS)
+    sample = reader[len(reader) - 1]
+    row = reader.index.iloc[-1]
+    stored = np.load(run_folder(root, row.run) / PSD_NPY)[int(row["sample"])]
+    assert np.array_equal(sample.psd, stored) and sample.meta["trajectory"] == row.trajectory
+    assert isinstance(reader._run_arrays(row.run)[1], np.memmap)  # arrays are memory maps, not loaded
+    usable = DatasetReader(root, usable_only=True)
+    assert 0 < len(usable) <= len(reader) and usable.index.usable.all()
+    one = DatasetReader(root, runs=[row.run])
+    assert set(one.index.run) == {row.run}
+    assert reader.rts_windows().shape == (len(reader), 30, rts_schema.NUM_CHANNELS)
+    with pytest.raises(DatasetError, match="not found"):
+        DatasetReader(root, runs=["no_such_run"])
+    with pytest.raises(IndexError):
+        reader[len(reader)]
+
+
+def test_resume_redoes_only_unfinished_runs(tiny, tmp_path):
+    root, _ = tiny
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    kept, lost = sorted(list_runs(copy), key=lambda i: i.run)[:2]
+    # An interrupted build: one run never finished (its folder absent, a partial write left behind).
+    shutil.rmtree(run_folder(copy, lost.run))
+    (copy / RUNS_DIR / f"{lost.run}.partial").mkdir()
+    kept_json = (run_folder(copy, kept.run) / "run.json").read_text()
+    result = _builder(copy).build(_plan(ENVIRONMENTS))
+    assert [r.run for r in result.runs_done] == [lost.run] and result.runs_skipped == 2
+    assert result.rendered_frames == 0  # the sequences were complete and are not rendered again
+    assert read_run_info(run_folder(copy, lost.run)).status == COMPLETED
+    assert (run_folder(copy, kept.run) / "run.json").read_text() == kept_json
+    assert not (copy / RUNS_DIR / f"{lost.run}.partial").exists()
+
+
+def test_failed_run_is_recorded_and_skipped(tiny, tmp_path):
+    root, _ = tiny
+    configs = tmp_path / "configs"
+    shutil.copytree(REPO / "configs", configs)
+    slam = configs / "slam.toml"
+    slam.write_text(slam.read_text().replace('vocabulary = "data/vocabulary/seesys_sample_k10L4.txt"',
+                                             f'vocabulary = "{tmp_path / "missing_vocabulary.txt"}"'))
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    result = _builder(copy, configs).build(_plan(ENVIRONMENTS[:1], modes=["mono"]))
+    assert [r.status for r in result.runs_done] == [CRASHED]
+    assert "vocabulary" in result.runs_done[0].error
+    assert not (run_folder(copy, result.runs_done[0].run) / PSD_NPY).exists()
+    again = _builder(copy, configs).build(_plan(ENVIRONMENTS[:1], modes=["mono"]))
+    assert again.runs_done == [] and again.runs_skipped == 1
+    assert len(DatasetReader(copy)) == len(DatasetReader(root))  # a crashed run adds no samples
+
+
+def _synthetic_runs() -> pd.DataFrame:
+    """Runs of 4 environments: per group 4 generated trajectories (one per environment) plus one real
+    trajectory rendered in every environment."""
+    rows = []
+    for e, env in enumerate(["a", "b", "c", "held"]):
+        for group in ("patrol", "aiming", "rapid"):
+            rows.append((f"{env}_{group}", env, group, f"{group}_{e}"))
+            rows.append((f"{env}_real_{group}", env, group, f"real_{group}"))
+    rows.append(("held_only", "held", "patrol", "patrol_private"))
+    return pd.DataFrame(rows, columns=["run", "environment", "motion_group", "trajectory"])
+
+
+def test_splits_never_share_a_trajectory_between_parts():
+    runs = _synthetic_runs()
+    splits = make_splits(runs, SplitConfig(rounds=4, seed=3, heldout_environments=("held",)))
+    trajectory = dict(zip(runs.run, runs.trajectory))
+    environment = dict(zip(runs.run, runs.environment))
+    for r in splits.rounds:
+        parts = [{trajectory[x] for x in getattr(r, p)} for p in ("train", "validation", "test")]
+        assert not (parts[0] & parts[1]) and not (parts[0] & parts[2]) and not (parts[1] & parts[2])
+        assert len(r.validation_trajectories) == len(r.test_trajectories) == 3  # one per motion group
+        assert {environment[x] for x in r.train + r.validation}.isdisjoint({"held"})
+        assert "held_only" in r.test  # a trajectory seen only in a held-out environment is test data
+        assert sorted(r.train + r.validation + r.test + r.excluded) == sorted(runs.run)
+        assert r.train
+    assert len({tuple(r.test_trajectories) for r in splits.rounds}) > 1  # the rounds rotate
+    leaky = splits.rounds[0]
+    leaky.train.append(leaky.test[0])
+    with pytest.raises(SplitError, match="is in train and test"):
+        check_no_leak(splits, runs)
+
+
+def test_splits_need_three_trajectories_per_group(tiny):
+    root, _ = tiny
+    runs = run_table([root])
+    assert len(make_splits(runs, SplitConfig(1, 0, ())).rounds[0].train) == 1
+    with pytest.raises(SplitError, match="needs 3"):
+        make_splits(runs, SplitConfig(1, 0, ("lab",)))
+    with pytest.raises(SplitError, match="not in the data"):
+        make_splits(runs, SplitConfig(1, 0, ("nowhere",)))
+
+
+def test_report_writes_figures_against_targets(tiny, tmp_path):
+    root, _ = tiny
+    config = replace_fields(load_dataset_config().report, min_samples=5)
+    report = write_report([root], config, load_dataset_config().targets, tmp_path / "report")
+    text = (tmp_path / "report" / REPORT_MD).read_text()
+    assert "median (mm)" in text and "4–8" in text and "lab" in text
+    for png in (HISTOGRAM_PNG, CORRELATION_PNG):
+        assert (tmp_path / "report" / png).stat().st_size > 5000
+    frames = DatasetReader(root).frame_labels()
+    errors = frames.error_m[frames.status == LabelStatus.LABELLED.value]
+    assert report.main_mode().summary.median_m == pytest.approx(float(np.median(errors)))
+    assert len(report.main_mode().correlations) > 0
+
+
+def test_feature_correlations_find_a_monotone_feature():
+    rng = np.random.default_rng(0)
+    errors = rng.lognormal(-5, 1, 400)
+    features = pd.DataFrame({"follows": np.log(errors) + rng.normal(0, 0.3, 400), "noise": rng.normal(size=400),
+                             "constant": np.ones(400)})
+    table = feature_correlations(features, errors, 30)
+    assert table.feature.iloc[0] == "follows" and table.spearman_rho.iloc[0] > 0.9
+    assert "constant" not in set(table.feature)
+
+
+def test_cli_splits_and_bad_input(tiny, tmp_path, capsys):
+    root, _ = tiny
+    parser = argparse.ArgumentParser(prog="seesys")
+    dataset_commands.register(parser.add_subparsers())
+    out = tmp_path / "splits.json"
+    args = parser.parse_args(["dataset", "splits", str(root), "--out", str(out), "--heldout", "", "--rounds", "2"])
+    assert args.func(args) == 0
+    assert len(json.loads(out.read_text())["rounds"]) == 2
+    args = parser.parse_args(["dataset", "report", str(tmp_path / "nothing"), "--out", str(tmp_path / "r")])
+    with pytest.raises(DatasetError, match="not a dataset folder"):
+        args.func(args)
