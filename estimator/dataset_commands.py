@@ -8,6 +8,7 @@ from pathlib import Path
 from estimator.dataset.build import DatasetBuilder, plan_from_config
 from estimator.dataset.config import load_dataset_config
 from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
+from estimator.dataset.sample import make_sample
 from estimator.dataset.splits import write_splits
 from estimator.labels import load_label_config
 from estimator.synth.config import load_synth_config
@@ -77,6 +78,19 @@ def _splits(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sample(args: argparse.Namespace) -> int:
+    config = load_dataset_config().sample
+    if args.env or args.motion or args.seed is not None:
+        config = replace_fields(config, environment=args.env or config.environment,
+                                motion=args.motion or config.motion,
+                                seed=config.seed if args.seed is None else args.seed)
+    result = make_sample(config, load_synth_config(), args.out)
+    print(f"sample: {result.frames} frames, {result.bytes / 1e6:.1f} MB in {result.folder}; check it with "
+          f"`seesys track --source tum:{result.folder}` and train its vocabulary with "
+          f"`seesys vocab train --source tum:{result.folder} --out FILE`")
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``seesys dataset`` to the command line."""
     dataset = subparsers.add_parser("dataset", help="build the labelled training dataset, split it, report on it")
@@ -109,3 +123,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--heldout", type=_names, help="held-out environments (default: configs/dataset.toml; '' for none)")
     p.add_argument("--rounds", type=int, help="cross-validation rounds (default: configs/dataset.toml)")
     p.set_defaults(func=_splits)
+
+    p = sub.add_parser("sample", help="regenerate the embedded demo sample (data/sample) with the generator")
+    p.add_argument("--out", type=Path, required=True, help="sample folder (replaced)")
+    p.add_argument("--env", help="environment preset (default: [sample] of configs/dataset.toml)")
+    p.add_argument("--motion", help="motion (default: [sample] of configs/dataset.toml)")
+    p.add_argument("--seed", type=int, help="seed (default: [sample] of configs/dataset.toml)")
+    p.set_defaults(func=_sample)

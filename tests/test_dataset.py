@@ -213,3 +213,18 @@ def test_cli_splits_and_bad_input(tiny, tmp_path, capsys):
     args = parser.parse_args(["dataset", "report", str(tmp_path / "nothing"), "--out", str(tmp_path / "r")])
     with pytest.raises(DatasetError, match="not a dataset folder"):
         args.func(args)
+
+
+def test_sample_is_rendered_as_a_small_tum_folder(tmp_path):
+    from estimator.dataset.config import SampleSequenceConfig
+    from estimator.dataset.sample import make_sample
+    from slam_monitor.sources import load_camera_config, open_source, parse_source_spec
+
+    config = SampleSequenceConfig("lab", "aiming", 1, 4, 90)
+    result = make_sample(config, load_synth_config(), tmp_path / "sample")
+    assert result.frames == 4 and not list((tmp_path / "sample" / "rgb").glob("*.png"))
+    assert len(list((tmp_path / "sample" / "rgb").glob("*.jpg"))) == 4
+    assert "seesys dataset sample" in (tmp_path / "sample" / "README.md").read_text()
+    with open_source(parse_source_spec(f"tum:{tmp_path / 'sample'}"), load_camera_config(), True) as source:
+        frames = list(source.frames())
+    assert len(frames) == 4 and frames[0].depth is not None and frames[0].gray.shape == (480, 640)

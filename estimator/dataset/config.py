@@ -41,6 +41,15 @@ class SplitConfig:
 
 
 @dataclass(frozen=True)
+class SampleSequenceConfig:
+    environment: str
+    motion: str
+    seed: int
+    frames: int
+    jpeg_quality: int
+
+
+@dataclass(frozen=True)
 class DatasetConfig:
     environments: tuple[str, ...]
     motions: tuple[str, ...]
@@ -53,6 +62,7 @@ class DatasetConfig:
     report: ReportConfig
     targets: TargetConfig
     splits: SplitConfig
+    sample: SampleSequenceConfig
 
 
 def load_dataset_config(directory: Path | None = None) -> DatasetConfig:
