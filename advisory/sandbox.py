@@ -1,8 +1,8 @@
 """An isolated advisory set-up for tests, benchmarks and demos on a machine with no sound card.
 
-- :class:`JackDummy`: a private JACK server with the ``dummy`` backend (paced in real time, no hardware), under its
-  own server name so that it cannot clash with another JACK server on the machine. Processes find it through
-  ``JACK_DEFAULT_SERVER`` in :meth:`JackDummy.env`.
+- :class:`JackDummy`: a private JACK server with the ``dummy`` backend (paced in real time, no hardware), under a
+  server name no running server has, so that it cannot clash with another JACK server on the machine. Processes
+  find it through ``JACK_DEFAULT_SERVER`` in :meth:`JackDummy.env`.
 - :func:`write_config_dir`: a copy of ``configs/`` with some keys changed (e.g. private ``ipc://`` endpoints and
   the JACK host API), for ``SEESYS_CONFIG_DIR``.
 - :func:`process_env`: the environment of an advisory process in the sandbox.
@@ -19,7 +19,6 @@ import re
 import shutil
 import subprocess
 import tempfile
-import uuid
 from pathlib import Path
 
 from seesys.config import CONFIG_DIR_ENV, config_dir
@@ -27,15 +26,21 @@ from seesys.errors import SeesysError
 
 JACK_HOST_API = "JACK Audio Connection Kit"
 _JACK_WAIT_S = 5
+_JACK_STOP_S = 10
+_SERVER_NAMES = tuple(f"seesys-{i}" for i in range(4))
 
 
 class JackDummy:
-    """A ``jackd -d dummy`` server of its own name, started on enter and killed (by its pid) on exit."""
+    """A ``jackd -d dummy`` server under a name of its own, started on enter and stopped (by its pid) on exit.
+
+    Names come from a small pool (``seesys-0`` …): JACK registers every server name in shared memory, at most 8,
+    and an entry left by a server that died without cleaning up is only reclaimed by a server of the same name.
+    Fresh names at every run would fill the registry ("Too many servers already active"); a pool reuses them.
+    """
 
     def __init__(self, sample_rate: int, period: int):
-        self.name = f"seesys-{uuid.uuid4().hex[:8]}"
-        self._command = ["jackd", "-n", self.name, "--no-realtime", "-d", "dummy", "-r", str(sample_rate),
-                         "-p", str(period)]
+        self.name = ""
+        self._args = ["--no-realtime", "-d", "dummy", "-r", str(sample_rate), "-p", str(period)]
         self._proc: subprocess.Popen | None = None
         self._log: tempfile._TemporaryFileWrapper | None = None
 
@@ -50,19 +55,30 @@ class JackDummy:
     def env(self) -> dict[str, str]:
         return {"JACK_DEFAULT_SERVER": self.name, "JACK_NO_AUDIO_RESERVATION": "1"}
 
+    @staticmethod
+    def _jack_wait(name: str, *args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["jack_wait", "-s", name, *args], capture_output=True, text=True,
+                              env={**os.environ, "JACK_NO_AUDIO_RESERVATION": "1"})
+
     def start(self) -> None:
         if not self.available():
             raise SeesysError("jackd is not installed (apt package jackd2)")
-        # jackd reports every xrun: its output goes to a file, as a pipe nobody reads would fill up and block it.
-        self._log = tempfile.NamedTemporaryFile(prefix="jackd-", suffix=".log")
-        self._proc = subprocess.Popen(self._command, env={**os.environ, **self.env()}, stdout=self._log,
-                                      stderr=subprocess.STDOUT)
-        ready = subprocess.run(["jack_wait", "-w", "-t", str(_JACK_WAIT_S), "-s", self.name],
-                               env={**os.environ, **self.env()}, capture_output=True, text=True)
-        if ready.returncode != 0 or self._proc.poll() is not None:
-            output = Path(self._log.name).read_text(errors="replace")[-500:]
+        problems = []
+        for name in _SERVER_NAMES:
+            if self._jack_wait(name, "-c").stdout.strip() == "running":
+                continue
+            self.name = name
+            # jackd reports every xrun: its output goes to a file, as a pipe nobody reads would fill up and block it.
+            self._log = tempfile.NamedTemporaryFile(prefix="jackd-", suffix=".log")
+            self._proc = subprocess.Popen(["jackd", "-n", name, *self._args], env={**os.environ, **self.env()},
+                                          stdout=self._log, stderr=subprocess.STDOUT)
+            ready = self._jack_wait(name, "-w", "-t", str(_JACK_WAIT_S))
+            if ready.returncode == 0 and self._proc.poll() is None:
+                return
+            problems.append(f"{name}: {Path(self._log.name).read_text(errors='replace')[-300:].strip()}")
             self.stop()
-            raise SeesysError(f"the JACK dummy server did not start: {ready.stdout.strip()} {output.strip()}")
+        raise SeesysError("could not start a JACK dummy server: " + ("; ".join(problems) or
+                                                                     f"{', '.join(_SERVER_NAMES)} all running"))
 
     def stop(self) -> None:
         if self._proc is None:
@@ -70,7 +86,7 @@ class JackDummy:
         if self._proc.poll() is None:
             self._proc.terminate()
             try:
-                self._proc.wait(_JACK_WAIT_S)
+                self._proc.wait(_JACK_STOP_S)
             except subprocess.TimeoutExpired:
                 self._proc.kill()
                 self._proc.wait()
