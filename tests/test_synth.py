@@ -11,7 +11,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from estimator.synth.camera_effects import LensDistortion
 from estimator.synth.config import load_synth_config

@@ -151,6 +151,9 @@ class _Worker:
     grid: RayGrid
     lens: LensDistortion | None
     out: Path
+    max_samples: int
+    depth_factor: float
+    start_time: float
 
     @classmethod
     def setup(cls, spec: SequenceSpec, config: SynthConfig, out: Path) -> None:
