@@ -40,6 +40,7 @@ from slam_monitor.windows import WindowConfig, assemble_windows
 SEQUENCES_DIR = "sequences"
 SESSIONS_DIR = "sessions"
 DATASET_JSON = "dataset.json"
+BUILD_LOG = "build_log.jsonl"
 SEQUENCE_METADATA = "metadata.json"
 MONITOR_OBSERVER = "slam_monitor.monitor:create_observer"
 
@@ -163,8 +164,19 @@ class DatasetBuilder:
 
                 done.append(self._run(sequence, mode, trial, on_event))
                 progress.advance(runs_task)
-        return BuildResult(len(sequences), batch.frames, batch.seconds, done, len(jobs) - len(todo),
-                           time.perf_counter() - start)
+        result = BuildResult(len(sequences), batch.frames, batch.seconds, done, len(jobs) - len(todo),
+                             time.perf_counter() - start)
+        self._log(plan, result)
+        return result
+
+    def _log(self, plan: BuildPlan, result: BuildResult) -> None:
+        """Append this invocation's timings to ``build_log.jsonl`` (for the build-time projection)."""
+        entry = {"time": session.utc_now(), "render_processes": plan.render_processes or self.synth.processes,
+                 "rendered_frames": result.rendered_frames, "render_seconds": result.render_seconds,
+                 "runs": len(result.runs_done), "crashed": len(result.crashed),
+                 "slam_frames": sum(r.frames for r in result.runs_done), "slam_seconds": result.slam_seconds}
+        with open(self.root / BUILD_LOG, "a") as f:
+            f.write(json.dumps(entry) + "\n")
 
     def _write_description(self, plan: BuildPlan) -> None:
         """``dataset.json``: what the samples are (channels, windows, label definition) and how they were built."""

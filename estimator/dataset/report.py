@@ -16,17 +16,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+import pandas as pd
+from scipy.stats import spearmanr
+
+from estimator.dataset.config import ReportConfig, TargetConfig
+from estimator.dataset.store import DatasetError, DatasetReader
+from estimator.labels import LabelStatus, LabelSummary
+from slam_monitor import rts_schema
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-from scipy.stats import spearmanr  # noqa: E402
-
-from estimator.dataset.config import ReportConfig, TargetConfig  # noqa: E402
-from estimator.dataset.store import DatasetError, DatasetReader  # noqa: E402
-from estimator.labels import LabelStatus, LabelSummary  # noqa: E402
-from slam_monitor import rts_schema  # noqa: E402
+import matplotlib.pyplot as plt  # noqa: E402  (after choosing the file-only backend)
 
 MM_PER_M = 1000.0
 WINDOW_STATISTICS = {"mean": np.nanmean, "min": np.nanmin, "max": np.nanmax, "std": np.nanstd}
@@ -126,6 +126,7 @@ class ModeReport:
 class LabelReport:
     modes: list[ModeReport]
     by_group: pd.DataFrame
+    by_trial: pd.DataFrame  # one batch = one trial of every sequence
     frames: pd.DataFrame  # per-frame labels of every run
 
     def main_mode(self) -> ModeReport:
@@ -154,7 +155,8 @@ def label_report(roots: list[Path], config: ReportConfig, targets: TargetConfig)
         modes.append(ModeReport(mode, summary, correlations, check_targets(summary, best, targets), mode_features,
                                 errors[in_mode]))
     by_group = summary_table(frames, ["mode", "environment", "motion_group"], config.thresholds_m)
-    return LabelReport(modes, by_group, frames)
+    by_trial = summary_table(frames, ["mode", "trial"], config.thresholds_m)
+    return LabelReport(modes, by_group, by_trial, frames)
 
 
 def _markdown_table(table: pd.DataFrame, digits: int = 1) -> str:
@@ -183,6 +185,8 @@ def render_markdown(report: LabelReport, config: ReportConfig) -> str:
         top = m.correlations.head(config.top_features)
         out += [f"RTS window features with the largest |Spearman ρ| against the label ({m.mode}, usable samples):",
                 "", _markdown_table(top[["feature", "spearman_rho", "samples"]], digits=3), ""]
+    out += ["## Per mode and trial (each trial of every sequence is one batch)", "", _markdown_table(report.by_trial),
+            ""]
     out += ["## Per mode, environment and motion group", "", _markdown_table(report.by_group), ""]
     return "\n".join(out)
 
