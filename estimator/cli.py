@@ -6,6 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
+from estimator import dataset_commands
 from estimator.diversity import diversity_report, write_report
 from estimator.synth.batch import expand_environments, expand_motions, render_batch
 from estimator.synth.config import load_synth_config
@@ -97,3 +98,5 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, help="folder for diversity.csv/.md/.png")
     p.add_argument("--stride", type=int, default=5, help="use every N-th frame (default 5)")
     p.set_defaults(func=_diversity)
+
+    dataset_commands.register(subparsers)

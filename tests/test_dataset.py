@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import run_seesys
 from estimator import dataset_commands
 from estimator.dataset.build import SESSIONS_DIR, DatasetBuilder, plan_from_config
 from estimator.dataset.config import SplitConfig, load_dataset_config
@@ -202,7 +203,7 @@ def test_feature_correlations_find_a_monotone_feature():
     assert "constant" not in set(table.feature)
 
 
-def test_cli_splits_and_bad_input(tiny, tmp_path, capsys):
+def test_cli_splits_and_bad_input(tiny, tmp_path):
     root, _ = tiny
     parser = argparse.ArgumentParser(prog="seesys")
     dataset_commands.register(parser.add_subparsers())
@@ -210,9 +211,8 @@ def test_cli_splits_and_bad_input(tiny, tmp_path, capsys):
     args = parser.parse_args(["dataset", "splits", str(root), "--out", str(out), "--heldout", "", "--rounds", "2"])
     assert args.func(args) == 0
     assert len(json.loads(out.read_text())["rounds"]) == 2
-    args = parser.parse_args(["dataset", "report", str(tmp_path / "nothing"), "--out", str(tmp_path / "r")])
-    with pytest.raises(DatasetError, match="not a dataset folder"):
-        args.func(args)
+    done = run_seesys("dataset", "report", str(tmp_path / "nothing"), "--out", str(tmp_path / "r"))
+    assert done.returncode == 2 and "seesys: error:" in done.stderr and "not a dataset folder" in done.stderr
 
 
 def test_sample_is_rendered_as_a_small_tum_folder(tmp_path):
