@@ -162,7 +162,13 @@ def test_splits_never_share_a_trajectory_between_parts():
         assert "held_only" in r.test  # a trajectory seen only in a held-out environment is test data
         assert sorted(r.train + r.validation + r.test + r.excluded) == sorted(runs.run)
         assert r.train
-    assert len({tuple(r.test_trajectories) for r in splits.rounds}) > 1  # the rounds rotate
+    # Four rounds over the four trajectories per group outside the held-out environment test each one once.
+    group_of = dict(zip(runs.trajectory, runs.motion_group))
+    for group in ("patrol", "aiming", "rapid"):
+        tested = [t for r in splits.rounds for t in r.test_trajectories if group_of[t] == group]
+        assert sorted(tested) == sorted([f"{group}_0", f"{group}_1", f"{group}_2", f"real_{group}"])
+    with pytest.raises(SplitError, match="at most 4 distinct rounds"):
+        make_splits(runs, SplitConfig(rounds=5, seed=3, heldout_environments=("held",)))
     leaky = splits.rounds[0]
     leaky.train.append(leaky.test[0])
     with pytest.raises(SplitError, match="is in train and test"):

@@ -2,9 +2,10 @@
 
 The paper's Table 2 protocol: trajectories belong to motion groups (patrol/inspection, aiming/inspection, rapid
 waving/shaking/rotation); each cross-validation round takes, per group, one trajectory for validation and one
-for test, the rest for training. Here it is applied to every run of one or more dataset folders at once (the
-synthetic pretraining data and any later data together), grouped by trajectory *name*: a real trajectory
-rendered in nine environments is one group, so all its renders land in the same part.
+for test, the rest for training; n rounds test each of a group's n trajectories once. Here it is applied to
+every run of one or more dataset folders at once (the synthetic pretraining data and any later data together),
+grouped by trajectory *name*: a real trajectory rendered in nine environments is one group, so all its renders
+land in the same part.
 
 On top, environments listed in ``heldout_environments`` never serve for training or validation: their runs
 are test data (unseen scenes). A held-out-environment run whose trajectory also occurs in other environments
@@ -86,10 +87,16 @@ def make_splits(runs: pd.DataFrame, config: SplitConfig) -> Splits:
             raise SplitError(f"motion group {group} has {len(names)} trajectories outside the held-out "
                              f"environments; a round needs 3 (one each for train, validation and test)")
         candidates[group] = [names[i] for i in rng.permutation(len(names))]
+    # Round r validates on the r-th trajectory of each group's permutation and tests on the next, so that n
+    # rounds test every trajectory once; more rounds than the smallest group has trajectories would repeat one.
+    distinct = min(len(names) for names in candidates.values())
+    if config.rounds > distinct:
+        raise SplitError(f"{config.rounds} rounds asked, but a motion group has only {distinct} trajectories "
+                         f"outside the held-out environments (at most {distinct} distinct rounds)")
     rounds = []
     for r in range(config.rounds):
-        validation_traj = sorted(names[(2 * r) % len(names)] for names in candidates.values())
-        test_traj = sorted(names[(2 * r + 1) % len(names)] for names in candidates.values())
+        validation_traj = sorted(names[r % len(names)] for names in candidates.values())
+        test_traj = sorted(names[(r + 1) % len(names)] for names in candidates.values())
         is_test = runs.trajectory.isin(test_traj) | (heldout & ~runs.trajectory.isin(shared))
         is_validation = runs.trajectory.isin(validation_traj) & ~heldout
         is_train = ~runs.trajectory.isin(validation_traj + test_traj) & ~heldout
