@@ -22,6 +22,13 @@ def _names(text: str) -> list[str]:
     return [n.strip() for n in text.split(",") if n.strip()]
 
 
+def _ints(text: str) -> list[int]:
+    try:
+        return [int(n) for n in _names(text)]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         width, height = (int(v) for v in text.lower().split("x"))
@@ -40,7 +47,7 @@ def _build(args: argparse.Namespace) -> int:
     width, height = args.size or (None, None)
     template = SequenceSpec("", "", 0, args.frames, width, height, True, args.distortion)
     plan = plan_from_config(config, synth, template, args.envs, args.motions,
-                            [int(s) for s in args.seeds] if args.seeds else None, args.modes, args.trials,
+                            args.seeds, args.modes, args.trials,
                             args.processes)
     builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
     result = builder.build(plan)
@@ -102,7 +109,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--envs", type=_names, help="comma-separated presets or all (default: configs/dataset.toml)")
     p.add_argument("--motions", type=_names,
                    help="comma-separated: patrol, aiming, rapid, real:<name>, real, all (default: configs/dataset.toml)")
-    p.add_argument("--seeds", type=_names, help="comma-separated batch seeds (default: configs/dataset.toml)")
+    p.add_argument("--seeds", type=_ints, help="comma-separated batch seeds (default: configs/dataset.toml)")
     p.add_argument("--modes", type=_names, help="comma-separated SLAM modes: rgbd, mono (default: configs/dataset.toml)")
     p.add_argument("--trials", type=int, help="SLAM runs per sequence and mode (default: configs/dataset.toml)")
     p.add_argument("--frames", type=int, help="frames per sequence (default: configs/synth.toml duration)")
