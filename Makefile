@@ -34,8 +34,13 @@ venv: $(STAMP)
 
 setup: apt venv
 
+# The pipeline on the embedded sample: ORB-SLAM3 + RTS monitor (session folder with frames, trajectory, RTS rows and
+# PSD matrices), the true per-frame pose error from the ground truth, and what the SEESys advisory would play
+# for it (the estimator service is not built yet, so the true error stands in for its estimates).
 demo: setup
-	$(BIN)/seesys track --source tum:data/sample --mode rgbd --out $(DEMO_OUT)/track-rgbd
+	$(BIN)/seesys monitor run --source tum:data/sample --mode rgbd --out $(DEMO_OUT)/session
+	$(BIN)/seesys dataset label $(DEMO_OUT)/session --labelled-only --out $(DEMO_OUT)/true-error.csv
+	$(BIN)/seesys advisory render --estimates $(DEMO_OUT)/true-error.csv --out $(DEMO_OUT)/advisory-preview.wav
 
 test: setup
 	$(BIN)/python -m pytest

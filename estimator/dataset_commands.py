@@ -1,20 +1,24 @@
-"""``seesys dataset build | report | splits | sample``: thin wrappers over :mod:`estimator.dataset`."""
+"""``seesys dataset build | report | splits | sample | label``: thin wrappers over :mod:`estimator.dataset`
+and :mod:`estimator.labels`."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from estimator.dataset.build import DatasetBuilder, plan_from_config
 from estimator.dataset.config import load_dataset_config
 from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
 from estimator.dataset.sample import make_sample
 from estimator.dataset.splits import write_splits
-from estimator.labels import load_label_config
+from estimator.labels import label_session, load_label_config
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
 from seesys.config import replace_fields
 from seesys.errors import SeesysError
+from slam_monitor import session
 from slam_monitor.monitor_config import load_window_config
 
 
@@ -98,6 +102,22 @@ def _sample(args: argparse.Namespace) -> int:
     return 0
 
 
+def _label(args: argparse.Namespace) -> int:
+    if not (args.session / session.MANIFEST).is_file():
+        raise SeesysError(f"{args.session} is not a session folder (no {session.MANIFEST})")
+    mode = session.read_manifest(args.session).get("mode")
+    if mode not in ("rgbd", "mono"):
+        raise SeesysError(f"{args.session}: session.json names no SLAM mode (rgbd or mono)")
+    labels = label_session(args.session, mode == "mono", load_label_config()).to_frame()
+    labelled = labels[labels.status == "labelled"]
+    (labelled if args.labelled_only else labels).to_csv(args.out, index=False)
+    errors_mm = labelled.error_m.to_numpy() * MM_PER_M
+    summary = (f"median {float(np.median(errors_mm)):.1f} mm, p90 {float(np.percentile(errors_mm, 90)):.1f} mm"
+               if len(labelled) else "no labelled frame")
+    print(f"{len(labelled)} of {len(labels)} frames labelled ({summary}) -> {args.out}")
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``seesys dataset`` to the command line."""
     dataset = subparsers.add_parser("dataset", help="build the labelled training dataset, split it, report on it")
@@ -137,3 +157,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--motion", help="motion (default: [sample] of configs/dataset.toml)")
     p.add_argument("--seed", type=int, help="seed (default: [sample] of configs/dataset.toml)")
     p.set_defaults(func=_sample)
+
+    p = sub.add_parser("label", help="true pose-error label of every frame of one session folder (CSV)")
+    p.add_argument("session", type=Path, help="a session folder with groundtruth.tum (seesys track / monitor run)")
+    p.add_argument("--out", type=Path, required=True, help="CSV file: timestamp, error_m, status, scale")
+    p.add_argument("--labelled-only", action="store_true",
+                   help="keep only labelled frames (an estimate log for `seesys advisory render`)")
+    p.set_defaults(func=_label)
