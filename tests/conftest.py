@@ -16,7 +16,6 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE = REPO / "data" / "sample"
-SHARED_ROOM = REPO.parent / "shared" / "data" / "synth_room_rgbd"
 
 
 @pytest.fixture(scope="session")
