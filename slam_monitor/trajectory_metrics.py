@@ -42,11 +42,14 @@ class SessionSummary:
 
 def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode) -> AteResult | None:
     """ATE of ``estimate`` against ``ground_truth`` (TUM files), or ``None`` when it cannot be aligned: fewer than
-    3 pairs, or positions on a line (a short straight path), for which Umeyama's alignment is undetermined."""
+    3 pairs (none at all when ORB-SLAM3 never initialised), or positions on a line (a short straight path), for
+    which Umeyama's alignment is undetermined."""
     from evo.core import metrics, sync
     from evo.core.geometry import GeometryException
     from evo.tools import file_interface
 
+    if _pose_rows(estimate) < 3:
+        return None
     try:
         reference = file_interface.read_tum_trajectory_file(str(ground_truth))
         estimated = file_interface.read_tum_trajectory_file(str(estimate))
@@ -67,6 +70,15 @@ def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode
     ape.process_data((reference, aligned))
     return AteResult(float(ape.get_statistic(metrics.StatisticsType.rmse)), aligned.num_poses,
                      "Sim(3)" if with_scale else "SE(3)", float(scale))
+
+
+def _pose_rows(path: Path) -> int:
+    """Data rows of a TUM file (evo rejects a file with none)."""
+    try:
+        with path.open() as lines:
+            return sum(1 for line in lines if line.strip() and not line.startswith("#"))
+    except OSError as e:
+        raise SeesysError(f"cannot read trajectory {path}: {e.strerror}") from None
 
 
 def summarize_session(folder: Path, mode: SlamMode) -> SessionSummary:

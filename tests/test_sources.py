@@ -20,7 +20,10 @@ def test_tum_sample_yields_gray_metric_depth_and_ground_truth():
         frames = list(itertools.islice(source.frames(), 3))
         truth = source.ground_truth()
     assert [f.index for f in frames] == [0, 1, 2]
-    assert frames[1].timestamp == pytest.approx(1000.033333)
+    listed = [float(line.split()[0]) for line in (SAMPLE / "rgb.txt").read_text().splitlines()
+              if line and not line.startswith("#")]
+    assert [f.timestamp for f in frames] == pytest.approx(listed[:3], abs=1e-6)
+    assert frames[1].timestamp - frames[0].timestamp == pytest.approx(1 / 30, abs=1e-5)
     assert frames[0].gray.dtype == np.uint8 and frames[0].gray.shape == (480, 640)
     assert frames[0].depth.dtype == np.float32
     valid = frames[0].depth[frames[0].depth > 0]

@@ -14,7 +14,8 @@ from slam_monitor.device_worker import SessionOptions, run_device_session
 from slam_monitor.orbslam_settings import SlamMode, load_slam_config
 from slam_monitor.pacing import FramePacer, ThreadDemand
 from slam_monitor.tracking_state import TrackingState
-from slam_monitor.trajectory_metrics import summarize_session
+from slam_monitor.trajectory_metrics import absolute_trajectory_error, summarize_session
+
 
 @pytest.mark.slam
 def test_rgbd_on_the_sample_tracks_every_frame_within_2_cm(tmp_path):
@@ -30,6 +31,15 @@ def test_rgbd_on_the_sample_tracks_every_frame_within_2_cm(tmp_path):
     assert manifest["status"] == "completed" and manifest["frames_tracked"] == summary.frames_tracked
     assert manifest["config"]["slam"]["rgbd"]["th_depth"] == 20.0
     assert (out / session.SETTINGS).read_text().count("Stereo.b: 0.08") == 1
+
+
+def test_a_session_that_never_initialised_has_no_ate_instead_of_an_error(tmp_path):
+    truth, estimate = tmp_path / "groundtruth.tum", tmp_path / "trajectory.tum"
+    truth.write_text("".join(f"{1000 + i / 30:.6f} {i * 0.01} {(i % 7) * 0.003} {(i % 5) * 0.002} 0 0 0 1\n" for i in range(30)))
+    estimate.write_text("# timestamp tx ty tz qx qy qz qw\n")
+    assert absolute_trajectory_error(truth, estimate, SlamMode.RGBD) is None
+    estimate.write_text(truth.read_text())
+    assert absolute_trajectory_error(truth, estimate, SlamMode.RGBD).rmse_m == pytest.approx(0.0, abs=1e-9)
 
 
 @pytest.mark.slam

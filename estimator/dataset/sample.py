@@ -18,6 +18,7 @@ from estimator.dataset.config import SampleSequenceConfig
 from estimator.synth.config import SynthConfig
 from estimator.synth.sequence import SequenceSpec, render_sequence
 from seesys.errors import SeesysError
+from slam_monitor.orbslam_settings import load_slam_config
 
 RGB_LISTS = ("rgb.txt", "associations.txt")
 README = "README.md"
@@ -61,6 +62,7 @@ def _rgb_names_to_jpeg(text: str) -> str:
 
 def make_sample(config: SampleSequenceConfig, synth: SynthConfig, out: Path) -> SampleResult:
     """Render the sample sequence into ``out`` (replaced), re-encode it and write its README."""
+    vocabulary = load_slam_config().vocabulary
     staging = out.with_name(out.name + ".partial")
     shutil.rmtree(staging, ignore_errors=True)
     spec = SequenceSpec(config.environment, config.motion, config.seed, config.frames)
@@ -69,7 +71,7 @@ def make_sample(config: SampleSequenceConfig, synth: SynthConfig, out: Path) -> 
     (staging / "render_log.csv").unlink(missing_ok=True)
     (staging / README).write_text(
         f"# Embedded sample: {len(records)} frames rendered by the project's generator, RGB-D, with ground truth\n\n"
-        f"Made with `seesys dataset sample --out {out.name}` ([sample] of configs/dataset.toml: environment "
+        f"Made with `seesys dataset sample --out {out}` ([sample] of configs/dataset.toml: environment "
         f"`{config.environment}`, motion `{config.motion}`, seed {config.seed}, {config.frames} frames at "
         f"{synth.camera.width}x{synth.camera.height}, {synth.camera.fps:g} Hz), TUM RGB-D layout, so that the demo "
         f"and the tests need no download.\n\n"
@@ -77,8 +79,8 @@ def make_sample(config: SampleSequenceConfig, synth: SynthConfig, out: Path) -> 
         f"sample small).\n- `depth/*.png`: 16-bit z-depth, metres x {synth.camera.depth_factor:g}.\n"
         f"- `groundtruth.txt`: T_world_camera, camera optical frame; `calibration.yaml`; `metadata.json`: the "
         f"environment, trajectory and sensor draws.\n\n"
-        f"The vocabulary beside it is trained on these frames: "
-        f"`seesys vocab train --source tum:data/sample --out data/vocabulary/seesys_sample_k10L4.txt`.\n")
+        f"The project's vocabulary (`vocabulary` of configs/slam.toml) is trained on the embedded sample's frames: "
+        f"`seesys vocab train --source tum:data/sample --out {vocabulary}`.\n")
     shutil.rmtree(out, ignore_errors=True)
     staging.rename(out)
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())

@@ -106,6 +106,7 @@ class EnvironmentPreset:
     falloff_m: float
     ambient: float
     albedo: float
+    albedo_spread: float
     shot_noise_scale: float
 
 

@@ -18,6 +18,8 @@ from estimator.synth.textures import TexturePyramid, make_tile
 # Tiles per scene: rich ones for clutter and textured walls, poor ones for bare walls, floor and ceiling variety.
 RICH_TILES = 8
 POOR_TILES = 2
+# Bare paint is drawn a little lighter than printed and cluttered surfaces (relative albedo).
+BARE_ALBEDO_GAIN = 1.1
 
 
 @dataclass(frozen=True)
@@ -138,9 +140,12 @@ def build_scene(preset: EnvironmentPreset, seed: int, sensor: SensorConfig) -> S
     room = np.array(preset.room_m, np.float64)
     size = sensor.texture_size
     shapes = max(1, int(round(preset.texture_density * preset.texture_scale_m**2)))
-    tiles = [make_tile(rng, size, shapes, preset.texture_contrast, preset.albedo * rng.uniform(0.8, 1.2), False)
+    spread = preset.albedo_spread
+    tiles = [make_tile(rng, size, shapes, preset.texture_contrast, preset.albedo * rng.uniform(1 - spread, 1 + spread),
+                       False)
              for _ in range(RICH_TILES)]
-    tiles += [make_tile(rng, size, 0, preset.texture_contrast, preset.albedo * rng.uniform(0.9, 1.3), True)
+    tiles += [make_tile(rng, size, 0, preset.texture_contrast,
+                        preset.albedo * rng.uniform(BARE_ALBEDO_GAIN - spread, BARE_ALBEDO_GAIN + spread), True)
               for _ in range(POOR_TILES)]
     textures = TexturePyramid.build(tiles, sensor.texture_levels)
     boxes = _place_boxes(rng, preset, room)
