@@ -15,7 +15,7 @@ import pytest
 
 from conftest import run_seesys
 from estimator import dataset_commands
-from estimator.dataset.build import SESSIONS_DIR, DatasetBuilder, plan_from_config
+from estimator.dataset.build import DATASET_JSON, SESSIONS_DIR, DatasetBuilder, plan_from_config
 from estimator.dataset.config import SplitConfig, load_dataset_config
 from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
 from estimator.dataset.splits import SplitError, check_no_leak, make_splits, run_table
@@ -25,6 +25,7 @@ from estimator.labels import LabelStatus, label_session, load_label_config
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
 from seesys.config import replace_fields
+from seesys.errors import SeesysError
 from slam_monitor import rts_schema
 from slam_monitor.monitor_config import load_window_config
 
@@ -135,6 +136,21 @@ def test_failed_run_is_recorded_and_skipped(tiny, tmp_path):
     again = _builder(copy, configs).build(_plan(ENVIRONMENTS[:1], modes=["mono"]))
     assert again.runs_done == [] and again.runs_skipped == 1
     assert len(DatasetReader(copy)) == len(DatasetReader(root))  # a crashed run adds no samples
+    plan = json.loads((copy / DATASET_JSON).read_text())["plan"]
+    assert plan["modes"] == ["rgbd", "mono"] and plan["environments"] == ENVIRONMENTS
+
+
+def test_a_dataset_is_extended_only_with_the_same_sample_definition(tiny, tmp_path):
+    root, _ = tiny
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    description = (copy / DATASET_JSON).read_text()
+    other_labels = replace_fields(load_label_config(), delta_frames=5)
+    builder = DatasetBuilder(copy, load_dataset_config(), load_synth_config(), other_labels, load_window_config())
+    with pytest.raises(SeesysError, match="different labels"):
+        builder.build(_plan(ENVIRONMENTS))
+    assert (copy / DATASET_JSON).read_text() == description
+    assert sorted(i.run for i in list_runs(copy)) == sorted(i.run for i in list_runs(root))
 
 
 def _synthetic_runs() -> pd.DataFrame:

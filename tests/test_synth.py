@@ -95,8 +95,8 @@ def test_real_trajectories_are_placed_inside_the_smallest_room(config):
 
 def test_lens_distortion_keeps_the_centre_and_bends_the_edges(config):
     grid = RayGrid.for_camera(config.camera)
-    lens = LensDistortion.for_camera(grid, config.camera.distortion)
-    cy, cx = int(config.camera.cy), int(config.camera.cx)
+    lens = LensDistortion.for_lens(config.camera.lens)
+    cy, cx = int(config.camera.lens.cy), int(config.camera.lens.cx)
     assert abs(lens.map_x[cy, cx] - cx) < 0.5 and abs(lens.map_y[cy, cx] - cy) < 0.5
     # Barrel distortion (k1 < 0): a corner pixel of the image shows a point farther out in the pinhole render.
     assert lens.map_x[0, 0] < 0 and lens.map_y[0, 0] < 0

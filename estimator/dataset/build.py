@@ -43,6 +43,8 @@ DATASET_JSON = "dataset.json"
 BUILD_LOG = "build_log.jsonl"
 SEQUENCE_METADATA = "metadata.json"
 MONITOR_OBSERVER = "slam_monitor.monitor:create_observer"
+# What a sample is: a later build into the same folder must agree on all of these.
+DEFINITION_KEYS = ("rts_channels", "rts_schema_version", "windows", "labels", "samples", "pace")
 
 
 @dataclass(frozen=True)
@@ -125,6 +127,16 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
     return RunArrays(rts_array, psd_array, samples, frames)
 
 
+def _merge_plans(earlier: dict, later: dict) -> dict:
+    """The plan of a dataset built by ``earlier`` and then extended by ``later``: list entries in first-seen order,
+    the larger trial count."""
+    merged = dict(earlier)
+    for key in ("environments", "motions", "seeds", "modes"):
+        merged[key] = list(dict.fromkeys(earlier[key] + later[key]))
+    merged["trials"] = max(earlier["trials"], later["trials"])
+    return merged
+
+
 class DatasetBuilder:
     """Renders a plan's sequences into ``root/sequences`` and stores one run per (sequence, mode, trial)."""
 
@@ -179,8 +191,11 @@ class DatasetBuilder:
             f.write(json.dumps(entry) + "\n")
 
     def _write_description(self, plan: BuildPlan) -> None:
-        """``dataset.json``: what the samples are (channels, windows, label definition) and how they were built."""
-        description = {
+        """``dataset.json``: what the samples are (channels, windows, label definition) and how they were built.
+
+        A build into an existing dataset adds runs to it, so it must use the same definitions; the plan recorded is
+        the union of every build's plan."""
+        description = json.loads(json.dumps({
             "rts_channels": list(rts_schema.CHANNEL_NAMES),
             "rts_schema_version": rts_schema.SCHEMA_VERSION,
             "windows": asdict(self.windows),
@@ -189,8 +204,18 @@ class DatasetBuilder:
             "pace": self.config.pace,
             "plan": {"template": asdict(plan.template), "environments": plan.environments, "motions": plan.motions,
                      "seeds": plan.seeds, "modes": [m.value for m in plan.modes], "trials": plan.trials},
-        }
-        (self.root / DATASET_JSON).write_text(json.dumps(description, indent=2) + "\n")
+        }))
+        path = self.root / DATASET_JSON
+        if path.exists():
+            earlier = json.loads(path.read_text())
+            changed = [key for key in DEFINITION_KEYS if earlier.get(key) != description[key]]
+            if earlier.get("plan", {}).get("template") != description["plan"]["template"]:
+                changed.append("render template (frames, size, blur, distortion)")
+            if changed:
+                raise SeesysError(f"{path}: the dataset there was built with a different {', '.join(changed)}; "
+                                  f"build into a new folder (samples of two definitions must not mix)")
+            description["plan"] = _merge_plans(earlier["plan"], description["plan"])
+        path.write_text(json.dumps(description, indent=2) + "\n")
 
     def _run(self, sequence: Path, mode: SlamMode, trial: int, on_event) -> RunInfo:
         meta = _sequence_metadata(sequence)

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from estimator.synth.renderer import RayGrid
+from slam_monitor.frame import Intrinsics
 
 
 def image_motion(depth: np.ndarray, grid: RayGrid, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -30,8 +31,8 @@ def image_motion(depth: np.ndarray, grid: RayGrid, rotation: np.ndarray, transla
     valid = (depth > 0) & (qz > grid.near_m)
     qz = np.where(valid, qz, 1.0)
     flow = np.empty(depth.shape + (2,), np.float32)
-    flow[..., 0] = np.where(valid, grid.fx * (qx / qz - grid.x), 0.0)
-    flow[..., 1] = np.where(valid, grid.fy * (qy / qz - grid.y), 0.0)
+    flow[..., 0] = np.where(valid, grid.lens.fx * (qx / qz - grid.x), 0.0)
+    flow[..., 1] = np.where(valid, grid.lens.fy * (qy / qz - grid.y), 0.0)
     return flow
 
 
@@ -47,8 +48,8 @@ def motion_blur(image: np.ndarray, grid: RayGrid, flow_start: np.ndarray, flow_e
     p99 = float(np.percentile(streak, 99))
     samples = int(np.clip(np.ceil(p99), 1, max_samples))
     # Backward-warp maps: pixel − flow(s), flow(s) = start + s · (end − start).
-    base_x = grid.x * np.float32(grid.fx) + np.float32(grid.cx) - flow_start[..., 0]
-    base_y = grid.y * np.float32(grid.fy) + np.float32(grid.cy) - flow_start[..., 1]
+    base_x = grid.x * np.float32(grid.lens.fx) + np.float32(grid.lens.cx) - flow_start[..., 0]
+    base_y = grid.y * np.float32(grid.lens.fy) + np.float32(grid.lens.cy) - flow_start[..., 1]
     step_x = flow_start[..., 0] - flow_end[..., 0]
     step_y = flow_start[..., 1] - flow_end[..., 1]
     fractions = np.linspace(0.0, 1.0, samples, dtype=np.float32) if samples > 1 else np.array([0.5], np.float32)
@@ -88,14 +89,14 @@ class LensDistortion:
     map_y: np.ndarray
 
     @classmethod
-    def for_camera(cls, grid: RayGrid, coefficients: tuple[float, ...]) -> LensDistortion:
-        k = np.array([[grid.fx, 0, grid.cx], [0, grid.fy, grid.cy], [0, 0, 1]])
-        u, v = np.meshgrid(np.arange(grid.width, dtype=np.float64), np.arange(grid.height, dtype=np.float64))
+    def for_lens(cls, lens: Intrinsics) -> LensDistortion:
+        k = lens.matrix()
+        u, v = np.meshgrid(np.arange(lens.width, dtype=np.float64), np.arange(lens.height, dtype=np.float64))
         distorted = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
         # For each pixel of the distorted image, the point of the undistorted render it shows.
-        undistorted = cv2.undistortPoints(distorted, k, np.array(coefficients), None, None, k,
+        undistorted = cv2.undistortPoints(distorted, k, np.array(lens.distortion), None, None, k,
                                           (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6))
-        maps = undistorted.reshape(grid.height, grid.width, 2).astype(np.float32)
+        maps = undistorted.reshape(lens.height, lens.width, 2).astype(np.float32)
         return cls(np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]))
 
     def apply(self, image: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

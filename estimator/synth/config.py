@@ -14,27 +14,21 @@ from slam_monitor.frame import Intrinsics
 
 @dataclass(frozen=True)
 class CameraConfig:
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
+    """The rendered camera. Frames are ray-cast through the ideal pinhole of ``lens``; its distortion is applied
+    only when a render asks for it."""
+
+    lens: Intrinsics
     fps: float
     depth_factor: float
     near_m: float
-    distortion: tuple[float, float, float, float, float]
 
     def scaled(self, width: int, height: int) -> CameraConfig:
-        """The same lens on a sensor of ``width``×``height`` (focal lengths and centre scaled)."""
-        sx, sy = width / self.width, height / self.height
-        return dataclasses.replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
-                                   cx=(self.cx + 0.5) * sx - 0.5, cy=(self.cy + 0.5) * sy - 0.5)
+        """The same lens on a sensor of ``width``×``height``."""
+        return dataclasses.replace(self, lens=self.lens.scaled(width, height))
 
     def intrinsics(self, distorted: bool) -> Intrinsics:
         """The intrinsics a render is written with; the distortion only when the render applies it."""
-        distortion = self.distortion if distorted else (0.0, 0.0, 0.0, 0.0, 0.0)
-        return Intrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy, distortion)
+        return self.lens if distorted else self.lens.without_distortion()
 
 
 @dataclass(frozen=True)

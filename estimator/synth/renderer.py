@@ -15,18 +15,14 @@ import numpy as np
 
 from estimator.synth.config import CameraConfig
 from estimator.synth.environments import Scene
+from slam_monitor.frame import Intrinsics
 
 
 @dataclass(frozen=True)
 class RayGrid:
     """Normalised image coordinates ``(x, y)`` of every pixel centre of a camera (the rays' camera-frame x, y)."""
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
+    lens: Intrinsics  # its pinhole part: the grid is undistorted
     near_m: float
     x: np.ndarray
     y: np.ndarray
@@ -35,15 +31,16 @@ class RayGrid:
 
     @classmethod
     def for_camera(cls, camera: CameraConfig) -> RayGrid:
-        u, v = np.meshgrid(np.arange(camera.width, dtype=np.float32), np.arange(camera.height, dtype=np.float32))
-        x, y = (u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy
-        return cls(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, camera.near_m, x, y,
-                   x * x + y * y + 1)
+        lens = camera.lens
+        u, v = np.meshgrid(np.arange(lens.width, dtype=np.float32), np.arange(lens.height, dtype=np.float32))
+        x, y = (u - lens.cx) / lens.fx, (v - lens.cy) / lens.fy
+        return cls(lens, camera.near_m, x, y, x * x + y * y + 1)
 
     def project(self, points_cam: np.ndarray) -> np.ndarray:
         """Pixel coordinates (N×2) of camera-frame points (N×3) with z > 0."""
         z = points_cam[:, 2]
-        return np.column_stack([self.fx * points_cam[:, 0] / z + self.cx, self.fy * points_cam[:, 1] / z + self.cy])
+        lens = self.lens
+        return np.column_stack([lens.fx * points_cam[:, 0] / z + lens.cx, lens.fy * points_cam[:, 1] / z + lens.cy])
 
 
 @dataclass(frozen=True)
@@ -80,7 +77,7 @@ def _screen_box(grid: RayGrid, corners_world: np.ndarray, rotation: np.ndarray,
     u0, v0 = np.floor(uv.min(axis=0)).astype(int)
     u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 1
     u0, v0 = max(u0, 0), max(v0, 0)
-    u1, v1 = min(u1, grid.width), min(v1, grid.height)
+    u1, v1 = min(u1, grid.lens.width), min(v1, grid.lens.height)
     if u0 >= u1 or v0 >= v1:
         return None
     return slice(v0, v1), slice(u0, u1)
@@ -93,7 +90,7 @@ def render(scene: Scene, rotation: np.ndarray, centre: np.ndarray, grid: RayGrid
     dirs = [r[k, 0] * grid.x + r[k, 1] * grid.y + r[k, 2] for k in range(3)]
     with np.errstate(divide="ignore"):
         inv = [np.float32(1.0) / d for d in dirs]
-    shape = (grid.height, grid.width)
+    shape = (grid.lens.height, grid.lens.width)
     depth = np.full(shape, np.inf, np.float32)
     face_id = np.full(shape, -1, np.int32)
     # Per pixel, filled by the nearest face so far: texture coordinates (level-0 texels) and the footprint of
@@ -123,7 +120,7 @@ def render(scene: Scene, rotation: np.ndarray, centre: np.ndarray, grid: RayGrid
         per_texel = np.float32(1.0 / faces.texel_m[i])
         tex_u[box][hit] = pb[hit] * per_texel + np.float32(faces.offset[i, 0])
         tex_v[box][hit] = pc[hit] * per_texel + np.float32(faces.offset[i, 1])
-        footprint[box][hit] = th * grid.norm2[box][hit] * (per_texel / np.float32(grid.fx)) / np.abs(dirs[a][box][hit])
+        footprint[box][hit] = th * grid.norm2[box][hit] * (per_texel / np.float32(grid.lens.fx)) / np.abs(dirs[a][box][hit])
 
     missed = face_id < 0
     fid = np.maximum(face_id, 0)

@@ -81,7 +81,7 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     preset = config.preset(spec.environment)
     camera = config.camera
     if spec.width or spec.height:
-        camera = camera.scaled(spec.width or camera.width, spec.height or camera.height)
+        camera = camera.scaled(spec.width or camera.lens.width, spec.height or camera.lens.height)
     rng = np.random.default_rng([spec.seed, 0x7A7])
     scene = build_scene(preset, spec.seed, config.sensor)
     lo, hi = scene.room_bounds()
@@ -160,7 +160,7 @@ class _Worker:
         cv2.setNumThreads(1)  # parallelism is across processes
         cls.plan = plan_sequence(spec, config)
         cls.grid = RayGrid.for_camera(cls.plan.camera)
-        cls.lens = LensDistortion.for_camera(cls.grid, config.camera.distortion) if spec.distortion else None
+        cls.lens = LensDistortion.for_lens(cls.plan.camera.lens) if spec.distortion else None
         cls.out = out
         cls.max_samples = config.sensor.blur_max_samples
         cls.depth_factor = config.camera.depth_factor
