@@ -55,6 +55,8 @@ def test_build_stores_every_run_with_windows_and_labels(tiny):
     root, result = tiny
     assert result.sequences == 3 and result.rendered_frames == 3 * FRAMES
     assert [r.status for r in result.runs_done] == [COMPLETED] * 3, [r.error for r in result.runs_done]
+    log = [json.loads(line) for line in (root / "build_log.jsonl").read_text().splitlines()]
+    assert [e["phase"] for e in log] == ["render", "runs"] and log[0]["rendered_frames"] == 3 * FRAMES
     windows = load_window_config()
     for info in list_runs(root):
         folder = run_folder(root, info.run)
@@ -64,6 +66,7 @@ def test_build_stores_every_run_with_windows_and_labels(tiny):
         frames = pd.read_csv(folder / "frames.csv")
         assert info.environment in ENVIRONMENTS and info.motion_group == "patrol" and info.mode == "rgbd"
         assert len(frames) == info.frames == FRAMES
+        assert info.seconds >= info.slam_seconds > 0
         # A window ends on every psd_stride-th tracked frame that has its full history.
         assert len(samples) == info.samples >= 2
         assert rts.dtype == np.float32 and rts.shape == (len(samples), windows.rts_length, rts_schema.NUM_CHANNELS)

@@ -154,6 +154,8 @@ class DatasetBuilder:
         self._write_description(plan)
         batch = render_batch(plan.template, plan.environments, plan.motions, plan.seeds, self.synth,
                              self.root / SEQUENCES_DIR, plan.render_processes)
+        self._log({"phase": "render", "render_processes": plan.render_processes or self.synth.processes,
+                   "rendered_frames": batch.frames, "render_seconds": batch.seconds})
         sequences = sorted(batch.rendered + batch.skipped)
         jobs = [(seq, mode, trial) for seq in sequences for mode in plan.modes for trial in range(plan.trials)]
         todo = [job for job in jobs if read_run_info(run_folder(self.root, run_name(job[0].name, job[1].value,
@@ -178,17 +180,15 @@ class DatasetBuilder:
                 progress.advance(runs_task)
         result = BuildResult(len(sequences), batch.frames, batch.seconds, done, len(jobs) - len(todo),
                              time.perf_counter() - start)
-        self._log(plan, result)
+        self._log({"phase": "runs", "runs": len(result.runs_done), "crashed": len(result.crashed),
+                   "slam_frames": sum(r.frames for r in result.runs_done), "slam_seconds": result.slam_seconds})
         return result
 
-    def _log(self, plan: BuildPlan, result: BuildResult) -> None:
-        """Append this invocation's timings to ``build_log.jsonl`` (for the build-time projection)."""
-        entry = {"time": session.utc_now(), "render_processes": plan.render_processes or self.synth.processes,
-                 "rendered_frames": result.rendered_frames, "render_seconds": result.render_seconds,
-                 "runs": len(result.runs_done), "crashed": len(result.crashed),
-                 "slam_frames": sum(r.frames for r in result.runs_done), "slam_seconds": result.slam_seconds}
+    def _log(self, entry: dict) -> None:
+        """Append a timed entry to ``build_log.jsonl``: the render phase as soon as it ends (so that an
+        interrupted build keeps it), the SLAM runs at the end; each run's own timing is in its ``run.json``."""
         with open(self.root / BUILD_LOG, "a") as f:
-            f.write(json.dumps(entry) + "\n")
+            f.write(json.dumps({"time": session.utc_now(), **entry}) + "\n")
 
     def _write_description(self, plan: BuildPlan) -> None:
         """``dataset.json``: what the samples are (channels, windows, label definition) and how they were built.
@@ -234,10 +234,10 @@ class DatasetBuilder:
             crashed = replace(info, status=CRASHED, error=str(e), slam_seconds=time.perf_counter() - start)
             record_crashed_run(self.root, crashed)
             return crashed
-        seconds = time.perf_counter() - start
+        slam_seconds = time.perf_counter() - start
         arrays = label_run(session_dir, mode, self.label_config, self.windows, self.config.samples.max_missing_rts_usable)
         info = replace(info, frames=result.frames, frames_tracked=result.frames_tracked, samples=len(arrays.samples),
-                       slam_seconds=seconds)
+                       slam_seconds=slam_seconds, seconds=time.perf_counter() - start)
         write_run(self.root, info, arrays)
         if not self.config.keep_sessions:
             shutil.rmtree(session_dir, ignore_errors=True)

@@ -60,7 +60,8 @@ class RunInfo:
     frames_tracked: int = 0
     samples: int = 0
     error: str = ""
-    slam_seconds: float = 0.0
+    slam_seconds: float = 0.0  # the SLAM session (ORB-SLAM3 + monitor at camera pace)
+    seconds: float = 0.0  # the whole run: SLAM session, labelling and windowing
 
 
 @dataclass(frozen=True)
