@@ -11,6 +11,7 @@ passed directly to :func:`run_device_session` when it runs in-process.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import itertools
 from collections.abc import Callable, Iterable, Iterator
@@ -57,8 +58,8 @@ class SessionOptions:
     """One device session. Picklable: it crosses to the worker process.
 
     ``source`` is ``KIND:PATH``; ``max_frames`` stops early; ``settings_file`` replaces the generated ORB-SLAM3
-    settings; ``vocabulary`` replaces the configured vocabulary; ``pace`` overrides ``[pacing]`` of slam.toml;
-    ``config_dir`` replaces ``configs/``; ``observers`` are built in the worker (the RTS monitor is one).
+    settings; ``vocabulary`` replaces the configured vocabulary; ``pace`` and ``wait_for_mapping`` override
+    ``[pacing]`` of slam.toml; ``config_dir`` replaces ``configs/``; ``observers`` are built in the worker (the RTS monitor is one).
     """
 
     source: str
@@ -68,6 +69,7 @@ class SessionOptions:
     settings_file: Path | None = None
     vocabulary: Path | None = None
     pace: bool | None = None
+    wait_for_mapping: bool | None = None
     config_dir: Path | None = None
     observers: tuple[ObserverSpec, ...] = ()
 
@@ -192,7 +194,10 @@ def run_device_session(
                                          slam_config, camera_config)
                 active = list(observers) + [build_observer(s, context) for s in options.observers]
                 pace = options.pace if options.pace is not None else slam_config.pacing.paces(options.mode)
-                pacer = FramePacer(slam_config.pacing, pace and not source.paced_by_clock,
+                pacing = slam_config.pacing
+                if options.wait_for_mapping is not None:
+                    pacing = dataclasses.replace(pacing, wait_for_mapping=options.wait_for_mapping)
+                pacer = FramePacer(pacing, pace and not source.paced_by_clock,
                                    ThreadDemand(tracker.background_thread_ids))
                 for frame in itertools.islice(checked_frames(source, options.mode), options.max_frames):
                     pacer.wait(frame.timestamp)

@@ -44,7 +44,8 @@ BUILD_LOG = "build_log.jsonl"
 SEQUENCE_METADATA = "metadata.json"
 MONITOR_OBSERVER = "slam_monitor.monitor:create_observer"
 # What a sample is: a later build into the same folder must agree on all of these.
-DEFINITION_KEYS = ("rts_channels", "rts_schema_version", "windows", "labels", "samples", "pace")
+DEFINITION_KEYS = ("rts_channels", "rts_schema_version", "windows", "labels", "samples", "pace",
+                   "wait_for_mapping_modes")
 
 
 @dataclass(frozen=True)
@@ -202,6 +203,7 @@ class DatasetBuilder:
             "labels": asdict(self.label_config),
             "samples": asdict(self.config.samples),
             "pace": self.config.pace,
+            "wait_for_mapping_modes": list(self.config.wait_for_mapping_modes),
             "plan": {"template": asdict(plan.template), "environments": plan.environments, "motions": plan.motions,
                      "seeds": plan.seeds, "modes": [m.value for m in plan.modes], "trials": plan.trials},
         }))
@@ -225,6 +227,7 @@ class DatasetBuilder:
         session_dir = self.root / SESSIONS_DIR / name
         shutil.rmtree(session_dir, ignore_errors=True)
         options = SessionOptions(f"tum:{sequence}", mode, session_dir, pace=self.config.pace,
+                                 wait_for_mapping=mode.value in self.config.wait_for_mapping_modes,
                                  config_dir=self.config_dir,
                                  observers=(ObserverSpec(MONITOR_OBSERVER, {"stream": False, "device_id": name}),))
         start = time.perf_counter()

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from seesys.config import load_section
+from seesys.errors import ConfigError
+from slam_monitor.orbslam_settings import SlamMode
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,7 @@ class DatasetConfig:
     trials: int
     modes: tuple[str, ...]
     pace: bool
+    wait_for_mapping_modes: tuple[str, ...]
     keep_sessions: bool
     samples: SampleConfig
     report: ReportConfig
@@ -67,4 +70,9 @@ class DatasetConfig:
 
 def load_dataset_config(directory: Path | None = None) -> DatasetConfig:
     """Load ``configs/dataset.toml``."""
-    return load_section("dataset", DatasetConfig, directory)
+    config = load_section("dataset", DatasetConfig, directory)
+    known = {mode.value for mode in SlamMode}
+    unknown = sorted(set(config.modes + config.wait_for_mapping_modes) - known)
+    if unknown:
+        raise ConfigError(f"configs/dataset.toml: unknown SLAM mode(s) {', '.join(unknown)} (known: rgbd, mono)")
+    return config
