@@ -25,7 +25,7 @@ from estimator.labels import LabelStatus, label_session, load_label_config
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
 from seesys.config import replace_fields
-from seesys.errors import SeesysError
+from seesys.errors import ConfigError, SeesysError
 from slam_monitor import rts_schema
 from slam_monitor.monitor_config import load_window_config
 
@@ -67,6 +67,8 @@ def test_build_stores_every_run_with_windows_and_labels(tiny):
         assert info.environment in ENVIRONMENTS and info.motion_group == "patrol" and info.mode == "rgbd"
         assert len(frames) == info.frames == FRAMES
         assert info.seconds >= info.slam_seconds > 0
+        # RGB-D runs are paced by the camera rate only (wait_for_mapping_modes = ["mono"]).
+        assert json.loads((root / SESSIONS_DIR / info.run / "session.json").read_text())["mapping_wait_s"] == 0
         # A window ends on every psd_stride-th tracked frame that has its full history.
         assert len(samples) == info.samples >= 2
         assert rts.dtype == np.float32 and rts.shape == (len(samples), windows.rts_length, rts_schema.NUM_CHANNELS)
@@ -141,6 +143,15 @@ def test_failed_run_is_recorded_and_skipped(tiny, tmp_path):
     assert len(DatasetReader(copy)) == len(DatasetReader(root))  # a crashed run adds no samples
     plan = json.loads((copy / DATASET_JSON).read_text())["plan"]
     assert plan["modes"] == ["rgbd", "mono"] and plan["environments"] == ENVIRONMENTS
+
+
+def test_dataset_config_rejects_an_unknown_slam_mode(tmp_path):
+    configs = tmp_path / "configs"
+    shutil.copytree(REPO / "configs", configs)
+    path = configs / "dataset.toml"
+    path.write_text(path.read_text().replace('wait_for_mapping_modes = ["mono"]', 'wait_for_mapping_modes = ["monocular"]'))
+    with pytest.raises(ConfigError, match="unknown SLAM mode.*monocular"):
+        load_dataset_config(configs)
 
 
 def test_a_dataset_is_extended_only_with_the_same_sample_definition(tiny, tmp_path):
