@@ -81,11 +81,17 @@ class ViewerConfig:
 
 
 @dataclass(frozen=True)
+class SupervisorConfig:
+    stall_timeout_s: float
+
+
+@dataclass(frozen=True)
 class SlamConfig:
     vocabulary: str
     orb: OrbConfig
     rgbd: RgbdConfig
     pacing: PacingConfig
+    supervisor: SupervisorConfig
     viewer: ViewerConfig
     vocabulary_training: TrainingConfig
 

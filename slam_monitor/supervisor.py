@@ -14,6 +14,7 @@ import os
 import queue
 import signal
 import sys
+import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,7 @@ from slam_monitor.device_worker import (
     SessionResult,
     run_device_session,
 )
+from slam_monitor.orbslam_settings import load_slam_config
 
 POLL_S = 0.2
 # ORB-SLAM3 calls exit(-1) when a required setting is missing.
@@ -104,6 +106,10 @@ def _crash_message(exit_code: int, frame_index: int, out_dir: Path) -> str:
         how = f"exited with status {exit_code}"
     else:
         how = f"ended with status {exit_code}"
+    return _ending_message(how, frame_index, out_dir)
+
+
+def _ending_message(how: str, frame_index: int, out_dir: Path) -> str:
     said = _last_log_line(out_dir)
     said = f' after printing "{said}"' if said else ""
     if frame_index == 0:
@@ -116,13 +122,17 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
     """Run ``options`` in a child process; ``progress`` receives the child's progress events in this process.
 
     Raises :class:`SeesysError` with the child's message on bad input, or :class:`WorkerCrash` when the child
-    died without reporting (ORB-SLAM3 exit or segfault); the session folder keeps what was logged.
+    died without reporting (ORB-SLAM3 exit or segfault) or reported nothing for ``[supervisor] stall_timeout_s``
+    (a hang: the child is killed); the session folder keeps what was logged.
     """
+    stall_timeout_s = load_slam_config(options.config_dir).supervisor.stall_timeout_s
     context = multiprocessing.get_context("spawn")
     events: multiprocessing.Queue = context.Queue()
     child = context.Process(target=worker_main, args=(options, events), name="seesys-device-worker")
     child.start()
     outcome: _Failed | _Finished | None = None
+    stalled = False
+    last_event = time.monotonic()
     try:
         while outcome is None:
             alive = child.is_alive()  # checked before the read, so a last message sent before exiting is not missed
@@ -131,7 +141,12 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
             except queue.Empty:
                 if not alive:
                     break
+                if time.monotonic() - last_event > stall_timeout_s:
+                    stalled = True
+                    child.kill()  # a hung ORB-SLAM3 thread does not answer SIGTERM
+                    break
                 continue
+            last_event = time.monotonic()
             if isinstance(event, (_Failed, _Finished)):
                 outcome = event
             elif progress:
@@ -148,7 +163,11 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
         raise SeesysError(outcome.message)
     # The frame being processed when the process died is the first one not in frames.csv.
     next_frame = _frames_logged(options.out_dir)
-    message = _crash_message(child.exitcode, next_frame, options.out_dir)
+    if stalled:
+        message = _ending_message(f"stopped responding (no frame for {stall_timeout_s:g} s; killed)", next_frame,
+                                  options.out_dir)
+    else:
+        message = _crash_message(child.exitcode, next_frame, options.out_dir)
     if (options.out_dir / session.MANIFEST).exists():
         session.update_manifest(options.out_dir, status="crashed", end_time=session.utc_now(), error=message,
                                 frames=next_frame)

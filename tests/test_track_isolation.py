@@ -1,13 +1,15 @@
-"""ORB-SLAM3 taking the worker process down (exit status 255, SIGSEGV) becomes a clear error, and the session
-files written before it stay valid. The crash is caused inside the real worker by an observer built from a spec,
+"""ORB-SLAM3 taking the worker process down (exit status 255, SIGSEGV) or hanging becomes a clear error, and the
+session files written before it stay valid. The crash is caused inside the real worker by an observer built from a spec,
 exactly where a crash inside ORB-SLAM3's track call would happen."""
 
 import ctypes
 import os
+import shutil
+import time
 
 import pandas as pd
 import pytest
-from conftest import SAMPLE
+from conftest import REPO, SAMPLE
 from evo.tools import file_interface
 
 from seesys.errors import SeesysError
@@ -25,6 +27,9 @@ class Crasher:
 
     def on_frame(self, frame, result):
         if frame.index == self.at_frame - 1:  # frame at_frame - 1 is logged, frame at_frame never will be
+            if self.how == "hang":
+                print("LM: Active map reset, Done!!!", flush=True)
+                time.sleep(3600)  # as ORB-SLAM3 does when a map reset deadlocks with local mapping
             print("Stereo.b required parameter does not exist, aborting...", flush=True)
             if self.how == "exit":
                 os._exit(255)
@@ -73,6 +78,25 @@ def test_crash_is_a_clear_error_and_keeps_the_logged_frames(tmp_path, how, expec
     assert file_interface.read_tum_trajectory_file(str(out / session.TRAJECTORY)).num_poses == 6
     manifest = session.read_manifest(out)
     assert (manifest["status"], manifest["error"], manifest["frames"]) == ("crashed", message, 6)
+
+
+def test_a_hung_worker_is_killed_after_the_stall_timeout_and_keeps_the_logged_frames(tmp_path):
+    configs = tmp_path / "configs"
+    shutil.copytree(REPO / "configs", configs)
+    slam = configs / "slam.toml"
+    slam.write_text(slam.read_text().replace("stall_timeout_s = 60.0", "stall_timeout_s = 3.0"))
+    out = tmp_path / "s"
+    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out, config_dir=configs,
+                             observers=(ObserverSpec("test_track_isolation:crasher", {"at_frame": 6, "how": "hang"}),))
+    with pytest.raises(WorkerCrash) as error:
+        run_supervised_session(options)
+    message = str(error.value)
+    assert message.startswith("ORB-SLAM3 stopped responding (no frame for 3 s; killed)")
+    assert 'after printing "LM: Active map reset, Done!!!"' in message
+    assert f"at frame 6; the session files up to frame 5 are kept in {out}" in message
+    assert list(pd.read_csv(out / session.FRAMES_CSV).frame_index) == list(range(6))
+    manifest = session.read_manifest(out)
+    assert (manifest["status"], manifest["error"]) == ("crashed", message)
 
 
 def test_observer_specs_are_built_in_the_worker(tmp_path):
