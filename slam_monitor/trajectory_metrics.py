@@ -55,8 +55,6 @@ def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode
         estimated = file_interface.read_tum_trajectory_file(str(estimate))
     except Exception as e:  # evo raises its own FileInterfaceException and numpy errors on bad files
         raise SeesysError(f"cannot read trajectories {ground_truth} / {estimate}: {e}") from None
-    if estimated.num_poses < 3:
-        return None
     reference, estimated = sync.associate_trajectories(reference, estimated, max_diff=ASSOCIATION_MAX_DT_S)
     if estimated.num_poses < 3:
         return None

@@ -74,5 +74,6 @@ def load_dataset_config(directory: Path | None = None) -> DatasetConfig:
     known = {mode.value for mode in SlamMode}
     unknown = sorted(set(config.modes + config.wait_for_mapping_modes) - known)
     if unknown:
-        raise ConfigError(f"configs/dataset.toml: unknown SLAM mode(s) {', '.join(unknown)} (known: rgbd, mono)")
+        raise ConfigError(f"configs/dataset.toml: unknown SLAM mode(s) {', '.join(unknown)} "
+                          f"(known: {', '.join(sorted(known))})")
     return config
