@@ -13,6 +13,7 @@ from estimator.dataset.config import load_dataset_config
 from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
 from estimator.dataset.sample import make_sample
 from estimator.dataset.splits import write_splits
+from estimator.dataset.store import WITH_SAMPLES
 from estimator.labels import label_session, load_label_config
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
@@ -55,13 +56,14 @@ def _build(args: argparse.Namespace) -> int:
                             args.processes)
     builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
     result = builder.build(plan)
-    completed = [r for r in result.runs_done if r not in result.crashed]
+    stored = [r for r in result.runs_done if r.status in WITH_SAMPLES]
     render_rate = result.rendered_frames / result.render_seconds if result.rendered_frames else 0.0
     print(f"{result.sequences} sequences ({result.rendered_frames} frames rendered in {result.render_seconds:.0f} s, "
-          f"{render_rate:.1f} frames/s); {len(completed)} runs stored, {len(result.crashed)} crashed, "
+          f"{render_rate:.1f} frames/s); {len(stored)} runs stored, {len(result.crashed)} crashed, "
           f"{result.runs_skipped} already done; SLAM + labelling {result.slam_seconds:.0f} s; under {args.out}")
     for run in result.crashed:
-        print(f"  crashed: {run.run}: {run.error}")
+        kept = f" ({run.frames} frames before it stored)" if run.frames else ""
+        print(f"  crashed{kept}: {run.run}: {run.error}")
     return 0
 
 

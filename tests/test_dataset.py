@@ -5,6 +5,7 @@ the splits and the label report. Built once per module (about 40 s on 2 cores)."
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -15,18 +16,20 @@ import pytest
 
 from conftest import run_seesys
 from estimator import dataset_commands
+from estimator.dataset import build as build_module
 from estimator.dataset.build import DATASET_JSON, SESSIONS_DIR, DatasetBuilder, plan_from_config
 from estimator.dataset.config import SplitConfig, load_dataset_config
 from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
 from estimator.dataset.splits import SplitError, check_no_leak, make_splits, run_table
-from estimator.dataset.store import (COMPLETED, CRASHED, PSD_NPY, RUNS_DIR, DatasetError, DatasetReader, list_runs,
-                                     read_run_info, run_folder)
+from estimator.dataset.store import (COMPLETED, CRASHED, PARTIAL, PSD_NPY, RUNS_DIR, DatasetError, DatasetReader,
+                                     list_runs, read_run_info, run_folder)
 from estimator.labels import LabelStatus, label_session, load_label_config
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
 from seesys.config import replace_fields
 from seesys.errors import ConfigError, SeesysError
 from slam_monitor import rts_schema
+from slam_monitor.device_worker import ObserverSpec
 from slam_monitor.monitor_config import load_window_config
 
 ENVIRONMENTS = ["lab", "office", "living_room"]
@@ -143,6 +146,38 @@ def test_failed_run_is_recorded_and_skipped(tiny, tmp_path):
     assert len(DatasetReader(copy)) == len(DatasetReader(root))  # a crashed run adds no samples
     plan = json.loads((copy / DATASET_JSON).read_text())["plan"]
     assert plan["modes"] == ["rgbd", "mono"] and plan["environments"] == ENVIRONMENTS
+
+
+def test_a_run_that_crashes_part_way_keeps_the_frames_logged_before(tiny, tmp_path, monkeypatch):
+    root, _ = tiny
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    victim = sorted(list_runs(copy), key=lambda i: i.run)[0]
+    shutil.rmtree(run_folder(copy, victim.run))
+    crash_at = 45
+    real_session = build_module.run_supervised_session
+
+    def crashing_session(options, progress=None):
+        # A real SIGSEGV inside the real worker, where ORB-SLAM3 segfaults after a map reset.
+        crasher = ObserverSpec("test_track_isolation:crasher", {"at_frame": crash_at, "how": "segfault"})
+        return real_session(dataclasses.replace(options, observers=options.observers + (crasher,)), progress)
+
+    monkeypatch.setattr(build_module, "run_supervised_session", crashing_session)
+    result = _builder(copy).build(_plan(ENVIRONMENTS))
+    assert [r.run for r in result.runs_done] == [victim.run] and result.crashed == result.runs_done
+    run = result.runs_done[0]
+    assert run.status == PARTIAL and "SIGSEGV" in run.error and run.frames == crash_at
+    assert read_run_info(run_folder(copy, run.run)) == run
+    frames = DatasetReader(copy, runs=[run.run]).frame_labels()
+    assert list(frames.frame_index) == list(range(crash_at))
+    assert run.frames_tracked == (frames.status != LabelStatus.NOT_TRACKED.value).sum() > 0
+    assert (frames.status == LabelStatus.LABELLED.value).any()
+    samples = DatasetReader(copy, runs=[run.run])
+    whole = DatasetReader(root, runs=[run.run]).index.frame_index  # the same run's windows when it did not crash
+    assert len(samples) == run.samples > 0 and list(samples.index.frame_index) == [f for f in whole if f < crash_at]
+    assert run.run in set(run_table([copy]).run)
+    again = _builder(copy).build(_plan(ENVIRONMENTS))
+    assert again.runs_done == [] and again.runs_skipped == 3
 
 
 def test_dataset_config_rejects_an_unknown_slam_mode(tmp_path):

@@ -6,8 +6,10 @@ pace. Rendering while SLAM runs would take the CPU from ORB-SLAM3's threads and 
 measured (monocular tracking collapses; synthetic-error-spread.md).
 
 Each (sequence, mode, trial) becomes one run of the store (:mod:`estimator.dataset.store`); a finished run is
-never redone, so an interrupted build continues where it stopped. A run whose SLAM session fails (ORB-SLAM3
-crash, bad input) is recorded with its error and skipped, never post-processed.
+never redone, so an interrupted build continues where it stopped. When ORB-SLAM3 crashes or hangs part-way
+(it does in map resets after a tracking loss), the frames it logged are labelled and stored as a ``partial`` run:
+dropping them would drop the hardest stretches from the data. A session that fails before its first frame (bad
+input, a crash at start) is recorded with its error and skipped.
 """
 
 from __future__ import annotations
@@ -23,8 +25,8 @@ import pandas as pd
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from estimator.dataset.config import DatasetConfig
-from estimator.dataset.store import (COMPLETED, CRASHED, RunArrays, RunInfo, read_run_info, record_crashed_run,
-                                     run_folder, run_name, write_run)
+from estimator.dataset.store import (COMPLETED, CRASHED, PARTIAL, RunArrays, RunInfo, read_run_info,
+                                     record_crashed_run, run_folder, run_name, write_run)
 from estimator.labels import LabelConfig, LabelStatus, label_session
 from estimator.synth.batch import expand_environments, expand_motions, render_batch
 from estimator.synth.config import SynthConfig
@@ -72,7 +74,8 @@ class BuildResult:
 
     @property
     def crashed(self) -> list[RunInfo]:
-        return [r for r in self.runs_done if r.status == CRASHED]
+        """Runs whose SLAM session failed: with no sample (``crashed``) or with the frames before it (``partial``)."""
+        return [r for r in self.runs_done if r.status in (CRASHED, PARTIAL)]
 
 
 def plan_from_config(config: DatasetConfig, synth: SynthConfig, template: SequenceSpec,
@@ -234,14 +237,29 @@ class DatasetBuilder:
         try:
             result = run_supervised_session(options, progress=on_event)
         except SeesysError as e:
-            crashed = replace(info, status=CRASHED, error=str(e), slam_seconds=time.perf_counter() - start)
-            record_crashed_run(self.root, crashed)
-            return crashed
+            return self._store_failed(replace(info, status=CRASHED, error=str(e)), session_dir, mode, start)
         slam_seconds = time.perf_counter() - start
         arrays = label_run(session_dir, mode, self.label_config, self.windows, self.config.samples.max_missing_rts_usable)
         info = replace(info, frames=result.frames, frames_tracked=result.frames_tracked, samples=len(arrays.samples),
                        slam_seconds=slam_seconds, seconds=time.perf_counter() - start)
+        return self._store(info, arrays, session_dir)
+
+    def _store(self, info: RunInfo, arrays: RunArrays, session_dir: Path) -> RunInfo:
         write_run(self.root, info, arrays)
         if not self.config.keep_sessions:
             shutil.rmtree(session_dir, ignore_errors=True)
         return info
+
+    def _store_failed(self, crashed: RunInfo, session_dir: Path, mode: SlamMode, start: float) -> RunInfo:
+        """A failed session: its logged frames as a ``partial`` run, or a ``crashed`` record when it logged none."""
+        crashed = replace(crashed, slam_seconds=time.perf_counter() - start)
+        frames_csv = session_dir / session.FRAMES_CSV
+        logged = pd.read_csv(frames_csv) if frames_csv.is_file() else pd.DataFrame()
+        if logged.empty:
+            record_crashed_run(self.root, crashed)
+            return crashed
+        arrays = label_run(session_dir, mode, self.label_config, self.windows, self.config.samples.max_missing_rts_usable)
+        tracked = int((arrays.frames.status != LabelStatus.NOT_TRACKED.value).sum())
+        partial = replace(crashed, status=PARTIAL, frames=len(arrays.frames), frames_tracked=tracked,
+                          samples=len(arrays.samples), seconds=time.perf_counter() - start)
+        return self._store(partial, arrays, session_dir)

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from estimator.dataset.config import SplitConfig
-from estimator.dataset.store import COMPLETED, list_runs
+from estimator.dataset.store import WITH_SAMPLES, list_runs
 from seesys.errors import SeesysError
 
 PARTS = ("train", "validation", "test")
@@ -58,9 +58,9 @@ class Splits:
 
 
 def run_table(roots: list[Path]) -> pd.DataFrame:
-    """One row per completed run of the dataset folders: run, environment, motion group, trajectory."""
+    """One row per run with samples of the dataset folders: run, environment, motion group, trajectory."""
     rows = [(i.run, i.environment, i.motion_group, i.trajectory) for root in roots for i in list_runs(root)
-            if i.status == COMPLETED]
+            if i.status in WITH_SAMPLES]
     table = pd.DataFrame(rows, columns=["run", "environment", "motion_group", "trajectory"])
     duplicated = table.run[table.run.duplicated()]
     if len(duplicated):

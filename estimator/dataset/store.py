@@ -10,7 +10,9 @@ through ORB-SLAM3 + the RTS monitor in one mode (``<sequence>__<mode>__t<trial>`
     runs/<run>/frames.csv    one row per frame: tracking state, label, status, fitted scale
 
 A run folder is written under a temporary name and renamed when complete, so it either exists whole or not at
-all; a crashed run has only ``run.json`` (status ``crashed`` and the error). The arrays are plain ``.npy``
+all. A run whose SLAM session crashed after logging frames is stored like a completed one with status
+``partial`` (its logged frames labelled, the error kept); a run that logged no frame has only ``run.json``
+(status ``crashed`` and the error). The arrays are plain ``.npy``
 files opened with ``mmap_mode="r"``: training reads the samples it asks for, never the whole dataset.
 """
 
@@ -35,7 +37,10 @@ PSD_NPY = "psd.npy"
 SAMPLES_CSV = "samples.csv"
 FRAMES_CSV = "frames.csv"
 COMPLETED = "completed"
-CRASHED = "crashed"
+PARTIAL = "partial"  # ORB-SLAM3 crashed or hung after logging frames: those frames are labelled and stored
+CRASHED = "crashed"  # nothing stored: the session logged no frame (bad input, a crash at start)
+# Runs that have samples.
+WITH_SAMPLES = (COMPLETED, PARTIAL)
 # Columns of samples.csv besides the run metadata that the reader adds to its index.
 SAMPLE_COLUMNS = ("sample", "frame_index", "timestamp", "error_m", "status", "scale", "missing_rts", "usable")
 
@@ -109,7 +114,7 @@ def _write_folder(folder: Path, info: RunInfo, arrays: RunArrays | None) -> None
 
 
 def write_run(root: Path, info: RunInfo, arrays: RunArrays) -> Path:
-    """Store a completed run's samples."""
+    """Store a completed (or partial) run's samples."""
     if not (len(arrays.rts) == len(arrays.psd) == len(arrays.samples)):
         raise DatasetError(f"run {info.run}: {len(arrays.rts)} RTS windows, {len(arrays.psd)} PSD windows and "
                            f"{len(arrays.samples)} sample rows disagree")
@@ -119,7 +124,8 @@ def write_run(root: Path, info: RunInfo, arrays: RunArrays) -> Path:
 
 
 def record_crashed_run(root: Path, info: RunInfo) -> Path:
-    """Record a run whose SLAM session failed: no samples, the error kept, skipped on resume."""
+    """Record a run whose SLAM session failed before logging a frame: no samples, the error kept, skipped on
+    resume."""
     folder = run_folder(root, info.run)
     _write_folder(folder, info, None)
     return folder
@@ -159,7 +165,7 @@ class DatasetReader:
         self._folders: dict[str, Path] = {}
         for root in roots:
             for info in list_runs(root):
-                if info.status != COMPLETED or (runs is not None and info.run not in runs):
+                if info.status not in WITH_SAMPLES or (runs is not None and info.run not in runs):
                     continue
                 if info.run in self._folders:
                     raise DatasetError(f"run {info.run} is in two dataset folders ({self._folders[info.run]}, {root})")
@@ -176,7 +182,7 @@ class DatasetReader:
         if runs is not None:
             unknown = sorted(set(runs) - set(self._folders))
             if unknown:
-                raise DatasetError(f"runs not found (or not completed) in {', '.join(map(str, roots))}: "
+                raise DatasetError(f"runs not found (or without samples) in {', '.join(map(str, roots))}: "
                                    f"{', '.join(unknown[:5])}{' …' if len(unknown) > 5 else ''}")
         index = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame(columns=list(SAMPLE_COLUMNS))
         if usable_only:
