@@ -12,11 +12,13 @@ import cv2
 import numpy as np
 import pytest
 
+from estimator.synth.batch import render_batch
 from estimator.synth.camera_effects import LensDistortion
 from estimator.synth.config import load_synth_config
 from estimator.synth.environments import build_scene
 from estimator.synth.renderer import RayGrid, render
 from estimator.synth.sequence import SequenceSpec, render_sequence
+from estimator.synth.textures import make_tile
 from estimator.synth.trajectories import MOTION_GROUPS, generate_motion, load_euroc, load_tum, place_real
 
 
@@ -30,6 +32,21 @@ def test_at_least_nine_presets_that_differ(config):
     for field in ("room_m", "light", "falloff_m", "texture_density", "texture_contrast", "texture_scale_m", "boxes"):
         assert len({getattr(p, field) for p in config.presets}) >= 4, field
     assert any(p.poor_walls > 0 for p in config.presets)
+
+
+def test_bare_tiles_carry_sparse_fixtures_without_changing_the_scene_stream():
+    """A bare tile is smooth paint plus the fixtures asked for, each a patch of full contrast; drawing them takes
+    nothing from the scene's generator, so whatever is drawn after the bare tiles stays the same."""
+    blank_rng, fixed_rng = np.random.default_rng(5), np.random.default_rng(5)
+    blank = make_tile(blank_rng, 256, 0, 0.5, 0.5, True)
+    fixed = make_tile(fixed_rng, 256, 12, 0.5, 0.5, True)
+    assert blank_rng.uniform() == fixed_rng.uniform()
+    # Bare paint stays within 0.1 x contrast of the albedo (0.08 plus the cubic overshoot); fixtures reach 0.5 x.
+    assert np.abs(blank - 0.5).max() < 0.1 * 0.5
+    marked = np.abs(fixed - blank) > 0.05
+    assert 0.002 < marked.mean() < 0.3
+    labels = cv2.connectedComponents(marked.astype(np.uint8))[0] - 1
+    assert 4 <= labels <= 3 * 12
 
 
 def test_depth_is_exact_z_of_the_wall_ahead(config):
@@ -134,6 +151,20 @@ def test_sequence_is_deterministic_tum_layout_with_metadata(config, tmp_path):
     calibration = (one / "calibration.yaml").read_text()
     assert "width: 64" in calibration and "fx: 52.5" in calibration and "-0.12" in calibration
     assert all(config.sensor.exposure_min_ms <= r.exposure_ms <= config.sensor.exposure_max_ms for r in records)
+
+
+def test_a_batch_folder_is_the_same_sequence_whatever_else_the_batch_renders(config, tmp_path):
+    """``basement__aiming__s0`` rendered alone and as part of a wider batch is the same sequence (same seed,
+    same frames): extending a dataset with more environments or motions must not change what a name means."""
+    template = _tiny("aiming")
+    render_batch(template, ["basement"], ["aiming"], [0], config, tmp_path / "alone", processes=1)
+    render_batch(template, ["lab", "basement"], ["rapid", "aiming"], [0], config, tmp_path / "wide", processes=1)
+    alone, wide = tmp_path / "alone" / "basement__aiming__s0", tmp_path / "wide" / "basement__aiming__s0"
+    assert json.loads((alone / "metadata.json").read_text())["seed"] == json.loads(
+        (wide / "metadata.json").read_text())["seed"]
+    assert _files(alone) == _files(wide)
+    lab_rapid = json.loads((tmp_path / "wide" / "lab__rapid__s0" / "metadata.json").read_text())
+    assert lab_rapid["seed"] != json.loads((wide / "metadata.json").read_text())["seed"]
 
 
 def test_motion_blur_comes_from_the_true_motion(config, tmp_path):

@@ -38,6 +38,15 @@ def expand_motions(names: list[str], config: SynthConfig) -> list[str]:
     return out
 
 
+def sequence_seed(batch_seed: int, environment: str, motion: str, config: SynthConfig) -> int:
+    """The render seed of one sequence of a batch: from the batch seed and the environment's and motion's places
+    in the config (preset order; the groups, then the real trajectories), never their places in the request, so
+    that a folder name stands for the same frames in every batch that renders it."""
+    environments = expand_environments([ALL], config)
+    motions = expand_motions([ALL], config)
+    return batch_seed * 1000 + environments.index(environment) * 37 + motions.index(motion)
+
+
 def sequence_folder_name(spec: SequenceSpec) -> str:
     return f"{spec.environment}__{spec.motion.replace(REAL_PREFIX, 'real-')}__s{spec.seed}"
 
@@ -58,15 +67,16 @@ def render_batch(template: SequenceSpec, environments: list[str], motions: list[
                  config: SynthConfig, root: Path, processes: int | None = None) -> BatchResult:
     """Render environments × motions × seeds under ``root`` (``template`` gives length, size, lens, blur).
 
-    Each sequence gets its own seed, derived from the batch seed, the environment and the motion, so that two
-    environments rendered with the same batch seed still get different trajectories.
+    Each sequence gets its own seed (:func:`sequence_seed`), so that two environments rendered with the same
+    batch seed still get different trajectories.
     """
     rendered, skipped, frames = [], [], 0
     start = time.perf_counter()
     for seed in seeds:
-        for e, env in enumerate(environments):
-            for m, motion in enumerate(motions):
-                spec = replace(template, environment=env, motion=motion, seed=seed * 1000 + e * 37 + m)
+        for env in environments:
+            for motion in motions:
+                spec = replace(template, environment=env, motion=motion,
+                               seed=sequence_seed(seed, env, motion, config))
                 folder = root / sequence_folder_name(replace(spec, seed=seed))
                 if (folder / "metadata.json").is_file():
                     skipped.append(folder)

@@ -96,6 +96,7 @@ class EnvironmentPreset:
     poor_walls: int
     bare_floor_ceiling: bool
     poor_boxes: float
+    bare_fixture_density: float
     light: float
     falloff_m: float
     ambient: float

@@ -140,11 +140,12 @@ def build_scene(preset: EnvironmentPreset, seed: int, sensor: SensorConfig) -> S
     room = np.array(preset.room_m, np.float64)
     size = sensor.texture_size
     shapes = max(1, int(round(preset.texture_density * preset.texture_scale_m**2)))
+    fixtures = int(round(preset.bare_fixture_density * preset.texture_scale_m**2))
     spread = preset.albedo_spread
     tiles = [make_tile(rng, size, shapes, preset.texture_contrast, preset.albedo * rng.uniform(1 - spread, 1 + spread),
                        False)
              for _ in range(RICH_TILES)]
-    tiles += [make_tile(rng, size, 0, preset.texture_contrast,
+    tiles += [make_tile(rng, size, fixtures, preset.texture_contrast,
                         preset.albedo * rng.uniform(BARE_ALBEDO_GAIN - spread, BARE_ALBEDO_GAIN + spread), True)
               for _ in range(POOR_TILES)]
     textures = TexturePyramid.build(tiles, sensor.texture_levels)

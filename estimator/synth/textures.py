@@ -2,7 +2,7 @@
 
 A tile is a square albedo image that repeats over a surface. Rich tiles layer multi-scale value noise, filled
 shapes, lines and printed text (the corners and blobs ORB-SLAM3 tracks); poor tiles are smooth, low-contrast
-noise (plaster, paint). Every tile is a pure function of its random generator, so a scene re-renders
+noise (plaster, paint) with a few fixtures on it (sockets, switches, frames, signs). Every tile is a pure function of its random generator, so a scene re-renders
 byte-identically from its seed.
 """
 
@@ -52,9 +52,18 @@ def _draw_shapes(rng: np.random.Generator, tile: np.ndarray, count: int, contras
 
 def make_tile(rng: np.random.Generator, size: int, shapes: int, contrast: float, albedo: float,
               poor: bool) -> np.ndarray:
-    """One albedo tile, float32 in [0, 1], mean near ``albedo``."""
+    """One albedo tile, float32 in [0, 1], mean near ``albedo``.
+
+    A rich tile carries ``shapes`` shapes over layered noise; a poor one is bare paint with ``shapes`` fixtures.
+    """
     if poor:
         tile = albedo + 0.06 * contrast * _value_noise(rng, size, 4) + 0.02 * contrast * _value_noise(rng, size, 16)
+        if shapes:
+            # The fixtures draw from a spawned generator: ``rng``'s own stream, and so every scene drawn after
+            # the bare tiles, stays what it is without them.
+            canvas = np.full((size, size), 128, np.uint8)
+            _draw_shapes(rng.spawn(1)[0], canvas, shapes, contrast)
+            tile += canvas.astype(np.float32) / 255 - 128 / 255
         return np.clip(tile, 0.0, 1.0).astype(np.float32)
     base = (0.15 * _value_noise(rng, size, 3) + 0.12 * _value_noise(rng, size, 12)
             + 0.1 * _value_noise(rng, size, 48) + 0.06 * _value_noise(rng, size, 128))
