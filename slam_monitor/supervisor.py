@@ -4,11 +4,14 @@ ORB-SLAM3 can take its process down: it calls ``exit`` on a settings problem and
 The session therefore runs in a ``spawn``-ed child (:func:`worker_main`) whose console output (ORB-SLAM3 prints
 a lot) goes to ``orbslam3.log`` in the session folder. The child reports progress and its outcome on a queue;
 the parent maps every ending to a :class:`SessionResult` or a :class:`SeesysError`, records crashes in
-``session.json``, and the files the child already wrote stay as they are.
+``session.json``, and the files the child already wrote stay as they are. The child never outlives the
+parent: if the parent is killed, the kernel kills the child too (Linux), instead of leaving an ORB-SLAM3
+process behind that hangs on a queue nobody reads.
 """
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import queue
@@ -32,6 +35,8 @@ from slam_monitor.orbslam_settings import load_slam_config
 POLL_S = 0.2
 # ORB-SLAM3 calls exit(-1) when a required setting is missing.
 ORBSLAM_EXIT_STATUS = 255
+# prctl(2) option: the signal this process gets when the thread that started it dies.
+PR_SET_PDEATHSIG = 1
 
 
 class WorkerCrash(SeesysError):
@@ -58,8 +63,20 @@ def _redirect_console(log_path: Path) -> None:
     os.close(fd)
 
 
-def worker_main(options: SessionOptions, events: multiprocessing.Queue) -> None:
+def _die_with_parent(parent_pid: int) -> None:
+    """Have the kernel kill this process when its parent dies (Linux; elsewhere nothing is done)."""
+    if not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    if os.getppid() != parent_pid:  # the parent died before the request took effect
+        os._exit(1)
+
+
+def worker_main(options: SessionOptions, events: multiprocessing.Queue, parent_pid: int) -> None:
     """Child-process entry point: run the session, reporting progress and the outcome on ``events``."""
+    _die_with_parent(parent_pid)
     try:
         options.out_dir.mkdir(parents=True, exist_ok=True)
         _redirect_console(options.out_dir / session.SLAM_LOG)
@@ -128,7 +145,7 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
     stall_timeout_s = load_slam_config(options.config_dir).supervisor.stall_timeout_s
     context = multiprocessing.get_context("spawn")
     events: multiprocessing.Queue = context.Queue()
-    child = context.Process(target=worker_main, args=(options, events), name="seesys-device-worker")
+    child = context.Process(target=worker_main, args=(options, events, os.getpid()), name="seesys-device-worker")
     child.start()
     outcome: _Failed | _Finished | None = None
     stalled = False

@@ -5,9 +5,12 @@ exactly where a crash inside ORB-SLAM3's track call would happen."""
 import ctypes
 import os
 import shutil
+import subprocess
+import sys
 import time
 
 import pandas as pd
+import psutil
 import pytest
 from conftest import REPO, SAMPLE
 from evo.tools import file_interface
@@ -145,3 +148,38 @@ def test_a_bug_in_the_worker_is_reported_in_one_line_and_the_session_marked_fail
     manifest = session.read_manifest(out)
     assert (manifest["status"], manifest["error"], manifest["frames"]) == ("failed", "ZeroDivisionError: observer bug", 3)
     assert "Traceback" in (out / session.SLAM_LOG).read_text()
+
+
+def _rows(path):
+    return max(0, len(path.read_text().splitlines()) - 1) if path.is_file() else 0
+
+
+def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
+    """``kill -9`` of a running ``seesys track`` (no chance to clean up) must not leave its ORB-SLAM3 worker
+    running: the worker dies with it, and the frames logged until then stay readable."""
+    out = tmp_path / "session"
+    command = subprocess.Popen([sys.executable, "-m", "seesys", "track", "--source", f"tum:{SAMPLE}", "--mode",
+                                "rgbd", "--pace", "--out", str(out)], cwd=REPO, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL)
+    frames_csv = out / session.FRAMES_CSV
+    workers = []
+    try:
+        deadline = time.monotonic() + 120
+        while _rows(frames_csv) < 10:  # the worker is tracking, at camera rate (150 frames take 5 s)
+            assert command.poll() is None and time.monotonic() < deadline, "seesys track never got going"
+            time.sleep(0.05)
+        workers = [p for p in psutil.Process(command.pid).children(recursive=True)
+                   if "spawn_main" in " ".join(p.cmdline())]
+        assert len(workers) == 1
+        command.kill()
+        command.wait()
+        gone, alive = psutil.wait_procs(workers, timeout=10)
+        assert not alive, "the ORB-SLAM3 worker outlived its command"
+    finally:
+        for process in [command, *workers]:  # nothing left running when the test fails
+            try:
+                process.kill()
+            except (ProcessLookupError, psutil.NoSuchProcess):
+                pass
+    logged = pd.read_csv(frames_csv)
+    assert 10 <= len(logged) < 150  # it stopped with the command, not at the end of the sample
