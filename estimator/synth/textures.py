@@ -2,8 +2,8 @@
 
 A tile is a square albedo image that repeats over a surface. Rich tiles layer multi-scale value noise, filled
 shapes, lines and printed text (the corners and blobs ORB-SLAM3 tracks); poor tiles are smooth, low-contrast
-noise (plaster, paint) with a few fixtures on it (sockets, switches, frames, signs). Every tile is a pure function of its random generator, so a scene re-renders
-byte-identically from its seed.
+noise (plaster, paint) with a few fixtures on it (sockets, switches, frames, signs). Every tile is a pure function
+of its random generator, so a scene re-renders byte-identically from its seed.
 """
 
 from __future__ import annotations
