@@ -38,6 +38,7 @@ from slam_monitor.monitor_commands import MONITOR_FACTORY
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.session import FRAMES_CSV
 from slam_monitor.stream import FeatureSubscriber
+from slam_monitor.supervisor import frames_logged
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIGURATIONS = {
@@ -67,17 +68,10 @@ def _worker(options: SessionOptions) -> None:
     run_device_session(options)
 
 
-def _frames_logged(frames_csv: Path) -> int:
-    try:
-        return frames_csv.read_bytes().count(b"\n") - 1
-    except FileNotFoundError:
-        return -1
-
-
-def _sample(pid: int, frames_csv: Path, into: Measurements, done: threading.Event) -> None:
+def _sample(pid: int, session_dir: Path, into: Measurements, done: threading.Event) -> None:
     """CPU % and RSS of the worker from its first tracked frame (vocabulary loading and imports excluded)."""
     process = psutil.Process(pid)
-    while not done.is_set() and _frames_logged(frames_csv) < 1:
+    while not done.is_set() and frames_logged(session_dir) < 1:
         time.sleep(0.01)
     try:
         process.cpu_percent(None)
@@ -110,7 +104,7 @@ def run_once(name: str, source: str, mode: SlamMode, max_frames: int | None, int
             listener.start()
         worker = multiprocessing.get_context("spawn").Process(target=_worker, args=(options,))
         worker.start()
-        sampler = threading.Thread(target=_sample, args=(worker.pid, out / FRAMES_CSV, into, done))
+        sampler = threading.Thread(target=_sample, args=(worker.pid, out, into, done))
         sampler.start()
         worker.join()
         done.set()

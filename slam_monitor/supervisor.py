@@ -108,7 +108,8 @@ def _last_log_line(out_dir: Path) -> str:
     return lines[-1] if lines else ""
 
 
-def _frames_logged(out_dir: Path) -> int:
+def frames_logged(out_dir: Path) -> int:
+    """Frames the session in ``out_dir`` has logged so far (rows of ``frames.csv``)."""
     path = out_dir / session.FRAMES_CSV
     if not path.exists():
         return 0
@@ -179,7 +180,7 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
     if isinstance(outcome, _Failed):
         raise SeesysError(outcome.message)
     # The frame being processed when the process died is the first one not in frames.csv.
-    next_frame = _frames_logged(options.out_dir)
+    next_frame = frames_logged(options.out_dir)
     if stalled:
         message = _ending_message(f"stopped responding (no frame for {stall_timeout_s:g} s; killed)", next_frame,
                                   options.out_dir)

@@ -19,7 +19,7 @@ from seesys.errors import SeesysError
 from slam_monitor import session
 from slam_monitor.device_worker import ObserverSpec, SessionOptions
 from slam_monitor.orbslam_settings import SlamMode
-from slam_monitor.supervisor import WorkerCrash, run_supervised_session
+from slam_monitor.supervisor import WorkerCrash, frames_logged, run_supervised_session
 
 pytestmark = pytest.mark.slam
 
@@ -150,10 +150,6 @@ def test_a_bug_in_the_worker_is_reported_in_one_line_and_the_session_marked_fail
     assert "Traceback" in (out / session.SLAM_LOG).read_text()
 
 
-def _rows(path):
-    return max(0, len(path.read_text().splitlines()) - 1) if path.is_file() else 0
-
-
 def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
     """``kill -9`` of a running ``seesys track`` (no chance to clean up) must not leave its ORB-SLAM3 worker
     running: the worker dies with it, and the frames logged until then stay readable."""
@@ -165,7 +161,7 @@ def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
     workers = []
     try:
         deadline = time.monotonic() + 120
-        while _rows(frames_csv) < 10:  # the worker is tracking, at camera rate (150 frames take 5 s)
+        while frames_logged(out) < 10:  # the worker is tracking, at camera rate (150 frames take 5 s)
             assert command.poll() is None and time.monotonic() < deadline, "seesys track never got going"
             time.sleep(0.05)
         workers = [p for p in psutil.Process(command.pid).children(recursive=True)
