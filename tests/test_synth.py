@@ -35,8 +35,9 @@ def test_at_least_nine_presets_that_differ(config):
 
 
 def test_bare_tiles_carry_sparse_fixtures_without_changing_the_scene_stream():
-    """A bare tile is smooth paint plus the fixtures asked for, each a patch of full contrast; drawing them takes
-    nothing from the scene's generator, so whatever is drawn after the bare tiles stays the same."""
+    """A bare tile is smooth paint plus the fixtures asked for, each a patch well above the paint's variation;
+    drawing them takes nothing from the scene's generator, so whatever is drawn after the bare tiles stays the
+    same."""
     blank_rng, fixed_rng = np.random.default_rng(5), np.random.default_rng(5)
     blank = make_tile(blank_rng, 256, 0, 0.5, 0.5, True)
     fixed = make_tile(fixed_rng, 256, 12, 0.5, 0.5, True)
