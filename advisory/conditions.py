@@ -15,7 +15,7 @@ from advisory.config import AdvisoryConfig
 from advisory.pulses import error_pulses, rotation_pulses
 from advisory.rotation import RotationSpeed
 from seesys.network import NetworkConfig
-from slam_monitor.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame
+from seesys.protocol.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame
 
 
 class Condition(str, Enum):

@@ -23,7 +23,7 @@ from advisory.logs import ADVISORY_COLUMNS, ADVISORY_CSV, CsvLog, EventLog
 from advisory.scheduler import Decision, PulseScheduler
 from advisory.synth import synthesise
 from seesys.network import NetworkConfig
-from slam_monitor.messages import MessageError, decode
+from seesys.protocol.messages import MessageError, decode
 
 # Bad messages: the first few are logged one by one, then one line per this many, so a broken sender cannot
 # flood the log.

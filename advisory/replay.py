@@ -15,7 +15,7 @@ from advisory.config import ReplayConfig
 from advisory.estimate_log import EstimateLog
 from advisory.handoff import bind_publisher
 from seesys.network import NetworkConfig
-from slam_monitor.messages import Estimate, encode
+from seesys.protocol.messages import Estimate, encode
 
 
 def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkConfig, show_progress: bool) -> int:

@@ -33,7 +33,7 @@ from advisory.config import load_advisory_config
 from advisory.logs import ADVISORY_CSV, EVENTS_CSV, PLAYBACK_CSV
 from advisory.process import advisory_command
 from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
-from slam_monitor.messages import Estimate, encode
+from seesys.protocol.messages import Estimate, encode
 
 PUBLISH_HZ = 30.0
 LEVELS_M = (0.002, 0.006, 0.010, 0.020)  # N = 0, 1, 2, 3

@@ -22,7 +22,7 @@ from estimator.labels import LabelStatus, LabelSummary, label_session, load_labe
 from slam_monitor.device_worker import ObserverSpec, SessionOptions
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.rts_log import RTS_CSV
-from slam_monitor.rts_schema import CHANNEL_NAMES
+from seesys.protocol.rts_schema import CHANNEL_NAMES
 from slam_monitor.supervisor import run_supervised_session
 
 THRESHOLDS_M = (0.004, 0.012)

@@ -20,7 +20,7 @@ from estimator.synth.sequence import SequenceSpec
 from seesys.config import replace_fields
 from seesys.errors import SeesysError
 from slam_monitor import session
-from slam_monitor.monitor_config import load_window_config
+from seesys.protocol.windows import load_window_config
 
 
 def _names(text: str) -> list[str]:

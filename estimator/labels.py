@@ -34,7 +34,7 @@ import pandas as pd
 
 from seesys.config import load_section
 from seesys.errors import SeesysError
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol.tracking_state import TrackingState
 
 
 @dataclass(frozen=True)

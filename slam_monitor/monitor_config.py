@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from seesys.config import load_section
-from slam_monitor.windows import WindowConfig
+from seesys.config import build, config_dir, read_toml
+from seesys.errors import ConfigError
+from seesys.protocol.windows import WindowConfig, load_window_config
 
 
 @dataclass(frozen=True)
@@ -46,9 +47,10 @@ class MonitorConfig:
 
 
 def load_monitor_config(directory: Path | None = None) -> MonitorConfig:
-    return load_section("monitor", MonitorConfig, directory)
-
-
-def load_window_config(directory: Path | None = None) -> WindowConfig:
-    """The model windows (``[windows]`` of ``configs/monitor.toml``), for the estimator and the dataset builder."""
-    return load_monitor_config(directory).windows
+    """``configs/monitor.toml``, with the shared model windows of ``configs/windows.toml``."""
+    path = (directory or config_dir()) / "monitor.toml"
+    data = read_toml(path)
+    if "windows" in data:
+        raise ConfigError(f"{path}: [windows] belongs in windows.toml, the definition every part shares")
+    windows = asdict(load_window_config(directory))
+    return build(MonitorConfig, {**data, "windows": windows}, str(path))

@@ -2,10 +2,10 @@
 already written:
 
 - ``rts.csv``: ``frame_index, timestamp, tracking_state`` (state name) and one column per RTS channel, in
-  :mod:`slam_monitor.rts_schema` order and units; ``nan`` where a channel has no value (e.g. motion on a frame
+  :mod:`seesys.protocol.rts_schema` order and units; ``nan`` where a channel has no value (e.g. motion on a frame
   without a pose).
 - ``psd/psd_NNNNNN.bin``: the PSD matrices, in chunks of ``psd_chunk_records`` records. A record is
-  ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`slam_monitor.messages.pack_psd` (the zlib'd
+  ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`seesys.protocol.messages.pack_psd` (the zlib'd
   matrix, the same bytes as on the wire). A record cut short by a crash at the end of the last chunk
   is ignored by the reader.
 """
@@ -23,9 +23,9 @@ import numpy as np
 import pandas as pd
 
 from seesys.errors import SeesysError
-from slam_monitor import rts_schema
-from slam_monitor.messages import FeatureFrame, MessageError, pack_psd, unpack_psd
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol import rts_schema
+from seesys.protocol.messages import FeatureFrame, MessageError, pack_psd, unpack_psd
+from seesys.protocol.tracking_state import TrackingState
 
 RTS_CSV = "rts.csv"
 PSD_DIR = "psd"
@@ -137,7 +137,7 @@ def read_rts_csv(session: Path) -> pd.DataFrame:
 
 def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]:
     """The session's monitor logs as :class:`FeatureFrame` records in frame order, PSD attached where logged
-    (for :func:`slam_monitor.windows.assemble_windows`)."""
+    (for :func:`seesys.protocol.windows.assemble_windows`)."""
     psds = {r.frame_index: r.psd for r in read_psd_log(session)}
     table = read_rts_csv(session)
     rts = table[list(rts_schema.CHANNEL_NAMES)].to_numpy(dtype=np.float32)

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import zmq
 
 from seesys.errors import SeesysError
-from slam_monitor import messages
-from slam_monitor.messages import FeatureFrame, MessageError
+from seesys.protocol import messages
+from seesys.protocol.messages import FeatureFrame, MessageError
 
 
 class StreamError(SeesysError):

@@ -15,7 +15,7 @@ import numpy as np
 from slam_monitor.frame import Frame, Intrinsics
 from slam_monitor.orbslam_settings import SlamMode, validate_settings_file
 from slam_monitor.pacing import thread_ids
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol.tracking_state import TrackingState
 from slam_monitor.vocabulary import validate_vocabulary
 
 MS_PER_S = 1000.0

@@ -15,7 +15,7 @@ import pandas as pd
 from seesys.errors import SeesysError
 from slam_monitor import session
 from slam_monitor.orbslam_settings import SlamMode
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol.tracking_state import TrackingState
 
 # Estimated and true poses are paired when their timestamps differ by at most this (seconds).
 ASSOCIATION_MAX_DT_S = 0.01

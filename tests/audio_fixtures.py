@@ -22,9 +22,9 @@ from advisory.process import advisory_command
 from advisory.synth import pulse_onsets as buffer_onsets
 from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
 from advisory.wav import read_wav
-from slam_monitor import rts_schema
-from slam_monitor.messages import Estimate, FeatureFrame, encode
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol import rts_schema
+from seesys.protocol.messages import Estimate, FeatureFrame, encode
+from seesys.protocol.tracking_state import TrackingState
 
 PUBLISH_HZ = 30.0
 

@@ -11,7 +11,7 @@ import zmq
 
 from advisory.process import advisory_command
 from audio_fixtures import make_sandbox, wait_started  # noqa: F401
-from slam_monitor.messages import ESTIMATE_TOPIC, Estimate, decode, encode
+from seesys.protocol.messages import ESTIMATE_TOPIC, Estimate, decode, encode
 
 
 def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make_sandbox):

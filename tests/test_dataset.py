@@ -28,9 +28,9 @@ from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
 from seesys.config import replace_fields
 from seesys.errors import ConfigError, SeesysError
-from slam_monitor import rts_schema
+from seesys.protocol import rts_schema
 from slam_monitor.device_worker import ObserverSpec
-from slam_monitor.monitor_config import load_window_config
+from seesys.protocol.windows import load_window_config
 
 ENVIRONMENTS = ["lab", "office", "living_room"]
 FRAMES = 60

@@ -16,7 +16,7 @@ from estimator.labels import (LabelConfig, LabelError, LabelStatus, LabelSummary
                               load_label_config)
 from estimator.synth.config import load_synth_config
 from estimator.synth.trajectories import load_tum
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol.tracking_state import TrackingState
 
 OK = int(TrackingState.OK)
 LOST = int(TrackingState.LOST)

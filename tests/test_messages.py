@@ -4,9 +4,9 @@ import struct
 import numpy as np
 import pytest
 
-from slam_monitor import messages, rts_schema
-from slam_monitor.messages import Estimate, FeatureFrame, MessageError, decode, encode
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol import messages, rts_schema
+from seesys.protocol.messages import Estimate, FeatureFrame, MessageError, decode, encode
+from seesys.protocol.tracking_state import TrackingState
 
 
 def feature(psd=None):

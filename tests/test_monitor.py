@@ -14,13 +14,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from seesys.config import replace_fields
-from slam_monitor import rts_schema
+from seesys.protocol import rts_schema
 from slam_monitor.frame import Frame, Intrinsics
 from slam_monitor.monitor import FeatureExtractor, MonitorInput, RtsMonitor
 from slam_monitor.monitor_config import load_monitor_config
 from slam_monitor.rts_log import MonitorLogError, read_feature_frames, read_psd_log, read_rts_csv
-from slam_monitor.tracking_state import TrackingState
-from slam_monitor.windows import assemble_windows
+from seesys.protocol.tracking_state import TrackingState
+from seesys.protocol.windows import assemble_windows
 
 INTR = Intrinsics(640, 480, 500.0, 500.0, 320.0, 240.0)
 CONFIG = load_monitor_config()

@@ -16,7 +16,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from seesys.config import config_dir
-from slam_monitor import rts_schema
+from seesys.protocol import rts_schema
 from slam_monitor.device_worker import SessionOptions, run_device_session
 from slam_monitor.monitor import RtsMonitor
 from slam_monitor.monitor_config import load_monitor_config
@@ -24,7 +24,7 @@ from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.rts_log import read_feature_frames, read_psd_log, read_rts_csv
 from slam_monitor.slam_features import relative_motion
 from slam_monitor.stream import FeaturePublisher, FeatureSubscriber
-from slam_monitor.windows import assemble_windows
+from seesys.protocol.windows import assemble_windows
 
 pytestmark = pytest.mark.slam
 

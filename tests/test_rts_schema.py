@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from slam_monitor import rts_schema
+from seesys.protocol import rts_schema
 
 
 def test_channel_names_unique_and_indexed():

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from slam_monitor import session
 from slam_monitor.sources import GroundTruth
 from slam_monitor.tracker import TrackOutput
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol.tracking_state import TrackingState
 
 
 def output(index, state, pose_wc=None):

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import zmq
 
-from slam_monitor import rts_schema
-from slam_monitor.messages import FeatureFrame
+from seesys.protocol import rts_schema
+from seesys.protocol.messages import FeatureFrame
 from slam_monitor.stream import FeaturePublisher, FeatureSubscriber, StreamError
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol.tracking_state import TrackingState
 
 
 def feature_frame(i: int, psd: bool) -> FeatureFrame:

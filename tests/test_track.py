@@ -13,7 +13,7 @@ from slam_monitor import session
 from slam_monitor.device_worker import SessionOptions, run_device_session
 from slam_monitor.orbslam_settings import SlamMode, load_slam_config
 from slam_monitor.pacing import FramePacer, ThreadDemand
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol.tracking_state import TrackingState
 from slam_monitor.trajectory_metrics import absolute_trajectory_error, summarize_session
 
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slam_monitor import rts_schema
-from slam_monitor.messages import FeatureFrame
-from slam_monitor.tracking_state import TrackingState
-from slam_monitor.monitor_config import load_window_config
-from slam_monitor.windows import WindowConfig, assemble_windows
+from seesys.protocol import rts_schema
+from seesys.protocol.messages import FeatureFrame
+from seesys.protocol.tracking_state import TrackingState
+from seesys.protocol.windows import load_window_config
+from seesys.protocol.windows import WindowConfig, assemble_windows
 
 CFG = WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, max_missing_rts=3)
 

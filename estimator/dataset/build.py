@@ -32,12 +32,13 @@ from estimator.synth.batch import expand_environments, expand_motions, render_ba
 from estimator.synth.config import SynthConfig
 from estimator.synth.sequence import SequenceSpec
 from seesys.errors import SeesysError
-from slam_monitor import rts_schema, session
+from seesys.protocol import rts_schema
+from seesys.protocol.windows import WindowConfig, assemble_windows
+from slam_monitor import session
 from slam_monitor.device_worker import FrameTracked, ObserverSpec, SessionOptions, SessionStarted
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.rts_log import read_feature_frames
 from slam_monitor.supervisor import run_supervised_session
-from slam_monitor.windows import WindowConfig, assemble_windows
 
 SEQUENCES_DIR = "sequences"
 SESSIONS_DIR = "sessions"

@@ -23,7 +23,7 @@ from scipy.stats import spearmanr
 from estimator.dataset.config import ReportConfig, TargetConfig
 from estimator.dataset.store import DatasetError, DatasetReader
 from estimator.labels import LabelStatus, LabelSummary
-from slam_monitor import rts_schema
+from seesys.protocol import rts_schema
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (after choosing the file-only backend)

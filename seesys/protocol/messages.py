@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from seesys.errors import SeesysError
-from slam_monitor import rts_schema
-from slam_monitor.tracking_state import TrackingState
+from seesys.protocol import rts_schema
+from seesys.protocol.tracking_state import TrackingState
 
 PROTOCOL_VERSION = 1
 MAGIC = b"SEES"

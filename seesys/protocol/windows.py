@@ -10,19 +10,21 @@ Rows and matrices are looked up by frame index, never "the latest of each": a wi
 end frame is tracked, every PSD sample is present, and at most ``max_missing_rts`` of the T rows are missing
 or untracked. (The authors pair the newest RTS window with the newest PSD window, unsynchronised.)
 
-The configured windows are ``load_window_config()`` of :mod:`slam_monitor.monitor_config` (``[windows]`` of
-``configs/monitor.toml``).
+The configured windows are ``load_window_config()`` (``configs/windows.toml``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from slam_monitor import rts_schema
-from slam_monitor.messages import FeatureFrame
+from seesys.config import load_section
+
+from seesys.protocol import rts_schema
+from seesys.protocol.messages import FeatureFrame
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,11 @@ class WindowConfig:
     def history(self) -> int:
         """How many frames before a window's end frame the window reaches back."""
         return max(self.rts_length - 1, (self.psd_samples - 1) * self.psd_stride)
+
+
+def load_window_config(directory: Path | None = None) -> WindowConfig:
+    """The model windows of ``configs/windows.toml``."""
+    return load_section("windows", WindowConfig, directory)
 
 
 @dataclass(frozen=True)

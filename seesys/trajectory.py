@@ -1,0 +1,134 @@
+"""Timestamped camera poses and their file formats: the one pose container and TUM reader/writer of SEESys.
+
+Every trajectory SEESys reads or writes (a session's ``trajectory.tum`` and ``groundtruth.tum``, a dataset's
+ground truth, motion capture converted to the camera, the renderer's paths) is a :class:`Poses` of
+T_world_camera, and every TUM file goes through :func:`read_tum` / :func:`write_tum`. The TUM format is one pose
+per line, ``timestamp tx ty tz qx qy qz qw`` (seconds, metres, a unit quaternion in x y z w order), with ``#``
+comments. Metrics are evo's: :meth:`Poses.to_evo` hands a trajectory to it (evo itself refuses an empty one,
+which is why this container exists beside evo's: a session that never initialised has an empty trajectory).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from seesys.errors import SeesysError
+
+if TYPE_CHECKING:
+    from evo.core.trajectory import PoseTrajectory3D
+
+TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
+
+
+class TrajectoryError(SeesysError):
+    """A trajectory file is missing or malformed, or poses are inconsistent."""
+
+
+@dataclass(frozen=True)
+class Poses:
+    """Poses T_world_camera at ``timestamps`` (N,): camera positions (N×3) and unit quaternions (N×4, x y z w)."""
+
+    timestamps: np.ndarray
+    positions: np.ndarray
+    quaternions_xyzw: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.timestamps)
+        if self.positions.shape != (n, 3) or self.quaternions_xyzw.shape != (n, 4):
+            raise TrajectoryError(f"pose shapes disagree: {n} timestamps, positions {self.positions.shape}, "
+                                  f"quaternions {self.quaternions_xyzw.shape}")
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    @classmethod
+    def empty(cls) -> Poses:
+        return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))
+
+    @classmethod
+    def from_rotations(cls, timestamps: np.ndarray, positions: np.ndarray, rotations: Rotation) -> Poses:
+        return cls(np.asarray(timestamps, dtype=float), np.asarray(positions, dtype=float), rotations.as_quat())
+
+    @property
+    def rotations(self) -> Rotation:
+        """R_world_camera of every pose (scipy)."""
+        return Rotation.from_quat(self.quaternions_xyzw)
+
+    def take(self, index: np.ndarray | slice) -> Poses:
+        """The poses at ``index`` (an index array, a boolean mask or a slice)."""
+        return Poses(self.timestamps[index], self.positions[index], self.quaternions_xyzw[index])
+
+    def sorted_unique(self) -> Poses:
+        """The poses in time order, keeping the first of poses with equal timestamps."""
+        order = np.argsort(self.timestamps, kind="stable")
+        times = self.timestamps[order]
+        keep = np.concatenate([[True], np.diff(times) > 0]) if len(times) else np.zeros(0, bool)
+        return self.take(order[keep])
+
+    def to_evo(self) -> PoseTrajectory3D:
+        """An evo ``PoseTrajectory3D`` of these poses (evo refuses an empty trajectory)."""
+        from evo.core.trajectory import PoseTrajectory3D
+
+        if len(self) == 0:
+            raise TrajectoryError("an empty trajectory has no evo form")
+        return PoseTrajectory3D(positions_xyz=self.positions, orientations_quat_wxyz=self.quaternions_xyzw[:, [3, 0, 1, 2]],
+                                timestamps=self.timestamps)
+
+    @classmethod
+    def from_evo(cls, trajectory: PoseTrajectory3D) -> Poses:
+        return cls(np.asarray(trajectory.timestamps, dtype=float), np.asarray(trajectory.positions_xyz, dtype=float),
+                   np.asarray(trajectory.orientations_quat_wxyz, dtype=float)[:, [1, 2, 3, 0]])
+
+
+def _read_table(path: Path, delimiter: str | None, min_columns: int, layout: str) -> np.ndarray:
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # numpy warns on a file of comments only
+            data = np.loadtxt(path, comments="#", delimiter=delimiter, ndmin=2)
+    except FileNotFoundError:
+        raise TrajectoryError(f"trajectory file not found: {path}") from None
+    except (OSError, ValueError) as e:
+        raise TrajectoryError(f"{path}: not a trajectory ({layout}): {e}") from None
+    if data.size and data.shape[1] < min_columns:
+        raise TrajectoryError(f"{path}: expected {min_columns} columns ({layout}), found {data.shape[1]}")
+    if data.size and not np.all(np.isfinite(data[:, :min_columns])):
+        raise TrajectoryError(f"{path}: holds non-finite numbers")
+    return data
+
+
+def read_tum(path: Path) -> Poses:
+    """The poses of a TUM file, in file order; an empty file (or one of comments only) gives no poses."""
+    data = _read_table(Path(path), None, 8, "t tx ty tz qx qy qz qw")
+    if data.size == 0:
+        return Poses.empty()
+    if data.shape[1] != 8:
+        raise TrajectoryError(f"{path}: expected 8 columns (t tx ty tz qx qy qz qw), found {data.shape[1]}")
+    return Poses(data[:, 0], data[:, 1:4], data[:, 4:8])
+
+
+def read_euroc_groundtruth(path: Path) -> Poses:
+    """A EuRoC ground-truth CSV, ``t[ns], px, py, pz, qw, qx, qy, qz, ...`` (further columns ignored)."""
+    data = _read_table(Path(path), ",", 8, "t[ns], px, py, pz, qw, qx, qy, qz")
+    if data.size == 0:
+        return Poses.empty()
+    return Poses(data[:, 0] * 1e-9, data[:, 1:4], data[:, [5, 6, 7, 4]])
+
+
+def tum_line(timestamp: float, position: np.ndarray, quaternion_xyzw: np.ndarray) -> str:
+    """One TUM line (with its newline), at the precision SEESys writes: microseconds and 0.1 µm."""
+    values = " ".join(f"{v:.7f}" for v in (*position, *quaternion_xyzw))
+    return f"{timestamp:.6f} {values}\n"
+
+
+def write_tum(path: Path, poses: Poses) -> None:
+    """Write ``poses`` as a TUM file with a header comment."""
+    with Path(path).open("w") as out:
+        out.write(TUM_HEADER + "\n")
+        for t, p, q in zip(poses.timestamps, poses.positions, poses.quaternions_xyzw):
+            out.write(tum_line(t, p, q))
