@@ -1,5 +1,5 @@
 """The RTS monitor: an observer of the device worker that turns each tracked frame into a :class:`FeatureFrame`
-(RTS row, and PSD on every tau-th frame), logs it to the session folder and publishes it on the feature stream.
+(RTS row, and PSD on every frame that ends a model window: every ``end_stride``-th), logs it to the session folder and publishes it on the feature stream.
 
 Threading. :meth:`RtsMonitor.on_frame` runs in the tracking loop and only hands references to a bounded queue
 (``queue_size``) with ``put_nowait``: tracking never waits for the monitor. When the queue is full the frame is
@@ -58,6 +58,7 @@ class MonitorInput:
     keypoints: np.ndarray
     map_points: np.ndarray
     map_changed: bool
+    frames_skipped: int  # frames dropped before this one was queued: it travels with the frame's features
 
 
 class FeatureExtractor:
@@ -103,7 +104,7 @@ class FeatureExtractor:
 
         psd = self._psd(item, slam) if cfg.windows.is_psd_frame(index) else None
         rts = np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32)
-        return FeatureFrame(cfg.device_id, index, frame.timestamp, item.state, rts, psd)
+        return FeatureFrame(cfg.device_id, index, frame.timestamp, item.state, rts, psd, item.frames_skipped)
 
     def _psd(self, item: MonitorInput, slam: SlamFeatures | None) -> np.ndarray:
         intr, cfg = item.frame.intrinsics, self.config
@@ -192,7 +193,7 @@ class RtsMonitor:
         prev = last_pose if last_index == frame.index - 1 else None
         self._last_pose = (frame.index, pose_wc)
         item = MonitorInput(frame, state, result.pose_cw, pose_wc, prev, int(result.num_tracked_points),
-                            result.keypoints, result.map_points, bool(result.map_changed))
+                            result.keypoints, result.map_points, bool(result.map_changed), self.stats.frames_dropped)
         try:
             self._queue.put_nowait(item)
         except queue.Full:
@@ -261,14 +262,19 @@ class RtsMonitor:
         return self.stats
 
 
-def create_observer(context: Any, stream: bool = False, device_id: str | None = None) -> RtsMonitor:
+def create_observer(context: Any, stream: bool = False, device_id: str | None = None,
+                    end_stride: int | None = None) -> RtsMonitor:
     """Observer factory for :class:`slam_monitor.device_worker.ObserverSpec`: a monitor logging into the
     session folder and, when ``stream`` is true, publishing on ``features_endpoint`` of network.toml.
-    ``device_id`` replaces the one of monitor.toml."""
+    ``device_id`` replaces the one of monitor.toml; ``end_stride`` the windows' end stride of windows.toml (the
+    dataset builder computes the PSD on every frame, ``end_stride = 1``; a stride that does not divide
+    ``psd_stride`` raises ``ValueError``)."""
     config_dir = context.options.config_dir
     config = load_monitor_config(config_dir)
     if device_id is not None:
         config = replace_fields(config, device_id=device_id)
+    if end_stride is not None:
+        config = replace_fields(config, windows=replace_fields(config.windows, end_stride=end_stride))
     publisher = None
     if stream:
         network = load_network_config(config_dir)

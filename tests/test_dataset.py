@@ -21,8 +21,9 @@ from estimator.dataset.build import DATASET_JSON, SESSIONS_DIR, DatasetBuilder, 
 from estimator.dataset.config import SplitConfig, load_dataset_config
 from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
 from estimator.dataset.splits import SplitError, check_no_leak, make_splits, run_table
-from estimator.dataset.store import (COMPLETED, CRASHED, PARTIAL, PSD_NPY, RUNS_DIR, DatasetError, DatasetReader,
-                                     list_runs, read_run_info, run_folder)
+from estimator.dataset.store import (COMPLETED, CRASHED, FORMAT_VERSION, PARTIAL, PSD_FRAMES_NPY, PSD_NPY,
+                                     RTS_FRAMES_NPY, RTS_NPY, RUNS_DIR, SAMPLE_PSD_ROWS_NPY, SAMPLE_RTS_ROWS_NPY,
+                                     DatasetError, DatasetReader, gather_rts, list_runs, read_run_info, run_folder)
 from estimator.labels import LabelStatus, label_session, load_label_config
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
@@ -30,7 +31,8 @@ from seesys.config import replace_fields
 from seesys.errors import ConfigError, SeesysError
 from seesys.protocol import rts_schema
 from slam_monitor.device_worker import ObserverSpec
-from seesys.protocol.windows import load_window_config
+from seesys.protocol.windows import assemble_windows, load_window_config
+from slam_monitor.rts_log import read_feature_frames
 
 ENVIRONMENTS = ["lab", "office", "living_room"]
 FRAMES = 60
@@ -61,33 +63,62 @@ def test_build_stores_every_run_with_windows_and_labels(tiny):
     log = [json.loads(line) for line in (root / "build_log.jsonl").read_text().splitlines()]
     assert [e["phase"] for e in log] == ["render", "runs"] and log[0]["rendered_frames"] == 3 * FRAMES
     windows = load_window_config()
+    description = json.loads((root / DATASET_JSON).read_text())
+    assert description["format_version"] == FORMAT_VERSION and description["windows"]["end_stride"] == 1
     for info in list_runs(root):
         folder = run_folder(root, info.run)
-        rts = np.load(folder / "rts.npy", mmap_mode="r")
+        session = root / SESSIONS_DIR / info.run
+        rts = np.load(folder / RTS_NPY, mmap_mode="r")
         psd = np.load(folder / PSD_NPY, mmap_mode="r")
+        rts_rows, psd_rows = np.load(folder / SAMPLE_RTS_ROWS_NPY), np.load(folder / SAMPLE_PSD_ROWS_NPY)
         samples = pd.read_csv(folder / "samples.csv")
         frames = pd.read_csv(folder / "frames.csv")
+        assert json.loads((folder / "run.json").read_text())["format_version"] == FORMAT_VERSION
         assert info.environment in ENVIRONMENTS and info.motion_group == "patrol" and info.mode == "rgbd"
         assert len(frames) == info.frames == FRAMES
         assert info.seconds >= info.slam_seconds > 0
         # RGB-D runs are paced by the camera rate only (wait_for_mapping_modes = ["mono"]).
-        assert json.loads((root / SESSIONS_DIR / info.run / "session.json").read_text())["mapping_wait_s"] == 0
-        # A window ends on every psd_stride-th tracked frame that has its full history.
-        assert len(samples) == info.samples >= 2
-        assert rts.dtype == np.float32 and rts.shape == (len(samples), windows.rts_length, rts_schema.NUM_CHANNELS)
-        assert psd.dtype == np.uint8 and psd.shape[:2] == (len(samples), windows.psd_samples) and psd.shape[-1] == 3
-        assert (samples.frame_index % windows.psd_stride == 0).all()
+        assert json.loads((session / "session.json").read_text())["mapping_wait_s"] == 0
+        # The monitor logged a PSD on every frame, each stored once: one per RTS row.
+        assert np.array_equal(np.load(folder / PSD_FRAMES_NPY), np.load(folder / RTS_FRAMES_NPY))
+        assert rts.dtype == np.float32 and rts.shape == (info.frames, rts_schema.NUM_CHANNELS)
+        assert psd.dtype == np.uint8 and psd.shape[0] == info.frames and psd.shape[-1] == 3
+        # A window ends on every tracked frame that has its full history: a sample per labelled frame from
+        # frame rts_length on.
+        assert len(samples) == info.samples == len(rts_rows) == len(psd_rows)
+        late = frames[(frames.frame_index >= windows.rts_length) & (frames.status == LabelStatus.LABELLED.value)]
+        assert set(late.frame_index) <= set(samples.frame_index) and len(samples) >= FRAMES - windows.rts_length - 5
+        assert rts_rows.shape[1] == windows.rts_length and psd_rows.shape[1] == windows.psd_samples
         # Each sample carries the label of its end frame, as labelled from the session folder.
-        labels = label_session(root / SESSIONS_DIR / info.run, False, load_label_config()).to_frame()
+        labels = label_session(session, False, load_label_config()).to_frame()
         expected = labels.error_m.to_numpy()[samples.frame_index.to_numpy()]
         np.testing.assert_allclose(samples.error_m.to_numpy(), expected, equal_nan=True)
         usable = (samples.status == LabelStatus.LABELLED.value) & (samples.missing_rts == 0)
         assert (samples.usable == usable).all()
-        # The RTS rows of a window are the monitor's rows of frames t-29 … t.
-        rts_csv = pd.read_csv(root / SESSIONS_DIR / info.run / "rts.csv")
+        # The RTS rows of a window are the monitor's rows of frames t-29 … t, its PSDs those of t-30 … t.
+        rts_csv = pd.read_csv(session / "rts.csv")
         end = int(samples.frame_index.iloc[-1])
-        np.testing.assert_allclose(rts[-1], rts_csv[list(rts_schema.CHANNEL_NAMES)].to_numpy(np.float32)[end - 29:end + 1],
+        np.testing.assert_allclose(rts[rts_rows[-1]], rts_csv[list(rts_schema.CHANNEL_NAMES)].to_numpy(np.float32)[end - 29:end + 1],
                                    equal_nan=True)
+        assert np.load(folder / PSD_FRAMES_NPY)[psd_rows[-1]].tolist() == [end - 30, end - 20, end - 10, end]
+
+
+def test_reader_gives_the_windows_the_assembler_gives(tiny):
+    """A stored sample is exactly the window that assemble_windows makes from the session's logs (the one window
+    definition, online and offline), though each PSD is stored once."""
+    root, _ = tiny
+    reader = DatasetReader(root)
+    run = reader.index.run.iloc[0]
+    windows = dataclasses.replace(load_window_config(), end_stride=1)
+    assembled = {w.frame_index: w for w in assemble_windows(read_feature_frames(root / SESSIONS_DIR / run, run),
+                                                            windows)}
+    rows = np.flatnonzero(reader.index.run == run)
+    assert sorted(assembled) == reader.index.frame_index.iloc[rows].tolist()
+    for i in rows[::7]:
+        sample, window = reader[int(i)], assembled[int(reader.index.frame_index.iloc[i])]
+        np.testing.assert_array_equal(sample.rts, window.rts)
+        np.testing.assert_array_equal(sample.psd, window.psd)
+        assert sample.rts.dtype == np.float32 and sample.psd.dtype == np.uint8
 
 
 def test_reader_gives_lazy_random_access(tiny):
@@ -97,18 +128,47 @@ def test_reader_gives_lazy_random_access(tiny):
     assert set(reader.index.environment) == set(ENVIRONMENTS)
     sample = reader[len(reader) - 1]
     row = reader.index.iloc[-1]
-    stored = np.load(run_folder(root, row.run) / PSD_NPY)[int(row["sample"])]
+    folder = run_folder(root, row.run)
+    stored = np.load(folder / PSD_NPY)[np.load(folder / SAMPLE_PSD_ROWS_NPY)[int(row["sample"])]]
     assert np.array_equal(sample.psd, stored) and sample.meta["trajectory"] == row.trajectory
-    assert isinstance(reader._run_arrays(row.run)[1], np.memmap)  # arrays are memory maps, not loaded
+    assert sample.psd.shape[0] == load_window_config().psd_samples
+    assert isinstance(reader._run_arrays(row.run).psd, np.memmap)  # arrays are memory maps, not loaded
     usable = DatasetReader(root, usable_only=True)
     assert 0 < len(usable) <= len(reader) and usable.index.usable.all()
     one = DatasetReader(root, runs=[row.run])
     assert set(one.index.run) == {row.run}
-    assert reader.rts_windows().shape == (len(reader), 30, rts_schema.NUM_CHANNELS)
+    windows = reader.rts_windows()
+    assert windows.shape == (len(reader), 30, rts_schema.NUM_CHANNELS)
+    np.testing.assert_array_equal(windows[len(reader) - 1], sample.rts)
     with pytest.raises(DatasetError, match="not found"):
         DatasetReader(root, runs=["no_such_run"])
     with pytest.raises(IndexError):
         reader[len(reader)]
+
+
+def test_a_missing_rts_row_reads_as_nan():
+    rts = np.arange(12, dtype=np.float32).reshape(3, 4)
+    window = gather_rts(rts, np.array([[2, -1, 0]]))
+    assert window.shape == (1, 3, 4) and np.isnan(window[0, 1]).all()
+    np.testing.assert_array_equal(window[0, [0, 2]], rts[[2, 0]])
+
+
+def test_an_old_format_run_or_dataset_is_refused(tiny, tmp_path):
+    root, _ = tiny
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns("sessions"))
+    run = list_runs(copy)[0]
+    path = run_folder(copy, run.run) / "run.json"
+    record = json.loads(path.read_text())
+    del record["format_version"]  # format 1 had none
+    path.write_text(json.dumps(record))
+    with pytest.raises(DatasetError, match="dataset format 1.*Rebuild"):
+        DatasetReader(copy)
+    description = json.loads((copy / DATASET_JSON).read_text())
+    del description["format_version"]
+    (copy / DATASET_JSON).write_text(json.dumps(description))
+    with pytest.raises(SeesysError, match="dataset format 1, this builder writes format 2"):
+        _builder(copy).build(_plan(ENVIRONMENTS))
 
 
 def test_resume_redoes_only_unfinished_runs(tiny, tmp_path):
@@ -174,7 +234,10 @@ def test_a_run_that_crashes_part_way_keeps_the_frames_logged_before(tiny, tmp_pa
     assert (frames.status == LabelStatus.LABELLED.value).any()
     samples = DatasetReader(copy, runs=[run.run])
     whole = DatasetReader(root, runs=[run.run]).index.frame_index  # the same run's windows when it did not crash
-    assert len(samples) == run.samples > 0 and list(samples.index.frame_index) == [f for f in whole if f < crash_at]
+    # The monitor logs a frame just after tracking it: the crash may take the last one or two with it.
+    monitored = int(np.load(run_folder(copy, run.run) / RTS_FRAMES_NPY).max())
+    assert crash_at - 3 <= monitored < crash_at
+    assert len(samples) == run.samples > 0 and list(samples.index.frame_index) == [f for f in whole if f <= monitored]
     assert run.run in set(run_table([copy]).run)
     again = _builder(copy).build(_plan(ENVIRONMENTS))
     assert again.runs_done == [] and again.runs_skipped == 3

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,7 @@ from seesys.protocol.tracking_state import TrackingState
 from seesys.protocol.windows import load_window_config
 from seesys.protocol.windows import WindowConfig, assemble_windows
 
-CFG = WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, max_missing_rts=3)
+CFG = WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, end_stride=10, max_missing_rts=3)
 
 
 def frame(i: int, state: TrackingState = TrackingState.OK) -> FeatureFrame:
@@ -23,6 +25,7 @@ def frame(i: int, state: TrackingState = TrackingState.OK) -> FeatureFrame:
 def test_config_file_has_the_paper_windows():
     cfg = load_window_config()
     assert (cfg.rts_length, cfg.psd_samples, cfg.psd_stride) == (30, 4, 10)
+    assert cfg.psd_stride % cfg.end_stride == 0
 
 
 def test_indices():
@@ -62,6 +65,25 @@ def test_too_many_missing_rows_or_a_missing_psd_gives_no_window():
 
 def test_rejects_inconsistent_config():
     with pytest.raises(ValueError):
-        WindowConfig(rts_length=30, psd_samples=4, psd_stride=0, max_missing_rts=3)
+        WindowConfig(rts_length=30, psd_samples=4, psd_stride=0, end_stride=1, max_missing_rts=3)
     with pytest.raises(ValueError):
-        WindowConfig(rts_length=5, psd_samples=4, psd_stride=10, max_missing_rts=5)
+        WindowConfig(rts_length=5, psd_samples=4, psd_stride=10, end_stride=10, max_missing_rts=5)
+    with pytest.raises(ValueError, match="multiple of end_stride"):
+        WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, end_stride=4, max_missing_rts=3)
+
+
+def test_end_stride_one_gives_a_window_on_every_frame_with_the_same_content():
+    """With end_stride 1 a window ends on every frame; the windows that also end on a multiple of 10 are exactly
+    the windows of the device's stride: only how often a window is formed changes, not what it holds."""
+    every = dataclasses.replace(CFG, end_stride=1)
+    frames = [FeatureFrame("dev", i, 100.0 + i / 30, TrackingState.OK,
+                           np.full(rts_schema.NUM_CHANNELS, i, dtype=np.float32),
+                           np.full((96, 128, 3), i % 256, dtype=np.uint8)) for i in range(0, 61)]
+    dense = {s.frame_index: s for s in assemble_windows(frames, every)}
+    assert sorted(dense) == list(range(30, 61))
+    assert dense[37].psd_frame_indices.tolist() == [7, 17, 27, 37]
+    assert [int(p[0, 0, 0]) for p in dense[37].psd] == [7, 17, 27, 37]
+    sparse = list(assemble_windows(frames, CFG))
+    for s in sparse:
+        np.testing.assert_array_equal(s.rts, dense[s.frame_index].rts)
+        np.testing.assert_array_equal(s.psd, dense[s.frame_index].psd)

@@ -25,8 +25,8 @@ import pandas as pd
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from estimator.dataset.config import DatasetConfig
-from estimator.dataset.store import (COMPLETED, CRASHED, PARTIAL, RunArrays, RunInfo, read_run_info,
-                                     record_crashed_run, run_folder, run_name, write_run)
+from estimator.dataset.store import (COMPLETED, CRASHED, FORMAT_KEY, FORMAT_VERSION, PARTIAL, RunArrays, RunInfo,
+                                     read_run_info, record_crashed_run, run_folder, run_name, write_run)
 from estimator.labels import LabelConfig, LabelStatus, label_session
 from estimator.synth.batch import expand_environments, expand_motions, render_batch
 from estimator.synth.config import SynthConfig
@@ -107,8 +107,9 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
               max_missing_usable: int) -> RunArrays:
     """Samples of one finished session: every complete model window, with the label of its end frame.
 
-    A sample is ``usable`` (part of the regression target) when its end frame is ``labelled`` and at most
-    ``max_missing_usable`` rows of its RTS window are missing or untracked.
+    The monitor's RTS rows and PSD matrices are kept once each; a sample is the rows of its window
+    (:mod:`estimator.dataset.store`). A sample is ``usable`` (part of the regression target) when its end frame is
+    ``labelled`` and at most ``max_missing_usable`` rows of its RTS window are missing or untracked.
     """
     labels = label_session(session_dir, mode is SlamMode.MONO, label_config).to_frame()
     states = pd.read_csv(session_dir / session.FRAMES_CSV)
@@ -116,20 +117,28 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
                         labels.drop(columns="timestamp")], axis=1)
     frames.insert(1, "timestamp", labels.timestamp)
     row_of_frame = {int(f): k for k, f in enumerate(frames.frame_index)}
-    rts, psd, rows = [], [], []
-    for window in assemble_windows(read_feature_frames(session_dir, session_dir.name), windows):
+    logged = list(read_feature_frames(session_dir, session_dir.name))
+    with_psd = [f for f in logged if f.psd is not None]
+    rts_row = {f.frame_index: k for k, f in enumerate(logged)}
+    psd_row = {f.frame_index: k for k, f in enumerate(with_psd)}
+    rts_rows, psd_rows, rows = [], [], []
+    for window in assemble_windows(logged, windows):
         label = frames.iloc[row_of_frame[window.frame_index]]
         usable = label.status == LabelStatus.LABELLED.value and window.missing_rts <= max_missing_usable
         rows.append((len(rows), window.frame_index, window.timestamp, label.error_m, label.status, label.scale,
                      window.missing_rts, usable))
-        rts.append(window.rts)
-        psd.append(window.psd)
+        rts_rows.append([rts_row.get(int(i), -1) for i in window.rts_frame_indices])
+        psd_rows.append([psd_row[int(i)] for i in window.psd_frame_indices])
     samples = pd.DataFrame(rows, columns=["sample", "frame_index", "timestamp", "error_m", "status", "scale",
                                           "missing_rts", "usable"])
-    rts_array = (np.stack(rts) if rts else
-                 np.zeros((0, windows.rts_length, rts_schema.NUM_CHANNELS), np.float32))
-    psd_array = np.stack(psd) if psd else np.zeros((0, windows.psd_samples, 0, 0, 3), np.uint8)
-    return RunArrays(rts_array, psd_array, samples, frames)
+    return RunArrays(
+        rts=(np.stack([f.rts for f in logged]) if logged else np.zeros((0, rts_schema.NUM_CHANNELS), np.float32)),
+        rts_frames=np.array([f.frame_index for f in logged], np.int64),
+        psd=np.stack([f.psd for f in with_psd]) if with_psd else np.zeros((0, 0, 0, 3), np.uint8),
+        psd_frames=np.array([f.frame_index for f in with_psd], np.int64),
+        sample_rts_rows=np.array(rts_rows, np.int32).reshape(-1, windows.rts_length),
+        sample_psd_rows=np.array(psd_rows, np.int32).reshape(-1, windows.psd_samples),
+        samples=samples, frames=frames)
 
 
 def _merge_plans(earlier: dict, later: dict) -> dict:
@@ -143,7 +152,10 @@ def _merge_plans(earlier: dict, later: dict) -> dict:
 
 
 class DatasetBuilder:
-    """Renders a plan's sequences into ``root/sequences`` and stores one run per (sequence, mode, trial)."""
+    """Renders a plan's sequences into ``root/sequences`` and stores one run per (sequence, mode, trial).
+
+    ``windows`` are the model windows; their end stride is replaced by ``window_end_stride`` of dataset.toml
+    (1: a sample for every labelled frame), and the monitor of every run computes the PSD on those frames."""
 
     def __init__(self, root: Path, config: DatasetConfig, synth: SynthConfig, label_config: LabelConfig,
                  windows: WindowConfig, config_dir: Path | None = None):
@@ -151,7 +163,10 @@ class DatasetBuilder:
         self.config = config
         self.synth = synth
         self.label_config = label_config
-        self.windows = windows
+        try:
+            self.windows = replace(windows, end_stride=config.window_end_stride)
+        except ValueError as e:
+            raise SeesysError(f"configs/dataset.toml window_end_stride: {e}") from None
         self.config_dir = config_dir
 
     def build(self, plan: BuildPlan) -> BuildResult:
@@ -201,6 +216,7 @@ class DatasetBuilder:
         A build into an existing dataset adds runs to it, so it must use the same definitions; the plan recorded is
         the union of every build's plan."""
         description = json.loads(json.dumps({
+            FORMAT_KEY: FORMAT_VERSION,
             "rts_channels": list(rts_schema.CHANNEL_NAMES),
             "rts_schema_version": rts_schema.SCHEMA_VERSION,
             "windows": asdict(self.windows),
@@ -214,6 +230,10 @@ class DatasetBuilder:
         path = self.root / DATASET_JSON
         if path.exists():
             earlier = json.loads(path.read_text())
+            if earlier.get(FORMAT_KEY, 1) != FORMAT_VERSION:
+                raise SeesysError(f"{path}: dataset format {earlier.get(FORMAT_KEY, 1)}, this builder writes format "
+                                  f"{FORMAT_VERSION}; build into a new folder (move {self.root / SEQUENCES_DIR} "
+                                  f"into it first to reuse the rendered sequences)")
             changed = [key for key in DEFINITION_KEYS if earlier.get(key) != description[key]]
             if earlier.get("plan", {}).get("template") != description["plan"]["template"]:
                 changed.append("render template (frames, size, blur, distortion)")
@@ -233,7 +253,8 @@ class DatasetBuilder:
         options = SessionOptions(f"tum:{sequence}", mode, session_dir, pace=self.config.pace,
                                  wait_for_mapping=mode.value in self.config.wait_for_mapping_modes,
                                  config_dir=self.config_dir,
-                                 observers=(ObserverSpec(MONITOR_OBSERVER, {"stream": False, "device_id": name}),))
+                                 observers=(ObserverSpec(MONITOR_OBSERVER, {"stream": False, "device_id": name,
+                                                                     "end_stride": self.windows.end_stride}),))
         start = time.perf_counter()
         try:
             result = run_supervised_session(options, progress=on_event)

@@ -61,6 +61,7 @@ class DatasetConfig:
     pace: bool
     wait_for_mapping_modes: tuple[str, ...]
     keep_sessions: bool
+    window_end_stride: int
     samples: SampleConfig
     report: ReportConfig
     targets: TargetConfig

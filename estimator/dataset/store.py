@@ -1,19 +1,32 @@
 """On-disk layout of the labelled dataset and its lazy reader.
 
 A dataset folder holds one folder per SLAM run under ``runs/``; a run is one rendered sequence played once
-through ORB-SLAM3 + the RTS monitor in one mode (``<sequence>__<mode>__t<trial>``)::
+through ORB-SLAM3 + the RTS monitor in one mode (``<sequence>__<mode>__t<trial>``). Each RTS row and each PSD
+matrix the monitor logged is stored once; a sample (a model window) is a list of rows into them::
 
-    runs/<run>/run.json      metadata: environment, motion group, trajectory, trial, mode, status, counts
-    runs/<run>/rts.npy       (N, T, C) float32   RTS windows (raw units, NaN where a row is missing)
-    runs/<run>/psd.npy       (N, K_L, H, W, 3) uint8   PSD windows
-    runs/<run>/samples.csv   one row per window: frame index, timestamp, label, status, usable, ...
-    runs/<run>/frames.csv    one row per frame: tracking state, label, status, fitted scale
+    runs/<run>/run.json             metadata: format version, environment, motion group, trajectory, trial, mode,
+                                    status, counts
+    runs/<run>/rts.npy              (R, C) float32   the monitor's RTS rows, one per logged frame (raw units)
+    runs/<run>/rts_frames.npy       (R,) int64       frame index of each RTS row
+    runs/<run>/psd.npy              (P, H, W, 3) uint8   the logged PSD matrices, in frame order
+    runs/<run>/psd_frames.npy       (P,) int64       frame index of each PSD matrix
+    runs/<run>/sample_rts_rows.npy  (N, T) int32     per sample, the rows of rts.npy of its window (−1: not logged)
+    runs/<run>/sample_psd_rows.npy  (N, K_L) int32   per sample, the rows of psd.npy of its window
+    runs/<run>/samples.csv          one row per window: frame index, timestamp, label, status, usable, ...
+    runs/<run>/frames.csv           one row per frame: tracking state, label, status, fitted scale
+
+Windows overlap (a dataset build forms one on every frame), so storing each PSD once instead of K_L copies per
+sample is what keeps a run of 900 samples at about 33 MB. The reader gives a sample as before: its RTS window
+(T, C) with NaN rows for frames the monitor did not log, and its PSD window (K_L, H, W, 3).
 
 A run folder is written under a temporary name and renamed when complete, so it either exists whole or not at
 all. A run whose SLAM session crashed after logging frames is stored like a completed one with status
 ``partial`` (its logged frames labelled, the error kept); a run that logged no frame has only ``run.json``
 (status ``crashed`` and the error). The arrays are plain ``.npy``
 files opened with ``mmap_mode="r"``: training reads the samples it asks for, never the whole dataset.
+
+``run.json`` carries :data:`FORMAT_VERSION`; a run of another format (format 1 stored a copy of every window per
+sample) is refused with a :class:`DatasetError` that says to rebuild it.
 """
 
 from __future__ import annotations
@@ -32,8 +45,15 @@ from seesys.errors import SeesysError
 
 RUNS_DIR = "runs"
 RUN_JSON = "run.json"
+# The layout of a run folder; bumped whenever it changes, so that a reader never misreads an older run.
+FORMAT_VERSION = 2
+FORMAT_KEY = "format_version"
 RTS_NPY = "rts.npy"
+RTS_FRAMES_NPY = "rts_frames.npy"
 PSD_NPY = "psd.npy"
+PSD_FRAMES_NPY = "psd_frames.npy"
+SAMPLE_RTS_ROWS_NPY = "sample_rts_rows.npy"
+SAMPLE_PSD_ROWS_NPY = "sample_psd_rows.npy"
 SAMPLES_CSV = "samples.csv"
 FRAMES_CSV = "frames.csv"
 COMPLETED = "completed"
@@ -73,10 +93,37 @@ class RunInfo:
 class RunArrays:
     """The samples of one run, in memory, ready to be written."""
 
-    rts: np.ndarray  # (N, T, C) float32
-    psd: np.ndarray  # (N, K_L, H, W, 3) uint8
+    rts: np.ndarray  # (R, C) float32, one row per logged frame
+    rts_frames: np.ndarray  # (R,) frame index of each row
+    psd: np.ndarray  # (P, H, W, 3) uint8, one matrix per logged PSD
+    psd_frames: np.ndarray  # (P,) frame index of each matrix
+    sample_rts_rows: np.ndarray  # (N, T) rows of ``rts`` per sample, −1 where the frame was not logged
+    sample_psd_rows: np.ndarray  # (N, K_L) rows of ``psd`` per sample
     samples: pd.DataFrame  # SAMPLE_COLUMNS
     frames: pd.DataFrame  # per-frame labels
+
+    def check(self, run: str) -> None:
+        """Raise :class:`DatasetError` when the arrays do not describe one consistent run."""
+        n = len(self.samples)
+        problems = []
+        if len(self.rts) != len(self.rts_frames) or len(self.psd) != len(self.psd_frames):
+            problems.append(f"{len(self.rts)} RTS rows for {len(self.rts_frames)} frame indices, "
+                            f"{len(self.psd)} PSD matrices for {len(self.psd_frames)}")
+        if len(self.sample_rts_rows) != n or len(self.sample_psd_rows) != n:
+            problems.append(f"{len(self.sample_rts_rows)} RTS and {len(self.sample_psd_rows)} PSD windows for "
+                            f"{n} sample rows")
+        if n and (self.sample_rts_rows.max() >= len(self.rts) or self.sample_psd_rows.max() >= len(self.psd)
+                  or self.sample_rts_rows.min() < -1 or self.sample_psd_rows.min() < 0):
+            problems.append("a window points outside the stored rows")
+        if problems:
+            raise DatasetError(f"run {run}: {'; '.join(problems)}")
+
+
+def gather_rts(rts: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """RTS windows from stored rows: ``rows`` (..., T) of ``rts`` (R, C); a row −1 (frame not logged) is NaN."""
+    out = np.asarray(rts[np.maximum(rows, 0).ravel()], dtype=np.float32).reshape(*rows.shape, rts.shape[-1])
+    out[rows < 0] = np.nan
+    return out
 
 
 def run_name(sequence: str, mode: str, trial: int) -> str:
@@ -88,14 +135,24 @@ def run_folder(root: Path, run: str) -> Path:
 
 
 def read_run_info(folder: Path) -> RunInfo | None:
-    """The run's record, or None when the run has not been finished (or recorded as crashed)."""
+    """The run's record, or None when the run has not been finished (or recorded as crashed).
+
+    A run stored in another format than :data:`FORMAT_VERSION` raises :class:`DatasetError`."""
     path = folder / RUN_JSON
     if not path.is_file():
         return None
     try:
-        return RunInfo(**json.loads(path.read_text()))
+        data = json.loads(path.read_text())
+        version = data.pop(FORMAT_KEY, 1)  # format 1 had no version
+        info = RunInfo(**data)
     except (ValueError, TypeError) as e:
         raise DatasetError(f"{path}: not a run record: {e}") from None
+    if version != FORMAT_VERSION:
+        raise DatasetError(f"{path}: run stored in dataset format {version}; this SEESys reads format "
+                           f"{FORMAT_VERSION} (one sample per labelled frame, each PSD stored once). Rebuild the "
+                           f"dataset into a new folder with `seesys dataset build`; its rendered sequences can be "
+                           f"reused by moving {folder.parent.parent / 'sequences'} into the new folder first")
+    return info
 
 
 def _write_folder(folder: Path, info: RunInfo, arrays: RunArrays | None) -> None:
@@ -104,20 +161,21 @@ def _write_folder(folder: Path, info: RunInfo, arrays: RunArrays | None) -> None
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
     if arrays is not None:
-        np.save(partial / RTS_NPY, np.ascontiguousarray(arrays.rts, dtype=np.float32))
-        np.save(partial / PSD_NPY, np.ascontiguousarray(arrays.psd, dtype=np.uint8))
+        for name, array, dtype in ((RTS_NPY, arrays.rts, np.float32), (RTS_FRAMES_NPY, arrays.rts_frames, np.int64),
+                                   (PSD_NPY, arrays.psd, np.uint8), (PSD_FRAMES_NPY, arrays.psd_frames, np.int64),
+                                   (SAMPLE_RTS_ROWS_NPY, arrays.sample_rts_rows, np.int32),
+                                   (SAMPLE_PSD_ROWS_NPY, arrays.sample_psd_rows, np.int32)):
+            np.save(partial / name, np.ascontiguousarray(array, dtype=dtype))
         arrays.samples.to_csv(partial / SAMPLES_CSV, index=False)
         arrays.frames.to_csv(partial / FRAMES_CSV, index=False)
-    (partial / RUN_JSON).write_text(json.dumps(asdict(info), indent=2) + "\n")
+    (partial / RUN_JSON).write_text(json.dumps({FORMAT_KEY: FORMAT_VERSION, **asdict(info)}, indent=2) + "\n")
     shutil.rmtree(folder, ignore_errors=True)
     os.replace(partial, folder)
 
 
 def write_run(root: Path, info: RunInfo, arrays: RunArrays) -> Path:
     """Store a completed (or partial) run's samples."""
-    if not (len(arrays.rts) == len(arrays.psd) == len(arrays.samples)):
-        raise DatasetError(f"run {info.run}: {len(arrays.rts)} RTS windows, {len(arrays.psd)} PSD windows and "
-                           f"{len(arrays.samples)} sample rows disagree")
+    arrays.check(info.run)
     folder = run_folder(root, info.run)
     _write_folder(folder, info, arrays)
     return folder
@@ -141,8 +199,19 @@ def list_runs(root: Path) -> list[RunInfo]:
 
 
 @dataclass(frozen=True)
+class _StoredRun:
+    """One run's arrays as the reader holds them: the large ones memory-mapped, the window rows in memory."""
+
+    rts: np.ndarray
+    psd: np.ndarray
+    rts_rows: np.ndarray
+    psd_rows: np.ndarray
+
+
+@dataclass(frozen=True)
 class Sample:
-    """One model input and its label. ``meta`` is the sample's row of :attr:`DatasetReader.index`."""
+    """One model input and its label: ``rts`` (T, C) float32 raw, NaN where a frame is missing; ``psd``
+    (K_L, H, W, 3) uint8. ``meta`` is the sample's row of :attr:`DatasetReader.index`."""
 
     rts: np.ndarray
     psd: np.ndarray
@@ -188,16 +257,18 @@ class DatasetReader:
         if usable_only:
             index = index[index.usable.astype(bool)].reset_index(drop=True)
         self.index = index
-        self._arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._arrays: dict[str, _StoredRun] = {}
 
     def __len__(self) -> int:
         return len(self.index)
 
-    def _run_arrays(self, run: str) -> tuple[np.ndarray, np.ndarray]:
+    def _run_arrays(self, run: str) -> _StoredRun:
         if run not in self._arrays:
             folder = self._folders[run]
             try:
-                self._arrays[run] = (np.load(folder / RTS_NPY, mmap_mode="r"), np.load(folder / PSD_NPY, mmap_mode="r"))
+                self._arrays[run] = _StoredRun(
+                    np.load(folder / RTS_NPY, mmap_mode="r"), np.load(folder / PSD_NPY, mmap_mode="r"),
+                    np.load(folder / SAMPLE_RTS_ROWS_NPY), np.load(folder / SAMPLE_PSD_ROWS_NPY))
             except (OSError, ValueError) as e:
                 raise DatasetError(f"cannot open the arrays of run {folder}: {e}") from None
         return self._arrays[run]
@@ -206,10 +277,10 @@ class DatasetReader:
         if not -len(self) <= i < len(self):
             raise IndexError(f"sample {i} out of range ({len(self)} samples)")
         row = self.index.iloc[i]
-        rts, psd = self._run_arrays(row.run)
+        stored = self._run_arrays(row.run)
         k = int(row["sample"])
-        return Sample(np.asarray(rts[k]), np.asarray(psd[k]), float(row.error_m), str(row.status), bool(row.usable),
-                      row.to_dict())
+        return Sample(gather_rts(stored.rts, stored.rts_rows[k]), np.asarray(stored.psd[stored.psd_rows[k]]),
+                      float(row.error_m), str(row.status), bool(row.usable), row.to_dict())
 
     def rts_windows(self) -> np.ndarray:
         """Every indexed sample's RTS window, (N, T, C) float32 (small: the PSD windows are what is large)."""
@@ -217,8 +288,8 @@ class DatasetReader:
             return np.zeros((0, 0, 0), np.float32)
         out = []
         for run, rows in self.index.groupby("run", sort=False).groups.items():
-            rts, _ = self._run_arrays(run)
-            out.append((rows, rts[self.index.loc[rows, "sample"].to_numpy(int)]))
+            stored = self._run_arrays(run)
+            out.append((rows, gather_rts(stored.rts, stored.rts_rows[self.index.loc[rows, "sample"].to_numpy(int)])))
         windows = np.empty((len(self), *out[0][1].shape[1:]), np.float32)
         for rows, values in out:
             windows[np.asarray(rows)] = values

@@ -1,10 +1,16 @@
 """Model input windows, assembled by frame index (paper §4.2.1): the one definition for device logs, the
 dataset builder and the estimator.
 
-A window ends at a frame t with index ``t % tau == 0`` (a PSD frame) and holds
+A window ends at a frame t with index ``t % s == 0`` (s = ``end_stride``; the monitor computes the PSD on exactly
+these frames) and holds
 
 - the RTS rows of frames t−T+1 … t (T = ``rts_length``), in frame order, a NaN row where a frame is missing;
 - the PSD matrices of frames t−(K_L−1)·tau, …, t−tau, t (K_L = ``psd_samples``, tau = ``psd_stride``).
+
+``psd_stride`` is a multiple of ``end_stride``, so every PSD a window needs is on a frame that ends a window. The
+model sees the same window whatever ``end_stride`` is; ``end_stride`` only says how often one is formed: the device
+streams PSDs (and so estimates) every ``end_stride`` frames, and the dataset builder forms a window on every
+frame (``end_stride = 1``), one sample per labelled frame.
 
 Rows and matrices are looked up by frame index, never "the latest of each": a window is only emitted when its
 end frame is tracked, every PSD sample is present, and at most ``max_missing_rts`` of the T rows are missing
@@ -32,17 +38,20 @@ class WindowConfig:
     rts_length: int
     psd_samples: int
     psd_stride: int
+    end_stride: int
     max_missing_rts: int
 
     def __post_init__(self) -> None:
-        if self.rts_length < 1 or self.psd_samples < 1 or self.psd_stride < 1:
-            raise ValueError(f"window lengths must be positive: {self}")
+        if min(self.rts_length, self.psd_samples, self.psd_stride, self.end_stride) < 1:
+            raise ValueError(f"window lengths and strides must be positive: {self}")
+        if self.psd_stride % self.end_stride:
+            raise ValueError(f"psd_stride must be a multiple of end_stride: {self}")
         if not 0 <= self.max_missing_rts < self.rts_length:
             raise ValueError(f"max_missing_rts must be in [0, rts_length): {self}")
 
     def is_psd_frame(self, frame_index: int) -> bool:
-        """True on the frames whose PSD is computed, logged, streamed, and that end a window."""
-        return frame_index % self.psd_stride == 0
+        """True on the frames that end a window: their PSD is computed, logged and streamed."""
+        return frame_index % self.end_stride == 0
 
     def rts_frame_indices(self, end: int) -> np.ndarray:
         return np.arange(end - self.rts_length + 1, end + 1)
