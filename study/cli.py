@@ -1,9 +1,14 @@
-"""``seesys`` subcommands of the study part."""
+"""``seesys study ...``: the user-study kit's commands."""
 
 from __future__ import annotations
 
 import argparse
 
+from study import commands_mocap
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add this part's commands to the ``seesys`` command line (none yet)."""
+    """Add ``seesys study`` to the ``seesys`` command line."""
+    parser = subparsers.add_parser("study", help="user studies: sessions, motion capture, calibration, metrics")
+    commands = parser.add_subparsers(dest="study_command", metavar="COMMAND", required=True)
+    commands_mocap.register(commands)

@@ -1,0 +1,94 @@
+"""``seesys study metrics|calibrate|mocap``: metrics of two trajectories, the calibration of a session's motion
+capture, live mocap logging and file import."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import threading
+from pathlib import Path
+
+from seesys.trajectory import write_tum, read_tum
+from study.config import load_study_config
+from study.metrics import format_metrics, read_frame_log, tracking_metrics
+
+
+def metrics_command(args: argparse.Namespace) -> int:
+    cfg = load_study_config().metrics
+    frames = read_frame_log(args.frames) if args.frames else None
+    result = tracking_metrics(read_tum(args.slam), read_tum(args.mocap), args.mono, cfg, frames)
+    print(json.dumps(result.as_dict(), indent=2) if args.json else format_metrics(result))
+    return 0
+
+
+def calibrate_command(args: argparse.Namespace) -> int:
+    from study.mocap.calibrate import calibrate_session, format_calibration
+
+    cfg = load_study_config()
+    result = calibrate_session(args.session, cfg.calibration, args.body or cfg.mocap.body, mocap=args.mocap,
+                               marker_camera_from=args.hand_eye_from, monocular=args.mono,
+                               overwrite=args.overwrite)
+    print(format_calibration(result))
+    print(f"wrote {args.session / 'groundtruth.tum'} and {args.session / 'calibration.json'}")
+    return 0
+
+
+def mocap_log_command(args: argparse.Namespace) -> int:
+    from study.mocap.logger import log_mocap
+
+    cfg = load_study_config().mocap
+    stop = threading.Event()
+    # SIGTERM (the study runner stopping a session) ends the loop cleanly, like Ctrl-C.
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        stats = log_mocap(cfg, args.out, stop, args.duration)
+    except KeyboardInterrupt:
+        return 130
+    print(f"mocap: {stats.poses} poses of '{stats.body}' ({stats.missing} frames without it) in {args.out}")
+    return 0
+
+
+def mocap_import_command(args: argparse.Namespace) -> int:
+    from study.mocap.importers import read_mocap
+
+    poses = read_mocap(args.file, args.body or load_study_config().mocap.body)
+    write_tum(args.out, poses)
+    print(f"{args.out}: {len(poses)} poses")
+    return 0
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    p = commands.add_parser("metrics", help="tracking error (evo RPE), completeness, losses of two TUM trajectories",
+                            description="Tracking error (evo RPE, translation part, delta and association from "
+                                        "configs/study.toml, SE(3) alignment or Sim(3) with --mono), completeness, "
+                                        "tracking losses and time on task.")
+    p.add_argument("--slam", required=True, type=Path, metavar="EST.tum", help="SLAM trajectory (TUM)")
+    p.add_argument("--mocap", required=True, type=Path, metavar="REF.tum", help="reference trajectory (TUM)")
+    p.add_argument("--frames", type=Path, metavar="frames.csv",
+                   help="the session's frame log: completeness counted on camera frames")
+    p.add_argument("--mono", action="store_true", help="monocular SLAM: Sim(3) alignment")
+    p.add_argument("--json", action="store_true", help="print JSON (keys rpe_mean_m, rpe_rmse_m, pairs, completeness, ...)")
+    p.set_defaults(func=metrics_command)
+
+    p = commands.add_parser("calibrate", help="clock offset and hand-eye of a session's mocap; writes groundtruth.tum")
+    p.add_argument("session", type=Path, metavar="SESSION")
+    p.add_argument("--mocap", type=Path, metavar="FILE", help="mocap file (TUM or Vicon CSV; default SESSION/mocap.tum)")
+    p.add_argument("--body", help="rigid body in a Vicon CSV (default configs/study.toml)")
+    p.add_argument("--hand-eye-from", type=Path, metavar="calibration.json",
+                   help="reuse the marker-to-camera transform of an earlier (RGB-D) calibration")
+    p.add_argument("--mono", action="store_true", help="monocular trajectory (needs --hand-eye-from)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing groundtruth.tum")
+    p.set_defaults(func=calibrate_command)
+
+    mocap = commands.add_parser("mocap", help="live motion-capture logging and file import")
+    sub = mocap.add_subparsers(dest="mocap_command", metavar="COMMAND", required=True)
+    p = sub.add_parser("log", help="log the configured rigid body to DIR/mocap.tum (stamped on receipt)")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until SIGTERM/Ctrl-C)")
+    p.set_defaults(func=mocap_log_command)
+    p = sub.add_parser("import", help="convert a Vicon CSV export (or TUM file) of one body to TUM")
+    p.add_argument("file", type=Path)
+    p.add_argument("--body", help="subject or segment name (default configs/study.toml)")
+    p.add_argument("--out", required=True, type=Path, metavar="OUT.tum")
+    p.set_defaults(func=mocap_import_command)

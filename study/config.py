@@ -1,0 +1,62 @@
+"""The study kit's settings (``configs/study.toml``), one dataclass per table."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from seesys.config import load_section
+
+
+@dataclass(frozen=True)
+class ProtocolConfig:
+    conditions: list[str]
+    participants_per_condition: int
+    design: str
+    phases: list[str]
+    objects: int
+    assignment_seed: int
+    participant_prefix: str
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    delta_frames: int
+    all_pairs: bool
+    association_max_dt_s: float
+    loss_gap_factor: float
+
+
+@dataclass(frozen=True)
+class MocapConfig:
+    backend: str
+    hostname: str
+    port: int
+    connect_timeout_s: float
+    body: str
+    mock_rigid_bodies: str
+    mock_frequency_hz: int
+    clock: str
+    stats_interval_s: float
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    max_offset_s: float
+    offset_grid_s: float
+    speed_smoothing_s: float
+    station_step_s: float
+    max_stations: int
+    max_pair_span_s: float
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    protocol: ProtocolConfig
+    metrics: MetricsConfig
+    mocap: MocapConfig
+    calibration: CalibrationConfig
+
+
+def load_study_config(directory: Path | None = None) -> StudyConfig:
+    return load_section("study", StudyConfig, directory)

@@ -1,0 +1,41 @@
+"""Crash-safe study files: whole files replaced atomically, logs appended one flushed line at a time.
+
+A SIGKILL can stop the process between any two system calls. A file replaced with ``os.replace`` is then either
+the old or the new version; a log line written by one ``write`` of a line-buffered file is either there or not.
+Readers therefore never see a half-written JSON file, and a log loses at most the line being written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any, TextIO
+
+
+def write_text_atomically(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` (a temporary file beside it, then a rename)."""
+    path = Path(path)
+    temporary = path.with_name(path.name + ".tmp")
+    with temporary.open("w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(temporary, path)
+
+
+def write_json_atomically(path: Path, data: Any) -> None:
+    write_text_atomically(path, json.dumps(data, indent=2, default=str) + "\n")
+
+
+def open_log(path: Path, header: str) -> TextIO:
+    """Open a line log for appending (line-buffered: every line is one write); a new file gets ``header``.
+
+    Appending keeps whatever an earlier, interrupted run of the same session wrote.
+    """
+    path = Path(path)
+    fresh = not path.exists() or path.stat().st_size == 0
+    log = path.open("a", buffering=1, encoding="utf-8")
+    if fresh:
+        log.write(header + "\n")
+    return log

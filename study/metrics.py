@@ -1,0 +1,178 @@
+"""Per-participant tracking metrics (paper §7.3): tracking error, tracking completeness, losses, time on task.
+
+- **Tracking error** is evo's relative pose error, translation part, over ``delta_frames`` frames, of the SLAM
+  trajectory against the motion-capture reference: the poses are associated by nearest timestamp within
+  ``association_max_dt_s`` (evo's ``associate_trajectories``), the estimate is aligned to the reference (SE(3)
+  for metric RGB-D SLAM, Sim(3) for monocular) and evo's ``main_rpe.rpe`` does the rest. This is evo's RPE over
+  the whole associated trajectory, not ``estimator/labels.py``'s per-frame label: a label must be one frame's
+  local error (pairs only inside a tracked stretch, a local monocular scale), while the study reports the error
+  of the participant's whole trajectory exactly as evo computes it, so that a lab can reproduce it with evo's
+  own command line (``evo_rpe tum REF EST --delta 10 --delta_unit f --pose_relation trans_part --align
+  [--correct_scale] --t_max_diff 0.01 [--all_pairs]``).
+- **Completeness** is the share of camera frames tracked from the first tracked frame on (initialisation, which
+  the operator confirms, is not the participant's doing). With a frame log (a session's ``frames.csv``) it is
+  counted on the frames; from two TUM files alone it is the share of time from the first estimated pose to the
+  end of the reference covered by estimated poses, a gap longer than ``loss_gap_factor`` median frame intervals
+  counting as a loss.
+- **Losses**: the number and total duration of tracking losses after initialisation.
+- **Time on task**: from the first frame to the last (or between the operator's start and end events).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from seesys.errors import SeesysError
+from seesys.protocol.tracking_state import TrackingState
+from seesys.trajectory import Poses
+from study.config import MetricsConfig
+
+
+class MetricsError(SeesysError):
+    """The trajectories or the frame log cannot give a metric (no overlap, a malformed log)."""
+
+
+@dataclass(frozen=True)
+class TrackingMetrics:
+    """One participant's (or any two trajectories') metrics; errors in metres, completeness a fraction 0–1."""
+
+    rpe_mean_m: float
+    rpe_rmse_m: float
+    rpe_median_m: float
+    rpe_max_m: float
+    pairs: int
+    completeness: float
+    tracking_losses: int
+    loss_duration_s: float
+    time_on_task_s: float
+    alignment: str
+    delta_frames: int
+    all_pairs: bool
+    association_max_dt_s: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class RpeResult:
+    """evo's RPE: the per-pair errors (metres) and the timestamps of the pairs' end poses."""
+
+    errors_m: np.ndarray
+    timestamps: np.ndarray
+    alignment: str
+
+
+def relative_pose_error(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig) -> RpeResult:
+    """evo's RPE (translation part, ``delta_frames``) of ``estimate`` against ``reference`` after association and
+    SE(3) / Sim(3) alignment; no pairs (empty arrays) when too few poses associate."""
+    from evo.core import sync
+    from evo.core.metrics import PoseRelation
+    from evo.core.units import Unit
+    from evo.main_rpe import rpe
+
+    alignment = "Sim(3)" if monocular else "SE(3)"
+    empty = RpeResult(np.zeros(0), np.zeros(0), alignment)
+    if len(estimate) == 0 or len(reference) == 0:
+        return empty
+    est, ref = estimate.sorted_unique(), reference.sorted_unique()
+    try:
+        ref_evo, est_evo = sync.associate_trajectories(ref.to_evo(), est.to_evo(), max_diff=cfg.association_max_dt_s)
+    except sync.SyncException:
+        return empty
+    # Alignment needs at least 3 poses and RPE at least one pair (i, i + delta).
+    if est_evo.num_poses <= max(cfg.delta_frames, 2):
+        return empty
+    result = rpe(ref_evo, est_evo, PoseRelation.translation_part, delta=cfg.delta_frames, delta_unit=Unit.frames,
+                 all_pairs=cfg.all_pairs, align=True, correct_scale=monocular)
+    return RpeResult(np.asarray(result.np_arrays["error_array"], float),
+                     np.asarray(result.np_arrays["timestamps"], float), alignment)
+
+
+@dataclass(frozen=True)
+class Completeness:
+    fraction: float
+    losses: int
+    loss_duration_s: float
+    duration_s: float
+
+
+def completeness_from_frames(frames: pd.DataFrame) -> Completeness:
+    """Completeness, losses and duration from a session's frame log (``timestamp`` and ``state`` columns)."""
+    try:
+        times = frames["timestamp"].to_numpy(float)
+        tracked = np.array([TrackingState[str(s)].tracked for s in frames["state"]], bool)
+    except KeyError as e:
+        raise MetricsError(f"frame log: unknown tracking state or missing column {e}") from None
+    duration = float(times[-1] - times[0]) if len(times) > 1 else 0.0
+    if not tracked.any():
+        return Completeness(0.0, 0, 0.0, duration)
+    first = int(np.argmax(tracked))
+    after = tracked[first:]
+    starts = np.flatnonzero(~after[1:] & after[:-1]) + 1  # tracked -> not tracked
+    ends = np.flatnonzero(after[1:] & ~after[:-1]) + 1  # not tracked -> tracked
+    t = times[first:]
+    durations = [(t[e] if (e := next((x for x in ends if x > s), None)) is not None else t[-1]) - t[s]
+                 for s in starts]
+    return Completeness(float(after.mean()), len(starts), float(np.sum(durations)), duration)
+
+
+def completeness_from_poses(estimate: Poses, reference: Poses, cfg: MetricsConfig) -> Completeness:
+    """Completeness from two TUM trajectories alone (see the module docstring)."""
+    times = np.unique(estimate.timestamps)
+    if len(times) < 2:
+        return Completeness(0.0, 0, 0.0, 0.0)
+    step = float(np.median(np.diff(times)))
+    end = max(float(times[-1]), float(reference.timestamps.max()) if len(reference) else float(times[-1]))
+    span = end - float(times[0]) + step
+    gaps = np.append(np.diff(times), end - times[-1] + step)  # the time after the last pose may be a loss too
+    lost = gaps[gaps > cfg.loss_gap_factor * step] - step
+    fraction = float(np.clip(1.0 - lost.sum() / span, 0.0, 1.0))
+    return Completeness(fraction, int(len(lost)), float(lost.sum()), float(end - times[0]))
+
+
+def tracking_metrics(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
+                     frames: pd.DataFrame | None = None, time_on_task_s: float | None = None) -> TrackingMetrics:
+    """All metrics of one trajectory; ``frames`` (a session's frame log) makes completeness exact, and
+    ``time_on_task_s`` (from the operator's events) replaces the first-to-last-frame duration."""
+    rpe = relative_pose_error(estimate, reference, monocular, cfg)
+    done = completeness_from_frames(frames) if frames is not None and len(frames) else \
+        completeness_from_poses(estimate, reference, cfg)
+    errors = rpe.errors_m
+    nan = float("nan")
+    return TrackingMetrics(
+        rpe_mean_m=float(errors.mean()) if errors.size else nan,
+        rpe_rmse_m=float(np.sqrt(np.mean(errors ** 2))) if errors.size else nan,
+        rpe_median_m=float(np.median(errors)) if errors.size else nan,
+        rpe_max_m=float(errors.max()) if errors.size else nan,
+        pairs=int(errors.size), completeness=done.fraction, tracking_losses=done.losses,
+        loss_duration_s=done.loss_duration_s,
+        time_on_task_s=float(time_on_task_s if time_on_task_s is not None else done.duration_s),
+        alignment=rpe.alignment, delta_frames=cfg.delta_frames, all_pairs=cfg.all_pairs,
+        association_max_dt_s=cfg.association_max_dt_s)
+
+
+def read_frame_log(path: Path) -> pd.DataFrame:
+    """A session's ``frames.csv``; a row cut short by a crash is dropped."""
+    try:
+        frames = pd.read_csv(path, on_bad_lines="skip")
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
+        raise MetricsError(f"cannot read the frame log {path}: {e}") from None
+    return frames.dropna(subset=["timestamp", "state"])
+
+
+def format_metrics(m: TrackingMetrics) -> str:
+    """The metrics as the lines ``seesys study metrics`` prints."""
+    return "\n".join([
+        f"tracking error (RPE, translation, delta {m.delta_frames} frames, {m.alignment}, "
+        f"{'all pairs' if m.all_pairs else 'non-overlapping pairs'}, association <= {m.association_max_dt_s * 1e3:g} ms):",
+        f"  mean {m.rpe_mean_m * 100:.3f} cm, RMSE {m.rpe_rmse_m * 100:.3f} cm, median {m.rpe_median_m * 100:.3f} cm, "
+        f"max {m.rpe_max_m * 100:.3f} cm over {m.pairs} pairs",
+        f"tracking completeness: {m.completeness * 100:.1f} % ({m.tracking_losses} losses, "
+        f"{m.loss_duration_s:.2f} s lost)",
+        f"time on task: {m.time_on_task_s:.1f} s",
+    ])

@@ -1,0 +1,148 @@
+"""Motion capture: the clock offset and the marker-to-camera transform of a simulated rigid body are recovered
+(within 2 ms, 1 mm and 0.5 degrees), the calibrated ground truth is the camera's true trajectory, Vicon CSV
+exports import, and live logging through motioncapture's mock backend writes poses stamped on receipt."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from seesys.errors import SeesysError
+from seesys.trajectory import Poses, read_tum, write_tum
+from study.config import load_study_config
+from study.mocap.calibrate import calibrate_session
+from study.mocap.clock import CalibrationError, estimate_clock_offset
+from study.mocap.handeye import matrices, to_matrix
+from study.mocap.importers import MocapImportError, read_vicon_csv
+from study.mocap.logger import MocapUnavailable, connect
+
+REPO = Path(__file__).resolve().parent.parent
+# The simulated rig: camera-to-marker lever arm and mounting rotation, the SLAM world in the Vicon frame, and
+# the mocap clock behind the camera clock.
+MARKER_CAMERA = to_matrix(Rotation.from_euler("xyz", [20, -35, 50], degrees=True), np.array([0.05, -0.03, 0.08]))
+WORLD_IN_VICON = to_matrix(Rotation.from_euler("xyz", [5, 10, -80], degrees=True), np.array([1.0, 2.0, 0.5]))
+OFFSET_S = 0.1234
+
+
+def camera_in_vicon(t: np.ndarray) -> np.ndarray:
+    """A handheld-like smooth motion: walking-scale translation, rotation about all three axes."""
+    pos = np.column_stack([0.6 * np.sin(2 * np.pi * f * t + p) for f, p in ((0.21, 0.3), (0.33, 1.1), (0.47, 2.0))])
+    rv = np.column_stack([0.5 * np.sin(2 * np.pi * f * t + p) + 0.2 * np.sin(2 * np.pi * 0.9 * t + k)
+                          for k, (f, p) in enumerate(((0.43, 0.3), (0.61, 1.1), (0.27, 2.0)))])
+    m = np.tile(np.eye(4), (len(t), 1, 1))
+    m[:, :3, :3] = Rotation.from_rotvec(rv).as_matrix()
+    m[:, :3, 3] = pos
+    return m
+
+
+def noisy_poses(times: np.ndarray, m: np.ndarray, noise_m: float, noise_deg: float, rng) -> Poses:
+    rotations = Rotation.from_matrix(m[:, :3, :3]) * Rotation.from_rotvec(
+        rng.normal(0, np.radians(noise_deg), (len(times), 3)))
+    return Poses.from_rotations(times, m[:, :3, 3] + rng.normal(0, noise_m, (len(times), 3)), rotations)
+
+
+@pytest.fixture
+def simulated_session(tmp_path):
+    """A session folder: SLAM at ~30 Hz (1 mm / 0.1 deg noise, jittered stamps) and mocap at 100 Hz
+    (0.2 mm / 0.03 deg noise) on a clock OFFSET_S behind; returns the folder and the true camera poses."""
+    rng = np.random.default_rng(7)
+    t_cam = 1000.0 + np.arange(0, 30, 1 / 30) + rng.normal(0, 0.0005, 900)
+    slam = noisy_poses(t_cam, np.linalg.inv(WORLD_IN_VICON) @ camera_in_vicon(t_cam - 1000.0), 0.001, 0.1, rng)
+    t_true = 999.0 + np.arange(0, 33, 0.01)
+    markers = noisy_poses(t_true - OFFSET_S, camera_in_vicon(t_true - 1000.0) @ np.linalg.inv(MARKER_CAMERA),
+                          0.0002, 0.03, rng)
+    write_tum(tmp_path / "trajectory.tum", slam)
+    write_tum(tmp_path / "mocap.tum", markers)
+    return tmp_path
+
+
+def test_offset_and_hand_eye_recovered_and_ground_truth_is_the_camera(simulated_session):
+    cfg = load_study_config()
+    result = calibrate_session(simulated_session, cfg.calibration, cfg.mocap.body)
+    assert abs(result.clock.offset_s - OFFSET_S) < 0.002
+    assert result.clock.peak_correlation > 0.95
+    x = result.marker_camera
+    assert np.linalg.norm(x[:3, 3] - MARKER_CAMERA[:3, 3]) < 0.001
+    assert np.degrees(Rotation.from_matrix(x[:3, :3].T @ MARKER_CAMERA[:3, :3]).magnitude()) < 0.5
+    assert result.hand_eye.residual_rotation_deg_median < 0.5
+    # groundtruth.tum: the camera's poses in the Vicon frame on the camera clock.
+    truth = read_tum(simulated_session / "groundtruth.tum")
+    inside = (truth.timestamps > 1001) & (truth.timestamps < 1029)
+    true = camera_in_vicon(truth.timestamps[inside] - 1000.0)
+    assert np.max(np.linalg.norm(truth.positions[inside] - true[:, :3, 3], axis=1)) < 0.003
+    assert (simulated_session / "calibration.json").is_file()
+
+
+def test_calibrate_command_keeps_existing_ground_truth(simulated_session):
+    (simulated_session / "groundtruth.tum").write_text("# kept\n")
+    run = lambda *extra: subprocess.run([sys.executable, "-m", "seesys", "study", "calibrate",  # noqa: E731
+                                         str(simulated_session), *extra], capture_output=True, text=True,
+                                        cwd=REPO, timeout=120)
+    refused = run()
+    assert refused.returncode == 2 and "--overwrite" in refused.stderr
+    assert (simulated_session / "groundtruth.tum").read_text() == "# kept\n"
+    done = run("--overwrite")
+    assert done.returncode == 0, done.stderr
+    assert "clock offset: 123." in done.stdout
+    assert len(read_tum(simulated_session / "groundtruth.tum")) > 3000
+
+
+def test_a_body_that_does_not_rotate_cannot_give_an_offset():
+    cfg = load_study_config().calibration
+    times = np.arange(0, 10, 0.01)
+    still = Poses(times, np.zeros((len(times), 3)), np.tile([0, 0, 0, 1.0], (len(times), 1)))
+    with pytest.raises(CalibrationError, match="does not rotate"):
+        estimate_clock_offset(still, still, cfg)
+
+
+def test_vicon_csv_import(tmp_path):
+    """The Nexus layout: blocks, rate, Subject:Segment, helical angles in degrees, millimetres, occlusion gaps."""
+    rotvec_deg = np.array([10.0, -20.0, 30.0])
+    rows = ["Devices", "1000", "", "Frame,Sub Frame", "", "", "Segments", "100",
+            ",,handheld:handheld,,,,,,other:other", "Frame,Sub Frame,RX,RY,RZ,TX,TY,TZ,RX,RY,RZ,TX,TY,TZ",
+            ",,deg,deg,deg,mm,mm,mm,deg,deg,deg,mm,mm,mm"]
+    for frame in range(1, 6):
+        pose = "" if frame == 3 else ",".join(map(str, [*rotvec_deg, 100.0 * frame, 200.0, 1500.0]))
+        rows.append(f"{frame},0,{pose or ',,,,,'},0,0,0,0,0,0")
+    rows += ["", "Trajectories", "100"]
+    path = tmp_path / "export.csv"
+    path.write_text("\n".join(rows) + "\n")
+    poses = read_vicon_csv(path, "handheld")
+    assert np.allclose(poses.timestamps, [0.0, 0.01, 0.03, 0.04])
+    assert np.allclose(poses.positions[:, 0], [0.1, 0.2, 0.4, 0.5])
+    assert np.allclose(poses.rotations[0].as_rotvec(), np.radians(rotvec_deg))
+    with pytest.raises(MocapImportError, match="no body 'wand'"):
+        read_vicon_csv(path, "wand")
+
+
+def test_live_logging_with_the_mock_backend_stamps_on_receipt(tmp_path):
+    before = time.time()
+    done = subprocess.run([sys.executable, "-m", "seesys", "study", "mocap", "log", "--out", str(tmp_path),
+                           "--duration", "0.5"], capture_output=True, text=True, cwd=REPO, timeout=120,
+                          env=os.environ)
+    after = time.time()
+    assert done.returncode == 0, done.stderr
+    poses = read_tum(tmp_path / "mocap.tum")
+    assert len(poses) > 5
+    assert np.all(np.diff(poses.timestamps) > 0)
+    assert before < poses.timestamps[0] and poses.timestamps[-1] < after
+    assert np.allclose(poses.positions, [0.1, 0.2, 1.5], atol=1e-6)  # the mock body of configs/study.toml
+
+
+def test_an_unreachable_server_is_an_error_not_a_hang():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # bound but not listening: connections are refused
+        cfg = dataclasses.replace(load_study_config().mocap, backend="vicon", hostname="127.0.0.1", port=port)
+        with pytest.raises(MocapUnavailable, match=f"127.0.0.1:{port}"):
+            connect(cfg)
+    assert issubclass(MocapUnavailable, SeesysError)
