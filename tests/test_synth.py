@@ -3,6 +3,7 @@ Sequences here are tiny (64×48, a few frames) so that the file runs in seconds.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -16,8 +17,9 @@ from estimator.synth.batch import render_batch
 from estimator.synth.camera_effects import LensDistortion
 from estimator.synth.config import load_synth_config
 from estimator.synth.environments import build_scene
+from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter
 from estimator.synth.renderer import RayGrid, render
-from estimator.synth.sequence import SequenceSpec, render_sequence
+from estimator.synth.sequence import SequenceSpec, plan_sequence, render_sequence
 from estimator.synth.textures import make_tile
 from estimator.synth.trajectories import MOTION_GROUPS, generate_motion, load_euroc, load_tum, place_real
 
@@ -204,3 +206,120 @@ def test_cli_render_diversity_and_errors(tmp_path):
     out = subprocess.run(seesys + ["render", "--env", "lab", "--motion", "jumping", "--out", str(tmp_path / "x")],
                          capture_output=True, text=True)
     assert out.returncode == 2 and "unknown motion 'jumping'" in out.stderr
+
+
+def _with_camera(config, **effects):
+    """The config with the lab preset seen through a camera model with ``effects`` (all else ideal)."""
+    model = dataclasses.replace(config.camera_model("ideal"), name="test", **effects)
+    presets = [dataclasses.replace(p, camera_model="test") if p.name == "lab" else p for p in config.presets]
+    return dataclasses.replace(config, camera_models=[*config.camera_models, model], presets=presets)
+
+
+def _depths(folder: Path) -> list[np.ndarray]:
+    return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((folder / "depth").glob("*.png"))]
+
+
+def _grays(folder: Path) -> list[np.ndarray]:
+    return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((folder / "rgb").glob("*.png"))]
+
+
+def test_camera_models_off_render_as_before_and_on_are_deterministic(config, tmp_path):
+    """A model with every effect off gives the same bytes as the ideal camera, and its metadata does not list it;
+    the D435-like model (every effect on) renders the same bytes on 1 and on 2 processes."""
+    render_sequence(_tiny("rapid"), config, tmp_path / "ideal", processes=1, show_progress=False)
+    render_sequence(_tiny("rapid"), _with_camera(config), tmp_path / "off", processes=1, show_progress=False)
+    assert _files(tmp_path / "ideal") == _files(tmp_path / "off")
+    assert (tmp_path / "ideal" / "metadata.json").read_text() == (tmp_path / "off" / "metadata.json").read_text()
+    d435 = dataclasses.asdict(config.camera_model("d435"))
+    del d435["name"]
+    real = _with_camera(config, **d435)
+    render_sequence(_tiny("rapid"), real, tmp_path / "one", processes=1, show_progress=False)
+    render_sequence(_tiny("rapid"), real, tmp_path / "two", processes=2, show_progress=False)
+    assert _files(tmp_path / "one") == _files(tmp_path / "two") != _files(tmp_path / "ideal")
+    assert json.loads((tmp_path / "one" / "metadata.json").read_text())["camera_model"]["rolling_shutter_s"] == 0.02
+
+
+def test_misregistered_depth_is_shifted_by_the_configured_pixels(config, tmp_path):
+    render_sequence(_tiny("rapid"), config, tmp_path / "ideal", processes=1, show_progress=False)
+    render_sequence(_tiny("rapid"), _with_camera(config, depth_misregistration_px=(3.0, 2.0)), tmp_path / "shifted",
+                    processes=1, show_progress=False)
+    for ideal, shifted in zip(_depths(tmp_path / "ideal"), _depths(tmp_path / "shifted")):
+        assert np.array_equal(shifted[2:, 3:], ideal[:-2, :-3])  # every depth edge moved by (3, 2) px
+        assert not shifted[:2].any() and not shifted[:, :3].any()  # uncovered pixels have no depth
+    assert [g.tobytes() for g in _grays(tmp_path / "ideal")] == [g.tobytes() for g in _grays(tmp_path / "shifted")]
+
+
+def test_unregistered_and_late_depth_is_the_depth_cameras_own_view(config, tmp_path):
+    """Depth from a camera 5 cm to the side, captured 20 ms late: each depth image is the exact depth at that
+    pose, not the colour camera's."""
+    spec = _tiny("rapid", blur=False)
+    late = _with_camera(config, depth_offset_m=(0.05, 0.0, 0.0), depth_delay_s=0.02)
+    render_sequence(spec, late, tmp_path / "late", processes=1, show_progress=False)
+    render_sequence(spec, config, tmp_path / "ideal", processes=1, show_progress=False)
+    plan = plan_sequence(spec, late)
+    grid = RayGrid.for_camera(plan.camera)
+    positions, rotations = plan.trajectory.interpolate(plan.frame_times + 0.02)
+    depths, ideal = _depths(tmp_path / "late"), _depths(tmp_path / "ideal")
+    for k, (p, r) in enumerate(zip(positions, rotations.as_matrix())):
+        expected = render(plan.scene, r, p + r @ np.array([0.05, 0.0, 0.0]), grid).depth
+        assert np.array_equal(depths[k], np.clip(np.rint(expected * config.camera.depth_factor), 0, 65535))
+        assert np.abs(depths[k].astype(float) - ideal[k]).mean() > 10  # > 2 mm on average: another view
+    assert [g.tobytes() for g in _grays(tmp_path / "late")] == [g.tobytes() for g in _grays(tmp_path / "ideal")]
+
+
+def test_rolling_shutter_shears_an_edge_by_the_motion_during_readout(config):
+    """A vertical edge, image motion −4 px at the first row's time and +4 px at the last row's: the edge is read
+    4 px left at the top and 4 px right at the bottom, linearly in between."""
+    grid = RayGrid.for_camera(config.camera.scaled(64, 48))
+    image = np.zeros((48, 64), np.float32)
+    image[:, 32:] = 1.0
+    first, last = np.zeros((48, 64, 2), np.float32), np.zeros((48, 64, 2), np.float32)
+    first[..., 0], last[..., 0] = -4.0, 4.0
+    sheared = rolling_shutter(image, grid, first, last)
+    edge = (sheared > 0.5).argmax(axis=1)  # first bright column of each row
+    expected = np.rint(32 - 4 + 8 * np.arange(48) / 47 + 1e-6)
+    assert np.abs(edge - expected).max() <= 1 and edge[0] == 28 and edge[-1] == 36
+
+
+def test_auto_exposure_lags_and_overshoots_a_light_step():
+    """A step of the exposure target at frame 30: the loop (0.3 s, damping 0.5) is still far from it one frame
+    later, overshoots by exp(−πζ/√(1−ζ²)) = 16 %, and settles; critically damped it never overshoots."""
+    target = np.r_[np.zeros(30), np.full(120, np.log(2.0))]
+    lagged = auto_exposure_response(target, 30.0, 0.3, 0.5)
+    step = np.log(2.0)
+    assert lagged[29] == 0.0 and lagged[30] < 0.05 * step
+    assert (lagged.max() - step) / step == pytest.approx(np.exp(-np.pi * 0.5 / np.sqrt(0.75)), abs=0.02)
+    assert abs(lagged[-1] - step) < 0.01 * step
+    damped = auto_exposure_response(target, 30.0, 0.3, 1.0)
+    assert damped.max() <= step + 1e-9 and damped[45] < step
+    np.testing.assert_array_equal(auto_exposure_response(target, 30.0, 0.0, 0.5), target)
+
+
+def test_auto_exposure_lag_shows_in_the_exposure_schedule(config):
+    spec = SequenceSpec("lab", "aiming", 7, frames=300, width=64, height=48)
+    ideal = plan_sequence(spec, config)
+    lagged = plan_sequence(spec, _with_camera(config, auto_exposure_time_constant_s=0.5, auto_exposure_damping=0.5))
+    assert lagged.exposure_s[0] == pytest.approx(ideal.exposure_s[0]) and np.array_equal(lagged.light, ideal.light)
+    # The exposure trails the light: it is best matched by the ideal schedule some frames earlier.
+    errors = [np.abs(lagged.exposure_s[30 + d:] - ideal.exposure_s[30:300 - d]).mean() for d in range(0, 30)]
+    assert int(np.argmin(errors)) >= 5
+
+
+def test_depth_noise_grows_with_the_square_of_depth():
+    rng = np.random.default_rng(0)
+    flat = np.concatenate([np.full((100, 100), 1.0, np.float32), np.full((100, 100), 2.0, np.float32),
+                           np.zeros((10, 100), np.float32)])
+    noisy = depth_noise(flat, 0.0042, rng)
+    assert np.std(noisy[:100]) == pytest.approx(0.0042, rel=0.05)
+    assert np.std(noisy[100:200]) == pytest.approx(4 * 0.0042, rel=0.05)
+    assert not noisy[200:].any()  # no depth stays no depth
+    np.testing.assert_array_equal(noisy, depth_noise(flat, 0.0042, np.random.default_rng(0)))
+
+
+def test_colour_noise_scale_scales_the_sensor_noise(config):
+    spec = SequenceSpec("lab", "aiming", 7, frames=2, width=64, height=48)
+    ideal = plan_sequence(spec, config).photometry
+    noisy = plan_sequence(spec, _with_camera(config, colour_noise_scale=2.0)).photometry
+    flat = np.full((200, 200), 0.3, np.float32)
+    sigma = [float(np.std(p.expose(flat, np.random.default_rng(1)).astype(float))) for p in (ideal, noisy)]
+    assert sigma[1] / sigma[0] == pytest.approx(2.0, rel=0.1)

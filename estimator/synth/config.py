@@ -83,6 +83,34 @@ class MotionConfig:
 
 
 @dataclass(frozen=True)
+class CameraModel:
+    """What a real RGB-D camera adds to the ideal rendered one (estimator/synth/real_camera.py); every effect is
+    off at zero (``auto_exposure_damping`` and ``colour_noise_scale`` at 1)."""
+
+    name: str
+    depth_offset_m: tuple[float, float, float]
+    depth_misregistration_px: tuple[float, float]
+    depth_delay_s: float
+    rolling_shutter_s: float
+    auto_exposure_time_constant_s: float
+    auto_exposure_damping: float
+    depth_noise_m_per_m2: float
+    colour_noise_scale: float
+
+    @property
+    def separate_depth_view(self) -> bool:
+        """True when depth is seen from another pose than colour (offset or delayed) and must be ray-cast apart."""
+        return any(self.depth_offset_m) or self.depth_delay_s != 0
+
+    @property
+    def ideal(self) -> bool:
+        """True when the model changes nothing: the renders are the ideal camera's, byte for byte."""
+        return (not self.separate_depth_view and not any(self.depth_misregistration_px)
+                and self.rolling_shutter_s == 0 and self.auto_exposure_time_constant_s == 0
+                and self.depth_noise_m_per_m2 == 0 and self.colour_noise_scale == 1)
+
+
+@dataclass(frozen=True)
 class EnvironmentPreset:
     """How one kind of environment looks: size, clutter, texture statistics and lighting."""
 
@@ -103,6 +131,7 @@ class EnvironmentPreset:
     albedo: float
     albedo_spread: float
     shot_noise_scale: float
+    camera_model: str
 
 
 @dataclass(frozen=True)
@@ -125,6 +154,7 @@ class SynthConfig:
     trajectory: TrajectoryConfig
     motion: MotionConfig
     real_trajectories: list[RealTrajectory]
+    camera_models: list[CameraModel]
     presets: list[EnvironmentPreset]
 
     def preset(self, name: str) -> EnvironmentPreset:
@@ -135,6 +165,13 @@ class SynthConfig:
         known = ", ".join(p.name for p in self.presets)
         raise ConfigError(f"unknown environment preset {name!r} (configs/synth.toml has: {known})")
 
+    def camera_model(self, name: str) -> CameraModel:
+        """The camera model called ``name``; a :class:`ConfigError` lists the known ones otherwise."""
+        for model in self.camera_models:
+            if model.name == name:
+                return model
+        known = ", ".join(m.name for m in self.camera_models)
+        raise ConfigError(f"unknown camera model {name!r} (configs/synth.toml has: {known})")
 
     def real_trajectory(self, name: str) -> RealTrajectory:
         for real in self.real_trajectories:

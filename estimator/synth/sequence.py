@@ -29,8 +29,9 @@ import numpy as np
 from rich.progress import Progress
 
 from estimator.synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
-from estimator.synth.config import CameraConfig, SynthConfig
+from estimator.synth.config import CameraConfig, CameraModel, SynthConfig
 from estimator.synth.environments import Scene, build_scene
+from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter, shift_depth
 from estimator.synth.renderer import RayGrid, render
 from estimator.synth.trajectories import (MOTION_GROUPS, Trajectory, TrajectoryError, generate_motion, load_euroc,
                                           load_tum, place_real)
@@ -70,6 +71,7 @@ class SequencePlan:
     signal_scale: np.ndarray
     gain: float
     photometry: Photometry
+    camera_model: CameraModel
 
 
 def _draw_range(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
@@ -124,14 +126,20 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     low, high = sensor.light_modulation
     light = low + (high - low) * (wave - wave.min()) / max(np.ptp(wave), 1e-9) if count > 1 else np.full(1, high)
     base = _draw_range(rng, sensor.base_exposure_ms) / 1000.0
-    exposure = np.clip(base * light ** (-sensor.auto_exposure_strength), sensor.exposure_min_ms / 1000.0,
-                       sensor.exposure_max_ms / 1000.0)
+    model = config.camera_model(preset.camera_model)
+    target = base * light ** (-sensor.auto_exposure_strength)
+    if model.auto_exposure_time_constant_s > 0:
+        target = np.exp(auto_exposure_response(np.log(target), camera.fps, model.auto_exposure_time_constant_s,
+                                               model.auto_exposure_damping))
+    exposure = np.clip(target, sensor.exposure_min_ms / 1000.0, sensor.exposure_max_ms / 1000.0)
     gain = _draw_range(rng, sensor.gain)
     signal = sensor.signal_scale * gain * light * exposure / base
-    photometry = Photometry(sensor.signal_scale, _draw_range(rng, sensor.shot_noise_dn_per_e) * preset.shot_noise_scale,
-                            _draw_range(rng, sensor.read_noise_dn), sensor.black_level_dn)
+    noise = model.colour_noise_scale
+    photometry = Photometry(sensor.signal_scale,
+                            _draw_range(rng, sensor.shot_noise_dn_per_e) * preset.shot_noise_scale * noise**2,
+                            _draw_range(rng, sensor.read_noise_dn) * noise, sensor.black_level_dn)
     return SequencePlan(spec, camera, scene, trajectory, group, name, frame_times, exposure, light, signal, gain,
-                        photometry)
+                        photometry, model)
 
 
 @dataclass(frozen=True)
@@ -168,19 +176,35 @@ class _Worker:
 
     @classmethod
     def render_frame(cls, index: int) -> FrameRecord:
-        plan = cls.plan
+        plan, model = cls.plan, cls.plan.camera_model
         t = plan.frame_times[index]
         exposure = plan.exposure_s[index]
-        positions, rotations = plan.trajectory.interpolate(np.array([t, t - exposure / 2, t + exposure / 2]))
+        readout = model.rolling_shutter_s
+        # Poses: mid-exposure, exposure start and end, first and last row read, depth capture.
+        times = np.array([t, t - exposure / 2, t + exposure / 2, t - readout / 2, t + readout / 2,
+                          t + model.depth_delay_s])
+        positions, rotations = plan.trajectory.interpolate(times)
         matrices = rotations.as_matrix()
         sharp = render(plan.scene, matrices[0], positions[0], cls.grid)
         image, depth, streak = sharp.radiance, sharp.depth, 0.0
+
+        def flow_to(k: int) -> np.ndarray:
+            return image_motion(sharp.depth, cls.grid, matrices[k].T @ matrices[0],
+                                matrices[k].T @ (positions[0] - positions[k]))
+
         if plan.spec.blur:
-            flows = [image_motion(depth, cls.grid, matrices[k].T @ matrices[0],
-                                  matrices[k].T @ (positions[0] - positions[k])) for k in (1, 2)]
-            image, streak = motion_blur(image, cls.grid, flows[0], flows[1], cls.max_samples)
+            image, streak = motion_blur(image, cls.grid, flow_to(1), flow_to(2), cls.max_samples)
+        if readout > 0:
+            image = rolling_shutter(image, cls.grid, flow_to(3), flow_to(4))
+        if model.separate_depth_view:
+            centre = positions[5] + matrices[5] @ np.asarray(model.depth_offset_m)
+            depth = render(plan.scene, matrices[5], centre, cls.grid).depth
+        if any(model.depth_misregistration_px):
+            depth = shift_depth(depth, model.depth_misregistration_px)
         if cls.lens is not None:
             image, depth = cls.lens.apply(image, depth)
+        if model.depth_noise_m_per_m2 > 0:
+            depth = depth_noise(depth, model.depth_noise_m_per_m2, np.random.default_rng([plan.spec.seed, index, 0xD3]))
         rng = np.random.default_rng([plan.spec.seed, index, 0xF1])
         gray = dataclasses.replace(plan.photometry, signal_scale=float(plan.signal_scale[index])).expose(image, rng)
         stamp = frame_stamp(cls.start_time + t)
@@ -252,7 +276,10 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
     _write_calibration(out / "calibration.yaml", plan, config)
     metadata = {
         "environment": plan.scene.preset.name,
-        "preset": dataclasses.asdict(plan.scene.preset),
+        # The camera model is listed (in full) only when it changes the renders: the metadata of a render with the
+        # ideal camera stays as it was before camera models existed.
+        "preset": {k: v for k, v in dataclasses.asdict(plan.scene.preset).items()
+                   if k != "camera_model" or not plan.camera_model.ideal},
         "motion_group": plan.motion_group,
         "trajectory": plan.trajectory_name,
         "motion": plan.spec.motion,
@@ -267,6 +294,8 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
         "boxes": len(plan.scene.boxes),
         "generator": "seesys synth render (numpy ray caster, procedural textures)",
     }
+    if not plan.camera_model.ideal:
+        metadata["camera_model"] = dataclasses.asdict(plan.camera_model)
     with open(out / "metadata.json", "w") as f:
         json.dump(metadata, f, indent=2)
         f.write("\n")
