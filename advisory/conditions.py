@@ -15,7 +15,7 @@ from advisory.config import AdvisoryConfig
 from advisory.pulses import error_pulses, rotation_pulses
 from advisory.rotation import RotationSpeed
 from seesys.network import NetworkConfig
-from seesys.protocol.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame
+from seesys.protocol.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame, topic
 
 
 class Condition(str, Enum):
@@ -51,15 +51,20 @@ def pulse_rule(condition: Condition, cfg: AdvisoryConfig) -> Callable[[float], i
     return lambda e: error_pulses(e, cfg.equation2, buffer_s)
 
 
+def _subscription(kind: bytes, device_id: str) -> bytes:
+    """The exact topic of one device, or the kind's prefix (every device) for an empty ``device_id``."""
+    return topic(kind, device_id) if device_id else kind
+
+
 def condition_input(condition: Condition, cfg: AdvisoryConfig, network: NetworkConfig) -> ConditionInput:
-    device = cfg.timing.device_id.encode("utf-8")
+    device = cfg.timing.device_id
     if condition is Condition.ROTATION:
         speed = RotationSpeed(cfg.rotation)
 
         def sample(message: Estimate | FeatureFrame) -> float | None:
             return speed.update(message) if isinstance(message, FeatureFrame) else None
 
-        return ConditionInput(network.features_endpoint, FEATURE_TOPIC + device, sample,
+        return ConditionInput(network.features_endpoint, _subscription(FEATURE_TOPIC, device), sample,
                               pulse_rule(condition, cfg), "deg/s")
-    return ConditionInput(network.estimates_endpoint, ESTIMATE_TOPIC + device, _estimate_error,
+    return ConditionInput(network.estimates_endpoint, _subscription(ESTIMATE_TOPIC, device), _estimate_error,
                           pulse_rule(condition, cfg), "m")

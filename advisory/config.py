@@ -57,6 +57,7 @@ class AudioConfig:
 class HandoffConfig:
     endpoint: str
     poll_ms: int
+    send_high_water_mark: int
 
 
 @dataclass(frozen=True)

@@ -18,12 +18,13 @@ import zmq
 
 from advisory.conditions import Condition, ConditionInput, condition_input
 from advisory.config import AdvisoryConfig
-from advisory.handoff import AudioBuffer, bind_publisher, connect_subscriber, encode_buffer
+from advisory.handoff import AudioBuffer, encode_buffer
 from advisory.logs import ADVISORY_COLUMNS, ADVISORY_CSV, CsvLog, EventLog
 from advisory.scheduler import Decision, PulseScheduler
 from advisory.synth import synthesise
 from seesys.network import NetworkConfig
 from seesys.protocol.messages import MessageError, decode
+from seesys.protocol.transport import publisher, subscriber
 
 # Bad messages: the first few are logged one by one, then one line per this many, so a broken sender cannot
 # flood the log.
@@ -41,9 +42,8 @@ class Generator:
         self._events = EventLog(out, "generator")
         self._log = CsvLog(out / ADVISORY_CSV, ADVISORY_COLUMNS)
         self._ctx = zmq.Context()
-        self._pub = bind_publisher(self._ctx, cfg.handoff.endpoint, "advisory hand-off")
-        self._sub = connect_subscriber(self._ctx, self._input.endpoint, self._input.topic, conflate=False,
-                                       what=f"{condition.value} input")
+        self._pub = publisher(self._ctx, cfg.handoff.endpoint, "advisory hand-off", cfg.handoff.send_high_water_mark)
+        self._sub = subscriber(self._ctx, self._input.endpoint, f"{condition.value} input", [self._input.topic])
         self._scheduler = PulseScheduler(self._input.rule, cfg.timing.window_s, cfg.timing.cadence_s,
                                          cfg.timing.stale_after_s, time.monotonic())
         self._status = self._scheduler.status

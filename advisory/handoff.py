@@ -15,7 +15,6 @@ import struct
 from dataclasses import dataclass
 
 import numpy as np
-import zmq
 
 from seesys.errors import SeesysError
 
@@ -26,7 +25,7 @@ _HEAD = struct.Struct("<4sBBBBIQdddI")
 
 
 class HandoffError(SeesysError):
-    """A hand-off message is malformed, or the hand-off endpoint cannot be used."""
+    """A hand-off message is malformed."""
 
 
 @dataclass(frozen=True)
@@ -61,34 +60,3 @@ def decode_buffer(body: bytes) -> AudioBuffer:
         raise HandoffError("hand-off message has a bad trigger or a sample count that does not match its length")
     samples = np.frombuffer(body, dtype="<f4", offset=_HEAD.size).astype(np.float32)
     return AudioBuffer(buffer_id, _TRIGGERS[trigger], n, played, rate, t, play_at, arrival, samples)
-
-
-def _attach(sock: zmq.Socket, bind: bool, endpoint: str, what: str) -> zmq.Socket:
-    """Bind or connect ``sock``, turning a failure (address in use, malformed endpoint) into a HandoffError."""
-    try:
-        if bind:
-            sock.bind(endpoint)
-        else:
-            sock.connect(endpoint)
-    except zmq.ZMQError as e:
-        sock.close()
-        action, hint = ("bind", " (is another one running?)") if bind else ("connect to", "")
-        raise HandoffError(f"cannot {action} the {what} endpoint {endpoint}: {e}{hint}") from None
-    return sock
-
-
-def bind_publisher(ctx: zmq.Context, endpoint: str, what: str) -> zmq.Socket:
-    """A PUB socket bound to ``endpoint``, with a clear error when that is impossible (e.g. already in use)."""
-    sock = ctx.socket(zmq.PUB)
-    sock.setsockopt(zmq.LINGER, 0)
-    return _attach(sock, True, endpoint, what)
-
-
-def connect_subscriber(ctx: zmq.Context, endpoint: str, topic: bytes, conflate: bool, what: str) -> zmq.Socket:
-    """A SUB socket connected to ``endpoint`` for ``topic``; with ``conflate`` it keeps only the newest message."""
-    sock = ctx.socket(zmq.SUB)
-    sock.setsockopt(zmq.LINGER, 0)
-    if conflate:
-        sock.setsockopt(zmq.CONFLATE, 1)
-    sock.setsockopt(zmq.SUBSCRIBE, topic)
-    return _attach(sock, False, endpoint, what)

@@ -31,9 +31,10 @@ import zmq
 
 from advisory.audio_device import find_output_device, open_output_stream
 from advisory.config import AdvisoryConfig
-from advisory.handoff import AudioBuffer, HandoffError, connect_subscriber, decode_buffer
+from advisory.handoff import AudioBuffer, HandoffError, decode_buffer
 from advisory.logs import PLAYBACK_COLUMNS, PLAYBACK_CSV, CsvLog, EventLog
 from advisory.wav import WavWriter
+from seesys.protocol.transport import subscriber
 
 DEVICE_LOST_EXIT = 3
 
@@ -103,7 +104,7 @@ class Player:
         self._log = CsvLog(out / PLAYBACK_CSV, PLAYBACK_COLUMNS)
         self._wav = WavWriter(capture, cfg.audio.sample_rate) if capture else None
         self._ctx = zmq.Context()
-        self._sub = connect_subscriber(self._ctx, cfg.handoff.endpoint, b"", conflate=True, what="advisory hand-off")
+        self._sub = subscriber(self._ctx, cfg.handoff.endpoint, "advisory hand-off", [b""], conflate=True)
         self._receiver_notes: deque[tuple[str, str]] = deque()
         self._device = device
 

@@ -13,16 +13,15 @@ from rich.progress import Progress
 
 from advisory.config import ReplayConfig
 from advisory.estimate_log import EstimateLog
-from advisory.handoff import bind_publisher
 from seesys.network import NetworkConfig
 from seesys.protocol.messages import Estimate, encode
+from seesys.protocol.transport import publisher
 
 
 def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkConfig, show_progress: bool) -> int:
     """Publish every estimate at ``start + (timestamp − first timestamp)``; returns how many were sent."""
     ctx = zmq.Context()
-    pub = bind_publisher(ctx, network.estimates_endpoint, "estimates")
-    pub.setsockopt(zmq.SNDHWM, network.send_high_water_mark)
+    pub = publisher(ctx, network.estimates_endpoint, "estimates", network.send_high_water_mark)
     try:
         time.sleep(replay.replay_settle_s)  # subscribers connect; PUB drops what it sends before that
         start = time.monotonic()

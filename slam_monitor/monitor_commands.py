@@ -24,8 +24,8 @@ def format_monitor_stats(stats: dict) -> str:
              f"{stats['psd_matrices']} PSD matrices, {stats['monitor_ms_median']:.2f} ms/frame median "
              f"({stats['monitor_ms_p90']:.2f} p90)"]
     if stats["stream"] is not None:
-        lines.append(f"stream:  {stats['stream']['messages']} messages, {stats['stream_kbit_per_s']:.1f} kbit/s "
-                     f"at the camera rate, {stats['stream']['dropped']} dropped")
+        lines.append(f"stream:  {stats['stream']['messages']} messages published, {stats['stream_kbit_per_s']:.1f} "
+                     f"kbit/s at the camera rate (receivers count what they miss)")
     return "\n".join(lines)
 
 

@@ -3,7 +3,9 @@ already written:
 
 - ``rts.csv``: ``frame_index, timestamp, tracking_state`` (state name) and one column per RTS channel, in
   :mod:`seesys.protocol.rts_schema` order and units; ``nan`` where a channel has no value (e.g. motion on a frame
-  without a pose).
+  without a pose). A plain CSV that pandas and R read as it is.
+- ``rts.json``: the schema ``rts.csv`` was written with (``rts_schema_version``, ``rts_schema_fingerprint``, the
+  channels with their units). Readers refuse an ``rts.csv`` without it, or of another schema.
 - ``psd/psd_NNNNNN.bin``: the PSD matrices, in chunks of ``psd_chunk_records`` records. A record is
   ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`seesys.protocol.messages.pack_psd` (the zlib'd
   matrix, the same bytes as on the wire). A record cut short by a crash at the end of the last chunk
@@ -13,6 +15,7 @@ already written:
 from __future__ import annotations
 
 import csv
+import json
 import math
 import struct
 from collections.abc import Iterator
@@ -28,6 +31,7 @@ from seesys.protocol.messages import FeatureFrame, MessageError, pack_psd, unpac
 from seesys.protocol.tracking_state import TrackingState
 
 RTS_CSV = "rts.csv"
+RTS_JSON = "rts.json"
 PSD_DIR = "psd"
 RTS_COLUMNS: tuple[str, ...] = ("frame_index", "timestamp", "tracking_state", *rts_schema.CHANNEL_NAMES)
 _RECORD = struct.Struct("<Iqd")
@@ -37,10 +41,17 @@ class MonitorLogError(SeesysError):
     """A monitor log in a session folder is missing or malformed."""
 
 
+def schema_metadata() -> dict:
+    """What ``rts.json`` records: the schema of the ``rts.csv`` beside it."""
+    return {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_schema_fingerprint": rts_schema.FINGERPRINT,
+            "channels": [{"name": c.name, "unit": c.unit} for c in rts_schema.CHANNELS]}
+
+
 class RtsCsvWriter:
-    """Appends one ``rts.csv`` row per frame."""
+    """Appends one ``rts.csv`` row per frame (and writes ``rts.json`` beside it first)."""
 
     def __init__(self, path: Path):
+        (path.parent / RTS_JSON).write_text(json.dumps(schema_metadata(), indent=2) + "\n")
         self._file = open(path, "w", newline="")
         self._csv = csv.writer(self._file)
         self._csv.writerow(RTS_COLUMNS)
@@ -122,13 +133,33 @@ def read_psd_log(session: Path) -> Iterator[PsdRecord]:
             raise MonitorLogError(f"{chunk}: truncated PSD record at byte {pos} in a chunk that is not the last")
 
 
+def check_rts_schema(session: Path) -> None:
+    """Raise :class:`MonitorLogError` unless the session's ``rts.json`` says its ``rts.csv`` has this schema."""
+    path = Path(session) / RTS_JSON
+    try:
+        meta = json.loads(path.read_text())
+        version, fingerprint = int(meta["rts_schema_version"]), int(meta["rts_schema_fingerprint"])
+    except FileNotFoundError:
+        raise MonitorLogError(f"{session} has no {RTS_JSON}: its {RTS_CSV} was written by an older SEESys, with an "
+                              f"RTS schema that cannot be checked (re-run the session to log it again)") from None
+    except (ValueError, KeyError, TypeError) as e:
+        raise MonitorLogError(f"{path}: malformed ({e})") from None
+    try:
+        rts_schema.check_compatible(version, fingerprint, f"{session / RTS_CSV}")
+    except rts_schema.SchemaMismatch as e:
+        raise MonitorLogError(str(e)) from None
+
+
 def read_rts_csv(session: Path) -> pd.DataFrame:
-    """``rts.csv`` of a session as a DataFrame, its columns checked against the schema."""
+    """``rts.csv`` of a session as a DataFrame, its schema (``rts.json``) and columns checked."""
     path = Path(session) / RTS_CSV
+    if not path.is_file():
+        raise MonitorLogError(f"no RTS log in {session} (missing {path})")
+    check_rts_schema(session)
     try:
         table = pd.read_csv(path)
-    except FileNotFoundError:
-        raise MonitorLogError(f"no RTS log in {session} (missing {path})") from None
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
+        raise MonitorLogError(f"cannot read {path}: {e}") from None
     if tuple(table.columns) != RTS_COLUMNS:
         raise MonitorLogError(f"{path}: columns {list(table.columns)} do not match RTS schema "
                               f"v{rts_schema.SCHEMA_VERSION} ({', '.join(RTS_COLUMNS)})")

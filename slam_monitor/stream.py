@@ -2,8 +2,10 @@
 
 The device's PUB socket binds ``features_endpoint`` of ``configs/network.toml``; estimators and advisories
 connect SUB sockets. A PUB socket never blocks its sender: with no subscriber, messages are discarded, and when a
-subscriber lags by more than the high-water mark, new messages are dropped (counted here) — the device keeps
-tracking and logging either way.
+subscriber lags by more than the high-water mark, new messages are dropped — the device keeps tracking and logging
+either way. ZeroMQ does not tell the sender what it dropped, so the publisher counts only what it sent, and every
+message carries the device's count of frames it did not publish; the subscriber counts per device what it
+missed (:class:`seesys.protocol.transport.LossCounter`).
 """
 
 from __future__ import annotations
@@ -12,13 +14,9 @@ from dataclasses import dataclass
 
 import zmq
 
-from seesys.errors import SeesysError
 from seesys.protocol import messages
 from seesys.protocol.messages import FeatureFrame, MessageError
-
-
-class StreamError(SeesysError):
-    """The feature stream socket cannot be opened."""
+from seesys.protocol.transport import LossCounter, bound_endpoint, publisher, subscriber
 
 
 def _zmtp_frame_overhead(size: int) -> int:
@@ -28,10 +26,11 @@ def _zmtp_frame_overhead(size: int) -> int:
 
 @dataclass
 class StreamStats:
+    """What the device handed to its PUB socket (not what arrived: PUB cannot know that)."""
+
     messages: int = 0
     payload_bytes: int = 0
     wire_bytes: int = 0
-    dropped: int = 0
 
 
 class FeaturePublisher:
@@ -39,25 +38,14 @@ class FeaturePublisher:
 
     def __init__(self, endpoint: str, send_high_water_mark: int):
         self.endpoint = endpoint
-        self._socket = zmq.Context.instance().socket(zmq.PUB)
-        self._socket.setsockopt(zmq.SNDHWM, send_high_water_mark)
-        self._socket.setsockopt(zmq.LINGER, 0)
-        try:
-            self._socket.bind(endpoint)
-        except zmq.ZMQError as e:
-            self._socket.close()
-            raise StreamError(f"cannot open the feature stream on {endpoint}: {e}") from None
+        self._socket = publisher(zmq.Context.instance(), endpoint, "feature stream", send_high_water_mark)
         #: The endpoint actually bound (differs from ``endpoint`` when that uses a wildcard port, ``tcp://host:*``).
-        self.bound_endpoint = self._socket.getsockopt_string(zmq.LAST_ENDPOINT)
+        self.bound_endpoint = bound_endpoint(self._socket)
         self.stats = StreamStats()
 
     def publish(self, frame: FeatureFrame) -> None:
         parts = messages.encode(frame)
-        try:
-            self._socket.send_multipart(parts, flags=zmq.NOBLOCK)
-        except zmq.Again:
-            self.stats.dropped += 1
-            return
+        self._socket.send_multipart(parts, flags=zmq.NOBLOCK)
         payload = sum(len(p) for p in parts)
         self.stats.messages += 1
         self.stats.payload_bytes += payload
@@ -68,18 +56,18 @@ class FeaturePublisher:
 
 
 class FeatureSubscriber:
-    """Receives feature frames from a device's PUB socket; malformed messages are counted and skipped."""
+    """Receives feature frames from a device's PUB socket (one device, or every device with ``device_id=None``).
 
-    def __init__(self, endpoint: str, device_id: str = ""):
-        self._socket = zmq.Context.instance().socket(zmq.SUB)
-        self._socket.setsockopt(zmq.LINGER, 0)
-        self._socket.setsockopt(zmq.SUBSCRIBE, messages.FEATURE_TOPIC + device_id.encode("utf-8"))
-        try:
-            self._socket.connect(endpoint)
-        except zmq.ZMQError as e:
-            self._socket.close()
-            raise StreamError(f"cannot connect to the feature stream at {endpoint}: {e}") from None
+    Malformed messages and messages of another protocol or RTS schema are counted in ``malformed`` and skipped;
+    frames that never arrived are counted per device in ``losses``.
+    """
+
+    def __init__(self, endpoint: str, device_id: str | None = None, receive_high_water_mark: int | None = None):
+        topic = messages.FEATURE_TOPIC if device_id is None else messages.topic(messages.FEATURE_TOPIC, device_id)
+        self._socket = subscriber(zmq.Context.instance(), endpoint, "feature stream", [topic],
+                                  receive_hwm=receive_high_water_mark)
         self.malformed = 0
+        self.losses = LossCounter()
 
     def receive(self, timeout_ms: int) -> FeatureFrame | None:
         """The next valid feature frame, or None when none arrives within ``timeout_ms``."""
@@ -90,6 +78,7 @@ class FeatureSubscriber:
                 self.malformed += 1
                 continue
             if isinstance(message, FeatureFrame):
+                self.losses.observe(message)
                 return message
             self.malformed += 1
         return None

@@ -1,3 +1,4 @@
+import dataclasses
 import math
 import struct
 
@@ -31,7 +32,7 @@ def test_feature_round_trip_with_and_without_psd():
 def test_estimate_round_trip_and_topic():
     msg = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", 3.5)
     topic, body = encode(msg)
-    assert topic == b"E/dev-1"
+    assert topic == b"E/dev-1\x00"
     assert decode([topic, body]) == msg
 
 
@@ -50,7 +51,8 @@ def test_mostly_zero_psd_compresses():
         (lambda t, b: [t, b"JUNK" + b[4:]], "magic"),
         (lambda t, b: [t, b[:4] + bytes([99]) + b[5:]], "protocol version 99"),
         (lambda t, b: [t, b[:5] + bytes([7]) + b[6:]], "unknown message kind"),
-        (lambda t, b: [b"F/other", b], "does not match"),
+        (lambda t, b: [b"F/other\x00", b], "does not match"),
+        (lambda t, b: [b"F/dev-1", b], "does not match"),
         (lambda t, b: [t], "expected 2 message parts"),
     ],
 )
@@ -62,7 +64,7 @@ def test_malformed_messages_raise_message_error(mangle, message):
 
 def test_wrong_channel_count_and_bad_values_are_rejected():
     topic, body = encode(feature())
-    head = 4 + 1 + 1 + 1 + len(b"dev-1") + 16
+    head = 4 + 1 + 1 + 1 + len(b"dev-1") + 16 + 2 + 4 + 4
     wrong = body[:head] + struct.pack("<bH", 2, 3) + body[head + 3:]
     with pytest.raises(MessageError, match="channels"):
         decode([topic, wrong])
@@ -85,5 +87,29 @@ def test_psd_that_lies_about_its_shape_is_rejected():
         decode([topic, lying])
 
 
-def test_protocol_constants():
-    assert messages.PROTOCOL_VERSION == 1
+def test_frames_of_another_rts_schema_are_refused_by_name():
+    frame = feature()
+    for other in (dataclasses.replace(frame, rts_schema_version=rts_schema.SCHEMA_VERSION + 1),
+                  dataclasses.replace(frame, rts_schema_fingerprint=rts_schema.FINGERPRINT ^ 1)):
+        with pytest.raises(MessageError, match=f"device 'dev-1' uses RTS schema v{other.rts_schema_version}"):
+            decode(encode(other))
+    out = decode(encode(dataclasses.replace(frame, frames_skipped=12)))
+    assert (out.frames_skipped, out.rts_schema_version, out.rts_schema_fingerprint) == (
+        12, rts_schema.SCHEMA_VERSION, rts_schema.FINGERPRINT)
+
+
+def test_a_message_of_protocol_version_1_is_refused():
+    topic, body = encode(feature())
+    old = body[:4] + bytes([1]) + body[5:]
+    with pytest.raises(MessageError, match=f"protocol version 1 is not supported .this end speaks "
+                                           f"{messages.PROTOCOL_VERSION}"):
+        decode([topic, old])
+
+
+def test_topics_are_exact_and_device_ids_are_checked():
+    assert messages.topic(messages.FEATURE_TOPIC, "dev-1") == b"F/dev-1\x00"
+    assert not messages.topic(messages.FEATURE_TOPIC, "dev-10").startswith(messages.topic(messages.FEATURE_TOPIC,
+                                                                                             "dev-1"))
+    for bad in ("", "a\x00b"):
+        with pytest.raises(ValueError, match="device id"):
+            messages.topic(messages.ESTIMATE_TOPIC, bad)

@@ -18,7 +18,10 @@ from seesys.protocol import rts_schema
 from slam_monitor.frame import Frame, Intrinsics
 from slam_monitor.monitor import FeatureExtractor, MonitorInput, RtsMonitor
 from slam_monitor.monitor_config import load_monitor_config
-from slam_monitor.rts_log import MonitorLogError, read_feature_frames, read_psd_log, read_rts_csv
+from slam_monitor.rts_log import MonitorLogError, read_feature_frames, read_psd_log, read_rts_csv, schema_metadata
+from slam_monitor.stream import FeaturePublisher, FeatureSubscriber
+from stream_fixtures import wait_until_subscribed
+from seesys.protocol.messages import FeatureFrame
 from seesys.protocol.tracking_state import TrackingState
 from seesys.protocol.windows import assemble_windows
 
@@ -64,7 +67,7 @@ def test_feature_row_of_constructed_frames():
     def item(index, state, pose, prev, uv):
         out = track_output(index, state, pose, points_w, uv)
         return MonitorInput(Frame(index, index / 30, gray(index), INTR), state, out.pose_cw, out.pose_wc, prev,
-                            out.num_tracked_points, out.keypoints, out.map_points, False)
+                            out.num_tracked_points, out.keypoints, out.map_points, False, 0)
 
     row_of = {name: i for i, name in enumerate(rts_schema.CHANNEL_NAMES)}
     f10 = extractor.extract(item(10, TrackingState.OK, first, None, uv0))
@@ -141,8 +144,35 @@ def test_bad_rts_log_is_a_clear_error(tmp_path):
     with pytest.raises(MonitorLogError, match="missing"):
         read_rts_csv(tmp_path)
     (tmp_path / "rts.csv").write_text("frame_index,timestamp,brightness\n0,1.0,0.5\n")
+    with pytest.raises(MonitorLogError, match="has no rts.json: its rts.csv was written by an older SEESys"):
+        read_rts_csv(tmp_path)
+    meta = schema_metadata()
+    (tmp_path / "rts.json").write_text(json.dumps(meta))
     with pytest.raises(MonitorLogError, match="do not match RTS schema"):
         read_rts_csv(tmp_path)
+    (tmp_path / "rts.json").write_text(json.dumps({**meta, "rts_schema_version": 2}))
+    with pytest.raises(MonitorLogError, match="rts.csv uses RTS schema v2"):
+        read_rts_csv(tmp_path)
+
+
+def test_streamed_frames_say_how_many_the_device_skipped(tmp_path):
+    pub = FeaturePublisher("tcp://127.0.0.1:*", send_high_water_mark=10_000)
+    sub = FeatureSubscriber(pub.bound_endpoint, None, receive_high_water_mark=10_000)
+    probe = FeatureFrame("probe", 0, 0.0, TrackingState.OK, np.zeros(rts_schema.NUM_CHANNELS, np.float32))
+    wait_until_subscribed(lambda: pub.publish(probe), sub, "probe")
+    monitor = RtsMonitor(replace_fields(CONFIG, queue_size=1), tmp_path, pub)
+    _feed(monitor, 200)
+    stats = monitor.close()
+    received = []
+    while len(received) < stats.frames_processed:
+        frame = sub.receive(timeout_ms=5000)
+        assert frame is not None, f"{len(received)} of {stats.frames_processed} streamed frames arrived"
+        received.append(frame.frame_index)
+    loss = sub.losses.devices[CONFIG.device_id]
+    assert stats.frames_dropped > 0
+    assert loss.lost_in_transit == 0
+    assert loss.skipped_by_device == received[-1] - received[0] + 1 - len(received) > 0
+    sub.close()
 
 
 def test_a_failure_in_the_monitor_thread_stops_the_monitor_not_the_session(tmp_path):

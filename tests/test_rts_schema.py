@@ -1,15 +1,40 @@
+import importlib.util
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from seesys.protocol import rts_schema
 
 
-def test_channel_names_unique_and_indexed():
+def test_channel_names_unique_and_unknown_names_named():
     assert len(set(rts_schema.CHANNEL_NAMES)) == rts_schema.NUM_CHANNELS
-    for i, name in enumerate(rts_schema.CHANNEL_NAMES):
-        assert rts_schema.index_of(name) == i
-    with pytest.raises(KeyError, match="unknown RTS channel"):
+    with pytest.raises(KeyError, match="unknown RTS channel 'nope'; channels are brightness, contrast"):
         rts_schema.index_of("nope")
+
+
+def test_a_reordered_schema_of_the_same_size_is_refused():
+    channels = list(rts_schema.CHANNELS)
+    channels[7], channels[8] = channels[8], channels[7]     # rel_tx <-> rel_ty: same count, other meaning
+    reordered = rts_schema.fingerprint(tuple(channels))
+    assert reordered != rts_schema.FINGERPRINT
+    with pytest.raises(rts_schema.SchemaMismatch, match="model.onnx uses RTS schema v1"):
+        rts_schema.check_compatible(rts_schema.SCHEMA_VERSION, reordered, "model.onnx")
+    rts_schema.check_compatible(rts_schema.SCHEMA_VERSION, rts_schema.FINGERPRINT, "this build")
+
+
+def test_changing_the_channels_without_a_new_version_fails_at_import(tmp_path, monkeypatch):
+    source = Path(rts_schema.__file__).read_text()
+    changed = source.replace('"identity", 0.25)', '"identity", 0.3)', 1)      # contrast's scale
+    assert changed != source
+    path = tmp_path / "rts_schema_changed.py"
+    path.write_text(changed)
+    spec = importlib.util.spec_from_file_location("rts_schema_changed", path)
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "rts_schema_changed", module)
+    with pytest.raises(RuntimeError, match="bump SCHEMA_VERSION"):
+        spec.loader.exec_module(module)
 
 
 def test_normalise_applies_transform_and_scale_and_zeroes_nan():

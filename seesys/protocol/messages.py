@@ -1,18 +1,24 @@
 """The wire format between device, estimator and advisory: one module, used by both ends.
 
-Every message travels as a two-part ZeroMQ message ``[topic, body]``. The topic is a kind prefix followed by the
-device id (``F/<device>`` for features, ``E/<device>`` for estimates), so a SUB socket can filter by kind or by
-device. The body is little-endian binary:
+Every message travels as a two-part ZeroMQ message ``[topic, body]``. The topic is a kind prefix, the device id
+and a NUL terminator (``F/<device>\\0`` for features, ``E/<device>\\0`` for estimates): ZeroMQ subscriptions are
+prefix matches, and the terminator keeps a subscription to ``dev-1`` from also matching ``dev-10``, while a
+subscription to the bare kind prefix still receives every device. Device ids are 1–255 bytes of UTF-8 without
+NUL. The body is little-endian binary:
 
 ``magic "SEES" | u8 protocol version | u8 kind | u8 len + device id (utf-8) | i64 frame index | f64 timestamp``
 followed by the kind's payload:
 
-- :class:`FeatureFrame`: ``i8 tracking state | u16 C + C × f32 RTS row | u8 has_psd``
-  and, when has_psd, the PSD as :func:`pack_psd` writes it (``u16 H | u16 W | u16 L | u32 n + n bytes``).
+- :class:`FeatureFrame`: ``u16 RTS schema version | u32 RTS schema fingerprint | u32 frames skipped |
+  i8 tracking state | u16 C + C × f32 RTS row | u8 has_psd`` and, when has_psd, the PSD as :func:`pack_psd`
+  writes it (``u16 H | u16 W | u16 L | u32 n + n bytes``). "Frames skipped" is the device's running count of
+  frames it tracked but did not publish (its monitor fell behind): a receiver that sees a gap in frame indices
+  can tell those from frames lost on the way.
 - :class:`Estimate`: ``f64 error (m) | f64 server time (ms) | u8 len + model version (utf-8)``.
 
-:func:`decode` validates everything (magic, version, kind, lengths, channel count, shape, finiteness) and raises
-:class:`MessageError` naming the problem; a receiver counts and drops such messages, it never dies on them.
+:func:`decode` validates everything (magic, protocol version, kind, RTS schema, lengths, channel count, shape,
+finiteness) and raises :class:`MessageError` naming the problem; a receiver counts and drops such messages, it
+never dies on them.
 """
 
 from __future__ import annotations
@@ -28,10 +34,12 @@ from seesys.errors import SeesysError
 from seesys.protocol import rts_schema
 from seesys.protocol.tracking_state import TrackingState
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 MAGIC = b"SEES"
+#: Topic prefixes of the two kinds; subscribe to one alone to receive every device's messages of that kind.
 FEATURE_TOPIC = b"F/"
 ESTIMATE_TOPIC = b"E/"
+TOPIC_END = b"\x00"
 
 _KIND_FEATURE = 1
 _KIND_ESTIMATE = 2
@@ -39,6 +47,7 @@ _HEAD = struct.Struct("<4sBB")
 _FRAME_ID = struct.Struct("<qd")
 _PSD_HEAD = struct.Struct("<HHHI")
 _ESTIMATE = struct.Struct("<dd")
+_FEATURE_HEAD = struct.Struct("<HIIbH")
 _PSD_LEVEL = 6
 
 
@@ -56,6 +65,9 @@ class FeatureFrame:
     tracking_state: TrackingState
     rts: np.ndarray
     psd: np.ndarray | None = None
+    frames_skipped: int = 0
+    rts_schema_version: int = rts_schema.SCHEMA_VERSION
+    rts_schema_fingerprint: int = rts_schema.FINGERPRINT
 
 
 @dataclass(frozen=True)
@@ -68,6 +80,13 @@ class Estimate:
     error_m: float
     model_version: str
     server_ms: float = math.nan
+
+
+def topic(kind: bytes, device_id: str) -> bytes:
+    """The exact topic of ``device_id``'s messages of ``kind`` (:data:`FEATURE_TOPIC` or :data:`ESTIMATE_TOPIC`)."""
+    if not device_id or "\x00" in device_id:
+        raise ValueError(f"a device id is a non-empty string without NUL, got {device_id!r}")
+    return kind + device_id.encode("utf-8") + TOPIC_END
 
 
 def _pack_text(text: str, what: str) -> bytes:
@@ -86,17 +105,19 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
         if rts.shape != (rts_schema.NUM_CHANNELS,):
             raise ValueError(f"RTS row must have shape ({rts_schema.NUM_CHANNELS},), got {rts.shape}")
         parts = [_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_FEATURE), device, ident,
-                 struct.pack("<bH", int(message.tracking_state), rts.size), rts.tobytes()]
+                 _FEATURE_HEAD.pack(message.rts_schema_version, message.rts_schema_fingerprint,
+                                    message.frames_skipped, int(message.tracking_state), rts.size),
+                 rts.tobytes()]
         if message.psd is None:
             parts.append(b"\x00")
         else:
             parts += [b"\x01", pack_psd(message.psd)]
-        return [FEATURE_TOPIC + message.device_id.encode("utf-8"), b"".join(parts)]
+        return [topic(FEATURE_TOPIC, message.device_id), b"".join(parts)]
     if isinstance(message, Estimate):
         body = b"".join([_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_ESTIMATE), device, ident,
                          _ESTIMATE.pack(float(message.error_m), float(message.server_ms)),
                          _pack_text(message.model_version, "model version")])
-        return [ESTIMATE_TOPIC + message.device_id.encode("utf-8"), body]
+        return [topic(ESTIMATE_TOPIC, message.device_id), body]
     raise TypeError(f"cannot encode {type(message).__name__}")
 
 
@@ -133,7 +154,7 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     """Parse and validate a ``[topic, body]`` message; raises :class:`MessageError` on any problem."""
     if len(frames) != 2:
         raise MessageError(f"expected 2 message parts (topic, body), got {len(frames)}")
-    topic, body = bytes(frames[0]), bytes(frames[1])
+    received_topic, body = bytes(frames[0]), bytes(frames[1])
     r = _Reader(body)
     magic, version, kind = r.unpack(_HEAD, "header")
     if magic != MAGIC:
@@ -141,6 +162,8 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     if version != PROTOCOL_VERSION:
         raise MessageError(f"protocol version {version} is not supported (this end speaks {PROTOCOL_VERSION})")
     device_id = r.text("device id")
+    if not device_id or "\x00" in device_id:
+        raise MessageError(f"bad device id {device_id!r}")
     frame_index, timestamp = r.unpack(_FRAME_ID, "frame id")
     if frame_index < 0:
         raise MessageError(f"negative frame index {frame_index}")
@@ -149,8 +172,8 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     expected_topic = {_KIND_FEATURE: FEATURE_TOPIC, _KIND_ESTIMATE: ESTIMATE_TOPIC}.get(kind)
     if expected_topic is None:
         raise MessageError(f"unknown message kind {kind}")
-    if topic != expected_topic + device_id.encode("utf-8"):
-        raise MessageError(f"topic {topic!r} does not match the body (kind {kind}, device {device_id!r})")
+    if received_topic != topic(expected_topic, device_id):
+        raise MessageError(f"topic {received_topic!r} does not match the body (kind {kind}, device {device_id!r})")
     if kind == _KIND_FEATURE:
         return _decode_feature(r, device_id, frame_index, timestamp)
     error_m, server_ms = r.unpack(_ESTIMATE, "estimate")
@@ -195,7 +218,11 @@ def unpack_psd(data: bytes) -> np.ndarray:
 
 
 def _decode_feature(r: _Reader, device_id: str, frame_index: int, timestamp: float) -> FeatureFrame:
-    state_value, n_channels = r.unpack(struct.Struct("<bH"), "tracking state")
+    version, schema_fingerprint, skipped, state_value, n_channels = r.unpack(_FEATURE_HEAD, "feature header")
+    try:
+        rts_schema.check_compatible(version, schema_fingerprint, f"the feature stream of device {device_id!r}")
+    except rts_schema.SchemaMismatch as e:
+        raise MessageError(str(e)) from None
     try:
         state = TrackingState(state_value)
     except ValueError:
@@ -211,4 +238,4 @@ def _decode_feature(r: _Reader, device_id: str, frame_index: int, timestamp: flo
     elif has_psd != 0:
         raise MessageError(f"bad PSD flag {has_psd}")
     r.finish()
-    return FeatureFrame(device_id, frame_index, timestamp, state, rts, psd)
+    return FeatureFrame(device_id, frame_index, timestamp, state, rts, psd, skipped, version, schema_fingerprint)

@@ -3,7 +3,10 @@
 This module is the one definition of an RTS row. The device writes rows in this order (``rts.csv`` columns and
 the float32 vector on the wire), the dataset builder stores windows in this order, and the estimator normalises
 with :func:`normalise`. Change a channel here and every part follows; bump :data:`SCHEMA_VERSION` when the
-order, units or meaning change so that old logs and models are recognised as incompatible.
+order, units or meaning change so that old logs and models are recognised as incompatible: every
+``FeatureFrame`` and every ``rts.csv`` (its ``rts.json`` side file) carries the version and the schema's
+:data:`FINGERPRINT`, and readers refuse another one. The fingerprint is recorded per version in
+:data:`_FINGERPRINTS`, so a changed channel list without a new version fails at import.
 
 Conventions (the authors' code differs; see docs/rts-features.md):
 
@@ -21,9 +24,12 @@ Conventions (the authors' code differs; see docs/rts-features.md):
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
+
+from seesys.errors import SeesysError
 
 SCHEMA_VERSION = 1
 
@@ -80,6 +86,32 @@ CHANNELS: tuple[Channel, ...] = (
             "mean reprojection error of the matched map points in the current frame "
             "(pyorbslam3 does not expose local bundle adjustment residuals)", "log1p", 2.0),
 )
+
+def fingerprint(channels: tuple[Channel, ...]) -> int:
+    """CRC-32 of the channels' names, categories, units, transforms and scales, in order."""
+    text = "\n".join(f"{c.name}|{c.category}|{c.unit}|{c.transform}|{c.scale!r}" for c in channels)
+    return zlib.crc32(text.encode("utf-8"))
+
+
+#: The fingerprint of each released schema version.
+_FINGERPRINTS = {1: 0x272A99E0}
+FINGERPRINT = fingerprint(CHANNELS)
+if _FINGERPRINTS.get(SCHEMA_VERSION) != FINGERPRINT:
+    raise RuntimeError(f"the RTS channel list changed (fingerprint {FINGERPRINT:#010x}) but SCHEMA_VERSION is still "
+                       f"{SCHEMA_VERSION}: bump SCHEMA_VERSION and record the new fingerprint in _FINGERPRINTS")
+
+
+class SchemaMismatch(SeesysError):
+    """Data or a model was made with another RTS schema than this one."""
+
+
+def check_compatible(version: int, schema_fingerprint: int, source: str) -> None:
+    """Raise :class:`SchemaMismatch` naming ``source`` unless it was made with this RTS schema."""
+    if version != SCHEMA_VERSION or schema_fingerprint != FINGERPRINT:
+        raise SchemaMismatch(f"{source} uses RTS schema v{version} (fingerprint {schema_fingerprint:#010x}); this "
+                             f"SEESys speaks v{SCHEMA_VERSION} ({FINGERPRINT:#010x}): its channels differ, so it "
+                             f"cannot be read or served here")
+
 
 CHANNEL_NAMES: tuple[str, ...] = tuple(c.name for c in CHANNELS)
 NUM_CHANNELS = len(CHANNELS)
