@@ -1,0 +1,54 @@
+"""The two baselines of Table 3.
+
+- Random forest (Ali et al. 2023, the offline state of the art): scikit-learn's ``RandomForestRegressor`` on
+  per-window statistics of the normalised RTS channels (mean, standard deviation, minimum, maximum and last value
+  of each channel: the 1-D global pooling of their characterisation series, here over the 30-row window).
+- LSTM: two LSTM layers over the normalised RTS window, the last step's state through fully connected layers.
+
+Both regress the same transformed label as DeepSEE and see the RTS window only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from sklearn.ensemble import RandomForestRegressor
+from torch import nn
+
+from estimator.deepsee.config import LstmConfig, RandomForestConfig
+
+STATISTICS = ("mean", "std", "min", "max", "last")
+
+
+def window_statistics(rts: np.ndarray) -> np.ndarray:
+    """(N, T, C) normalised windows → (N, 5·C) features: mean, std, min, max, last value per channel."""
+    return np.concatenate([rts.mean(axis=1), rts.std(axis=1), rts.min(axis=1), rts.max(axis=1), rts[:, -1]], axis=1)
+
+
+def fit_random_forest(rts: np.ndarray, targets: np.ndarray, config: RandomForestConfig, seed: int,
+                      jobs: int) -> RandomForestRegressor:
+    """Fit on at most ``max_train_samples`` windows (a seeded subset). Serve with ``n_jobs=1``: at batch 1 the
+    joblib dispatch of more jobs costs more than the trees."""
+    index = np.arange(len(rts))
+    if 0 < config.max_train_samples < len(rts):
+        index = np.sort(np.random.default_rng(seed).choice(len(rts), config.max_train_samples, replace=False))
+    forest = RandomForestRegressor(n_estimators=config.trees, min_samples_leaf=config.min_samples_leaf,
+                                   max_features=config.max_features, n_jobs=jobs, random_state=seed)
+    forest.fit(window_statistics(rts[index]), targets[index])
+    forest.set_params(n_jobs=1)
+    return forest
+
+
+class LstmBaseline(nn.Module):
+    """2 LSTM layers + fully connected; takes (rts, psd) like DeepSEE and ignores the PSD."""
+
+    def __init__(self, config: LstmConfig, channels: int):
+        super().__init__()
+        self.config, self.channels = config, channels
+        self.lstm = nn.LSTM(channels, config.hidden, num_layers=config.layers, batch_first=True)
+        self.head = nn.Sequential(nn.Linear(config.hidden, config.head_hidden), nn.GELU(),
+                                  nn.Linear(config.head_hidden, 1))
+
+    def forward(self, rts: torch.Tensor, psd: torch.Tensor) -> torch.Tensor:
+        out, _ = self.lstm(rts)
+        return self.head(out[:, -1]).squeeze(-1)

@@ -1,0 +1,132 @@
+"""The model file: weights plus what they mean, and a refusal of a model made for other inputs.
+
+A checkpoint (``torch.save`` of a dict) holds:
+
+- ``format``: :data:`FORMAT_VERSION` of this layout;
+- ``compatibility``: the RTS schema (version and fingerprint, channel names), the window definition (T, K_L,
+  tau: what a window contains; not how often one is formed) and the label transform, and ``compatibility_hash``,
+  the SHA-256 of that record. A model is served only where all three match: a model trained on another RTS
+  schema or window reads different numbers and its estimates would be meaningless, silently;
+- ``model``: the kind (``deepsee`` or the ``lstm`` baseline) and what rebuilds the network (configuration, input
+  shape, variant); ``state_dict``: the weights;
+- ``training``: how it was made (command, data, schedule, round, metrics), for the record.
+
+The same hash is written into the exported ONNX model's metadata and checked when it is loaded.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+
+from torch import nn
+
+from estimator.deepsee.baselines import LstmBaseline
+from estimator.deepsee.config import FusionConfig, LstmConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
+from estimator.deepsee.model import DeepSEE, InputShape, Variant
+from estimator.deepsee.transforms import LabelTransform
+from seesys.errors import SeesysError
+from seesys.protocol import rts_schema
+from seesys.protocol.windows import WindowConfig, load_window_config
+
+FORMAT_VERSION = 1
+# The fields of the window definition that decide what a window holds (end_stride only says how often one is formed,
+# max_missing_rts which windows are formed).
+WINDOW_FIELDS = ("rts_length", "psd_samples", "psd_stride")
+
+
+class ModelMismatch(SeesysError):
+    """A model file was made for other inputs (RTS schema, windows, label transform) or is not a model file."""
+
+
+def compatibility(windows: WindowConfig, transform: LabelTransform) -> dict:
+    """What a model's inputs and output mean, as plain data."""
+    return {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_fingerprint": rts_schema.FINGERPRINT,
+            "rts_channels": list(rts_schema.CHANNEL_NAMES),
+            "windows": {name: getattr(windows, name) for name in WINDOW_FIELDS},
+            "label_transform": transform.describe()}
+
+
+def compatibility_hash(record: dict) -> str:
+    return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()
+
+
+def check_compatible(record: dict, source: str, windows: WindowConfig, transform: LabelTransform) -> None:
+    """Raise :class:`ModelMismatch` naming every difference between ``record`` and this installation."""
+    here = compatibility(windows, transform)
+    if compatibility_hash(record) == compatibility_hash(here):
+        return
+    differences = []
+    if (record.get("rts_schema_version"), record.get("rts_fingerprint")) != (here["rts_schema_version"],
+                                                                              here["rts_fingerprint"]):
+        differences.append(f"RTS schema v{record.get('rts_schema_version')} (here v{here['rts_schema_version']}, "
+                           f"channels {'same' if record.get('rts_channels') == here['rts_channels'] else 'differ'})")
+    if record.get("windows") != here["windows"]:
+        differences.append(f"windows {record.get('windows')} (here {here['windows']})")
+    if record.get("label_transform") != here["label_transform"]:
+        differences.append(f"label transform {record.get('label_transform')} (here {here['label_transform']})")
+    raise ModelMismatch(f"{source} was trained for other inputs: {'; '.join(differences) or 'a different record'}. "
+                        f"It cannot be used here; retrain it or fine-tune a model made for this configuration")
+
+
+def _spec(model: nn.Module) -> dict:
+    if isinstance(model, DeepSEE):
+        return {"kind": "deepsee", "config": asdict(model.config), "shape": asdict(model.shape),
+                "variant": asdict(model.variant)}
+    if isinstance(model, LstmBaseline):
+        return {"kind": "lstm", "config": asdict(model.config), "channels": model.channels}
+    raise TypeError(f"cannot save a {type(model).__name__}")
+
+
+def _build(spec: dict) -> nn.Module:
+    if spec["kind"] == "lstm":
+        return LstmBaseline(LstmConfig(**spec["config"]), spec["channels"])
+    variant = Variant(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec["variant"].items()})
+    return DeepSEE(_model_config(spec["config"]), InputShape(**spec["shape"]), variant)
+
+
+def save_model(path: Path, model: nn.Module, windows: WindowConfig, transform: LabelTransform,
+               training: dict) -> Path:
+    record = compatibility(windows, transform)
+    payload = {"format": FORMAT_VERSION, "compatibility": record, "compatibility_hash": compatibility_hash(record),
+               "model": _spec(model),
+               "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "training": training}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(path.name + ".tmp")
+    torch.save(payload, temporary)
+    temporary.replace(path)
+    return path
+
+
+def _model_config(data: dict) -> ModelConfig:
+    return ModelConfig(data["dim"], PsdEncoderConfig(**data["psd"]), RtsEncoderConfig(**data["rts"]),
+                       FusionConfig(**{**data["fusion"], "head_hidden": tuple(data["fusion"]["head_hidden"])}))
+
+
+def load_payload(path: Path) -> dict:
+    try:
+        payload = torch.load(Path(path), map_location="cpu", weights_only=False)
+    except FileNotFoundError:
+        raise ModelMismatch(f"model file not found: {path}") from None
+    except Exception as e:  # torch raises many types for a file that is not a checkpoint
+        raise ModelMismatch(f"{path} is not a DeepSEE model file: {e}") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT_VERSION:
+        found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
+        raise ModelMismatch(f"{path} is not a DeepSEE model file of format {FORMAT_VERSION} (found {found!r})")
+    return payload
+
+
+def load_model(path: Path, transform: LabelTransform, windows: WindowConfig | None = None) -> tuple[nn.Module, dict]:
+    """The model of ``path`` in eval mode, and its payload; refused (:class:`ModelMismatch`) when it was made for
+    another RTS schema, window definition or label transform than ``windows`` (default: configs/windows.toml) and
+    ``transform``."""
+    payload = load_payload(path)
+    check_compatible(payload["compatibility"], str(path), windows or load_window_config(), transform)
+    model = _build(payload["model"])
+    model.load_state_dict(payload["state_dict"])
+    return model.eval(), payload

@@ -1,0 +1,168 @@
+"""``configs/estimator.toml`` as typed records: the model's size, the label transform, the training schedules
+(``reduced`` for a 2-core CPU in about an hour, ``full`` resumable across days or on a GPU), the baselines, the
+evaluation and fine-tuning settings."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from seesys.config import load_section
+from seesys.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class PsdEncoderConfig:
+    """TimeSformer-style divided space-time encoder over the K_L PSD matrices of a window."""
+
+    patch: int  # square patch side in PSD cells; H and W must be multiples of it
+    depth: int
+    heads: int
+    mlp_ratio: float
+    dropout: float
+
+
+@dataclass(frozen=True)
+class RtsEncoderConfig:
+    """TS2Vec-style encoder: input projection, then residual blocks of dilated 1-D convolutions (dilation 2^i)."""
+
+    hidden: int
+    depth: int
+    kernel: int
+    dropout: float
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Bidirectional cross-attention layers (pre-norm, residual, feed-forward) and the MLP head."""
+
+    layers: int
+    heads: int
+    ffn_ratio: float
+    head_hidden: tuple[int, ...]
+    dropout: float
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    dim: int  # width of both encoders' output tokens and of the fusion
+    psd: PsdEncoderConfig
+    rts: RtsEncoderConfig
+    fusion: FusionConfig
+
+
+@dataclass(frozen=True)
+class LabelTransformConfig:
+    """y = log(1 + k · error_m) (paper §5.2, K_L = 10,000 there) and its inverse."""
+
+    k: float
+
+
+@dataclass(frozen=True)
+class StageSchedule:
+    """One supervised or masked-reconstruction stage: epochs of at most ``steps_per_epoch`` batches (0: a full
+    pass), early stopping after ``patience`` epochs without a better validation loss."""
+
+    epochs: int
+    steps_per_epoch: int
+    batch_size: int
+    lr: float
+    weight_decay: float
+    patience: int
+
+
+@dataclass(frozen=True)
+class Ts2VecSchedule:
+    """TS2Vec's hierarchical contrastive pretraining of the RTS encoder."""
+
+    iterations: int
+    batch_size: int
+    lr: float
+    alpha: float  # weight of the instance-wise term (1 - alpha: temporal)
+    mask_probability: float  # timestamp masking on the latent
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Everything one training run does, stage by stage."""
+
+    max_train_samples: int  # 0: every training sample; else a seeded random subset of this many
+    max_validation_samples: int
+    psd_ssl: StageSchedule
+    psd_mask_ratio: float
+    rts_ssl: Ts2VecSchedule
+    supervised_frozen: StageSchedule
+    finetune: StageSchedule
+    ablation_frozen: StageSchedule  # the Table 3 ablations start from the same pretrained encoders
+    ablation_finetune: StageSchedule
+    lstm: StageSchedule
+
+
+@dataclass(frozen=True)
+class Schedules:
+    reduced: Schedule
+    full: Schedule
+
+    def get(self, name: str) -> Schedule:
+        if name not in ("reduced", "full"):
+            raise ConfigError(f"unknown training schedule {name!r} (reduced or full)")
+        return getattr(self, name)
+
+
+@dataclass(frozen=True)
+class RandomForestConfig:
+    trees: int
+    min_samples_leaf: int
+    max_features: float
+    max_train_samples: int
+
+
+@dataclass(frozen=True)
+class LstmConfig:
+    hidden: int
+    layers: int
+    head_hidden: int
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """How estimates are judged (the Table 3 metrics and what the advisory will do with the estimates)."""
+
+    paper_range_m: tuple[float, float]  # the authors clipped labels to [1 mm, 2 cm]
+    large_error_m: float  # recall of windows whose true error is at least this
+    batch_size: int
+    plot_runs: int  # test runs drawn as estimate-vs-truth time series
+
+
+@dataclass(frozen=True)
+class FinetuneConfig:
+    """Stage (d) on labelled session folders (``seesys estimator finetune``)."""
+
+    validation_fraction: float  # the last part of each session, in time, judges early stopping
+    schedule: StageSchedule
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    seed: int
+    model: ModelConfig
+    label_transform: LabelTransformConfig
+    schedules: Schedules
+    random_forest: RandomForestConfig
+    lstm: LstmConfig
+    evaluation: EvaluationConfig
+    finetune: FinetuneConfig
+
+
+def load_estimator_config(directory: Path | None = None) -> EstimatorConfig:
+    """Load ``configs/estimator.toml``."""
+    config = load_section("estimator", EstimatorConfig, directory)
+    check_model_config(config.model)
+    return config
+
+
+def check_model_config(model: ModelConfig) -> None:
+    """Raise :class:`ConfigError` when the widths do not divide into the attention heads."""
+    for where, heads in (("psd", model.psd.heads), ("fusion", model.fusion.heads)):
+        if model.dim % heads:
+            raise ConfigError(f"configs/estimator.toml: model.dim {model.dim} is not a multiple of {where}.heads {heads}")

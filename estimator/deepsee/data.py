@@ -1,0 +1,180 @@
+"""Model inputs from the labelled dataset and from session folders, as torch datasets.
+
+Every source gives the same thing per window: the raw RTS window (T, C) (normalised here, once), the PSD
+matrices (K_L, H, W, 3) uint8 (scaled inside the model, so the served model takes what the device sends), the
+label in metres and the window's end frame and time. The dataset is read only through
+:class:`estimator.dataset.store.DatasetReader`; a session folder (``seesys track``/``monitor run`` with ground
+truth) is windowed with the protocol's :func:`seesys.protocol.windows.assemble_windows` and labelled with
+:func:`estimator.labels.label_session`, the same definitions the dataset builder uses.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+from torch.utils.data import Dataset
+
+from estimator.dataset.config import load_dataset_config
+from estimator.dataset.splits import Splits
+from estimator.dataset.store import DatasetReader
+from estimator.deepsee.model import InputShape
+from estimator.deepsee.transforms import LabelTransform, prepare_rts
+from estimator.labels import LabelStatus, label_session, load_label_config
+from seesys.errors import SeesysError
+from seesys.protocol import rts_schema
+from seesys.protocol.windows import WindowConfig, assemble_windows
+from slam_monitor import session
+from slam_monitor.rts_log import read_feature_frames
+
+PARTS = ("train", "validation", "test")
+
+
+class DataError(SeesysError):
+    """Training or evaluation data is missing or does not fit the model."""
+
+
+@dataclass
+class Windows:
+    """Model windows with their labels: ``rts`` normalised (N, T, C) float32, ``psd`` indexable by sample
+    (an array, or a reader), ``error_m`` (N,), ``meta`` one row per window (run, frame_index, timestamp, …)."""
+
+    rts: np.ndarray
+    psd: object
+    error_m: np.ndarray
+    meta: pd.DataFrame
+
+    def __len__(self) -> int:
+        return len(self.error_m)
+
+    def psd_at(self, i: int) -> np.ndarray:
+        item = self.psd[i]
+        return item.psd if hasattr(item, "psd") else np.asarray(item)
+
+    def subset(self, index: np.ndarray) -> Windows:
+        index = np.asarray(index, int)
+        psd = _Subset(self.psd, index)
+        return Windows(self.rts[index], psd, self.error_m[index], self.meta.iloc[index].reset_index(drop=True))
+
+    def input_shape(self) -> InputShape:
+        if not len(self):
+            raise DataError("no windows: nothing to train or evaluate on")
+        t, c = self.rts.shape[1:]
+        k, h, w = self.psd_at(0).shape[:3]
+        return InputShape(t, c, k, h, w)
+
+
+class _Subset:
+    """Samples ``index`` of an indexable (a reader or an array), without reading them."""
+
+    def __init__(self, base: object, index: np.ndarray):
+        self.base, self.index = base, index
+
+    def __getitem__(self, i: int):
+        return self.base[int(self.index[i])]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+def reader_windows(reader: DatasetReader) -> Windows:
+    """The usable windows of a reader: RTS normalised in memory (small), PSD read per sample from the memory maps."""
+    rts = prepare_rts(reader.rts_windows()) if len(reader) else np.zeros((0, 0, 0), np.float32)
+    return Windows(rts, reader, reader.index.error_m.to_numpy(np.float64), reader.index.reset_index(drop=True))
+
+
+def split_windows(roots: list[Path], splits: Splits, round_index: int) -> dict[str, Windows]:
+    """Usable windows of each part (train, validation, test) of one cross-validation round."""
+    if not 0 <= round_index < len(splits.rounds):
+        raise DataError(f"round {round_index} not in the splits ({len(splits.rounds)} rounds)")
+    split_round = splits.rounds[round_index]
+    return {part: reader_windows(DatasetReader(roots, runs=getattr(split_round, part), usable_only=True))
+            for part in PARTS}
+
+
+def read_splits(path: Path) -> Splits:
+    try:
+        return Splits.from_json(Path(path).read_text())
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise DataError(f"cannot read the splits {path}: {e}") from None
+
+
+def limit(windows: Windows, count: int, seed: int) -> Windows:
+    """A seeded random subset of ``count`` windows (all of them when ``count`` is 0 or larger than the set)."""
+    if count <= 0 or count >= len(windows):
+        return windows
+    index = np.sort(np.random.default_rng(seed).choice(len(windows), count, replace=False))
+    return windows.subset(index)
+
+
+def session_mode(folder: Path) -> str:
+    """The SLAM mode (rgbd or mono) of a session folder, from its ``session.json``."""
+    if not (folder / session.MANIFEST).is_file():
+        raise DataError(f"{folder} is not a session folder (no {session.MANIFEST})")
+    mode = session.read_manifest(folder).get("mode")
+    if mode not in ("rgbd", "mono"):
+        raise DataError(f"{folder}: session.json names no SLAM mode (rgbd or mono)")
+    return mode
+
+
+def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Windows:
+    """Every window of a session folder's monitor logs (one per frame whose PSD was logged and whose history is
+    complete). With ``labelled``, each gets its end frame's label and only usable windows (labelled end frame,
+    no missing RTS row: the dataset's rule) are kept; without, ``error_m`` is NaN."""
+    folder = Path(folder)
+    mode = session_mode(folder)
+    # Form a window wherever the PSDs were logged: every frame in a dataset build, every end_stride-th on a device.
+    every_frame = dataclasses.replace(windows, end_stride=1)
+    rts, psd, rows = [], [], []
+    for window in assemble_windows(read_feature_frames(folder, folder.name), every_frame):
+        rts.append(window.rts)
+        psd.append(window.psd)
+        rows.append((folder.name, window.frame_index, window.timestamp, window.missing_rts))
+    meta = pd.DataFrame(rows, columns=["run", "frame_index", "timestamp", "missing_rts"])
+    error = np.full(len(rows), np.nan)
+    if labelled and rows:
+        labels = label_session(folder, mode == "mono", load_label_config()).to_frame()
+        frames = pd.read_csv(folder / session.FRAMES_CSV, usecols=["frame_index"])
+        labels["frame_index"] = frames.frame_index.to_numpy()
+        by_frame = labels.set_index("frame_index")
+        end = by_frame.reindex(meta.frame_index)
+        max_missing = load_dataset_config().samples.max_missing_rts_usable
+        usable = ((end.status == LabelStatus.LABELLED.value).to_numpy()
+                  & (meta.missing_rts <= max_missing).to_numpy())
+        error = end.error_m.to_numpy(np.float64)
+        keep = np.flatnonzero(usable)
+        rts, psd, error, meta = ([rts[k] for k in keep], [psd[k] for k in keep], error[keep],
+                                 meta.iloc[keep].reset_index(drop=True))
+    if not rts:
+        return Windows(np.zeros((0, windows.rts_length, rts_schema.NUM_CHANNELS), np.float32),
+                       np.zeros((0, windows.psd_samples, 0, 0, 3), np.uint8), error, meta)
+    return Windows(prepare_rts(np.stack(rts)), np.stack(psd), error, meta)
+
+
+def concat(parts: list[Windows]) -> Windows:
+    """In-memory windows of several sessions as one set."""
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        raise DataError("no usable windows in the given sessions")
+    psd = np.concatenate([np.stack([p.psd_at(i) for i in range(len(p))]) for p in parts])
+    return Windows(np.concatenate([p.rts for p in parts]), psd, np.concatenate([p.error_m for p in parts]),
+                   pd.concat([p.meta for p in parts], ignore_index=True))
+
+
+class WindowDataset(Dataset):
+    """(rts float32 (T, C), psd uint8 (K, H, W, 3), target float32) per window, the target transformed."""
+
+    def __init__(self, windows: Windows, transform: LabelTransform):
+        self.windows = windows
+        self.targets = transform.forward(windows.error_m).astype(np.float32)
+
+    def __len__(self) -> int:
+        return len(self.windows)
+
+    def __getitem__(self, i: int):
+        return (torch.from_numpy(self.windows.rts[i]), torch.from_numpy(np.ascontiguousarray(self.windows.psd_at(i))),
+                torch.tensor(self.targets[i]))

@@ -1,0 +1,60 @@
+"""The rows of the paper's Table 3: the baselines, the model study, the RTS and PSD ablations, DeepSEE."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from estimator.deepsee.model import Variant
+from seesys.errors import SeesysError
+
+DEEPSEE = "deepsee"
+RANDOM_FOREST = "random_forest"
+LSTM = "lstm"
+
+
+@dataclass(frozen=True)
+class Row:
+    name: str  # folder and command-line name
+    label: str  # as in Table 3
+    category: str
+    kind: str  # deepsee, random_forest or lstm
+    variant: Variant = Variant()
+    ssl: bool = True  # encoders initialised by stages (a) and (b)
+    ablation: bool = False  # trained on the ablation schedule, from the DeepSEE row's pretrained encoders
+
+
+ROWS: tuple[Row, ...] = (
+    Row(RANDOM_FOREST, "Random Forest", "Baseline", RANDOM_FOREST, ssl=False),
+    Row(LSTM, "LSTM", "Baseline", LSTM, ssl=False),
+    Row("wo_psd", "DeepSEE-w/o-PSD", "Model Study", DEEPSEE, Variant(use_psd=False), ablation=True),
+    Row("wo_ssl", "DeepSEE-w/o-SSL", "Model Study", DEEPSEE, ssl=False, ablation=True),
+    Row("wo_ca", "DeepSEE-w/o-CA", "Model Study", DEEPSEE, Variant(fusion="concat"), ablation=True),
+    Row("wo_sensor", "DeepSEE-w/o-Sensor", "RTS Ablation Study", DEEPSEE, Variant(drop_rts=("sensor_input",)),
+        ablation=True),
+    Row("wo_tracking", "DeepSEE-w/o-Tracking", "RTS Ablation Study", DEEPSEE, Variant(drop_rts=("tracking",)),
+        ablation=True),
+    Row("wo_mapping", "DeepSEE-w/o-Mapping", "RTS Ablation Study", DEEPSEE, Variant(drop_rts=("mapping",)),
+        ablation=True),
+    Row("wo_keypoint", "DeepSEE-w/o-Keypoint", "PSD Ablation Study", DEEPSEE, Variant(drop_psd=("keypoint",)),
+        ablation=True),
+    Row("wo_inlier", "DeepSEE-w/o-Inlier", "PSD Ablation Study", DEEPSEE, Variant(drop_psd=("inlier",)),
+        ablation=True),
+    Row("wo_map_point", "DeepSEE-w/o-Mappoint", "PSD Ablation Study", DEEPSEE, Variant(drop_psd=("map_point",)),
+        ablation=True),
+    Row(DEEPSEE, "DeepSEE", "DeepSEE", DEEPSEE),
+)
+ROW_NAMES = tuple(r.name for r in ROWS)
+_BY_NAME = {r.name: r for r in ROWS}
+
+
+def row(name: str) -> Row:
+    try:
+        return _BY_NAME[name]
+    except KeyError:
+        raise SeesysError(f"unknown Table 3 row {name!r}; rows are {', '.join(ROW_NAMES)}") from None
+
+
+def training_order(names: list[str]) -> list[Row]:
+    """DeepSEE first (the ablations reuse its pretrained encoders), then the rest in table order."""
+    chosen = [row(n) for n in dict.fromkeys(names)]
+    return sorted(chosen, key=lambda r: (r.name != DEEPSEE, ROW_NAMES.index(r.name)))

@@ -1,0 +1,262 @@
+"""Training of one Table 3 row into a run folder: DeepSEE's four stages, the ablations, the LSTM and the forest.
+
+DeepSEE (paper §5.4, here on the training runs of a cross-validation round):
+
+(a) PSD masked reconstruction (:mod:`estimator.deepsee.ssl`), early stopping on the validation runs' loss;
+(b) TS2Vec on the RTS encoder, in epochs of :data:`TS2VEC_EPOCH` iterations;
+(c) supervised, both encoders frozen: their outputs for the training and validation windows are computed once
+    and cached in the run folder (``state/cache_*.npy``), and only the fusion and the head are trained;
+(d) supervised fine-tuning of the whole model on the training runs (the paper's real-data stage; on a lab's real
+    sessions, ``seesys estimator finetune``).
+
+Every stage checkpoints after every epoch (:mod:`estimator.deepsee.loop`), so the same command resumes an
+interrupted run. The encoders after (b) are saved as ``state/encoders.pt``; an ablation row given a DeepSEE run
+folder as ``pretrained`` starts from them and trains (c) and (d) on the ablation schedule.
+"""
+
+from __future__ import annotations
+
+import math
+import pickle
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from rich.progress import Progress
+from torch import nn
+
+from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
+from estimator.deepsee.checkpoint import compatibility, save_model
+from estimator.deepsee.config import EstimatorConfig, Schedule, StageSchedule
+from estimator.deepsee.data import Windows, limit
+from estimator.deepsee.inference import batch_tensors, predict
+from estimator.deepsee.loop import run_stage, stage_seed
+from estimator.deepsee.model import DeepSEE
+from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
+from estimator.deepsee.run_folder import MODEL_PT, RunFolder
+from estimator.deepsee.ssl import PsdReconstruction, ts2vec_loss
+from estimator.deepsee.transforms import LabelTransform
+from seesys.errors import SeesysError
+from seesys.protocol.windows import WindowConfig
+
+TS2VEC_EPOCH = 100  # iterations per checkpointed TS2Vec epoch
+SSL_VALIDATION_WINDOWS = 512
+ENCODERS_PT = "encoders.pt"
+FOREST_PICKLE = "model.pkl"
+
+
+@dataclass(frozen=True)
+class TrainContext:
+    """What every row of a round is trained with."""
+
+    config: EstimatorConfig
+    schedule_name: str
+    windows: WindowConfig
+    device: torch.device
+    progress: Progress
+    provenance: dict  # command, data folders, splits, round: recorded in config.json and the model file
+
+    @property
+    def schedule(self) -> Schedule:
+        return self.config.schedules.get(self.schedule_name)
+
+    @property
+    def transform(self) -> LabelTransform:
+        return LabelTransform(self.config.label_transform.k)
+
+
+def _targets(windows: Windows, transform: LabelTransform) -> np.ndarray:
+    return transform.forward(windows.error_m).astype(np.float32)
+
+
+def _mse_validator(model: nn.Module, val: Windows, targets: np.ndarray, ctx: TrainContext):
+    def validate() -> float:
+        y = predict(model, val, ctx.config.evaluation.batch_size, ctx.device)
+        return float(np.mean((y - targets) ** 2))
+    return validate
+
+
+def _psd_ssl(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, ctx: TrainContext) -> None:
+    """Stage (a): masked reconstruction of the PSD window."""
+    seed, ratio = ctx.config.seed, ctx.schedule.psd_mask_ratio
+    task = PsdReconstruction(model.psd_encoder, model.config.dim).to(ctx.device)
+    val_index = np.arange(min(len(val), SSL_VALIDATION_WINDOWS))
+
+    def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
+        _, psd = batch_tensors(train, index, ctx.device)
+        return task.loss(model.psd_input(psd), ratio, generator)
+
+    @torch.no_grad()
+    def validate() -> float:
+        task.eval()
+        generator = torch.Generator().manual_seed(stage_seed(seed, "psd_ssl:validation", 0))
+        losses = [float(task.loss(model.psd_input(batch_tensors(val, chunk, ctx.device)[1]), ratio, generator))
+                  for chunk in np.array_split(val_index, max(1, math.ceil(len(val_index) / 64)))]
+        task.train()
+        return float(np.mean(losses))
+
+    run_stage(run, "a_psd_ssl", task, task.parameters(), ctx.schedule.psd_ssl, len(train), step,
+              validate if len(val_index) else None, seed, ctx.progress)
+
+
+def _rts_ssl(run: RunFolder, model: DeepSEE, train: Windows, ctx: TrainContext) -> None:
+    """Stage (b): TS2Vec on the RTS encoder (no validation: the contrastive loss does not rank encoders)."""
+    s = ctx.schedule.rts_ssl
+    per_epoch = min(TS2VEC_EPOCH, s.iterations)
+    epochs = max(1, math.ceil(s.iterations / per_epoch))
+    schedule = StageSchedule(epochs, per_epoch, s.batch_size, s.lr, 0.0, epochs)
+    rts = torch.from_numpy(train.rts)
+    encoder = model.rts_encoder
+
+    def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
+        x = (rts[index].to(ctx.device)) * model.rts_mask
+        return ts2vec_loss(encoder, x, s.alpha, s.mask_probability, generator)
+
+    run_stage(run, "b_rts_ssl", encoder, encoder.parameters(), schedule, len(train), step, None, ctx.config.seed,
+              ctx.progress)
+
+
+def _encoder_state(model: DeepSEE) -> dict:
+    return {"rts_encoder": model.rts_encoder.state_dict(),
+            "psd_encoder": model.psd_encoder.state_dict() if model.psd_encoder is not None else None}
+
+
+def _load_encoders(model: DeepSEE, path: Path) -> None:
+    if not path.is_file():
+        raise SeesysError(f"no pretrained encoders at {path}: train the DeepSEE row of this round first")
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    model.rts_encoder.load_state_dict(state["rts_encoder"])
+    if model.psd_encoder is not None:
+        if state["psd_encoder"] is None:
+            raise SeesysError(f"{path} holds no PSD encoder")
+        model.psd_encoder.load_state_dict(state["psd_encoder"])
+
+
+@torch.no_grad()
+def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: str,
+                      ctx: TrainContext) -> tuple[np.ndarray, np.ndarray | None]:
+    """The frozen encoders' tokens of every window (float16 on disk; computed once per run folder)."""
+    paths = (run.state / f"cache_{part}_rts.npy", run.state / f"cache_{part}_psd.npy")
+    if paths[0].exists() and (paths[1].exists() or model.psd_encoder is None):
+        r = np.load(paths[0], mmap_mode="r")
+        if len(r) == len(windows):
+            return r, (np.load(paths[1], mmap_mode="r") if model.psd_encoder is not None else None)
+    model.eval()
+    rs, ps = [], []
+    batch = ctx.config.evaluation.batch_size
+    for start in range(0, len(windows), batch):
+        r, p = model.encode(*batch_tensors(windows, np.arange(start, min(start + batch, len(windows))), ctx.device))
+        rs.append(r.cpu().numpy().astype(np.float16))
+        if p is not None:
+            ps.append(p.cpu().numpy().astype(np.float16))
+    model.train()
+    np.save(paths[0], np.concatenate(rs))
+    if ps:
+        np.save(paths[1], np.concatenate(ps))
+    return _cached_encodings(run, model, windows, part, ctx)
+
+
+def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedule: StageSchedule,
+            ctx: TrainContext) -> None:
+    """Stage (c): the fusion and head on the cached outputs of the frozen encoders."""
+    encoders = {id(p) for m in model.encoder_modules() for p in m.parameters()}
+    for m in model.encoder_modules():
+        m.requires_grad_(False)
+    r_train, p_train = _cached_encodings(run, model, train, "train", ctx)
+    r_val, p_val = _cached_encodings(run, model, val, "validation", ctx)
+    y_train = torch.from_numpy(_targets(train, ctx.transform))
+    y_val = _targets(val, ctx.transform)
+
+    def tokens(r: np.ndarray, p: np.ndarray | None, index: np.ndarray):
+        as_tensor = lambda a: torch.from_numpy(np.asarray(a[index], np.float32)).to(ctx.device)  # noqa: E731
+        return as_tensor(r), (as_tensor(p) if p is not None else None)
+
+    def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
+        index = np.sort(index)  # memory maps read faster in order
+        return nn.functional.mse_loss(model.head(*tokens(r_train, p_train, index)), y_train[index].to(ctx.device))
+
+    @torch.no_grad()
+    def validate() -> float:
+        model.eval()
+        batch = ctx.config.evaluation.batch_size
+        y = np.concatenate([model.head(*tokens(r_val, p_val, np.arange(s, min(s + batch, len(val))))).cpu().numpy()
+                            for s in range(0, len(val), batch)])
+        model.train()
+        return float(np.mean((y - y_val) ** 2))
+
+    head = [p for p in model.parameters() if id(p) not in encoders]
+    run_stage(run, "c_supervised_frozen", model, head, schedule, len(train), step, validate if len(val) else None,
+              ctx.config.seed, ctx.progress)
+    for m in model.encoder_modules():
+        m.requires_grad_(True)
+
+
+def supervised(run: RunFolder, name: str, model: nn.Module, train: Windows, val: Windows, schedule: StageSchedule,
+               ctx: TrainContext) -> None:
+    """A supervised stage on the whole model (stage (d), the LSTM, fine-tuning on sessions)."""
+    y_train = torch.from_numpy(_targets(train, ctx.transform))
+
+    def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
+        return nn.functional.mse_loss(model(*batch_tensors(train, index, ctx.device)), y_train[index].to(ctx.device))
+
+    validate = _mse_validator(model, val, _targets(val, ctx.transform), ctx) if len(val) else None
+    run_stage(run, name, model, model.parameters(), schedule, len(train), step, validate, ctx.config.seed, ctx.progress)
+
+
+def _run_config(row: Row, ctx: TrainContext, pretrained: Path | None) -> dict:
+    return {"row": row.name, "schedule_name": ctx.schedule_name, "schedule": asdict(ctx.schedule),
+            "config": asdict(ctx.config), "variant": asdict(row.variant), "ssl": row.ssl,
+            "pretrained": str(pretrained) if pretrained else None, "compatibility": compatibility(ctx.windows,
+                                                                                                   ctx.transform),
+            **ctx.provenance}
+
+
+def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
+              pretrained: Path | None = None) -> Path:
+    """Train ``row`` on ``data['train']`` (early stopping on ``data['validation']``) into the run folder ``out``;
+    returns the model file. ``pretrained``: a DeepSEE run folder whose encoders an ablation row starts from."""
+    run = RunFolder(out, _run_config(row, ctx, pretrained), ctx.device)
+    schedule, seed = ctx.schedule, ctx.config.seed
+    train = limit(data["train"], schedule.max_train_samples, seed)
+    val = limit(data["validation"], schedule.max_validation_samples, seed)
+    torch.manual_seed(seed)
+    training = {"row": row.name, "schedule": ctx.schedule_name, "train_windows": len(train),
+                "validation_windows": len(val), **ctx.provenance}
+    if row.kind == RANDOM_FOREST:
+        return _train_forest(run, train, ctx, training)
+    if row.kind == LSTM:
+        model: nn.Module = LstmBaseline(ctx.config.lstm, train.input_shape().channels).to(ctx.device)
+        supervised(run, "lstm", model, train, val, schedule.lstm, ctx)
+    else:
+        model = DeepSEE(ctx.config.model, train.input_shape(), row.variant).to(ctx.device)
+        if row.ssl and pretrained is not None:
+            _load_encoders(model, Path(pretrained) / "state" / ENCODERS_PT)
+        elif row.ssl:
+            if model.psd_encoder is not None:
+                _psd_ssl(run, model, train, val, ctx)
+            _rts_ssl(run, model, train, ctx)
+            torch.save(_encoder_state(model), run.state / ENCODERS_PT)
+        frozen, finetune = ((schedule.ablation_frozen, schedule.ablation_finetune) if row.ablation
+                            else (schedule.supervised_frozen, schedule.finetune))
+        _frozen(run, model, train, val, frozen, ctx)
+        supervised(run, "d_finetune", model, train, val, finetune, ctx)
+    return save_model(run.path / MODEL_PT, model.cpu(), ctx.windows, ctx.transform,
+                      {**training, "metrics": run.metrics().to_dict("list")})
+
+
+def _train_forest(run: RunFolder, train: Windows, ctx: TrainContext, training: dict) -> Path:
+    path = run.path / FOREST_PICKLE
+    if not path.exists():
+        forest = fit_random_forest(train.rts, _targets(train, ctx.transform), ctx.config.random_forest,
+                                   ctx.config.seed, jobs=max(1, torch.get_num_threads()))
+        record = {"compatibility": compatibility(ctx.windows, ctx.transform), "forest": forest, "training": training}
+        temporary = path.with_name(path.name + ".tmp")
+        temporary.write_bytes(pickle.dumps(record))
+        temporary.replace(path)
+    return path
+
+
+def with_schedule(config: EstimatorConfig, name: str, schedule: Schedule) -> EstimatorConfig:
+    """``config`` with schedule ``name`` replaced (tests and the command line's overrides)."""
+    return replace(config, schedules=replace(config.schedules, **{name: schedule}))
