@@ -7,10 +7,13 @@ Readers therefore never see a half-written JSON file, and a log loses at most th
 
 from __future__ import annotations
 
+import io
 import json
 import os
 from pathlib import Path
 from typing import Any, TextIO
+
+import pandas as pd
 
 
 def write_text_atomically(path: Path, text: str) -> None:
@@ -39,3 +42,13 @@ def open_log(path: Path, header: str) -> TextIO:
     if fresh:
         log.write(header + "\n")
     return log
+
+
+def read_csv_log(path: Path, **read_csv_args: Any) -> pd.DataFrame:
+    """A CSV log as a table, without a last line left unterminated by a crash (and without malformed rows)."""
+    text = Path(path).read_text(encoding="utf-8", errors="replace")
+    if text and not text.endswith("\n"):
+        text = text[:text.rfind("\n") + 1]
+    if not text.strip():
+        raise pd.errors.EmptyDataError(f"{path} is empty")
+    return pd.read_csv(io.StringIO(text), on_bad_lines="skip", **read_csv_args)

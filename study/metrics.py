@@ -30,6 +30,7 @@ from seesys.errors import SeesysError
 from seesys.protocol.tracking_state import TrackingState
 from seesys.trajectory import Poses
 from study.config import MetricsConfig
+from study.logfiles import read_csv_log
 
 
 class MetricsError(SeesysError):
@@ -95,7 +96,10 @@ def relative_pose_error(estimate: Poses, reference: Poses, monocular: bool, cfg:
 
 @dataclass(frozen=True)
 class Completeness:
+    """``fraction`` of ``frames`` (camera frames from initialisation on) tracked; the losses among them."""
+
     fraction: float
+    frames: int
     losses: int
     loss_duration_s: float
     duration_s: float
@@ -110,7 +114,7 @@ def completeness_from_frames(frames: pd.DataFrame) -> Completeness:
         raise MetricsError(f"frame log: unknown tracking state or missing column {e}") from None
     duration = float(times[-1] - times[0]) if len(times) > 1 else 0.0
     if not tracked.any():
-        return Completeness(0.0, 0, 0.0, duration)
+        return Completeness(0.0, len(tracked), 0, 0.0, duration)
     first = int(np.argmax(tracked))
     after = tracked[first:]
     starts = np.flatnonzero(~after[1:] & after[:-1]) + 1  # tracked -> not tracked
@@ -118,21 +122,21 @@ def completeness_from_frames(frames: pd.DataFrame) -> Completeness:
     t = times[first:]
     durations = [(t[e] if (e := next((x for x in ends if x > s), None)) is not None else t[-1]) - t[s]
                  for s in starts]
-    return Completeness(float(after.mean()), len(starts), float(np.sum(durations)), duration)
+    return Completeness(float(after.mean()), len(after), len(starts), float(np.sum(durations)), duration)
 
 
 def completeness_from_poses(estimate: Poses, reference: Poses, cfg: MetricsConfig) -> Completeness:
     """Completeness from two TUM trajectories alone (see the module docstring)."""
     times = np.unique(estimate.timestamps)
     if len(times) < 2:
-        return Completeness(0.0, 0, 0.0, 0.0)
+        return Completeness(0.0, 0, 0, 0.0, 0.0)
     step = float(np.median(np.diff(times)))
     end = max(float(times[-1]), float(reference.timestamps.max()) if len(reference) else float(times[-1]))
     span = end - float(times[0]) + step
     gaps = np.append(np.diff(times), end - times[-1] + step)  # the time after the last pose may be a loss too
     lost = gaps[gaps > cfg.loss_gap_factor * step] - step
     fraction = float(np.clip(1.0 - lost.sum() / span, 0.0, 1.0))
-    return Completeness(fraction, int(len(lost)), float(lost.sum()), float(end - times[0]))
+    return Completeness(fraction, int(round(span / step)), int(len(lost)), float(lost.sum()), float(end - times[0]))
 
 
 def tracking_metrics(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
@@ -142,24 +146,33 @@ def tracking_metrics(estimate: Poses, reference: Poses, monocular: bool, cfg: Me
     rpe = relative_pose_error(estimate, reference, monocular, cfg)
     done = completeness_from_frames(frames) if frames is not None and len(frames) else \
         completeness_from_poses(estimate, reference, cfg)
-    errors = rpe.errors_m
+    return combine([rpe], [done], cfg, rpe.alignment,
+                   done.duration_s if time_on_task_s is None else time_on_task_s)
+
+
+def combine(rpes: list[RpeResult], parts: list[Completeness], cfg: MetricsConfig, alignment: str,
+            time_on_task_s: float) -> TrackingMetrics:
+    """The metrics of several recordings of one participant's task (a session resumed after a crash): the
+    errors of all pairs pooled, completeness weighted by frames, losses and durations summed."""
+    errors = np.concatenate([r.errors_m for r in rpes]) if rpes else np.zeros(0)
+    frames = sum(p.frames for p in parts)
     nan = float("nan")
     return TrackingMetrics(
         rpe_mean_m=float(errors.mean()) if errors.size else nan,
         rpe_rmse_m=float(np.sqrt(np.mean(errors ** 2))) if errors.size else nan,
         rpe_median_m=float(np.median(errors)) if errors.size else nan,
         rpe_max_m=float(errors.max()) if errors.size else nan,
-        pairs=int(errors.size), completeness=done.fraction, tracking_losses=done.losses,
-        loss_duration_s=done.loss_duration_s,
-        time_on_task_s=float(time_on_task_s if time_on_task_s is not None else done.duration_s),
-        alignment=rpe.alignment, delta_frames=cfg.delta_frames, all_pairs=cfg.all_pairs,
-        association_max_dt_s=cfg.association_max_dt_s)
+        pairs=int(errors.size),
+        completeness=float(sum(p.fraction * p.frames for p in parts) / frames) if frames else nan,
+        tracking_losses=sum(p.losses for p in parts), loss_duration_s=float(sum(p.loss_duration_s for p in parts)),
+        time_on_task_s=float(time_on_task_s), alignment=alignment, delta_frames=cfg.delta_frames,
+        all_pairs=cfg.all_pairs, association_max_dt_s=cfg.association_max_dt_s)
 
 
 def read_frame_log(path: Path) -> pd.DataFrame:
     """A session's ``frames.csv``; a row cut short by a crash is dropped."""
     try:
-        frames = pd.read_csv(path, on_bad_lines="skip")
+        frames = read_csv_log(path)
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
         raise MetricsError(f"cannot read the frame log {path}: {e}") from None
     return frames.dropna(subset=["timestamp", "state"])

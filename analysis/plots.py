@@ -1,0 +1,143 @@
+"""The study's figures (matplotlib, PNG): per-condition box/strip plots, trajectories coloured by the estimated
+error, and error over time with the audio pulses and the operator's events.
+
+Times: SLAM poses and RPE pairs are on the camera clock; the advisory's buffers and the operator's events are in
+Unix time. The estimate log holds both for each estimate (receipt time, frame time), and the median difference
+maps Unix time onto the camera clock (it includes the estimate's latency, tens of milliseconds, which is
+invisible at the scale of a task). Without an estimate log both clocks are taken to be the same, as they are
+with a live RealSense camera.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from analysis.config import AnalysisConfig, Variable  # noqa: E402
+from seesys.trajectory import TrajectoryError, read_tum  # noqa: E402
+from study.estimates import read_estimate_log  # noqa: E402
+from study.logfiles import read_csv_log  # noqa: E402
+from study.sessions import StudyData, read_events  # noqa: E402
+
+ADVISORY_CSV = "advisory.csv"
+
+
+def box_strip(table: pd.DataFrame, variable: Variable, conditions: list[str], out: Path) -> Path:
+    """Box plot per condition with every participant as a jittered point."""
+    fig, ax = plt.subplots(figsize=(1.8 + 1.3 * len(conditions), 3.6))
+    values = [table.loc[table.condition == c, variable.column].dropna().to_numpy() * variable.scale
+              for c in conditions]
+    ax.boxplot(values, tick_labels=conditions, showfliers=False, widths=0.5)
+    rng = np.random.default_rng(0)
+    for i, v in enumerate(values, start=1):
+        ax.scatter(i + rng.uniform(-0.12, 0.12, len(v)), v, s=18, alpha=0.8, zorder=3)
+    ax.set_ylabel(variable.title)
+    ax.set_title(f"{variable.label} per condition")
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    path = out / f"box_{variable.column}.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def wall_to_camera_offset(attempt: Path) -> float:
+    """Seconds to add to a Unix time to get the camera clock (see the module docstring)."""
+    log = read_estimate_log(attempt)
+    if log.empty:
+        return 0.0
+    return float(np.median(log.timestamp - log.receipt_time))
+
+
+def _estimated_error_at(attempt: Path, times: np.ndarray, max_gap_s: float = 0.5) -> np.ndarray:
+    log = read_estimate_log(attempt).sort_values("timestamp")
+    if log.empty:
+        return np.full(len(times), np.nan)
+    t, e = log.timestamp.to_numpy(), log.error_m.to_numpy()
+    idx = np.clip(np.searchsorted(t, times), 1, len(t) - 1) if len(t) > 1 else np.zeros(len(times), int)
+    nearest = np.where(np.abs(t[idx - 1] - times) < np.abs(t[idx] - times), idx - 1, idx) if len(t) > 1 else idx
+    return np.where(np.abs(t[nearest] - times) <= max_gap_s, e[nearest], np.nan)
+
+
+def _participants_to_plot(data: StudyData, condition: str, cfg: AnalysisConfig) -> list[tuple[str, list]]:
+    chosen = [(p, a) for (p, c), a in sorted(data.attempts.items()) if c == condition]
+    return chosen[:cfg.plots_per_condition]
+
+
+def trajectories(data: StudyData, condition: str, cfg: AnalysisConfig, out: Path) -> Path | None:
+    """Top views of participants' trajectories, coloured by the estimated error (cm)."""
+    chosen = _participants_to_plot(data, condition, cfg)
+    if not chosen:
+        return None
+    fig, axes = plt.subplots(1, len(chosen), figsize=(3.4 * len(chosen), 3.4), squeeze=False)
+    mappable = None
+    for ax, (participant, attempts) in zip(axes[0], chosen):
+        for a in attempts:
+            try:
+                poses = read_tum(a.folder / "trajectory.tum")
+            except TrajectoryError:
+                continue
+            if len(poses) < 2:
+                continue
+            axis = np.argsort(np.ptp(poses.positions, axis=0))[::-1][:2]
+            error_cm = _estimated_error_at(a.folder, poses.timestamps) * 100
+            ax.plot(poses.positions[:, axis[0]], poses.positions[:, axis[1]], color="0.8", lw=0.8, zorder=1)
+            mappable = ax.scatter(poses.positions[:, axis[0]], poses.positions[:, axis[1]], c=error_cm, s=6,
+                                  cmap="viridis", zorder=2)
+        ax.set_title(participant)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("m")
+    fig.suptitle(f"Trajectories, {condition}: coloured by estimated error")
+    if mappable is not None:
+        fig.colorbar(mappable, ax=axes[0].tolist(), label="estimated error (cm)")
+    path = out / f"trajectories_{condition}.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def error_over_time(data: StudyData, condition: str, cfg: AnalysisConfig, out: Path) -> Path | None:
+    """Tracking error (RPE pairs) and estimated error over time, with audio pulses and events."""
+    chosen = _participants_to_plot(data, condition, cfg)
+    if not chosen:
+        return None
+    fig, axes = plt.subplots(len(chosen), 1, figsize=(8, 2.2 * len(chosen)), squeeze=False, sharex=False)
+    for ax, (participant, attempts) in zip(axes[:, 0], chosen):
+        for a in attempts:
+            if a.rpe.timestamps.size == 0:
+                continue
+            t0 = a.rpe.timestamps[0]
+            ax.plot(a.rpe.timestamps - t0, a.rpe.errors_m * 100, lw=0.8, label="tracking error (RPE)")
+            log = read_estimate_log(a.folder)
+            if not log.empty:
+                ax.plot(log.timestamp - t0, log.error_m * 100, lw=0.8, alpha=0.8, label="estimated error")
+            offset = wall_to_camera_offset(a.folder)
+            if (a.folder / ADVISORY_CSV).exists():
+                advisory = read_csv_log(a.folder / ADVISORY_CSV)
+                pulses = advisory.loc[advisory.n_pulses > 0, "wall_time"] + offset - t0
+                ax.vlines(pulses, 0, 0.15, transform=ax.get_xaxis_transform(), colors="tab:red", lw=0.6,
+                          label="audio pulses")
+            for e in read_events(a.folder).itertuples():
+                ax.axvline(e.time + offset - t0, color="0.4", ls=":", lw=0.8)
+                ax.annotate(f"{e.kind} {e.detail if isinstance(e.detail, str) else ''}".strip(),
+                            (e.time + offset - t0, 0.95), xycoords=("data", "axes fraction"), fontsize=6,
+                            rotation=90, va="top")
+        ax.set_title(participant, fontsize=9)
+        ax.set_ylabel("cm")
+        handles, labels = ax.get_legend_handles_labels()
+        unique = dict(zip(labels, handles))
+        if unique:
+            ax.legend(unique.values(), unique.keys(), fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("time from the first pair (s)")
+    fig.suptitle(f"Error over time, {condition}")
+    fig.tight_layout()
+    path = out / f"error_over_time_{condition}.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

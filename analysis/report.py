@@ -1,0 +1,208 @@
+"""``seesys analyze``: a study's tidy tables, statistics, figures and report.
+
+Writes into the output folder (default ``STUDY/analysis``):
+
+- ``participants.csv``: one row per participant (and condition): condition, position in the participant's order,
+  status, attempts, and the metrics in SI units (``rpe_mean_m``, ``completeness`` as a fraction, ...);
+- ``rpe_pairs.csv``: every RPE pair (participant, condition, attempt, timestamp, error_m);
+- ``descriptives.csv``, ``assumptions.csv``, ``tests.csv``, ``posthoc.csv``: the statistics, one row per
+  variable and condition / check / test / pair, in the reported units (R and JASP read them as they are);
+- ``figures/*.png`` and ``report.md`` / ``report.html`` (the same report; the HTML embeds nothing, it links the
+  figures).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+from markdown_it import MarkdownIt
+
+from analysis import plots
+from analysis.config import AnalysisConfig
+from analysis.stats import Comparison, compare
+from seesys.errors import SeesysError
+from study.config import MetricsConfig
+from study.sessions import DONE, StudyData, collect_study
+
+REPORT_MD = "report.md"
+REPORT_HTML = "report.html"
+HTML_STYLE = ("body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
+              "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:.2em .6em}"
+              "th{background:#eee}img{max-width:100%}code{background:#f4f4f4}")
+
+
+@dataclass(frozen=True)
+class AnalysisResult:
+    out: Path
+    comparisons: list[Comparison]
+    table: pd.DataFrame
+
+
+def _fmt(value: float, decimals: int) -> str:
+    return "–" if value is None or not math.isfinite(value) else f"{value:.{decimals}f}"
+
+
+def _p(p: float) -> str:
+    return "–" if not math.isfinite(p) else "< 0.001" if p < 0.001 else f"{p:.3f}"
+
+
+def _p_clause(p: float) -> str:
+    text = _p(p)
+    return f"p {text}" if text.startswith("<") else f"p = {text}"
+
+
+def table5(comparisons: list[Comparison], conditions: list[str], cfg: AnalysisConfig) -> pd.DataFrame:
+    """The paper's Table 5 layout: variables as rows, conditions as columns, ``mean ± SD [95 % CI]`` cells."""
+    rows = []
+    for c in comparisons:
+        d = c.descriptives.set_index("condition")
+        v = c.variable
+        row = {"Performance metric": v.title}
+        for condition in conditions:
+            r = d.loc[condition]
+            row[cfg.condition_labels.get(condition, condition)] = (
+                f"{_fmt(r['mean'], v.decimals)} ± {_fmt(r['sd'], v.decimals)} "
+                f"[{_fmt(r['ci_low'], v.decimals)}, {_fmt(r['ci_high'], v.decimals)}] (n = {int(r['n'])})")
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def analyse_table(table: pd.DataFrame, conditions: list[str], design: str, cfg: AnalysisConfig) -> list[Comparison]:
+    """Every configured variable present in ``table`` compared across ``conditions``."""
+    return [compare(table, v, conditions, design, cfg) for v in cfg.variables if v.column in table]
+
+
+def _tidy(comparisons: list[Comparison], part: str) -> pd.DataFrame:
+    frames = [getattr(c, part).assign(variable=c.variable.column) for c in comparisons if not getattr(c, part).empty]
+    if not frames:
+        return pd.DataFrame()
+    tidy = pd.concat(frames, ignore_index=True)
+    return tidy[["variable", *[col for col in tidy.columns if col != "variable"]]]
+
+
+def write_tables(comparisons: list[Comparison], out: Path) -> None:
+    for part in ("descriptives", "assumptions", "tests", "posthoc"):
+        _tidy(comparisons, part).to_csv(out / f"{part}.csv", index=False)
+
+
+def _section(c: Comparison, cfg: AnalysisConfig, figures: dict[str, Path], out: Path) -> list[str]:
+    v = c.variable
+    lines = [f"## {v.title}", ""]
+    lines += [f"- {note}" for note in c.notes]
+    if c.power_note:
+        lines.append(f"- power: {c.power_note}")
+    lines.append("")
+    if not c.assumptions.empty:
+        a = c.assumptions.assign(statistic=c.assumptions.statistic.map(lambda x: _fmt(x, 3)),
+                                 p=c.assumptions.p.map(_p),
+                                 passed=[("yes" if ok else "no") if math.isfinite(p) else "not checked (n < 3)"
+                                         for ok, p in zip(c.assumptions.passed, c.assumptions.p)])
+        lines += ["**Assumption checks**", "", a.to_markdown(index=False), ""]
+    if not c.tests.empty:
+        t = c.tests.copy()
+        t["result"] = [f"{r.statistic}({_fmt(r.df1, 2)}{'' if not math.isfinite(r.df2) else ', ' + _fmt(r.df2, 2)}) "
+                       f"= {_fmt(r.value, 3)}, {_p_clause(r.p)}" for r in t.itertuples()]
+        t["effect size"] = [f"{r.effect} = {_fmt(r.effect_value, 3)}" +
+                            (f" [{_fmt(r.effect_ci_low, 3)}, {_fmt(r.effect_ci_high, 3)}]"
+                             if math.isfinite(r.effect_ci_low) else "") if r.effect else ""
+                            for r in t.itertuples()]
+        t["read"] = ["**yes**" if r.test == c.recommended_test else "" for r in t.itertuples()]
+        lines += ["**Tests**", "", t[["test", "result", "effect size", "read"]].to_markdown(index=False), ""]
+    if not c.posthoc.empty:
+        ph = c.posthoc.copy()
+        ph["difference"] = ph.mean_diff.map(lambda x: _fmt(x, v.decimals + 1))
+        ph["p (adjusted)"] = ph.p_adj.map(_p)
+        ph["Hedges' g [CI]"] = [f"{_fmt(r.hedges_g, 2)} [{_fmt(r.g_ci_low, 2)}, {_fmt(r.g_ci_high, 2)}]"
+                                for r in ph.itertuples()]
+        ph["read"] = ["**yes**" if m == c.recommended_posthoc else "" for m in ph.method]
+        lines += [f"**Post hoc** (difference = a − b, {v.unit or 'units'})", "",
+                  ph[["method", "a", "b", "difference", "p (adjusted)", "Hedges' g [CI]", "read"]]
+                  .to_markdown(index=False), ""]
+    if v.column in figures:
+        lines += [f"![{v.label}]({figures[v.column].relative_to(out)})", ""]
+    return lines
+
+
+def render_report(table: pd.DataFrame, comparisons: list[Comparison], conditions: list[str],
+                  design: str, cfg: AnalysisConfig, figures: dict[str, Path], out: Path, title: str) -> str:
+    counts = table.groupby("condition").participant.nunique().reindex(conditions, fill_value=0)
+    statuses = table.status.value_counts().to_dict() if "status" in table else {}
+    lines = [f"# {title}", "",
+             f"Design: {design}-subjects, conditions {', '.join(conditions)}; participants per condition: "
+             f"{', '.join(f'{c} {n}' for c, n in counts.items())}"
+             + (f"; sessions {', '.join(f'{k} {v}' for k, v in statuses.items())}." if statuses else "."),
+             f"Tests at alpha = {cfg.alpha}; intervals at {cfg.confidence:.0%}. Tidy tables: participants.csv, "
+             "rpe_pairs.csv, descriptives.csv, assumptions.csv, tests.csv, posthoc.csv.", ""]
+    if any(c.variable.column == "rpe_mean_m" for c in comparisons):
+        lines.append("Tracking error: the mean of evo's RPE (translation part) over all pairs of a participant's "
+                     "task; completeness: the share of camera frames tracked from initialisation on.")
+    lines += ["", "## Results per condition (Table 5 layout: mean ± SD [95 % CI])", "",
+              table5(comparisons, conditions, cfg).to_markdown(index=False), ""]
+    for c in comparisons:
+        lines += _section(c, cfg, figures, out)
+    extra = [p for key, p in figures.items() if key.startswith(("trajectories_", "error_over_time_"))]
+    if extra:
+        lines += ["## Trajectories and error over time", ""]
+        lines += [f"![{p.stem}]({p.relative_to(out)})\n" for p in extra]
+    return "\n".join(lines) + "\n"
+
+
+def write_report(markdown: str, out: Path, title: str) -> None:
+    (out / REPORT_MD).write_text(markdown)
+    body = MarkdownIt("commonmark").enable("table").render(markdown)
+    (out / REPORT_HTML).write_text(f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{title}</title>"
+                                   f"<style>{HTML_STYLE}</style></head><body>\n{body}</body></html>\n")
+
+
+def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: MetricsConfig) -> AnalysisResult:
+    """The whole analysis of a study folder (see the module docstring)."""
+    out = Path(out or Path(study) / "analysis")
+    figures_dir = out / "figures"
+    figures_dir.mkdir(parents=True, exist_ok=True)
+    data = collect_study(study, metrics)
+    table = data.participants
+    if not cfg.include_incomplete:
+        table = table[table.status == DONE]
+    if table[[v.column for v in cfg.variables if v.column in table]].dropna(how="all").empty:
+        raise SeesysError(f"{study}: no participant has a trajectory with ground truth yet (`seesys study status`)")
+    table.to_csv(out / "participants.csv", index=False)
+    data.pairs.to_csv(out / "rpe_pairs.csv", index=False)
+    conditions = data.protocol.conditions
+    comparisons = analyse_table(table, conditions, data.protocol.design, cfg)
+    write_tables(comparisons, out)
+    figures: dict[str, Path] = {c.variable.column: plots.box_strip(table, c.variable, conditions, figures_dir)
+                                for c in comparisons}
+    for condition in conditions:
+        for kind, draw in (("trajectories", plots.trajectories), ("error_over_time", plots.error_over_time)):
+            path = draw(data, condition, cfg, figures_dir)
+            if path is not None:
+                figures[f"{kind}_{condition}"] = path
+    title = f"Study {Path(study).resolve().name}"
+    write_report(render_report(table, comparisons, conditions, data.protocol.design, cfg, figures, out, title),
+                 out, title)
+    return AnalysisResult(out, comparisons, table)
+
+
+def analyse_csv(path: Path, out: Path, design: str, cfg: AnalysisConfig) -> AnalysisResult:
+    """The statistics and box plots of a tidy participants table (``participants.csv`` or one edited by hand)."""
+    try:
+        table = pd.read_csv(path)
+    except (OSError, pd.errors.ParserError) as e:
+        raise SeesysError(f"cannot read {path}: {e}") from None
+    missing = {"participant", "condition"} - set(table)
+    if missing:
+        raise SeesysError(f"{path}: missing column(s) {', '.join(sorted(missing))}")
+    if "position" not in table:
+        table["position"] = 1
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "figures").mkdir(exist_ok=True)
+    conditions = list(dict.fromkeys(table.condition))
+    comparisons = analyse_table(table, conditions, design, cfg)
+    write_tables(comparisons, out)
+    figures = {c.variable.column: plots.box_strip(table, c.variable, conditions, out / "figures") for c in comparisons}
+    title = f"Analysis of {path.name}"
+    write_report(render_report(table, comparisons, conditions, design, cfg, figures, out, title), out, title)
+    return AnalysisResult(out, comparisons, table)

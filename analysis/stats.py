@@ -1,0 +1,286 @@
+"""Per-condition statistics of one dependent variable (paper Table 5 and what it left out).
+
+Between-subjects (the paper's design): descriptives (mean, SD, t-based CI of the mean), assumption checks
+(Shapiro–Wilk per condition and on the ANOVA residuals, Levene's test centred on the median, i.e.
+Brown–Forsythe), the classic one-way ANOVA (statsmodels ``anova_lm``) with η² and ω², Welch's ANOVA
+(statsmodels ``anova_oneway``) and Kruskal–Wallis (scipy) with ε², post hoc Tukey HSD (statsmodels),
+Games–Howell (pingouin) and Dunn with Holm correction (scikit-posthocs), each pair with Hedges' g and its CI
+(pingouin). The CIs of η² and ε² are percentile bootstraps (scipy.stats.bootstrap, groups resampled
+separately). Which test to read is chosen from the checks: normal residuals and equal variances → ANOVA and
+Tukey; normal but unequal variances → Welch and Games–Howell; not normal → Kruskal–Wallis and Dunn. The power
+note gives the participants per group that the observed effect (Cohen's f from η²) needs for the configured
+power (statsmodels ``FTestAnovaPower``).
+
+Within-subjects: repeated-measures ANOVA with Mauchly's sphericity test and the Greenhouse–Geisser correction
+(pingouin ``rm_anova``), Friedman's test with Kendall's W (pingouin), paired post hoc t tests or Wilcoxon tests
+with Holm correction (pingouin ``pairwise_tests``), and a power note from pingouin's ``power_rm_anova``. Only
+participants with a value in every condition enter.
+
+Values are in the variable's reported unit (``scale`` applied) everywhere.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from analysis.config import AnalysisConfig, Variable
+
+# The smallest design the power note considers: an effect that already has the wanted power with this many
+# participants per group needs no more (the solvers find no root below it).
+MIN_PER_GROUP = 2
+
+
+@dataclass
+class Comparison:
+    """Everything reported for one variable: tidy tables and the reading of them."""
+
+    variable: Variable
+    design: str
+    descriptives: pd.DataFrame
+    assumptions: pd.DataFrame = field(default_factory=pd.DataFrame)
+    tests: pd.DataFrame = field(default_factory=pd.DataFrame)
+    posthoc: pd.DataFrame = field(default_factory=pd.DataFrame)
+    recommended_test: str = ""
+    recommended_posthoc: str = ""
+    power_note: str = ""
+    notes: list[str] = field(default_factory=list)
+
+
+def values_of(table: pd.DataFrame, variable: Variable) -> pd.DataFrame:
+    """``participant``, ``condition``, ``position`` and ``value`` (scaled) of the rows with a value."""
+    data = table[["participant", "condition", "position", variable.column]].dropna(subset=[variable.column]).copy()
+    data["value"] = data.pop(variable.column).astype(float) * variable.scale
+    return data.reset_index(drop=True)
+
+
+def descriptives(data: pd.DataFrame, conditions: list[str], confidence: float) -> pd.DataFrame:
+    rows = []
+    for c in conditions:
+        x = data.loc[data.condition == c, "value"].to_numpy()
+        n = len(x)
+        mean = float(x.mean()) if n else math.nan
+        sd = float(x.std(ddof=1)) if n > 1 else math.nan
+        low, high = (stats.t.interval(confidence, n - 1, loc=mean, scale=sd / math.sqrt(n)) if n > 1 and sd > 0
+                     else (mean, mean) if n > 1 else (math.nan, math.nan))
+        rows.append({"condition": c, "n": n, "mean": mean, "sd": sd, "ci_low": float(low), "ci_high": float(high)})
+    return pd.DataFrame(rows)
+
+
+def _shapiro(x: np.ndarray) -> tuple[float, float]:
+    if len(x) < 3 or np.ptp(x) == 0:
+        return math.nan, math.nan
+    result = stats.shapiro(x)
+    return float(result.statistic), float(result.pvalue)
+
+
+def _bootstrap_ci(samples: list[np.ndarray], statistic, cfg: AnalysisConfig) -> tuple[float, float]:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # degenerate resamples (a constant group) give NaN and a warning
+        result = stats.bootstrap(samples, statistic, n_resamples=cfg.bootstrap_resamples,
+                                 confidence_level=cfg.confidence, method="percentile", vectorized=True,
+                                 random_state=np.random.default_rng(cfg.bootstrap_seed))
+    return float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
+def eta_squared(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
+    """η² = SS_between / SS_total, from scipy's F (vectorised over resamples)."""
+    k = len(samples)
+    n = sum(s.shape[axis] for s in samples)
+    f = stats.f_oneway(*samples, axis=axis).statistic
+    return f * (k - 1) / (f * (k - 1) + (n - k))
+
+
+def epsilon_squared(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
+    """ε² = H / (n − 1) of the Kruskal–Wallis H (vectorised over resamples)."""
+    n = sum(s.shape[axis] for s in samples)
+    return stats.kruskal(*samples, axis=axis).statistic / (n - 1)
+
+
+def _pair_effects(groups: dict[str, np.ndarray], a: str, b: str, confidence: float, paired: bool = False) -> dict:
+    import pingouin as pg
+
+    x, y = groups[a], groups[b]
+    g = float(pg.compute_effsize(x, y, paired=paired, eftype="hedges"))
+    low, high = pg.compute_esci(g, len(x), len(y), paired=paired, eftype="cohen", confidence=confidence, decimals=6)
+    return {"hedges_g": g, "g_ci_low": float(low), "g_ci_high": float(high)}
+
+
+def compare_between(table: pd.DataFrame, variable: Variable, conditions: list[str], cfg: AnalysisConfig) -> Comparison:
+    """The between-subjects analysis of one variable (see the module docstring)."""
+    import pingouin as pg
+    import scikit_posthocs as sp
+    import statsmodels.formula.api as smf
+    from statsmodels.stats.anova import anova_lm
+    from statsmodels.stats.multicomp import pairwise_tukeyhsd
+    from statsmodels.stats.oneway import anova_oneway
+    from statsmodels.stats.power import FTestAnovaPower
+
+    data = values_of(table, variable)
+    result = Comparison(variable, "between", descriptives(data, conditions, cfg.confidence))
+    present = [c for c in conditions if (data.condition == c).sum() >= 2]
+    data = data[data.condition.isin(present)]
+    if len(present) < 2:
+        result.notes.append(f"fewer than two conditions with two or more participants: no tests for {variable.label}")
+        return result
+    if data.value.std() == 0 or all(np.ptp(data.loc[data.condition == c, "value"]) == 0 for c in present):
+        result.notes.append(f"{variable.label} does not vary within conditions: no tests")
+        return result
+    groups = {c: data.loc[data.condition == c, "value"].to_numpy() for c in present}
+    samples = list(groups.values())
+    k, n = len(present), len(data)
+
+    model = smf.ols("value ~ C(condition)", data=data).fit()
+    rows = [{"check": "Shapiro-Wilk", "group": c, "statistic": s, "p": p} for c in present
+            for s, p in [_shapiro(groups[c])]]
+    rows.append(dict(zip(("check", "group", "statistic", "p"), ("Shapiro-Wilk", "residuals", *_shapiro(model.resid.to_numpy())))))
+    levene = stats.levene(*samples, center="median")
+    rows.append({"check": "Levene (median)", "group": "all", "statistic": float(levene.statistic), "p": float(levene.pvalue)})
+    result.assumptions = pd.DataFrame(rows)
+    result.assumptions["passed"] = ~(result.assumptions.p < cfg.alpha)  # an unchecked (NaN) p does not fail
+
+    anova = anova_lm(model, typ=2)
+    ss_b, ss_w = anova.loc["C(condition)", "sum_sq"], anova.loc["Residual", "sum_sq"]
+    df_b, df_w = anova.loc["C(condition)", "df"], anova.loc["Residual", "df"]
+    ms_w = ss_w / df_w
+    eta2 = ss_b / (ss_b + ss_w)
+    omega2 = (ss_b - df_b * ms_w) / (ss_b + ss_w + ms_w)
+    eta_ci = _bootstrap_ci(samples, eta_squared, cfg)
+    welch = anova_oneway(data.value, data.condition, use_var="unequal", welch_correction=True)
+    kruskal = stats.kruskal(*samples)
+    eps2 = float(kruskal.statistic) / (n - 1)
+    eps_ci = _bootstrap_ci(samples, epsilon_squared, cfg)
+    result.tests = pd.DataFrame([
+        {"test": "one-way ANOVA", "statistic": "F", "value": float(anova.loc["C(condition)", "F"]), "df1": df_b,
+         "df2": df_w, "p": float(anova.loc["C(condition)", "PR(>F)"]), "effect": "eta^2", "effect_value": eta2,
+         "effect_ci_low": eta_ci[0], "effect_ci_high": eta_ci[1]},
+        {"test": "one-way ANOVA", "statistic": "F", "value": float(anova.loc["C(condition)", "F"]), "df1": df_b,
+         "df2": df_w, "p": float(anova.loc["C(condition)", "PR(>F)"]), "effect": "omega^2", "effect_value": omega2,
+         "effect_ci_low": math.nan, "effect_ci_high": math.nan},
+        {"test": "Welch ANOVA", "statistic": "F", "value": float(welch.statistic), "df1": float(welch.df_num),
+         "df2": float(welch.df_denom), "p": float(welch.pvalue), "effect": "", "effect_value": math.nan,
+         "effect_ci_low": math.nan, "effect_ci_high": math.nan},
+        {"test": "Kruskal-Wallis", "statistic": "H", "value": float(kruskal.statistic), "df1": k - 1,
+         "df2": math.nan, "p": float(kruskal.pvalue), "effect": "epsilon^2", "effect_value": eps2,
+         "effect_ci_low": eps_ci[0], "effect_ci_high": eps_ci[1]},
+    ])
+
+    pairs = [(a, b) for i, a in enumerate(present) for b in present[i + 1:]]
+    effects = {(a, b): _pair_effects(groups, a, b, cfg.confidence) for a, b in pairs}
+    tukey = pairwise_tukeyhsd(data.value, data.condition, alpha=cfg.alpha)
+    tukey_p = {tuple(sorted((str(r[0]), str(r[1])))): float(r[3]) for r in tukey.summary().data[1:]}
+    games = pg.pairwise_gameshowell(data=data, dv="value", between="condition")
+    games_p = {tuple(sorted((r.A, r.B))): float(r.pval) for r in games.itertuples()}
+    dunn = sp.posthoc_dunn(data, val_col="value", group_col="condition", p_adjust="holm")
+    rows = []
+    for method, p_of in (("Tukey HSD", tukey_p), ("Games-Howell", games_p),
+                         ("Dunn (Holm)", {tuple(sorted((a, b))): float(dunn.loc[a, b]) for a, b in pairs})):
+        for a, b in pairs:
+            rows.append({"method": method, "a": a, "b": b, "mean_diff": groups[a].mean() - groups[b].mean(),
+                         "p_adj": p_of[tuple(sorted((a, b)))], **effects[(a, b)]})
+    result.posthoc = pd.DataFrame(rows)
+
+    normal = bool(result.assumptions.loc[result.assumptions.check == "Shapiro-Wilk", "passed"].all())
+    equal_var = bool(result.assumptions.loc[result.assumptions.check == "Levene (median)", "passed"].all())
+    result.recommended_test, result.recommended_posthoc = (
+        ("one-way ANOVA", "Tukey HSD") if normal and equal_var else
+        ("Welch ANOVA", "Games-Howell") if normal else ("Kruskal-Wallis", "Dunn (Holm)"))
+    result.notes.append(f"assumptions: {'normal' if normal else 'not normal'} (Shapiro-Wilk), "
+                        f"{'equal' if equal_var else 'unequal'} variances (Levene): read the "
+                        f"{result.recommended_test} and {result.recommended_posthoc}")
+    cohen_f = math.sqrt(eta2 / (1 - eta2)) if 0 < eta2 < 1 else math.nan
+    if math.isfinite(cohen_f) and cohen_f > 0:
+        power = FTestAnovaPower()
+        smallest = power.power(effect_size=cohen_f, nobs=MIN_PER_GROUP * k, alpha=cfg.alpha, k_groups=k)
+        total = math.nan if smallest >= cfg.target_power else \
+            power.solve_power(effect_size=cohen_f, nobs=None, alpha=cfg.alpha, power=cfg.target_power, k_groups=k)
+        needed = (f"{math.ceil(total / k)} participants per condition ({math.ceil(total / k) * k} in all"
+                  if math.isfinite(total) else f"no more than {MIN_PER_GROUP} participants per condition (the "
+                                               f"smallest design already has that power")
+        result.power_note = (f"observed effect Cohen's f = {cohen_f:.2f} (from eta^2 = {eta2:.3f}); detecting it "
+                             f"with power {cfg.target_power:.0%} at alpha = {cfg.alpha} in a one-way ANOVA needs "
+                             f"{needed}; this study has {n})")
+    else:
+        result.power_note = "no effect observed (eta^2 = 0): no sample size can be given"
+    return result
+
+
+def compare_within(table: pd.DataFrame, variable: Variable, conditions: list[str], cfg: AnalysisConfig) -> Comparison:
+    """The within-subjects analysis of one variable (see the module docstring)."""
+    import pingouin as pg
+
+    data = values_of(table, variable)
+    counts = data.groupby("participant").condition.nunique()
+    complete = counts.index[counts == len(conditions)]
+    data = data[data.participant.isin(complete) & data.condition.isin(conditions)]
+    result = Comparison(variable, "within", descriptives(data, conditions, cfg.confidence))
+    if len(complete) < 3 or data.value.std() == 0:
+        result.notes.append(f"fewer than three participants with every condition, or no variation: no tests for "
+                            f"{variable.label}")
+        return result
+    groups = {c: data.loc[data.condition == c].sort_values("participant").value.to_numpy() for c in conditions}
+    rows = [{"check": "Shapiro-Wilk", "group": c, "statistic": s, "p": p} for c in conditions
+            for s, p in [_shapiro(groups[c])]]
+    sphericity = pg.sphericity(data, dv="value", within="condition", subject="participant")
+    rows.append({"check": "Mauchly sphericity", "group": "all", "statistic": float(sphericity.W),
+                 "p": float(sphericity.pval)})
+    result.assumptions = pd.DataFrame(rows)
+    result.assumptions["passed"] = ~(result.assumptions.p < cfg.alpha)
+
+    rm = pg.rm_anova(data=data, dv="value", within="condition", subject="participant", correction=True,
+                     effsize="np2").iloc[0]
+    friedman = pg.friedman(data=data, dv="value", within="condition", subject="participant").iloc[0]
+    p_gg = float(rm.get("p_GG_corr", rm.get("p-GG-corr", math.nan)))
+    result.tests = pd.DataFrame([
+        {"test": "repeated-measures ANOVA", "statistic": "F", "value": float(rm.F), "df1": float(rm.ddof1),
+         "df2": float(rm.ddof2), "p": float(rm.get("p_unc", rm.get("p-unc"))), "effect": "partial eta^2",
+         "effect_value": float(rm.np2), "effect_ci_low": math.nan, "effect_ci_high": math.nan},
+        {"test": "repeated-measures ANOVA (Greenhouse-Geisser)", "statistic": "F", "value": float(rm.F),
+         "df1": float(rm.ddof1) * float(rm.eps), "df2": float(rm.ddof2) * float(rm.eps), "p": p_gg,
+         "effect": "partial eta^2", "effect_value": float(rm.np2), "effect_ci_low": math.nan,
+         "effect_ci_high": math.nan},
+        {"test": "Friedman", "statistic": "Q", "value": float(friedman.Q), "df1": float(friedman.ddof1),
+         "df2": math.nan, "p": float(friedman.get("p_unc", friedman.get("p-unc"))), "effect": "Kendall W",
+         "effect_value": float(friedman.W), "effect_ci_low": math.nan, "effect_ci_high": math.nan},
+    ])
+    rows = []
+    for parametric, method in ((True, "paired t (Holm)"), (False, "Wilcoxon (Holm)")):
+        table_ = pg.pairwise_tests(data=data, dv="value", within="condition", subject="participant",
+                                   parametric=parametric, padjust="holm")
+        p_col = "p_corr" if "p_corr" in table_ else "p-corr"
+        for r in table_.to_dict("records"):
+            a, b = r["A"], r["B"]
+            rows.append({"method": method, "a": a, "b": b, "mean_diff": groups[a].mean() - groups[b].mean(),
+                         "p_adj": float(r[p_col]), **_pair_effects(groups, a, b, cfg.confidence, paired=True)})
+    result.posthoc = pd.DataFrame(rows)
+    normal = bool(result.assumptions.loc[result.assumptions.check == "Shapiro-Wilk", "passed"].all())
+    spherical = bool(result.assumptions.loc[result.assumptions.check == "Mauchly sphericity", "passed"].all())
+    result.recommended_test = ("repeated-measures ANOVA" if normal and spherical else
+                               "repeated-measures ANOVA (Greenhouse-Geisser)" if normal else "Friedman")
+    result.recommended_posthoc = "paired t (Holm)" if normal else "Wilcoxon (Holm)"
+    result.notes.append(f"assumptions: {'normal' if normal else 'not normal'} (Shapiro-Wilk), sphericity "
+                        f"{'holds' if spherical else 'violated'} (Mauchly): read the {result.recommended_test} "
+                        f"and {result.recommended_posthoc}")
+    if 0 < float(rm.np2) < 1:
+        wide = data.pivot(index="participant", columns="condition", values="value")
+        corr = float(np.nanmean(wide.corr().to_numpy()[np.triu_indices(len(conditions), 1)]))
+        needed = pg.power_rm_anova(eta_squared=float(rm.np2), m=len(conditions), n=None, power=cfg.target_power,
+                                   alpha=cfg.alpha, corr=max(min(corr, 0.99), -0.49), epsilon=float(rm.eps))
+        count = (f"{math.ceil(needed)} participants" if math.isfinite(needed) else
+                 f"no more than {MIN_PER_GROUP} participants (the smallest design already has that power)")
+        result.power_note = (f"observed partial eta^2 = {float(rm.np2):.3f} (mean correlation between conditions "
+                             f"{corr:.2f}); power {cfg.target_power:.0%} at alpha = {cfg.alpha} needs "
+                             f"{count}; this study has {len(complete)}")
+    else:
+        result.power_note = "no effect observed: no sample size can be given"
+    return result
+
+
+def compare(table: pd.DataFrame, variable: Variable, conditions: list[str], design: str,
+            cfg: AnalysisConfig) -> Comparison:
+    return (compare_between if design == "between" else compare_within)(table, variable, conditions, cfg)

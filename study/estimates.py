@@ -1,0 +1,26 @@
+"""The study's log of the pose-error estimates a session received (``estimates.csv``): one row per ``Estimate``
+message, with the Unix time it arrived. Written by ``seesys study run`` whatever the condition, so that every
+participant's trajectory can be shown with the error SEESys estimated for it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from study.logfiles import read_csv_log
+
+ESTIMATES_CSV = "estimates.csv"
+ESTIMATE_COLUMNS = ("receipt_time", "device_id", "frame_index", "timestamp", "error_m", "model_version")
+
+
+def read_estimate_log(folder: Path) -> pd.DataFrame:
+    """The estimate log of a session folder (empty when there is none); a row cut short by a crash is dropped."""
+    path = Path(folder) / ESTIMATES_CSV
+    if not path.exists():
+        return pd.DataFrame(columns=list(ESTIMATE_COLUMNS))
+    try:
+        log = read_csv_log(path)
+    except pd.errors.EmptyDataError:
+        return pd.DataFrame(columns=list(ESTIMATE_COLUMNS))
+    return log.dropna(subset=["receipt_time", "timestamp", "error_m"])

@@ -1,0 +1,183 @@
+"""A participant's recorded attempts, their status, and the per-participant metrics of a whole study.
+
+Every ``seesys study run`` writes one attempt folder (``attempt-<n>``, never reused) holding the device session
+(``frames.csv``, ``trajectory.tum``, ``session.json``, ...), ``groundtruth.tum``, the study's logs and
+``run.json`` (participant, phase, condition, status, start and end). An attempt whose ``run.json`` still says
+``running`` after its process is gone was killed: it is ``incomplete`` and its data count like any other. A
+restart marks the earlier attempts of the phase ``superseded``: they stay on disk but leave the metrics.
+
+A participant's metrics pool the non-superseded attempts of the analysed phase (``study.metrics.combine``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from seesys.trajectory import TrajectoryError, read_tum
+from study.config import MetricsConfig
+from study.logfiles import read_csv_log
+from study.metrics import (RpeResult, TrackingMetrics, combine, completeness_from_frames, completeness_from_poses,
+                           read_frame_log, relative_pose_error)
+from study.protocol import Protocol, read_protocol
+
+RUN_JSON = "run.json"
+EVENTS_CSV = "events.csv"
+EVENTS_HEADER = "time,kind,detail"
+ATTEMPT = re.compile(r"attempt-(\d+)$")
+DONE, INCOMPLETE, PENDING = "done", "incomplete", "pending"
+
+
+def attempt_folders(phase_folder: Path) -> list[Path]:
+    """The attempt folders of a phase, in order."""
+    if not phase_folder.is_dir():
+        return []
+    found = [(int(m.group(1)), p) for p in phase_folder.iterdir() if p.is_dir() and (m := ATTEMPT.match(p.name))]
+    return [p for _, p in sorted(found)]
+
+
+def next_attempt_folder(phase_folder: Path) -> Path:
+    """A new attempt folder (created), numbered after every existing one."""
+    existing = attempt_folders(phase_folder)
+    number = int(ATTEMPT.match(existing[-1].name).group(1)) + 1 if existing else 1
+    folder = phase_folder / f"attempt-{number}"
+    folder.mkdir(parents=True)
+    return folder
+
+
+def _alive(pid: object) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except (ProcessLookupError, TypeError, ValueError):
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def read_run(attempt: Path) -> dict:
+    """``run.json`` of an attempt, with ``status`` ``incomplete`` when its process died while running."""
+    try:
+        run = json.loads((attempt / RUN_JSON).read_text())
+    except (OSError, ValueError):
+        return {"status": INCOMPLETE}
+    if run.get("status") == "running" and not _alive(run.get("pid")):
+        run["status"] = INCOMPLETE
+    return run
+
+
+def used_attempts(phase_folder: Path) -> list[Path]:
+    return [a for a in attempt_folders(phase_folder) if not read_run(a).get("superseded")]
+
+
+def phase_status(phase_folder: Path) -> str:
+    runs = [read_run(a) for a in used_attempts(phase_folder)]
+    if any(r.get("status") == "completed" for r in runs):
+        return DONE
+    return INCOMPLETE if runs else PENDING
+
+
+def read_events(attempt: Path) -> pd.DataFrame:
+    """The operator's events (``time,kind,detail``); a line cut short by a crash is dropped."""
+    path = attempt / EVENTS_CSV
+    if not path.exists():
+        return pd.DataFrame({"time": [], "kind": [], "detail": []})
+    return read_csv_log(path, dtype={"kind": str, "detail": str}).dropna(subset=["time", "kind"])
+
+
+def time_on_task(events: pd.DataFrame) -> float | None:
+    """From the ``initialised`` event to the last ``object`` event, when both were marked."""
+    start = events.loc[events.kind == "initialised", "time"]
+    objects = events.loc[events.kind == "object", "time"]
+    if start.empty or objects.empty or objects.max() <= start.min():
+        return None
+    return float(objects.max() - start.min())
+
+
+@dataclass(frozen=True)
+class AttemptMetrics:
+    folder: Path
+    rpe: RpeResult
+    monocular: bool
+
+
+def _monocular(attempt: Path) -> bool:
+    try:
+        return json.loads((attempt / "session.json").read_text()).get("mode") == "mono"
+    except (OSError, ValueError):
+        return False
+
+
+def _read_poses(path: Path):
+    try:
+        return read_tum(path)
+    except TrajectoryError:
+        return None
+
+
+def participant_metrics(attempts: list[Path], cfg: MetricsConfig) -> tuple[TrackingMetrics, list[AttemptMetrics]] | None:
+    """Pooled metrics of ``attempts`` (None when none has a trajectory and a ground truth)."""
+    rpes, parts, per_attempt, durations = [], [], [], []
+    for attempt in attempts:
+        estimate, reference = _read_poses(attempt / "trajectory.tum"), _read_poses(attempt / "groundtruth.tum")
+        if estimate is None or reference is None:
+            continue
+        monocular = _monocular(attempt)
+        rpe = relative_pose_error(estimate, reference, monocular, cfg)
+        frames = read_frame_log(attempt / "frames.csv") if (attempt / "frames.csv").exists() else None
+        part = completeness_from_frames(frames) if frames is not None and len(frames) else \
+            completeness_from_poses(estimate, reference, cfg)
+        marked = time_on_task(read_events(attempt))
+        rpes.append(rpe)
+        parts.append(part)
+        durations.append(part.duration_s if marked is None else marked)
+        per_attempt.append(AttemptMetrics(attempt, rpe, monocular))
+    if not per_attempt:
+        return None
+    return combine(rpes, parts, cfg, per_attempt[0].rpe.alignment, sum(durations)), per_attempt
+
+
+@dataclass(frozen=True)
+class StudyData:
+    """Tidy tables of a study: one row per participant (and condition), and one per RPE pair."""
+
+    protocol: Protocol
+    participants: pd.DataFrame
+    pairs: pd.DataFrame
+    attempts: dict[tuple[str, str], list[AttemptMetrics]]
+
+
+METRIC_COLUMNS = ("rpe_mean_m", "rpe_rmse_m", "pairs", "completeness", "tracking_losses", "loss_duration_s",
+                  "time_on_task_s")
+
+
+def collect_study(study: Path, cfg: MetricsConfig) -> StudyData:
+    """Metrics of every participant and condition of the analysed phase (participants without data have NaN)."""
+    protocol = read_protocol(study)
+    rows, pair_rows, attempts = [], [], {}
+    for person in protocol.participants:
+        for position, condition in enumerate(person.conditions, start=1):
+            folder = protocol.phase_folder(study, person.id, protocol.analysed_phase, condition)
+            result = participant_metrics(used_attempts(folder), cfg)
+            row = {"participant": person.id, "condition": condition, "position": position,
+                   "status": phase_status(folder), "attempts": len(used_attempts(folder))}
+            if result is None:
+                row.update({c: np.nan for c in METRIC_COLUMNS})
+            else:
+                metrics, per_attempt = result
+                row.update({c: getattr(metrics, c) for c in METRIC_COLUMNS})
+                attempts[(person.id, condition)] = per_attempt
+                for a in per_attempt:
+                    pair_rows.append(pd.DataFrame({"participant": person.id, "condition": condition,
+                                                   "attempt": a.folder.name, "timestamp": a.rpe.timestamps,
+                                                   "error_m": a.rpe.errors_m}))
+            rows.append(row)
+    pairs = pd.concat(pair_rows, ignore_index=True) if pair_rows else \
+        pd.DataFrame(columns=["participant", "condition", "attempt", "timestamp", "error_m"])
+    return StudyData(protocol, pd.DataFrame(rows), pairs, attempts)
