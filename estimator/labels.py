@@ -24,7 +24,6 @@ Definition (docs/labels.md explains the choices and how they differ from the aut
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
@@ -35,6 +34,7 @@ import pandas as pd
 from seesys.config import load_section
 from seesys.errors import SeesysError
 from seesys.protocol.tracking_state import TrackingState
+from seesys.trajectory import Poses, read_tum
 
 
 @dataclass(frozen=True)
@@ -61,43 +61,6 @@ class LabelStatus(str, Enum):
 
 class LabelError(SeesysError):
     """Inputs to the labeller are inconsistent (lengths, order, too little ground truth)."""
-
-
-@dataclass(frozen=True)
-class PoseSeries:
-    """Timestamped poses T_world_camera: positions (N×3) and unit quaternions (N×4, x y z w)."""
-
-    timestamps: np.ndarray
-    positions: np.ndarray
-    quaternions_xyzw: np.ndarray
-
-    def __post_init__(self) -> None:
-        n = len(self.timestamps)
-        if self.positions.shape != (n, 3) or self.quaternions_xyzw.shape != (n, 4):
-            raise LabelError(f"pose series shapes disagree: {n} timestamps, positions {self.positions.shape}, "
-                             f"quaternions {self.quaternions_xyzw.shape}")
-
-    @classmethod
-    def from_tum(cls, path: Path) -> PoseSeries:
-        """A TUM file ``t tx ty tz qx qy qz qw``."""
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)  # numpy warns on a file of comments only
-                data = np.loadtxt(path, comments="#", ndmin=2)
-        except (OSError, ValueError) as e:
-            raise LabelError(f"cannot read TUM trajectory {path}: {e}") from None
-        if data.size == 0:
-            return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))
-        if data.shape[1] != 8:
-            raise LabelError(f"{path}: expected 8 columns (t tx ty tz qx qy qz qw), found {data.shape[1]}")
-        return cls(data[:, 0], data[:, 1:4], data[:, 4:8])
-
-    def take(self, index: np.ndarray):
-        """An evo PosePath3D of the poses at ``index``."""
-        from evo.core.trajectory import PosePath3D
-
-        return PosePath3D(positions_xyz=self.positions[index],
-                          orientations_quat_wxyz=self.quaternions_xyzw[index][:, [3, 0, 1, 2]])
 
 
 @dataclass(frozen=True)
@@ -133,7 +96,7 @@ def tracked_stretches(tracked: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
 
 
-def label_frames(estimate: PoseSeries, states: np.ndarray, ground_truth: PoseSeries, monocular: bool,
+def label_frames(estimate: Poses, states: np.ndarray, ground_truth: Poses, monocular: bool,
                  config: LabelConfig) -> FrameLabels:
     """Label every frame of one SLAM run (``estimate`` has one pose per frame, ``states`` its tracking states)."""
     from evo.core import sync
@@ -171,7 +134,7 @@ def label_frames(estimate: PoseSeries, states: np.ndarray, ground_truth: PoseSer
     return FrameLabels(estimate.timestamps.copy(), error, status.astype(str), scale)
 
 
-def _window_scales(estimate: PoseSeries, ground_truth: PoseSeries, frames: np.ndarray, gt_of_frame: np.ndarray,
+def _window_scales(estimate: Poses, ground_truth: Poses, frames: np.ndarray, gt_of_frame: np.ndarray,
                    config: LabelConfig) -> np.ndarray:
     """Monocular: the Sim(3) scale fitted on the window centred on each pair, clipped to the stretch."""
     from evo.core.geometry import GeometryException, umeyama_alignment
@@ -195,7 +158,7 @@ def _window_scales(estimate: PoseSeries, ground_truth: PoseSeries, frames: np.nd
     return np.array(scales)
 
 
-def _pair_errors(estimate: PoseSeries, ground_truth: PoseSeries, starts: np.ndarray, ends: np.ndarray,
+def _pair_errors(estimate: Poses, ground_truth: Poses, starts: np.ndarray, ends: np.ndarray,
                  gt_of_frame: np.ndarray, scales: np.ndarray) -> np.ndarray:
     """evo RPE (translation part) of each pair (starts[k], ends[k]) with the estimate scaled by scales[k].
 
@@ -207,7 +170,7 @@ def _pair_errors(estimate: PoseSeries, ground_truth: PoseSeries, starts: np.ndar
     from evo.core.trajectory import PosePath3D
 
     order = np.column_stack([starts, ends]).ravel()
-    gt = ground_truth.take(gt_of_frame[order])
+    gt = ground_truth.take(gt_of_frame[order]).to_evo()
     est = PosePath3D(positions_xyz=estimate.positions[order] * np.repeat(scales, 2)[:, None],
                      orientations_quat_wxyz=estimate.quaternions_xyzw[order][:, [3, 0, 1, 2]])
     rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames,
@@ -231,7 +194,7 @@ def label_session(folder: Path, monocular: bool, config: LabelConfig) -> FrameLa
     ground_truth = folder / session.GROUND_TRUTH
     if not ground_truth.is_file():
         raise LabelError(f"{folder} has no {session.GROUND_TRUTH}: the source had no ground truth")
-    poses = PoseSeries.from_tum(folder / session.TRAJECTORY)
+    poses = read_tum(folder / session.TRAJECTORY)
     times = frames["timestamp"].to_numpy(float)
     positions = np.zeros((len(times), 3))
     quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1))
@@ -242,8 +205,8 @@ def label_session(folder: Path, monocular: bool, config: LabelConfig) -> FrameLa
         positions[has_pose] = poses.positions[row[has_pose]]
         quaternions[has_pose] = poses.quaternions_xyzw[row[has_pose]]
     states = np.where(has_pose, frames["state"].to_numpy(object), TrackingState.LOST.name)
-    estimate = PoseSeries(times, positions, quaternions)
-    return label_frames(estimate, states, PoseSeries.from_tum(ground_truth), monocular, config)
+    estimate = Poses(times, positions, quaternions)
+    return label_frames(estimate, states, read_tum(ground_truth), monocular, config)
 
 
 @dataclass(frozen=True)

@@ -120,10 +120,17 @@ def read_euroc_groundtruth(path: Path) -> Poses:
     return Poses(data[:, 0] * 1e-9, data[:, 1:4], data[:, [5, 6, 7, 4]])
 
 
-def tum_line(timestamp: float, position: np.ndarray, quaternion_xyzw: np.ndarray) -> str:
-    """One TUM line (with its newline), at the precision SEESys writes: microseconds and 0.1 µm."""
-    values = " ".join(f"{v:.7f}" for v in (*position, *quaternion_xyzw))
-    return f"{timestamp:.6f} {values}\n"
+def tum_line(timestamp: float | str, position: np.ndarray, quaternion_xyzw: np.ndarray, decimals: int = 9) -> str:
+    """One TUM line, with its newline: the timestamp to the microsecond (or as given, when a string) and the pose
+    with ``decimals`` decimals."""
+    stamp = timestamp if isinstance(timestamp, str) else f"{timestamp:.6f}"
+    values = " ".join(f"{v:.{decimals}f}" for v in (*position, *quaternion_xyzw))
+    return f"{stamp} {values}\n"
+
+
+def pose_tum_line(timestamp: float, pose: np.ndarray) -> str:
+    """The TUM line of a 4×4 pose matrix T_world_camera."""
+    return tum_line(timestamp, pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat())
 
 
 def write_tum(path: Path, poses: Poses) -> None:

@@ -19,11 +19,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from scipy.spatial.transform import Rotation
-
 from seesys.errors import SeesysError
-from slam_monitor.sources.base import GroundTruth
+from seesys.trajectory import TUM_HEADER, Poses, pose_tum_line, write_tum
 from slam_monitor.tracker import TrackOutput
 
 MANIFEST = "session.json"
@@ -33,7 +30,6 @@ GROUND_TRUTH = "groundtruth.tum"
 SETTINGS = "orbslam3.yaml"
 SLAM_LOG = "orbslam3.log"
 FRAMES_HEADER = "frame_index,timestamp,state,tracked_points,track_ms"
-TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
 RECORDED_PACKAGES = ("seesys", "pyorbslam3", "numpy", "opencv-python-headless", "pyrealsense2", "evo", "scipy")
 
 
@@ -49,13 +45,6 @@ def package_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             versions[name] = "not installed"
     return versions
-
-
-def tum_line(timestamp: float, pose: np.ndarray) -> str:
-    """One TUM trajectory row for the 4x4 pose ``pose``."""
-    tx, ty, tz = pose[:3, 3]
-    qx, qy, qz, qw = Rotation.from_matrix(pose[:3, :3]).as_quat()
-    return f"{timestamp:.6f} {tx:.9f} {ty:.9f} {tz:.9f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}"
 
 
 def read_manifest(folder: Path) -> dict[str, Any]:
@@ -106,9 +95,8 @@ class SessionWriter:
         """Record what the source turned out to be once it is open."""
         update_manifest(self.folder, source_description=description, intrinsics=intrinsics, fps=fps)
 
-    def write_ground_truth(self, ground_truth: GroundTruth) -> None:
-        rows = np.column_stack([ground_truth.timestamps, ground_truth.positions, ground_truth.quaternions_xyzw])
-        np.savetxt(self.folder / GROUND_TRUTH, rows, fmt="%.9f", header=TUM_HEADER[2:])
+    def write_ground_truth(self, ground_truth: Poses) -> None:
+        write_tum(self.folder / GROUND_TRUTH, ground_truth)
 
     def write_frame(self, output: TrackOutput) -> None:
         self._frames.write(
@@ -118,7 +106,7 @@ class SessionWriter:
         self._frames.flush()
         self.frames_written += 1
         if output.tracked:
-            self._trajectory.write(tum_line(output.timestamp, output.pose_wc) + "\n")
+            self._trajectory.write(pose_tum_line(output.timestamp, output.pose_wc))
             self._trajectory.flush()
             self.frames_tracked += 1
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from seesys.errors import SeesysError
+from seesys.trajectory import read_tum
 from slam_monitor import session
 from slam_monitor.orbslam_settings import SlamMode
 from seesys.protocol.tracking_state import TrackingState
@@ -46,16 +46,12 @@ def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode
     which Umeyama's alignment is undetermined."""
     from evo.core import metrics, sync
     from evo.core.geometry import GeometryException
-    from evo.tools import file_interface
 
-    if _pose_rows(estimate) < 3:
+    estimated_poses, reference_poses = read_tum(estimate), read_tum(ground_truth)
+    if len(estimated_poses) < 3 or len(reference_poses) < 3:
         return None
-    try:
-        reference = file_interface.read_tum_trajectory_file(str(ground_truth))
-        estimated = file_interface.read_tum_trajectory_file(str(estimate))
-    except Exception as e:  # evo raises its own FileInterfaceException and numpy errors on bad files
-        raise SeesysError(f"cannot read trajectories {ground_truth} / {estimate}: {e}") from None
-    reference, estimated = sync.associate_trajectories(reference, estimated, max_diff=ASSOCIATION_MAX_DT_S)
+    reference, estimated = sync.associate_trajectories(reference_poses.to_evo(), estimated_poses.to_evo(),
+                                                       max_diff=ASSOCIATION_MAX_DT_S)
     if estimated.num_poses < 3:
         return None
     aligned = copy.deepcopy(estimated)
@@ -68,15 +64,6 @@ def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode
     ape.process_data((reference, aligned))
     return AteResult(float(ape.get_statistic(metrics.StatisticsType.rmse)), aligned.num_poses,
                      "Sim(3)" if with_scale else "SE(3)", float(scale))
-
-
-def _pose_rows(path: Path) -> int:
-    """Data rows of a TUM file (evo rejects a file with none)."""
-    try:
-        with path.open() as lines:
-            return sum(1 for line in lines if line.strip() and not line.startswith("#"))
-    except OSError as e:
-        raise SeesysError(f"cannot read trajectory {path}: {e.strerror}") from None
 
 
 def summarize_session(folder: Path, mode: SlamMode) -> SessionSummary:

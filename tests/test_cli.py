@@ -1,7 +1,69 @@
+"""The ``seesys`` command line: one group per part, help for each, one-line errors."""
+
 import subprocess
 import sys
 
+import pytest
 
-def test_seesys_help_lists_part_groups():
+from seesys import cli
+
+# The commands a user finds in `seesys --help`, and the part that provides each.
+EXPECTED_COMMANDS = {
+    "track": "slam_monitor", "vocab": "slam_monitor", "monitor": "slam_monitor",
+    "synth": "estimator", "dataset": "estimator",
+    "advisory": "advisory",
+    "study": "study",
+    "analyze": "analysis",
+}
+
+
+def _commands() -> dict[str, object]:
+    parser = cli.build_parser()
+    action = next(a for a in parser._actions if a.dest == "command")
+    return action.choices
+
+
+def _leaf_functions(parser) -> list:
+    """The functions a command runs: its own, or those of its subcommands, at any depth."""
+    handler = parser.get_default("func")
+    if handler is not None:
+        return [handler]
+    groups = [a for a in parser._actions if isinstance(a.choices, dict)]
+    return [f for a in groups for sub in a.choices.values() for f in _leaf_functions(sub)]
+
+
+def test_every_part_registers_its_commands():
+    commands = _commands()
+    assert set(EXPECTED_COMMANDS) <= set(commands)
+    for name, part in EXPECTED_COMMANDS.items():
+        funcs = _leaf_functions(commands[name])
+        assert funcs and all(f.__module__.split(".")[0] == part for f in funcs), (name, funcs)
+
+
+def test_help_lists_every_command_in_a_subprocess():
     out = subprocess.run([sys.executable, "-m", "seesys", "--help"], capture_output=True, text=True, check=True)
-    assert "usage: seesys" in out.stdout
+    assert out.stdout.startswith("usage: seesys")
+    listed = {line.split()[0] for line in out.stdout.splitlines() if line.startswith("    ") and line.split()}
+    assert listed == set(_commands())
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED_COMMANDS))
+def test_each_command_has_help(name, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.main([name, "--help"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.startswith(f"usage: seesys {name}")
+
+
+def test_a_user_error_is_one_line_with_status_2(tmp_path):
+    missing = tmp_path / "nope"
+    out = subprocess.run([sys.executable, "-m", "seesys", "track", "--source", f"tum:{missing}", "--out",
+                          str(tmp_path / "s")], capture_output=True, text=True)
+    assert out.returncode == 2
+    assert out.stderr.strip().count("\n") == 0 and out.stderr.startswith("seesys: error: ")
+    assert str(missing) in out.stderr
+
+
+def test_an_unknown_command_is_a_usage_error():
+    out = subprocess.run([sys.executable, "-m", "seesys", "frobnicate"], capture_output=True, text=True)
+    assert out.returncode == 2 and "invalid choice: 'frobnicate'" in out.stderr

@@ -8,15 +8,15 @@ import copy
 import numpy as np
 import pytest
 from evo.core import metrics
-from evo.core.trajectory import PoseTrajectory3D
 from scipy.spatial.transform import Rotation
 
-from estimator.labels import (LabelConfig, LabelError, LabelStatus, LabelSummary, PoseSeries, label_frames,
+from estimator.labels import (LabelConfig, LabelError, LabelStatus, LabelSummary, label_frames,
                               label_session,
                               load_label_config)
 from estimator.synth.config import load_synth_config
 from estimator.synth.trajectories import load_tum
 from seesys.protocol.tracking_state import TrackingState
+from seesys.trajectory import Poses, write_tum
 
 OK = int(TrackingState.OK)
 LOST = int(TrackingState.LOST)
@@ -28,30 +28,24 @@ def config() -> LabelConfig:
 
 
 @pytest.fixture(scope="module")
-def ground_truth() -> PoseSeries:
+def ground_truth() -> Poses:
     """600 frames (20 s) of the real TUM fr1_xyz ground truth at 30 Hz."""
     synth = load_synth_config()
     real = load_tum(synth.trajectory_path(synth.real_trajectory("tum_fr1_xyz")))
     times = real.times[0] + 1.0 + np.arange(600) / 30.0
     positions, rotations = real.interpolate(times)
-    return PoseSeries(times, positions, rotations.as_quat())
+    return Poses(times, positions, rotations.as_quat())
 
 
-def _moved(series: PoseSeries, rotation: Rotation, translation: np.ndarray, scale: float = 1.0) -> PoseSeries:
+def _moved(series: Poses, rotation: Rotation, translation: np.ndarray, scale: float = 1.0) -> Poses:
     """The same trajectory in another world frame (and, for monocular, another scale)."""
-    return PoseSeries(series.timestamps.copy(), scale * rotation.apply(series.positions) + translation,
+    return Poses(series.timestamps.copy(), scale * rotation.apply(series.positions) + translation,
                       (rotation * Rotation.from_quat(series.quaternions_xyzw)).as_quat())
 
 
-def _evo(series: PoseSeries) -> PoseTrajectory3D:
-    return PoseTrajectory3D(positions_xyz=series.positions,
-                            orientations_quat_wxyz=series.quaternions_xyzw[:, [3, 0, 1, 2]],
-                            timestamps=series.timestamps)
-
-
-def _evo_rpe(ground_truth: PoseSeries, estimate: PoseSeries, delta: int, sim3: bool) -> tuple[np.ndarray, np.ndarray]:
+def _evo_rpe(ground_truth: Poses, estimate: Poses, delta: int, sim3: bool) -> tuple[np.ndarray, np.ndarray]:
     """evo's RPE (translation part, all pairs) after evo's SE(3) or Sim(3) alignment: (end ids, errors)."""
-    gt, est = _evo(ground_truth), copy.deepcopy(_evo(estimate))
+    gt, est = ground_truth.to_evo(), copy.deepcopy(estimate.to_evo())
     est.align(gt, correct_scale=sim3)
     rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=delta, delta_unit=metrics.Unit.frames,
                       all_pairs=True)
@@ -69,7 +63,7 @@ def test_a_step_of_known_size_gives_that_error_exactly_on_the_pairs_that_span_it
     step = np.zeros_like(ground_truth.positions)
     step[300:] = [0.004, -0.005, 0.0031]
     size = np.linalg.norm(step[300])
-    jumped = PoseSeries(ground_truth.timestamps, ground_truth.positions + step, ground_truth.quaternions_xyzw)
+    jumped = Poses(ground_truth.timestamps, ground_truth.positions + step, ground_truth.quaternions_xyzw)
     estimate = _moved(jumped, WORLD, OFFSET)
     labels = label_frames(estimate, np.full(600, OK), ground_truth, monocular=False, config=config)
 
@@ -90,7 +84,7 @@ def test_random_perturbation_matches_evo_rpe_and_its_known_spread(ground_truth, 
     known √2·√3·2 mm (two independent noisy ends of each pair)."""
     rng = np.random.default_rng(3)
     sigma = 0.002
-    noisy = PoseSeries(ground_truth.timestamps, ground_truth.positions + rng.normal(0, sigma, (600, 3)),
+    noisy = Poses(ground_truth.timestamps, ground_truth.positions + rng.normal(0, sigma, (600, 3)),
                        ground_truth.quaternions_xyzw)
     estimate = _moved(noisy, WORLD, OFFSET)
     labels = label_frames(estimate, np.full(600, OK), ground_truth, monocular=False, config=config)
@@ -110,7 +104,7 @@ def test_monocular_labels_remove_the_unknown_scale(ground_truth, config):
     np.testing.assert_allclose(labels.scale[labels.labelled], 1 / 0.37, rtol=1e-9)
 
     rng = np.random.default_rng(4)
-    noisy = PoseSeries(ground_truth.timestamps, ground_truth.positions + rng.normal(0, 0.001, (600, 3)),
+    noisy = Poses(ground_truth.timestamps, ground_truth.positions + rng.normal(0, 0.001, (600, 3)),
                        ground_truth.quaternions_xyzw)
     estimate = _moved(noisy, WORLD, OFFSET, scale=0.37)
     labels = label_frames(estimate, np.full(600, OK), ground_truth, monocular=True, config=config)
@@ -124,7 +118,7 @@ def test_monocular_scale_drift_is_followed_not_labelled(ground_truth, config):
     over the run (evo) turns the drift into centimetre-level errors."""
     drift = np.linspace(1.0, 1.4, 600)[:, None]
     centre = ground_truth.positions.mean(axis=0)
-    drifting = PoseSeries(ground_truth.timestamps, centre + (ground_truth.positions - centre) * drift,
+    drifting = Poses(ground_truth.timestamps, centre + (ground_truth.positions - centre) * drift,
                           ground_truth.quaternions_xyzw)
     labels = label_frames(drifting, np.full(600, OK), ground_truth, monocular=True, config=config)
     _, global_errors = _evo_rpe(ground_truth, drifting, config.delta_frames, sim3=True)
@@ -148,10 +142,10 @@ def test_frames_around_tracking_loss_are_flagged_not_labelled(ground_truth, conf
 def test_association_tolerance(ground_truth, config):
     """Frames 0.03 s off the ground truth are paired (tolerance 0.05 s); a 0.5 s gap in the ground truth
     leaves its frames without ground truth and restarts the stretch."""
-    shifted = PoseSeries(ground_truth.timestamps + 0.03, ground_truth.positions, ground_truth.quaternions_xyzw)
+    shifted = Poses(ground_truth.timestamps + 0.03, ground_truth.positions, ground_truth.quaternions_xyzw)
     keep = np.ones(600, bool)
     keep[400:415] = False
-    gappy = PoseSeries(ground_truth.timestamps[keep], ground_truth.positions[keep],
+    gappy = Poses(ground_truth.timestamps[keep], ground_truth.positions[keep],
                        ground_truth.quaternions_xyzw[keep])
     labels = label_frames(shifted, np.full(600, OK), gappy, monocular=False, config=config)
     # Frame k (at t_k + 0.03) is paired with the truth at t_(k+1), 3 ms away; next to the gap, frame 399 falls
@@ -188,21 +182,14 @@ def test_label_session_reads_a_device_session_folder(ground_truth, config, tmp_p
         for i, (t, s) in enumerate(zip(estimate.timestamps, states)):
             f.write(f"{i},{t:.6f},{s},500,10.0\n")
 
-    def write_tum(path, series, rows):
-        with open(path, "w") as f:
-            f.write(session.TUM_HEADER + "\n")
-            for i in rows:
-                p, q = series.positions[i], series.quaternions_xyzw[i]
-                f.write(f"{series.timestamps[i]:.6f} " + " ".join(f"{v:.9f}" for v in (*p, *q)) + "\n")
-
     tracked = [i for i in range(600) if states[i] == "OK" and i != 450]  # frame 450: OK but no valid pose
-    write_tum(tmp_path / session.TRAJECTORY, estimate, tracked)
-    write_tum(tmp_path / session.GROUND_TRUTH, ground_truth, range(600))
+    write_tum(tmp_path / session.TRAJECTORY, estimate.take(np.array(tracked)))
+    write_tum(tmp_path / session.GROUND_TRUTH, ground_truth)
     labels = label_session(tmp_path, monocular=False, config=config)
     assert (labels.status[:5] == LabelStatus.NOT_TRACKED.value).all()
     assert labels.status[450] == LabelStatus.NOT_TRACKED.value
     assert labels.labelled[15:300].all() and labels.labelled[313:450].all()
     np.testing.assert_allclose(labels.error_m[labels.labelled], 0.0, atol=1e-6)
 
-    write_tum(tmp_path / session.TRAJECTORY, estimate, [])
+    write_tum(tmp_path / session.TRAJECTORY, estimate.take(np.zeros(0, int)))
     assert not label_session(tmp_path, monocular=False, config=config).labelled.any()

@@ -176,5 +176,5 @@ def test_stream_endpoint_in_use_is_a_one_line_error(tmp_path):
         capture_output=True, text=True, timeout=300, env={**os.environ, "SEESYS_CONFIG_DIR": str(configs)})
     squatter.close()
     assert run.returncode == 2
-    assert run.stderr.strip().splitlines()[-1].startswith("seesys: error: cannot open the feature stream on")
+    assert run.stderr.strip().splitlines()[-1].startswith("seesys: error: cannot bind the feature stream endpoint")
     assert "Traceback" not in run.stderr

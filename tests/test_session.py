@@ -7,7 +7,7 @@ from evo.tools import file_interface
 from scipy.spatial.transform import Rotation
 
 from slam_monitor import session
-from slam_monitor.sources import GroundTruth
+from seesys.trajectory import Poses
 from slam_monitor.tracker import TrackOutput
 from seesys.protocol.tracking_state import TrackingState
 
@@ -59,7 +59,7 @@ def test_rows_are_on_disk_as_soon_as_written(tmp_path):
 def test_ground_truth_is_a_tum_file(tmp_path):
     folder = session.prepare_session_folder(tmp_path / "s")
     writer = session.SessionWriter(folder, {})
-    truth = GroundTruth(np.array([1.0, 2.0]), np.array([[0, 0, 0], [1, 2, 3.0]]), np.array([[0, 0, 0, 1.0]] * 2))
+    truth = Poses(np.array([1.0, 2.0]), np.array([[0, 0, 0], [1, 2, 3.0]]), np.array([[0, 0, 0, 1.0]] * 2))
     writer.write_ground_truth(truth)
     trajectory = file_interface.read_tum_trajectory_file(str(folder / session.GROUND_TRUTH))
     np.testing.assert_allclose(trajectory.positions_xyz, truth.positions)

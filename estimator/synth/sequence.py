@@ -36,6 +36,7 @@ from estimator.synth.renderer import RayGrid, render
 from estimator.synth.trajectories import (MOTION_GROUPS, Trajectory, TrajectoryError, generate_motion, load_euroc,
                                           load_tum, place_real)
 from seesys.errors import SeesysError
+from seesys.trajectory import tum_line
 
 REAL_PREFIX = "real:"
 
@@ -271,8 +272,7 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
     with open(out / "groundtruth.txt", "w") as f:
         f.write("# ground truth trajectory T_world_camera (camera = optical frame: x right, y down, z forward)\n"
                 "# world: z up, room centre at the origin, floor z=0\n# timestamp tx ty tz qx qy qz qw\n")
-        for s, p, q in zip(stamps, positions, quats):
-            f.write(f"{s} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} {q[0]:.6f} {q[1]:.6f} {q[2]:.6f} {q[3]:.6f}\n")
+        f.writelines(tum_line(s, p, q, decimals=6) for s, p, q in zip(stamps, positions, quats))
     _write_calibration(out / "calibration.yaml", plan, config)
     metadata = {
         "environment": plan.scene.preset.name,

@@ -3,7 +3,8 @@ motion in the three motion groups of the paper's Table 2.
 
 A :class:`Trajectory` holds T_world_camera (optical frame: x right, y down, z forward) at increasing
 timestamps and interpolates it (linear position, slerp rotation), so that a renderer can ask for the pose at any
-sub-frame time of an exposure.
+sub-frame time of an exposure. It is made from :class:`seesys.trajectory.Poses`, the pose container of files and
+logs, and adds what only rendering needs: continuous time.
 """
 
 from __future__ import annotations
@@ -15,15 +16,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from estimator.synth.config import MotionGroupConfig, TrajectoryConfig
-from seesys.errors import SeesysError
+from seesys.trajectory import Poses, TrajectoryError, read_euroc_groundtruth, read_tum
 
 MOTION_GROUPS = ("patrol", "aiming", "rapid")
 # Sampling rate of generated motion before it is interpolated to frame and exposure times.
 GENERATED_RATE_HZ = 240.0
-
-
-class TrajectoryError(SeesysError):
-    """A trajectory file is missing or malformed, or a trajectory cannot be placed."""
 
 
 @dataclass(frozen=True)
@@ -53,36 +50,20 @@ class Trajectory:
         return Trajectory(self.times[keep] - t0, self.positions[keep], self.rotations[np.flatnonzero(keep)])
 
 
+def from_poses(poses: Poses) -> Trajectory:
+    """The renderable path through ``poses`` (time-ordered; of poses with equal timestamps the first is kept)."""
+    poses = poses.sorted_unique()
+    return Trajectory(poses.timestamps, poses.positions, poses.rotations)
+
+
 def load_tum(path: Path) -> Trajectory:
-    """A TUM trajectory file: ``t tx ty tz qx qy qz qw`` per line, ``#`` comments."""
-    data = _load_table(path, delimiter=None)
-    return _deduplicated(data[:, 0], data[:, 1:4], Rotation.from_quat(data[:, 4:8]))
+    """A TUM trajectory file (:func:`seesys.trajectory.read_tum`)."""
+    return from_poses(read_tum(path))
 
 
 def load_euroc(path: Path) -> Trajectory:
-    """A EuRoC ground-truth CSV: ``t[ns], px, py, pz, qw, qx, qy, qz`` (further columns ignored)."""
-    data = _load_table(path, delimiter=",")
-    return _deduplicated(data[:, 0] * 1e-9, data[:, 1:4], Rotation.from_quat(data[:, [5, 6, 7, 4]]))
-
-
-def _load_table(path: Path, delimiter: str | None) -> np.ndarray:
-    try:
-        data = np.loadtxt(path, comments="#", delimiter=delimiter, ndmin=2)
-    except FileNotFoundError:
-        raise TrajectoryError(f"trajectory file not found: {path}") from None
-    except ValueError as e:
-        raise TrajectoryError(f"{path}: not a trajectory table: {e}") from None
-    if data.shape[1] < 8:
-        raise TrajectoryError(f"{path}: expected at least 8 columns, found {data.shape[1]}")
-    return data
-
-
-def _deduplicated(times: np.ndarray, positions: np.ndarray, rotations: Rotation) -> Trajectory:
-    order = np.argsort(times, kind="stable")
-    times = times[order]
-    keep = np.concatenate([[True], np.diff(times) > 0])
-    idx = order[keep]
-    return Trajectory(times[keep], positions[idx], rotations[idx])
+    """A EuRoC ground-truth CSV (:func:`seesys.trajectory.read_euroc_groundtruth`)."""
+    return from_poses(read_euroc_groundtruth(path))
 
 
 def _look_rotation(forward: np.ndarray) -> Rotation:

@@ -4,7 +4,7 @@
 :class:`FrameSource`; iterate ``source.frames()`` for :class:`slam_monitor.frame.Frame` records.
 """
 
-from slam_monitor.sources.base import DepthLimits, FrameSource, GroundTruth, SourceError
+from slam_monitor.sources.base import DepthLimits, FrameSource, SourceError
 from slam_monitor.sources.registry import SOURCE_KINDS, SourceSpec, open_source, parse_source_spec, source_kinds_help
 from slam_monitor.sources.settings import CameraConfig, load_camera_config
 
@@ -13,7 +13,6 @@ __all__ = [
     "CameraConfig",
     "DepthLimits",
     "FrameSource",
-    "GroundTruth",
     "SourceError",
     "SourceSpec",
     "load_camera_config",

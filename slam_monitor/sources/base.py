@@ -15,20 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from seesys.errors import SeesysError
+from seesys.trajectory import Poses
 from slam_monitor.frame import Frame, Intrinsics
 
 
 class SourceError(SeesysError):
     """A frame source cannot be opened or read: missing folder, unreadable image, bad depth, no camera."""
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    """Ground-truth poses T_world_camera of a sequence: times in seconds, positions in metres, xyzw quaternions."""
-
-    timestamps: np.ndarray
-    positions: np.ndarray
-    quaternions_xyzw: np.ndarray
 
 
 class FrameSource(abc.ABC):
@@ -54,7 +46,7 @@ class FrameSource(abc.ABC):
         """True when frames arrive at camera rate by themselves (a live camera, real-time playback)."""
         return False
 
-    def ground_truth(self) -> GroundTruth | None:
+    def ground_truth(self) -> Poses | None:
         """Ground-truth camera poses when the source has them."""
         return None
 

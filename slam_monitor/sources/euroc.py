@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from seesys.trajectory import Poses, read_euroc_groundtruth
 from slam_monitor.frame import Frame, Intrinsics
 from slam_monitor.sources.base import (
     FrameSource,
-    GroundTruth,
     SourceError,
     read_gray,
     read_timestamped_list,
@@ -49,21 +49,18 @@ class EurocSource(FrameSource):
     def frame_count(self) -> int:
         return len(self._images)
 
-    def ground_truth(self) -> GroundTruth | None:
+    def ground_truth(self) -> Poses | None:
         """The ground-truth body poses moved to cam0 with the camera's T_BS extrinsics."""
         path = self.mav0 / "state_groundtruth_estimate0" / "data.csv"
         if not path.is_file():
             return None
-        rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
-        world_body = np.tile(np.eye(4), (len(rows), 1, 1))
-        world_body[:, :3, :3] = Rotation.from_quat(rows[:, [5, 6, 7, 4]]).as_matrix()
-        world_body[:, :3, 3] = rows[:, 1:4]
+        body = read_euroc_groundtruth(path)
+        world_body = np.tile(np.eye(4), (len(body), 1, 1))
+        world_body[:, :3, :3] = body.rotations.as_matrix()
+        world_body[:, :3, 3] = body.positions
         world_camera = world_body @ self._body_from_camera
-        return GroundTruth(
-            rows[:, 0] / NS_PER_S,
-            world_camera[:, :3, 3],
-            Rotation.from_matrix(world_camera[:, :3, :3]).as_quat(),
-        )
+        return Poses.from_rotations(body.timestamps, world_camera[:, :3, 3],
+                                    Rotation.from_matrix(world_camera[:, :3, :3]))
 
     def frames(self) -> Iterator[Frame]:
         for index, (stamp_ns, name) in enumerate(self._images):

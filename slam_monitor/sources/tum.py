@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from seesys.trajectory import Poses, read_tum
 from slam_monitor.frame import Frame
 from slam_monitor.sources.base import (
     DepthLimits,
     FrameSource,
-    GroundTruth,
     SourceError,
     check_depth,
     nominal_fps,
@@ -21,17 +21,6 @@ from slam_monitor.sources.base import (
     require_folder,
 )
 from slam_monitor.sources.settings import FileSourceDefaults, folder_calibration
-
-
-def read_tum_poses(path: Path) -> GroundTruth:
-    """Read a TUM trajectory file (``t tx ty tz qx qy qz qw``)."""
-    try:
-        rows = np.loadtxt(path, comments="#", ndmin=2)
-    except ValueError as e:
-        raise SourceError(f"{path}: not a TUM trajectory ({e})") from None
-    if rows.shape[1] != 8 or len(rows) == 0:
-        raise SourceError(f"{path}: expected rows of 8 numbers 't tx ty tz qx qy qz qw'")
-    return GroundTruth(rows[:, 0], rows[:, 1:4], rows[:, 4:8])
 
 
 class TumSource(FrameSource):
@@ -67,9 +56,9 @@ class TumSource(FrameSource):
     def frame_count(self) -> int:
         return len(self._images)
 
-    def ground_truth(self) -> GroundTruth | None:
+    def ground_truth(self) -> Poses | None:
         path = self.folder / "groundtruth.txt"
-        return read_tum_poses(path) if path.is_file() else None
+        return read_tum(path) if path.is_file() else None
 
     def frames(self) -> Iterator[Frame]:
         for index, ((timestamp, name), depth_name) in enumerate(zip(self._images, self._depth_files)):
