@@ -70,8 +70,10 @@ def _replay(args: argparse.Namespace) -> int:
     from advisory.replay import replay_estimates
 
     log = read_estimate_log(Path(args.estimates))
-    sent = replay_estimates(log, load_advisory_config().replay, load_network_config(), show_progress=True)
-    print(f"published {sent} estimates")
+    sent_log = Path(args.sent_log) if args.sent_log else None
+    sent = replay_estimates(log, load_advisory_config().replay, load_network_config(), show_progress=True,
+                            sent_log=sent_log)
+    print(f"published {sent} estimates" + (f"; send times in {sent_log}" if sent_log else ""))
     return 0
 
 
@@ -118,4 +120,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = commands.add_parser("replay", help="publish an estimate log over ZeroMQ at its original pace")
     p.add_argument("--estimates", required=True, metavar="CSV", help="CSV with columns timestamp,error_m")
+    p.add_argument("--sent-log", metavar="CSV",
+                   help="also write each estimate's send time to this CSV (frame_index,timestamp,sent_mono)")
     p.set_defaults(func=_replay)

@@ -1,41 +1,66 @@
 """``seesys advisory replay``: publish an estimate log as :class:`Estimate` messages at its original pace.
 
 It binds the estimator's endpoint (``network.toml``'s ``estimates_endpoint``) exactly as the estimator service
-does, so the advisory can run live before (or without) the estimator.
+does, so the advisory can run live before (or without) the estimator. Optionally it logs when it sent each
+estimate, so that its pace can be checked from its own send times rather than from when a receiver woke up.
 """
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import zmq
 from rich.progress import Progress
 
 from advisory.config import ReplayConfig
 from advisory.estimate_log import EstimateLog
+from advisory.logs import CsvLog
 from seesys.network import NetworkConfig
 from seesys.protocol.messages import Estimate, encode
 from seesys.protocol.transport import publisher
 
+SENT_LOG_COLUMNS = ("frame_index", "timestamp", "sent_mono")
 
-def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkConfig, show_progress: bool) -> int:
-    """Publish every estimate at ``start + (timestamp − first timestamp)``; returns how many were sent."""
+
+def _wait_until(due: float) -> float:
+    """Sleep until CLOCK_MONOTONIC reaches ``due`` (never returns earlier); returns the clock's reading then."""
+    while (now := time.monotonic()) < due:
+        time.sleep(due - now)
+    return now
+
+
+def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkConfig, show_progress: bool,
+                     sent_log: Path | None = None) -> int:
+    """Publish every estimate at ``first send + (timestamp − first timestamp)``; returns how many were sent.
+
+    No estimate is sent before its time. One that falls behind (a busy machine) is sent at once and the ones
+    after it keep the original schedule, so the replay does not drift. With ``sent_log``, each estimate's
+    ``frame_index``, ``timestamp`` and ``sent_mono`` (CLOCK_MONOTONIC just before the send) is written to that
+    CSV, one flushed row per estimate; a log that cannot be written is a :class:`SeesysError` before anything is
+    sent.
+    """
+    sent = CsvLog(sent_log, SENT_LOG_COLUMNS) if sent_log is not None else None
     ctx = zmq.Context()
     pub = publisher(ctx, network.estimates_endpoint, "estimates", network.send_high_water_mark)
     try:
         time.sleep(replay.replay_settle_s)  # subscribers connect; PUB drops what it sends before that
-        start = time.monotonic()
         first = float(log.timestamps[0])
+        start = time.monotonic()
         with Progress(disable=not show_progress, transient=True) as progress:
             task = progress.add_task("replaying estimates", total=log.timestamps.size)
             for index, (timestamp, error_m) in enumerate(zip(log.timestamps, log.errors_m)):
-                delay = start + (float(timestamp) - first) - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
+                sent_mono = _wait_until(start + (float(timestamp) - first))
+                if index == 0:
+                    start = sent_mono  # the schedule runs from the first send, however late that was
                 pub.send_multipart(encode(Estimate(replay.replay_device_id, index, float(timestamp),
                                                    float(error_m), replay.replay_model_version)))
+                if sent is not None:
+                    sent.write(index, float(timestamp), sent_mono)
                 progress.advance(task)
         return int(log.timestamps.size)
     finally:
         pub.close()
         ctx.term()
+        if sent is not None:
+            sent.close()

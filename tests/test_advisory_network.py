@@ -3,50 +3,72 @@ pace), fed garbage, and started on an endpoint that is taken."""
 
 import signal
 import subprocess
-import time
 
 import numpy as np
 import pandas as pd
 import zmq
 
 from advisory.process import advisory_command
-from audio_fixtures import make_sandbox, wait_started  # noqa: F401
+from audio_fixtures import make_sandbox, wait_started, wait_until  # noqa: F401
 from seesys.protocol.messages import ESTIMATE_TOPIC, Estimate, decode, encode
+from seesys.protocol.transport import open_socket, subscriber
+
+
+def live_rows(sandbox) -> pd.DataFrame:
+    return sandbox.advisory().query("status == 'live'")
 
 
 def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make_sandbox):
     sandbox = make_sandbox(None)
     t = np.arange(0, 2, 1 / 30)
-    log = sandbox.root / "estimates.csv"
-    pd.DataFrame({"timestamp": t + 50.0, "error_m": np.where(t < 1, 0.006, 0.02)}).to_csv(log, index=False)
+    errors = np.where(t < 1, 0.006, 0.02)
+    log, sent_log = sandbox.root / "estimates.csv", sandbox.root / "sent.csv"
+    pd.DataFrame({"timestamp": t + 50.0, "error_m": errors}).to_csv(log, index=False)
     sandbox.generator("none")  # silent: needs no audio device
     wait_started(sandbox, "generator")
     ctx = zmq.Context()
-    sub = ctx.socket(zmq.SUB)
-    sub.setsockopt(zmq.SUBSCRIBE, ESTIMATE_TOPIC)
-    sub.connect(sandbox.estimates_endpoint)
-    received: list[tuple[float, Estimate]] = []
-    replay = subprocess.Popen(advisory_command("replay", "--estimates", str(log)), env=sandbox.env,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sub = subscriber(ctx, sandbox.estimates_endpoint, "test estimates", [ESTIMATE_TOPIC])
+    received: list[Estimate] = []
+    replay = subprocess.Popen(advisory_command("replay", "--estimates", str(log), "--sent-log", str(sent_log)),
+                              env=sandbox.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     while replay.poll() is None or sub.poll(0):
         if sub.poll(100):
-            received.append((time.monotonic(), decode(sub.recv_multipart())))
+            received.append(decode(sub.recv_multipart()))
     out, err = replay.communicate()
     sub.close()
     ctx.term()
     assert replay.returncode == 0, err
     assert f"published {t.size} estimates" in out
-    messages = [m for _, m in received]
-    assert [m.frame_index for m in messages] == list(range(t.size))
-    assert np.allclose([m.timestamp for m in messages], t + 50.0)
-    assert {m.device_id for m in messages} == {sandbox.cfg.replay.replay_device_id}
-    # Paced, not dumped: the last arrives at least the log's span after the first.
-    assert received[-1][0] - received[0][0] >= t[-1] - t[0] - 0.01
-    time.sleep(0.4)
-    sandbox.stop_all()
-    live = sandbox.advisory().query("status == 'live'")
+    # All arrived, in order, as they were in the log.
+    assert [m.frame_index for m in received] == list(range(t.size))
+    assert np.allclose([m.timestamp for m in received], t + 50.0)
+    assert np.allclose([m.error_m for m in received], errors)
+    assert {m.device_id for m in received} == {sandbox.cfg.replay.replay_device_id}
+    # Paced, not dumped: by the replay's own clock, no estimate went out before its time after the first.
+    sent = pd.read_csv(sent_log)
+    assert sent.frame_index.tolist() == list(range(t.size))
+    assert np.array_equal(sent.timestamp.to_numpy(), t + 50.0)
+    ahead_s = (sent.timestamp - sent.timestamp[0]) - (sent.sent_mono - sent.sent_mono[0])
+    assert ahead_s.max() <= 1e-6, sent[ahead_s > 1e-6]
+    assert sent.sent_mono.is_monotonic_increasing
     # 6 mm → 1 pulse; 20 mm → 3, through 2 while the moving average passes 8 mm.
+    wait_until(lambda: (live_rows(sandbox).n_pulses == 3).any(), "the generator logging N = 3")
+    sandbox.stop_all()
+    live = live_rows(sandbox)
     assert live.n_pulses.iloc[0] == 1 and live.n_pulses.iloc[-1] == 3 and live.n_pulses.is_monotonic_increasing
+
+
+def test_replay_refuses_a_sent_log_it_cannot_write(make_sandbox, tmp_path):
+    sandbox = make_sandbox(None)
+    log = sandbox.root / "estimates.csv"
+    pd.DataFrame({"timestamp": [0.0, 0.1], "error_m": [0.006, 0.006]}).to_csv(log, index=False)
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    result = subprocess.run(advisory_command("replay", "--estimates", str(log), "--sent-log",
+                                             str(blocker / "sent.csv")), env=sandbox.env, capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 2
+    assert f"seesys: error: cannot write the log {blocker / 'sent.csv'}" in result.stderr
 
 
 def test_generator_drops_malformed_messages_and_keeps_going(make_sandbox):
@@ -54,19 +76,19 @@ def test_generator_drops_malformed_messages_and_keeps_going(make_sandbox):
     sandbox.generator("none")
     wait_started(sandbox, "generator")
     ctx = zmq.Context()
-    pub = ctx.socket(zmq.PUB)
-    pub.bind(sandbox.estimates_endpoint)
-    time.sleep(0.5)
+    # XPUB: a PUB that also reports subscriptions, so the test sends once the generator has subscribed.
+    pub = open_socket(ctx, zmq.XPUB, sandbox.estimates_endpoint, "test estimates", bind=True)
+    assert pub.poll(30_000), "the generator never subscribed to the estimates"
+    assert pub.recv() == b"\x01" + ESTIMATE_TOPIC
     good = encode(Estimate("test-device", 0, 0.0, 0.006, "test"))
     for frames in ([ESTIMATE_TOPIC + b"x", b"not a message"], [good[0], good[1][:-3]], good):
         pub.send_multipart(frames)
-    time.sleep(0.6)
+    wait_until(lambda: (live_rows(sandbox).n_pulses == 1).any(), "the good estimate to reach the generator")
     pub.close()
     ctx.term()
     sandbox.stop_all()
     bad = sandbox.events().query("event == 'bad message'")
     assert len(bad) == 2 and "not a SEESys message" in bad.detail.iloc[0]
-    assert 1 in set(sandbox.advisory().n_pulses)  # the good estimate after the bad ones still counted
 
 
 def test_generator_on_a_taken_hand_off_endpoint_is_a_clear_error(make_sandbox):

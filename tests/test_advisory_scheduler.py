@@ -42,13 +42,22 @@ def test_ticks_every_third_of_a_second_on_schedule_even_when_woken_late():
 
 
 def test_moving_average_over_the_window_decides_n_at_the_tick():
-    s = scheduler()
-    s.tick(0.0)
-    # 0.002 for a while, then 0.006: the mean over (t − 0.33, t] crosses α after half the window.
-    for k in range(1, 10):
-        assert s.add(k / 30, 0.002) is None
-    d = s.tick(s.next_tick)
-    assert d.status == LIVE and d.value == pytest.approx(0.002) and d.n_pulses == 0
+    # 0.002 for a while, then 0.006, then nothing until the tick. The window (t − 0.33, t] has by then lost the
+    # oldest 0.002 samples, and the mean crosses α exactly when half the window holds 0.006: at a tick whose window
+    # starts exactly on a sample's arrival (that sample is out) the mean is α = 0.004 → N = 1; a microsecond
+    # earlier that sample is in and the mean is 0.034 / 9 ≈ 0.0038 → N = 0. No sample changes N on arrival (the
+    # newest mean is 0.0036), so only the tick decides.
+    tick_at = 1.0
+    window_start = tick_at - CFG.timing.window_s  # the boundary, computed as the scheduler computes it
+    arrivals = window_start + (np.arange(10) - 1) / 30  # the second 0.002 sample arrives exactly on the boundary
+    values = [0.002] * 6 + [0.006] * 4
+    for at, (n, mean) in ((tick_at - 1e-6, (0, 0.034 / 9)), (tick_at, (1, 0.004))):
+        s = scheduler(start=at)
+        for arrival, value in zip(arrivals, values):
+            assert s.add(float(arrival), value) is None
+        d = s.tick(at)
+        assert (d.time, d.trigger, d.status) == (at, TICK, LIVE)
+        assert d.value == pytest.approx(mean, abs=1e-12) and d.n_pulses == n, (at, d)
 
 
 def test_a_change_of_n_is_emitted_at_once_and_restarts_the_cadence():
@@ -63,11 +72,12 @@ def test_a_change_of_n_is_emitted_at_once_and_restarts_the_cadence():
         t += 1 / 30
         d = s.add(t, 0.006)
         if d:
-            changes.append(d)
-    assert len(changes) == 1
-    d = changes[0]
+            changes.append((k, d))
+    # The mean over the ten samples in the window reaches α with the fifth 0.006 (0.0036 with the fourth).
+    assert [k for k, _ in changes] == [4]
+    d = changes[0][1]
     assert d.trigger == CHANGE and d.n_pulses == 1 and d.arrival == d.time
-    assert d.value == pytest.approx(0.004, abs=0.0005)  # the first mean that reached α
+    assert d.value == pytest.approx(0.004, abs=1e-12)
     assert s.next_tick == pytest.approx(d.time + PERIOD)
 
 
