@@ -5,7 +5,7 @@ a dataclass for its section and calls :func:`load_section`; the loader checks th
 dataclass's keys, with values of the declared types, and raises :class:`ConfigError` naming the file and key
 otherwise. Nested dataclasses map to TOML tables.
 
-The folder is ``$SEESYS_CONFIG_DIR`` when set, else the ``configs/`` folder of the source tree.
+The folder is ``$SEESYS_CONFIG_DIR`` when set, else ``configs/`` of the SEESys home (:mod:`seesys.resources`).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
+from seesys import resources
 from seesys.errors import ConfigError
 
 T = TypeVar("T")
@@ -30,7 +31,7 @@ def config_dir() -> Path:
     env = os.environ.get(CONFIG_DIR_ENV)
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "configs"
+    return resources.home() / "configs"
 
 
 def read_toml(path: Path) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
+from seesys import resources
 from seesys.config import load_section
 from seesys.errors import SeesysError
 from slam_monitor.frame import Intrinsics
@@ -101,15 +102,10 @@ def load_slam_config(directory: Path | None = None) -> SlamConfig:
     return load_section("slam", SlamConfig, directory)
 
 
-def repository_root() -> Path:
-    return Path(__file__).resolve().parent.parent
-
-
 def vocabulary_path(config: SlamConfig) -> Path:
-    """The vocabulary to load: ``$PYORBSLAM3_VOCAB`` if set, else the configured file (relative to the repo)."""
-    configured = os.environ.get(VOCABULARY_ENV) or config.vocabulary
-    path = Path(configured)
-    return path if path.is_absolute() else repository_root() / path
+    """The vocabulary to load: ``$PYORBSLAM3_VOCAB`` if set, else the configured file (relative to the SEESys
+    home, :mod:`seesys.resources`)."""
+    return resources.resolve(os.environ.get(VOCABULARY_ENV) or config.vocabulary)
 
 
 # Keys ORB-SLAM3 1.0's Settings class requires (it exits when one is missing), by mode.

@@ -7,7 +7,8 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.config import config_dir, load_section
+from seesys import resources
+from seesys.config import load_section
 from seesys.errors import ConfigError
 from slam_monitor.frame import Intrinsics
 
@@ -182,7 +183,7 @@ class SynthConfig:
 
     def trajectory_path(self, real: RealTrajectory) -> Path:
         """Where the file of ``real`` is: ``trajectory_dir`` is relative to the project root."""
-        return config_dir().parent / self.trajectory_dir / real.file
+        return resources.resolve(self.trajectory_dir) / real.file
 
 
 def load_synth_config(directory: Path | None = None) -> SynthConfig:
