@@ -1,6 +1,6 @@
 """Label spread of rendered sequences under real ORB-SLAM3: per run and per batch, the 10-frame translation RPE
 of tracked frames (median, p90, p99, share above 4 / 12 mm, share tracked) and the RTS window features with the
-largest |Spearman ρ| against the label. The acceptance targets of issue 4 are checked per batch.
+largest |Spearman ρ| against the label. The label-spread targets of configs/dataset.toml ([targets]) are checked per batch.
 
 Run it with the CPU to itself, after rendering (never while rendering):
 

@@ -91,7 +91,7 @@ def test_generated_motion_groups_stay_in_the_room_and_differ_in_speed(config):
     mean = {group: np.mean(values, axis=0) for group, values in speeds.items()}
     assert mean["rapid"][0] > mean["patrol"][0] and mean["rapid"][0] > mean["aiming"][0]
     assert mean["aiming"][1] < mean["patrol"][1]
-    # Handheld range (synthetic-error-spread.md): 25-60 deg/s for the bulk, faster for rapid motion.
+    # Handheld range (docs/synthetic-data.md): 25-60 deg/s for the bulk, faster for rapid motion.
     assert 20 < mean["patrol"][0] < 60 and 20 < mean["aiming"][0] < 60 and mean["rapid"][0] < 100
 
 
