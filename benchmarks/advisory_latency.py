@@ -34,6 +34,7 @@ from advisory.logs import ADVISORY_CSV, EVENTS_CSV, PLAYBACK_CSV
 from advisory.process import advisory_command
 from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
 from seesys.protocol.messages import Estimate, encode
+from seesys.protocol.transport import publisher
 
 PUBLISH_HZ = 30.0
 LEVELS_M = (0.002, 0.006, 0.010, 0.020)  # N = 0, 1, 2, 3
@@ -54,9 +55,8 @@ def wait_started(session: Path, processes: tuple[str, ...], timeout_s: float = 3
 def publish(endpoint: str, seconds: float, rng: np.random.Generator) -> np.ndarray:
     """Publish estimates at 30 Hz, holding a random level for 0.4–1.2 s at a time; returns the send times."""
     ctx = zmq.Context()
-    pub = ctx.socket(zmq.PUB)
-    pub.bind(endpoint)
-    time.sleep(0.5)
+    pub = publisher(ctx, endpoint, "benchmark estimates", send_hwm=1000)
+    time.sleep(0.5)  # the generator's SUB connects; what is sent before is lost, and not timed
     sent = []
     start = time.monotonic()
     level, change_at = LEVELS_M[0], 0.0
