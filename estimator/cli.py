@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from estimator import dataset_commands
+from estimator import dataset_commands, model_commands
 from estimator.diversity import diversity_report, write_report
 from estimator.synth.batch import expand_environments, expand_motions, render_batch
 from estimator.synth.config import load_synth_config
@@ -100,3 +100,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_diversity)
 
     dataset_commands.register(subparsers)
+    model_commands.register(subparsers)

@@ -154,8 +154,9 @@ def test_session_windows_match_the_dataset_samples(tiny_dataset):
 
 def tiny_config():
     """configs/estimator.toml with a model and schedules small enough for a test (seconds on one core)."""
-    from estimator.deepsee.config import (FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig, Schedule,
-                                          StageSchedule, Ts2VecSchedule, load_estimator_config)
+    from estimator.deepsee.config import (FinetuneConfig, FusionConfig, ModelConfig, PsdEncoderConfig,
+                                          RtsEncoderConfig, Schedule, StageSchedule, Ts2VecSchedule,
+                                          load_estimator_config)
     from estimator.deepsee.stages import with_schedule
 
     config = load_estimator_config()
@@ -165,4 +166,32 @@ def tiny_config():
     frozen = dataclasses.replace(stage, epochs=8, steps_per_epoch=0, batch_size=64, lr=3e-3)
     schedule = Schedule(0, 0, stage, 0.5, Ts2VecSchedule(20, 8, 1e-3, 0.5, 0.5), frozen, stage, frozen, stage,
                         frozen)
-    return with_schedule(dataclasses.replace(config, model=model), "reduced", schedule)
+    finetune = FinetuneConfig(0.25, dataclasses.replace(stage, epochs=8, steps_per_epoch=0, lr=1e-3))
+    return with_schedule(dataclasses.replace(config, model=model, finetune=finetune), "reduced", schedule)
+
+
+TRAINED_ROWS = ["deepsee", "wo_psd", "lstm", "random_forest"]
+
+
+def train_context(progress, config=None):
+    from estimator.deepsee.stages import TrainContext
+
+    return TrainContext(config or tiny_config(), "reduced", load_window_config(), torch.device("cpu"), progress,
+                        {"data": ["tiny"], "round": 0})
+
+
+@pytest.fixture(scope="session")
+def trained_runs(tiny_dataset) -> Path:
+    """Round 0 of the tiny dataset trained for DeepSEE, one ablation and both baselines (``RUNS/round_0/<row>``),
+    once per test session."""
+    from rich.progress import Progress
+
+    from estimator.deepsee.table import train_table
+
+    if "runs" not in _cache:
+        runs = tiny_dataset.root.parent / "runs"
+        with Progress(disable=True) as progress:
+            train_table([tiny_dataset.root], read_splits(tiny_dataset.splits), 0, TRAINED_ROWS, runs,
+                        train_context(progress))
+        _cache["runs"] = runs
+    return _cache["runs"]

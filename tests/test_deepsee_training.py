@@ -15,33 +15,27 @@ from rich.progress import Progress
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, save_model
 from estimator.deepsee.data import read_splits, split_windows
 from estimator.deepsee.inference import predict
-from estimator.deepsee.model import DeepSEE, Variant
+from estimator.deepsee.model import DeepSEE
+from estimator.deepsee.rows import Variant
 from estimator.deepsee.rows import row
 from estimator.deepsee.run_folder import CONFIG_JSON, LOSS_PNG, METRICS_CSV, MODEL_PT, RunFolder
-from estimator.deepsee.stages import TrainContext, train_row
+from estimator.deepsee.stages import train_row
 from estimator.deepsee.transforms import LabelTransform
 from seesys.protocol.windows import load_window_config
-from test_deepsee_sessions import tiny_config, tiny_dataset  # noqa: F401  (a fixture)
+from test_deepsee_sessions import tiny_config, tiny_dataset, train_context, trained_runs  # noqa: F401 (fixtures)
 
-_trained: dict[str, object] = {}
-
-
-def _context(progress: Progress, config=None) -> TrainContext:
-    return TrainContext(config or tiny_config(), "reduced", load_window_config(), torch.device("cpu"), progress,
-                        {"data": ["tiny"], "round": 0})
+_context = train_context
 
 
 def _data(tiny_dataset):
     return split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits), 0)
 
 
-@pytest.fixture(scope="module")
-def trained(tiny_dataset, tmp_path_factory):
-    """DeepSEE trained through all four stages on the tiny dataset (a few seconds)."""
-    out = tmp_path_factory.mktemp("run") / "deepsee"
-    with Progress(disable=True) as progress:
-        model_path = train_row(out, row("deepsee"), _data(tiny_dataset), _context(progress))
-    return out, model_path
+@pytest.fixture
+def trained(trained_runs):
+    """DeepSEE trained through all four stages on the tiny dataset: its run folder and model file."""
+    out = trained_runs / "round_0" / "deepsee"
+    return out, out / MODEL_PT
 
 
 def test_label_transform_round_trips():

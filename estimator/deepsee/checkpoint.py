@@ -27,7 +27,8 @@ from torch import nn
 
 from estimator.deepsee.baselines import LstmBaseline
 from estimator.deepsee.config import FusionConfig, LstmConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
-from estimator.deepsee.model import DeepSEE, InputShape, Variant
+from estimator.deepsee.model import DeepSEE, InputShape
+from estimator.deepsee.rows import Variant
 from estimator.deepsee.transforms import LabelTransform
 from seesys.errors import SeesysError
 from seesys.protocol import rts_schema

@@ -145,6 +145,7 @@ class FinetuneConfig:
 @dataclass(frozen=True)
 class EstimatorConfig:
     seed: int
+    shipped_model: str
     model: ModelConfig
     label_transform: LabelTransformConfig
     schedules: Schedules

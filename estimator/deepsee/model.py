@@ -24,21 +24,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from estimator.deepsee.config import FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
+from estimator.deepsee.rows import Variant
 from estimator.deepsee.transforms import psd_layer_mask, rts_channel_mask
-
-
-@dataclass(frozen=True)
-class Variant:
-    """Which parts of DeepSEE a model has (the Table 3 ablations)."""
-
-    use_psd: bool = True
-    fusion: str = "cross_attention"  # or "concat": fully connected fusion of the pooled encodings (w/o CA)
-    drop_rts: tuple[str, ...] = ()  # RTS channel categories set to zero
-    drop_psd: tuple[str, ...] = ()  # PSD layers set to zero
-
-    def __post_init__(self) -> None:
-        if self.fusion not in ("cross_attention", "concat"):
-            raise ValueError(f"unknown fusion {self.fusion!r}")
 
 
 @dataclass(frozen=True)

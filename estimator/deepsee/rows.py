@@ -4,12 +4,25 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from estimator.deepsee.model import Variant
 from seesys.errors import SeesysError
 
 DEEPSEE = "deepsee"
 RANDOM_FOREST = "random_forest"
 LSTM = "lstm"
+
+
+@dataclass(frozen=True)
+class Variant:
+    """Which parts of DeepSEE a model has (the Table 3 ablations)."""
+
+    use_psd: bool = True
+    fusion: str = "cross_attention"  # or "concat": fully connected fusion of the pooled encodings (w/o CA)
+    drop_rts: tuple[str, ...] = ()  # RTS channel categories set to zero
+    drop_psd: tuple[str, ...] = ()  # PSD layers set to zero
+
+    def __post_init__(self) -> None:
+        if self.fusion not in ("cross_attention", "concat"):
+            raise ValueError(f"unknown fusion {self.fusion!r}")
 
 
 @dataclass(frozen=True)

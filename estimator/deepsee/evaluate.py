@@ -1,0 +1,87 @@
+"""Every trained row of every round on its round's test data, and on out-of-domain sessions.
+
+Runs folder layout (``seesys estimator train-table``): ``RUNS/round_<r>/<row>/`` with ``model.pt`` (DeepSEE, the
+ablations, the LSTM) or ``model.pkl`` (random forest). The test runs of a round are judged in two sets, never
+mixed: the *test trajectories* in the training environments, and the *held-out environments* (scenes no model
+saw). Labelled session folders given as out-of-domain data (another renderer, a real camera) are a third set,
+judged by every round's model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+
+from advisory.config import AdvisoryConfig
+from estimator.deepsee.config import EstimatorConfig
+from estimator.deepsee.data import Windows, concat, session_windows, split_windows
+from estimator.deepsee.metrics import score
+from estimator.deepsee.predictors import load_predictor
+from estimator.deepsee.rows import ROWS
+from estimator.deepsee.run_folder import MODEL_PT
+from estimator.deepsee.stages import FOREST_PICKLE
+from estimator.deepsee.transforms import LabelTransform
+from estimator.dataset.splits import Splits
+from seesys.errors import SeesysError
+from seesys.protocol.windows import WindowConfig
+
+TEST_TRAJECTORIES = "test trajectories"
+HELDOUT_ENVIRONMENTS = "held-out environments"
+OUT_OF_DOMAIN = "out-of-domain sessions"
+
+
+def round_folder(runs: Path, round_index: int) -> Path:
+    return Path(runs) / f"round_{round_index}"
+
+
+def model_file(folder: Path) -> Path | None:
+    for name in (MODEL_PT, FOREST_PICKLE):
+        if (folder / name).is_file():
+            return folder / name
+    return None
+
+
+@dataclass
+class Evaluation:
+    scores: pd.DataFrame  # one row per (set, row, round): the Scores fields
+    predictions: pd.DataFrame  # one row per window: set, row, round, run, frame_index, timestamp, true_m, estimate_m
+    runs: Path
+
+
+def _sets(test: Windows, heldout: list[str]) -> dict[str, Windows]:
+    in_heldout = test.meta.environment.isin(heldout).to_numpy()
+    return {TEST_TRAJECTORIES: test.subset(np.flatnonzero(~in_heldout)),
+            HELDOUT_ENVIRONMENTS: test.subset(np.flatnonzero(in_heldout))}
+
+
+def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], sessions: list[Path],
+             config: EstimatorConfig, advisory: AdvisoryConfig, windows: WindowConfig,
+             device: torch.device) -> Evaluation:
+    transform = LabelTransform(config.label_transform.k)
+    other = concat([session_windows(s, windows, labelled=True) for s in sessions]) if sessions else None
+    scores, predictions = [], []
+    for r in rounds:
+        folder = round_folder(runs, r)
+        trained = [(row, model_file(folder / row.name)) for row in ROWS]
+        trained = [(row, path) for row, path in trained if path is not None]
+        if not trained:
+            raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
+        sets = _sets(split_windows(roots, splits, r)["test"], splits.heldout_environments)
+        if other is not None:
+            sets[OUT_OF_DOMAIN] = other
+        for row, path in trained:
+            predictor = load_predictor(path, transform, config.evaluation.batch_size, device, windows)
+            for name, data in sets.items():
+                estimate = predictor.metres(data) if len(data) else np.zeros(0)
+                scores.append({"set": name, "row": row.name, "round": r,
+                               **asdict(score(data.meta, estimate, data.error_m, config.evaluation, advisory))})
+                predictions.append(pd.DataFrame({"set": name, "row": row.name, "round": r,
+                                                 "run": data.meta.run.to_numpy(),
+                                                 "frame_index": data.meta.frame_index.to_numpy(),
+                                                 "timestamp": data.meta.timestamp.to_numpy(),
+                                                 "true_m": data.error_m, "estimate_m": estimate}))
+    return Evaluation(pd.DataFrame(scores), pd.concat(predictions, ignore_index=True), Path(runs))

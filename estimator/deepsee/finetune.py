@@ -1,0 +1,70 @@
+"""Stage (d) on a lab's own labelled sessions (``seesys estimator finetune``): any session folder with ground truth
+(a study session with motion capture, a TUM or EuRoC recording run through ``seesys monitor run``), labelled with
+:func:`estimator.labels.label_session`, the definition the dataset uses.
+
+Each session is split in time: its first part trains, its last ``validation_fraction`` decides early stopping and
+gives the before/after figures (windows of one session are strongly correlated, so a random split would let the
+model see the validation windows' neighbours). Few-shot friendly: the whole model is fine-tuned with a small
+learning rate from the given model, and the best epoch on the validation part is kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from estimator.deepsee.checkpoint import load_model, save_model
+from estimator.deepsee.config import EstimatorConfig
+from estimator.deepsee.data import DataError, Windows, concat, session_windows
+from estimator.deepsee.inference import predict
+from estimator.deepsee.metrics import CM_PER_M
+from estimator.deepsee.run_folder import RunFolder
+from estimator.deepsee.stages import TrainContext, supervised
+from seesys.protocol.windows import WindowConfig
+
+
+@dataclass(frozen=True)
+class FinetuneResult:
+    model: Path
+    train_windows: int
+    validation_windows: int
+    rmse_before_cm: float
+    rmse_after_cm: float
+
+
+def split_in_time(windows: Windows, validation_fraction: float) -> tuple[Windows, Windows]:
+    """The first (1 − fraction) of a session's windows by end frame, and the rest."""
+    order = np.argsort(windows.meta.frame_index.to_numpy(), kind="stable")
+    cut = int(round(len(order) * (1 - validation_fraction)))
+    return windows.subset(order[:cut]), windows.subset(order[cut:])
+
+
+def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config: EstimatorConfig,
+             windows: WindowConfig, device: torch.device, progress, provenance: dict) -> FinetuneResult:
+    parts = [split_in_time(session_windows(s, windows, labelled=True), config.finetune.validation_fraction)
+             for s in sessions]
+    train, val = concat([p[0] for p in parts]), concat([p[1] for p in parts])
+    if not len(val):
+        raise DataError("the sessions leave no validation windows: record longer sessions or raise "
+                        "validation_fraction in configs/estimator.toml")
+    ctx = TrainContext(config, "reduced", windows, device, progress,
+                       {"base_model": str(base), "sessions": [str(s) for s in sessions], **provenance})
+    transform = ctx.transform
+    model, payload = load_model(base, transform, windows)
+    model = model.to(device)
+
+    def rmse_cm() -> float:
+        estimate = transform.inverse(predict(model, val, config.evaluation.batch_size, device))
+        return CM_PER_M * float(np.sqrt(np.mean((estimate - val.error_m) ** 2)))
+
+    before = rmse_cm()
+    run = RunFolder(run_dir, {"finetune": asdict(config.finetune), "base_compatibility_hash": payload["compatibility_hash"], **ctx.provenance}, device)
+    supervised(run, "finetune_sessions", model, train, val, config.finetune.schedule, ctx)
+    after = rmse_cm()
+    training = {**payload["training"], "finetuned_on": [str(s) for s in sessions], "train_windows": len(train),
+                "validation_windows": len(val), "rmse_before_cm": before, "rmse_after_cm": after}
+    save_model(out, model.cpu(), windows, transform, training)
+    return FinetuneResult(Path(out), len(train), len(val), before, after)

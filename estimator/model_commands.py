@@ -1,0 +1,234 @@
+"""``seesys estimator train | train-table | evaluate | finetune | export | estimate``: thin wrappers over
+:mod:`estimator.deepsee`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from estimator.deepsee.rows import ROW_NAMES, row
+from seesys.config import config_dir
+from seesys.errors import SeesysError
+
+# torch, onnx and the model code are imported inside the commands: every `seesys` command builds this parser.
+
+def _device(name: str, threads: int | None):
+    import torch
+
+    if threads is not None:
+        if threads < 1:
+            raise SeesysError("--threads must be at least 1")
+        torch.set_num_threads(threads)
+    if name == "cuda" and not torch.cuda.is_available():
+        raise SeesysError("--device cuda: no CUDA device (this torch is "
+                          f"{torch.__version__}; the project pins the CPU build)")
+    return torch.device(name)
+
+
+def _ints(text: str) -> list[int]:
+    try:
+        return [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+
+
+def _rows(text: str) -> list[str]:
+    names = list(ROW_NAMES) if text == "all" else [v.strip() for v in text.split(",") if v.strip()]
+    for name in names:
+        row(name)
+    return names
+
+
+def _provenance(args: argparse.Namespace) -> dict:
+    return {"data": [str(p) for p in args.data], "splits": str(args.splits)}
+
+
+def _context(args: argparse.Namespace, extra: dict):
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.loop import progress_bar
+    from estimator.deepsee.stages import TrainContext
+    from seesys.protocol.windows import load_window_config
+
+    device = _device(args.device, args.threads)
+    return TrainContext(load_estimator_config(), args.schedule, load_window_config(), device, progress_bar(),
+                        {**_provenance(args), **extra})
+
+
+def _train(args: argparse.Namespace) -> int:
+    from estimator.deepsee.data import read_splits, split_windows
+    from estimator.deepsee.stages import train_row
+
+    ctx = _context(args, {"round": args.round})
+    data = split_windows(args.data, read_splits(args.splits), args.round)
+    with ctx.progress:
+        model = train_row(args.out, row(args.row), data, ctx, args.pretrained)
+    print(f"trained {args.row} (round {args.round}, {args.schedule} schedule, {ctx.device}) -> {model}")
+    return 0
+
+
+def _train_table(args: argparse.Namespace) -> int:
+    from estimator.deepsee.data import read_splits
+    from estimator.deepsee.table import train_table
+
+    splits = read_splits(args.splits)
+    for r in args.rounds:
+        ctx = _context(args, {"round": r})
+        with ctx.progress:
+            models = train_table(args.data, splits, r, args.rows, args.runs, ctx)
+        print(f"round {r}: {len(models)} rows trained under {args.runs}")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from advisory.config import load_advisory_config
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.data import read_splits
+    from estimator.deepsee.evaluate import evaluate
+    from estimator.deepsee.report import write_report
+    from seesys.protocol.windows import load_window_config
+
+    config = load_estimator_config()
+    advisory = load_advisory_config()
+    device = _device(args.device, None)
+    result = evaluate(args.data, read_splits(args.splits), args.runs, args.rounds, args.sessions or [], config,
+                      advisory, load_window_config(), device)
+    notes = [f"Data: {', '.join(str(p) for p in args.data)}; splits {args.splits}; models under {args.runs}."]
+    if args.sessions:
+        notes.append(f"Out-of-domain sessions: {', '.join(str(s) for s in args.sessions)}.")
+    path = write_report(result, config, advisory, args.out, notes)
+    print(path.read_text())
+    print(f"wrote {path}")
+    return 0
+
+
+def _default_model(args: argparse.Namespace) -> Path:
+    from estimator.deepsee.config import load_estimator_config
+
+    if args.model is not None:
+        return args.model
+    shipped = config_dir().parent / load_estimator_config().shipped_model
+    if not shipped.is_file():
+        raise SeesysError(f"no shipped model at {shipped} yet; pass --model MODEL (a file from `seesys estimator "
+                          f"train`)")
+    return shipped
+
+
+def _finetune(args: argparse.Namespace) -> int:
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.finetune import finetune
+    from estimator.deepsee.loop import progress_bar
+    from seesys.protocol.windows import load_window_config
+
+    config = load_estimator_config()
+    device = _device(args.device, args.threads)
+    run_dir = args.run or args.out.with_name(args.out.stem + "_finetune_run")
+    progress = progress_bar()
+    with progress:
+        result = finetune(_default_model(args), args.sessions, args.out, run_dir, config, load_window_config(),
+                          device, progress, {"command": " ".join(sys.argv)})
+    print(f"fine-tuned on {len(args.sessions)} sessions ({result.train_windows} training windows, "
+          f"{result.validation_windows} validation windows, the last "
+          f"{100 * config.finetune.validation_fraction:.0f} % of each session): validation RMSE "
+          f"{result.rmse_before_cm:.3f} cm before, {result.rmse_after_cm:.3f} cm after -> {result.model}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from estimator.deepsee.checkpoint import load_model
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity
+    from estimator.deepsee.transforms import LabelTransform
+    from seesys.protocol.windows import load_window_config
+
+    transform = LabelTransform(load_estimator_config().label_transform.k)
+    windows = load_window_config()
+    model, _ = load_model(args.model, transform, windows)
+    path = export_onnx(model, args.out, windows, transform)
+    difference = parity(model, OnnxModel(path, transform, windows))
+    if difference > PARITY_TOLERANCE:
+        raise SeesysError(f"{path}: ONNX Runtime differs from PyTorch by {difference:.2e} (> {PARITY_TOLERANCE:g})")
+    print(f"exported {args.model} -> {path} ({path.stat().st_size / 1e6:.1f} MB); parity with PyTorch: max abs "
+          f"difference {difference:.1e} on the transformed scale")
+    return 0
+
+
+def _estimate(args: argparse.Namespace) -> int:
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.estimate import estimate_session
+    from estimator.deepsee.predictors import load_predictor
+    from estimator.deepsee.transforms import LabelTransform
+    from seesys.protocol.windows import load_window_config
+
+    config = load_estimator_config()
+    windows = load_window_config()
+    predictor = load_predictor(_default_model(args), LabelTransform(config.label_transform.k),
+                               config.evaluation.batch_size, windows=windows)
+    table = estimate_session(predictor, args.session, windows, args.out)
+    print(f"{len(table)} estimates (median {1000 * table.error_m.median():.1f} mm) -> {args.out}; "
+          f"listen with `seesys advisory render --estimates {args.out} --out preview.wav`")
+    return 0
+
+
+def _data_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", type=Path, nargs="+", required=True, help="dataset folders (seesys dataset build)")
+    p.add_argument("--splits", type=Path, required=True, help="splits JSON of those folders (seesys dataset splits)")
+
+
+def _training_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--schedule", choices=("reduced", "full"), default="reduced",
+                   help="training schedule of configs/estimator.toml (default: reduced, about an hour on 2 cores)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``seesys estimator`` to the command line."""
+    estimator = subparsers.add_parser("estimator", help="train, evaluate, fine-tune, export and run DeepSEE")
+    sub = estimator.add_subparsers(dest="estimator_command", metavar="ESTIMATOR_COMMAND", required=True)
+
+    p = sub.add_parser("train", help="train one Table 3 row on a round of the splits (resumable: rerun to continue)")
+    _data_arguments(p)
+    p.add_argument("--round", type=int, default=0, help="cross-validation round (default 0)")
+    p.add_argument("--row", default="deepsee", choices=ROW_NAMES, help="Table 3 row (default deepsee)")
+    p.add_argument("--pretrained", type=Path, help="a DeepSEE run folder whose pretrained encoders to start from")
+    p.add_argument("--out", type=Path, required=True, help="run folder (created, or resumed)")
+    _training_arguments(p)
+    p.set_defaults(func=_train)
+
+    p = sub.add_parser("train-table", help="train every Table 3 row of the given rounds (resumable)")
+    _data_arguments(p)
+    p.add_argument("--rounds", type=_ints, default=[0], help="comma-separated rounds (default 0)")
+    p.add_argument("--rows", type=_rows, default=list(ROW_NAMES), help="comma-separated rows, or all (default)")
+    p.add_argument("--runs", type=Path, required=True, help="folder for round_<r>/<row>/ run folders")
+    _training_arguments(p)
+    p.set_defaults(func=_train_table)
+
+    p = sub.add_parser("evaluate", help="Table 3 report of the trained rows (Markdown, CSV, PNG)")
+    _data_arguments(p)
+    p.add_argument("--runs", type=Path, required=True, help="the train-table folder")
+    p.add_argument("--rounds", type=_ints, default=[0], help="comma-separated rounds (default 0)")
+    p.add_argument("--sessions", type=Path, nargs="*", help="labelled session folders judged as out-of-domain data")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    p.add_argument("--out", type=Path, required=True, help="report folder")
+    p.set_defaults(func=_evaluate)
+
+    p = sub.add_parser("finetune", help="stage (d) on labelled session folders (real cameras with ground truth)")
+    p.add_argument("--sessions", type=Path, nargs="+", required=True, help="session folders with groundtruth.tum")
+    p.add_argument("--model", type=Path, help="model to start from (default: the shipped model)")
+    p.add_argument("--out", type=Path, required=True, help="the fine-tuned model file")
+    p.add_argument("--run", type=Path, help="run folder for its metrics and checkpoints (default: next to --out)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+    p.set_defaults(func=_finetune)
+
+    p = sub.add_parser("export", help="export a model to one ONNX file and check it against PyTorch")
+    p.add_argument("model", type=Path, help="model file (model.pt)")
+    p.add_argument("--out", type=Path, required=True, help="ONNX file to write")
+    p.set_defaults(func=_export)
+
+    p = sub.add_parser("estimate", help="per-frame estimates of a logged session (CSV for seesys advisory render)")
+    p.add_argument("session", type=Path, help="session folder with rts.csv and psd/ (seesys monitor run)")
+    p.add_argument("--model", type=Path, help="model file, .pt or .onnx (default: the shipped model)")
+    p.add_argument("--out", type=Path, required=True, help="CSV: frame_index, timestamp, error_m")
+    p.set_defaults(func=_estimate)

@@ -1,0 +1,120 @@
+"""``seesys estimator`` evaluate / export / estimate and fine-tuning on sessions, on the tiny dataset's models."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from rich.progress import Progress
+
+from advisory.estimate_log import read_estimate_log
+from estimator.deepsee.checkpoint import ModelMismatch, load_model
+from estimator.deepsee.data import concat, session_windows
+from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity
+from estimator.deepsee.finetune import finetune
+from estimator.deepsee.predictors import load_predictor
+from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIMESERIES_PNG
+from estimator.deepsee.transforms import LabelTransform
+from seesys.cli import main
+from seesys.protocol.windows import load_window_config
+from test_deepsee_sessions import (tiny_config, tiny_dataset, trained_runs,  # noqa: F401 (fixtures)
+                                   write_session)
+
+TRANSFORM = LabelTransform(10000.0)
+
+
+def _model(trained_runs, row="deepsee"):
+    return trained_runs / "round_0" / row / "model.pt"
+
+
+def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path, capsys):
+    other = [write_session(tmp_path / "other_renderer" / f"s{k}", seed=100 + k, noise_scale=2.0) for k in range(2)]
+    out = tmp_path / "report"
+    assert main(["estimator", "evaluate", "--data", str(tiny_dataset.root), "--splits", str(tiny_dataset.splits),
+                 "--runs", str(trained_runs), "--rounds", "0", "--sessions", *map(str, other),
+                 "--out", str(out)]) == 0
+    report = (out / REPORT_MD).read_text()
+    for heading in ("## test trajectories", "## held-out environments", "## out-of-domain sessions"):
+        assert heading in report
+    for label in ("| Baseline | Random Forest |", "| Baseline | LSTM |", "| Model Study | DeepSEE-w/o-PSD |",
+                  "| DeepSEE | DeepSEE |"):
+        assert label in report
+    assert "DeepSEE vs random_forest: RMSE" in report and "reduced, cpu" in report
+    for png in (TIMESERIES_PNG, SCATTER_PNG, CONFUSION_PNG):
+        assert (out / png).stat().st_size > 5000 and f"]({png})" in report
+    scores = pd.read_csv(out / "scores.csv")
+    assert set(scores.row) == {"deepsee", "wo_psd", "lstm", "random_forest"}
+    deepsee = scores[(scores.row == "deepsee") & (scores.set == "test trajectories")].iloc[0]
+    assert deepsee.windows > 100 and 0 < deepsee.rmse_cm < 2 and deepsee.spearman > 0.3
+    assert 0 <= deepsee.agreement <= 1 and deepsee.bins > 10
+
+
+def test_ablation_rows_start_from_the_pretrained_encoders(trained_runs):
+    metrics = pd.read_csv(trained_runs / "round_0" / "wo_psd" / "metrics.csv")
+    assert set(metrics.stage) == {"c_supervised_frozen", "d_finetune"}  # no second pretraining
+    pretrained = torch.load(trained_runs / "round_0" / "deepsee" / "state" / "encoders.pt")["rts_encoder"]
+    # Stage (c) keeps the encoders frozen: its checkpoint holds DeepSEE's pretrained RTS encoder unchanged.
+    ablation_state = torch.load(trained_runs / "round_0" / "wo_psd" / "state" / "c_supervised_frozen.pt",
+                                weights_only=False)["module"]
+    for name, value in pretrained.items():
+        torch.testing.assert_close(ablation_state[f"rts_encoder.{name}"], value)
+
+
+def test_export_to_onnx_then_estimate_a_session_for_the_advisory(tiny_dataset, trained_runs, tmp_path, capsys):
+    """The exported file holds its weights (it works moved alone), matches PyTorch, refuses other inputs; the
+    per-frame estimates of a session, from the checkpoint, the ONNX file or the forest, are a log the advisory
+    reads."""
+    exported = tmp_path / "export" / "deepsee.onnx"
+    assert main(["estimator", "export", str(_model(trained_runs)), "--out", str(exported)]) == 0
+    assert "parity with PyTorch" in capsys.readouterr().out
+    assert list(exported.parent.iterdir()) == [exported]  # no side file of weights
+    onnx_path = tmp_path / "elsewhere" / "m.onnx"
+    onnx_path.parent.mkdir()
+    exported.rename(onnx_path)
+    model, _ = load_model(_model(trained_runs), TRANSFORM)
+    assert parity(model, OnnxModel(onnx_path, TRANSFORM)) <= PARITY_TOLERANCE
+    with pytest.raises(ModelMismatch, match="label transform"):
+        OnnxModel(onnx_path, LabelTransform(100.0))
+    with pytest.raises(ModelMismatch, match="windows"):
+        OnnxModel(onnx_path, TRANSFORM, dataclasses.replace(load_window_config(), rts_length=20))
+
+    session = sorted(tiny_dataset.sessions.iterdir())[0]
+    for path in (_model(trained_runs), onnx_path, trained_runs / "round_0" / "random_forest" / "model.pkl"):
+        out = tmp_path / f"{path.suffix[1:]}.csv"
+        assert main(["estimator", "estimate", str(session), "--model", str(path), "--out", str(out)]) == 0
+        table = pd.read_csv(out)
+        assert list(table.columns) == ["frame_index", "timestamp", "error_m"]
+        log = read_estimate_log(out)
+        assert len(log.timestamps) == len(table) > 100 and (log.errors_m >= 0).all()
+    torch_estimates = pd.read_csv(tmp_path / "pt.csv").error_m
+    np.testing.assert_allclose(pd.read_csv(tmp_path / "onnx.csv").error_m, torch_estimates, rtol=1e-3, atol=1e-7)
+    assert main(["estimator", "estimate", str(session), "--model", str(tmp_path / "none.pt"),
+                 "--out", str(tmp_path / "x.csv")]) == 2
+    assert "model file not found" in capsys.readouterr().err
+
+
+def test_finetune_on_a_few_sessions_lowers_the_error_on_held_out_sessions(trained_runs, tmp_path):
+    """Sessions from another 'camera' (the same inputs mean 3× larger errors): fine-tuning on three of them makes the
+    estimates of two others, never seen, closer to their labels."""
+    sessions = [write_session(tmp_path / "lab" / f"s{k}", seed=200 + k, noise_scale=3.0) for k in range(5)]
+    train, held_out = sessions[:3], sessions[3:]
+    windows = load_window_config()
+    truth = concat([session_windows(s, windows, labelled=True) for s in held_out])
+    config = tiny_config()
+
+    def rmse(model_path) -> float:
+        predictor = load_predictor(model_path, TRANSFORM, 64)
+        return float(np.sqrt(np.mean((predictor.metres(truth) - truth.error_m) ** 2)))
+
+    base = _model(trained_runs)
+    with Progress(disable=True) as progress:
+        result = finetune(base, train, tmp_path / "lab.pt", tmp_path / "lab_run", config, windows,
+                          torch.device("cpu"), progress, {})
+    assert result.train_windows > 3 * result.validation_windows > 0
+    assert result.rmse_after_cm < result.rmse_before_cm
+    before, after = rmse(base), rmse(result.model)
+    assert after < 0.8 * before, (before, after)
+    assert load_model(result.model, TRANSFORM)[1]["training"]["finetuned_on"] == [str(s) for s in train]
