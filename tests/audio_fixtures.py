@@ -9,6 +9,7 @@ import subprocess
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ from advisory.wav import read_wav
 from seesys.protocol import rts_schema
 from seesys.protocol.messages import Estimate, FeatureFrame, encode
 from seesys.protocol.tracking_state import TrackingState
+from seesys.protocol.transport import open_socket
 
 PUBLISH_HZ = 30.0
 
@@ -106,27 +108,27 @@ class Sandbox:
                 proc.wait()
 
 
-def wait_until(predicate, what: str, timeout_s: float = 30.0) -> None:
-    """Poll ``predicate`` until true; a generous timeout, as the machine may be shared and loaded."""
+def wait_until(predicate: Callable[[], bool], what: str | Callable[[], str], timeout_s: float = 60.0) -> None:
+    """Poll ``predicate`` until true; a generous timeout, as the machine may be shared and loaded. ``what`` (or
+    what it returns, read at the timeout) says what did not happen."""
     deadline = time.monotonic() + timeout_s
     while not predicate():
         if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.1)
+            raise AssertionError(f"timed out waiting for {what() if callable(what) else what}")
+        time.sleep(0.1)  # the polling interval, not a synchronisation
 
 
-def wait_started(sandbox: Sandbox, process: str, count: int = 1, timeout_s: float = 30.0) -> None:
+def wait_started(sandbox: Sandbox, process: str, count: int = 1, timeout_s: float = 60.0) -> None:
     """Wait until ``count`` processes named ``process`` have logged 'started' (imports take a while)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+
+    def started() -> bool:
         path = sandbox.session / EVENTS_CSV
-        if path.exists():
-            events = pd.read_csv(path)
-            started = events[(events.event == "started") & events.process.str.startswith(process + "[")]
-            if len(started) >= count:
-                return
-        time.sleep(0.1)
-    raise AssertionError(f"{process} did not start; stderr: {sandbox.stderr(process)[-2000:]}")
+        if not path.exists():
+            return False
+        events = pd.read_csv(path)
+        return int(((events.event == "started") & events.process.str.startswith(process + "[")).sum()) >= count
+
+    wait_until(started, lambda: f"{process} to start; stderr: {sandbox.stderr(process)[-2000:]}", timeout_s)
 
 
 class Publisher:
@@ -137,9 +139,7 @@ class Publisher:
         self.value: float | None = None
         self._make = make_message
         self._ctx = zmq.Context()
-        self._pub = self._ctx.socket(zmq.PUB)
-        self._pub.setsockopt(zmq.LINGER, 0)
-        self._pub.bind(endpoint)
+        self._pub = open_socket(self._ctx, zmq.PUB, endpoint, "test publisher", bind=True)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
         self.index = 0

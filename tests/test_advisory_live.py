@@ -13,6 +13,7 @@ from advisory.player import DEVICE_LOST_EXIT
 from advisory.process import advisory_command
 from advisory.pulses import error_pulses
 from advisory.sandbox import JackDummy
+from advisory.scheduler import LIVE, STALE, TICK
 from audio_fixtures import (Publisher, estimate_message, jack, make_sandbox, pulse_onsets,  # noqa: F401
                             pulses_per_buffer, rotation_frame, run_lengths, wait_started, wait_until)
 
@@ -35,34 +36,51 @@ def start_both(sandbox, condition="seesys"):
     return player, generator
 
 
+def hold(sandbox, status: str, n: int, count: int = 3) -> None:
+    """Keep the current input until the player has started ``count`` tick buffers that the generator made from
+    now on with ``status`` and N = ``n`` (what the rule gave). Each step of a test's input lasts as long as the
+    logs need, not a fixed time, so a busy machine makes the test slower, never wrong."""
+    made = sandbox.advisory()
+    after = int(made.buffer_id.max()) if len(made) else -1
+
+    def started() -> int:
+        advisory = sandbox.advisory()
+        wanted = advisory[(advisory.buffer_id > after) & (advisory.status == status) & (advisory.n_pulses == n)
+                          & (advisory.trigger == TICK)]
+        return int(sandbox.playback().buffer_id.isin(wanted.buffer_id).sum())
+
+    wait_until(lambda: started() >= count, f"{count} {status} tick buffers with N = {n} played")
+
+
 def test_pulses_follow_the_estimate_and_go_silent_when_it_stops(jack, make_sandbox):
     sandbox = make_sandbox(jack, stale_after_s=0.6)
     start_both(sandbox)
     with Publisher(sandbox.estimates_endpoint, estimate_message) as pub:
-        for value in (0.002, 0.006, 0.010, 0.020, None, 0.006):
+        for value, status, n in ((0.002, LIVE, 0), (0.006, LIVE, 1), (0.010, LIVE, 2), (0.020, LIVE, 3),
+                                 (None, STALE, 0), (0.006, LIVE, 1)):
             pub.value = value
-            time.sleep(1.4)
-    time.sleep(0.5)
+            hold(sandbox, status, n)
     sandbox.stop_all()
 
     sizes = heard(sandbox)
     # N follows Equation 2 on the moving average: nothing at 2 mm, then 1, 2, 3 pulses per buffer; silence while
-    # the estimates stop (after the last value stood in for 0.6 s); 1 again when they come back.
+    # the estimates stop (after the last value stood in for 0.6 s); 1 again when they come back. Of the three
+    # tick buffers of a step only the last can be cut short by the change that ends the step.
     assert run_lengths(sizes) == [0, 1, 2, 3, 0, 1], sizes
     assert min(sizes.count(n) for n in (1, 2, 3)) >= 2
 
     advisory, playback, events = sandbox.advisory(), sandbox.playback(), sandbox.events()
     assert advisory.buffer_id.tolist() == list(range(len(advisory)))  # every buffer logged
     assert set(advisory.condition) == {"seesys"}
-    live = advisory[advisory.status == "live"]
+    live = advisory[advisory.status == LIVE]
     eq, buffer_s = sandbox.cfg.equation2, sandbox.cfg.timing.buffer_s
     assert live.n_pulses.tolist() == [error_pulses(e, eq, buffer_s) for e in live.input_value]
-    assert (advisory[advisory.status == "stale"].n_pulses == 0).all()
+    assert (advisory[advisory.status == STALE].n_pulses == 0).all()
     assert list(events[events.event.str.startswith("input")].event) == ["input live", "input stale", "input live"]
     # The player started every buffer it received within a block of the time it was scheduled for.
     late_ms = (playback.dac_mono - playback.play_at_mono) * 1000
     assert (late_ms.abs() < 1000 * sandbox.cfg.audio.blocksize / sandbox.cfg.audio.sample_rate).mean() > 0.9
-    intervals = np.diff(playback.dac_mono)[(playback.trigger.iloc[1:] == "tick").to_numpy()]
+    intervals = np.diff(playback.dac_mono)[(playback.trigger.iloc[1:] == TICK).to_numpy()]
     assert np.median(intervals) == pytest.approx(1 / 3, abs=0.001)
 
 
@@ -70,14 +88,14 @@ def test_rotation_condition_counts_pulses_from_the_angular_speed(jack, make_sand
     sandbox = make_sandbox(jack)
     start_both(sandbox, "rotation")
     with Publisher(sandbox.features_endpoint, rotation_frame) as pub:
-        for speed in (80.0, 120.0, 170.0, 400.0):
+        for speed, n in ((80.0, 0), (120.0, 1), (170.0, 2), (400.0, 3)):
             pub.value = speed
-            time.sleep(1.2)
+            hold(sandbox, LIVE, n)
     sandbox.stop_all()
     sizes = heard(sandbox)
     assert run_lengths(sizes) == [0, 1, 2, 3], sizes  # 80 °/s: none; 120: 1; 170: 2; 400: capped at 3
     advisory = sandbox.advisory()
-    live = advisory[advisory.status == "live"]
+    live = advisory[advisory.status == LIVE]
     assert set(advisory.condition) == {"rotation"}
     assert live.input_value.max() == pytest.approx(400.0, rel=1e-3)
 
@@ -87,14 +105,15 @@ def test_none_condition_is_silent_but_logs_what_it_would_have_played(jack, make_
     start_both(sandbox, "none")
     with Publisher(sandbox.estimates_endpoint, estimate_message) as pub:
         pub.value = 0.010
-        time.sleep(1.5)
+        hold(sandbox, LIVE, 2)  # what the rule gives; the buffers played hold no pulse
     sandbox.stop_all()
     x, rate = sandbox.capture()
-    assert x.size > rate and len(pulse_onsets(x, rate)) == 0
+    playback = sandbox.playback()
+    assert x.size > playback.stream_sample.max() and len(pulse_onsets(x, rate)) == 0
     assert set(heard(sandbox)) == {0}
     advisory = sandbox.advisory()
-    assert (advisory.played_pulses == 0).all() and (advisory[advisory.status == "live"].n_pulses == 2).all()
-    assert (advisory.status == "live").sum() >= 3
+    assert (advisory.played_pulses == 0).all() and (advisory[advisory.status == LIVE].n_pulses == 2).all()
+    assert (advisory.status == LIVE).sum() >= 3
 
 
 def test_each_process_survives_the_others_restart(jack, make_sandbox):
@@ -102,7 +121,7 @@ def test_each_process_survives_the_others_restart(jack, make_sandbox):
     player, generator = start_both(sandbox)
 
     def live_rows_since(row: int) -> int:
-        return int((sandbox.advisory().iloc[row:].status == "live").sum())
+        return int((sandbox.advisory().iloc[row:].status == LIVE).sum())
 
     def played_since(row: int) -> int:
         return int((sandbox.playback().iloc[row:].played_pulses == 2).sum())
@@ -112,13 +131,17 @@ def test_each_process_survives_the_others_restart(jack, make_sandbox):
         wait_until(lambda: played_since(0) >= 4, "buffers played before the generator is killed")
         generator.kill()  # no goodbye: SIGKILL
         generator.wait()
-        time.sleep(1.0)
-        assert player.poll() is None
+        killed_mono = time.monotonic()
+        # The stimulus is an absence: no generator for longer than the last buffer it sent (scheduled at most
+        # schedule_latency_s after the kill) plus a period, so that the player has to go silent.
+        timing, audio = sandbox.cfg.timing, sandbox.cfg.audio
+        time.sleep(audio.schedule_latency_s + timing.buffer_s + timing.cadence_s)
         rows = len(sandbox.advisory())
         sandbox.generator()
         wait_started(sandbox, "generator", count=2)
         played = len(sandbox.playback())
         wait_until(lambda: played_since(played) >= 4, "buffers of the restarted generator played")
+        assert player.poll() is None  # the player lived through the generator's absence
         player.kill()
         player.wait()
         assert live_rows_since(rows) >= 4
@@ -130,10 +153,17 @@ def test_each_process_survives_the_others_restart(jack, make_sandbox):
         wait_until(lambda: played_since(played) >= 4, "buffers played by the restarted player")
     sandbox.stop_all()
     playback = sandbox.playback()
-    first, second = playback.iloc[:played], playback.iloc[played:]
+    # The second player's rows follow the first's; its stream samples count from 0 again.
+    restart = np.flatnonzero(np.diff(playback.stream_sample.to_numpy()) < 0) + 1
+    assert len(restart) == 1
+    first, second = playback.iloc[:restart[0]], playback.iloc[restart[0]:]
+    # While the generator was down the player played only what the last buffer of the killed generator holds, then
+    # silence (heard() checks each buffer's stretch up to the next one: a buffer played again would show).
+    before, after = first[first.time_mono < killed_mono], first[first.time_mono >= killed_mono]
+    assert len(before) >= 4 and len(after) >= 4
+    assert after.dac_mono.min() - before.dac_mono.max() > sandbox.cfg.timing.buffer_s
     sizes = heard(sandbox, rows=first)
     assert set(sizes) <= {0, 2} and sizes.count(2) >= 6, sizes
-    assert np.diff(first.dac_mono).max() > 1.0  # silence while the generator was down
     sizes2 = heard(sandbox, "capture2.wav", rows=second)
     assert set(sizes2) <= {0, 2} and sizes2.count(2) >= 3, sizes2  # the restarted player plays the generator
 
@@ -164,7 +194,7 @@ def test_lost_audio_device_is_logged_and_ends_the_player(make_sandbox):
         player = sandbox.player()
         wait_started(sandbox, "player")
     # The server is gone: the stream stops by itself.
-    assert player.wait(10) == DEVICE_LOST_EXIT
+    assert player.wait(30) == DEVICE_LOST_EXIT
     events = sandbox.events()
     assert "audio device lost" in set(events.event)
 
@@ -178,7 +208,7 @@ def test_stalled_audio_server_is_logged_as_a_lost_device(make_sandbox):
         wait_started(sandbox, "player")
         os.kill(server.pid, signal.SIGSTOP)  # the server stops running cycles; the stream still says active
         try:
-            assert player.wait(15) == DEVICE_LOST_EXIT
+            assert player.wait(30) == DEVICE_LOST_EXIT
         finally:
             os.kill(server.pid, signal.SIGCONT)
     lost = sandbox.events().query("event == 'audio device lost'")
