@@ -188,6 +188,21 @@ def test_resume_redoes_only_unfinished_runs(tiny, tmp_path):
     assert not (copy / RUNS_DIR / f"{lost.run}.partial").exists()
 
 
+def test_a_retuned_preset_renders_and_runs_its_sequences_again(tiny, tmp_path):
+    """Resuming with a preset retuned since: only its sequences are rendered again, and their stored runs (which
+    played the old render) are redone."""
+    root, _ = tiny
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    synth = load_synth_config()
+    retuned = dataclasses.replace(synth, presets=[dataclasses.replace(p, albedo=0.3) if p.name == "lab" else p
+                                                  for p in synth.presets])
+    builder = DatasetBuilder(copy, load_dataset_config(), retuned, load_label_config(), load_window_config())
+    result = builder.build(_plan(ENVIRONMENTS))
+    assert result.rendered_frames == FRAMES and [r.run for r in result.runs_done] == ["lab__patrol__s0__rgbd__t0"]
+    assert result.runs_skipped == 2 and len(list_runs(copy)) == 3
+
+
 def test_failed_run_is_recorded_and_skipped(tiny, tmp_path):
     root, _ = tiny
     configs = tmp_path / "configs"

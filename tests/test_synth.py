@@ -323,3 +323,18 @@ def test_colour_noise_scale_scales_the_sensor_noise(config):
     flat = np.full((200, 200), 0.3, np.float32)
     sigma = [float(np.std(p.expose(flat, np.random.default_rng(1)).astype(float))) for p in (ideal, noisy)]
     assert sigma[1] / sigma[0] == pytest.approx(2.0, rel=0.1)
+
+
+def test_a_resumed_batch_renders_again_only_what_a_retuned_preset_changes(config, tmp_path):
+    template = _tiny("aiming")
+    first = render_batch(template, ["lab", "basement"], ["aiming"], [0], config, tmp_path, processes=1)
+    assert len(first.rendered) == 2
+    lab = tmp_path / "lab__aiming__s0"
+    before = _files(lab)
+    again = render_batch(template, ["lab", "basement"], ["aiming"], [0], config, tmp_path, processes=1)
+    assert again.rendered == [] and len(again.skipped) == 2
+    retuned = dataclasses.replace(config, presets=[dataclasses.replace(p, albedo=0.3) if p.name == "lab" else p
+                                                   for p in config.presets])
+    third = render_batch(template, ["lab", "basement"], ["aiming"], [0], retuned, tmp_path, processes=1)
+    assert third.rendered == [lab] and third.skipped == [tmp_path / "basement__aiming__s0"]
+    assert _files(lab) != before and json.loads((lab / "metadata.json").read_text())["preset"]["albedo"] == 0.3

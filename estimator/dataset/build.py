@@ -25,8 +25,8 @@ import pandas as pd
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from estimator.dataset.config import DatasetConfig
-from estimator.dataset.store import (COMPLETED, CRASHED, FORMAT_KEY, FORMAT_VERSION, PARTIAL, RunArrays, RunInfo,
-                                     read_run_info, record_crashed_run, run_folder, run_name, write_run)
+from estimator.dataset.store import (COMPLETED, CRASHED, FORMAT_KEY, FORMAT_VERSION, PARTIAL, RUNS_DIR, RunArrays,
+                                     RunInfo, read_run_info, record_crashed_run, run_folder, run_name, write_run)
 from estimator.labels import LabelConfig, LabelStatus, label_session
 from estimator.synth.batch import expand_environments, expand_motions, render_batch
 from estimator.synth.config import SynthConfig
@@ -176,6 +176,8 @@ class DatasetBuilder:
                              self.root / SEQUENCES_DIR, plan.render_processes)
         self._log({"phase": "render", "render_processes": plan.render_processes or self.synth.processes,
                    "rendered_frames": batch.frames, "render_seconds": batch.seconds})
+        for sequence in batch.rendered:
+            self._drop_runs_of(sequence.name)
         sequences = sorted(batch.rendered + batch.skipped)
         jobs = [(seq, mode, trial) for seq in sequences for mode in plan.modes for trial in range(plan.trials)]
         todo = [job for job in jobs if read_run_info(run_folder(self.root, run_name(job[0].name, job[1].value,
@@ -203,6 +205,13 @@ class DatasetBuilder:
         self._log({"phase": "runs", "runs": len(result.runs_done), "crashed": len(result.crashed),
                    "slam_frames": sum(r.frames for r in result.runs_done), "slam_seconds": result.slam_seconds})
         return result
+
+    def _drop_runs_of(self, sequence: str) -> None:
+        """Delete the stored runs and sessions of ``sequence``: it was just (re-)rendered, so any run of it already
+        there played an older render (its preset was retuned since)."""
+        for folder in (self.root / RUNS_DIR, self.root / SESSIONS_DIR):
+            for stale in folder.glob(f"{sequence}__*"):
+                shutil.rmtree(stale)
 
     def _log(self, entry: dict) -> None:
         """Append a timed entry to ``build_log.jsonl``: the render phase as soon as it ends (so that an

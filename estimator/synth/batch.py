@@ -1,17 +1,21 @@
 """Render many sequences: every environment × motion × seed, one TUM folder each.
 
 Folder names are ``<environment>__<motion>__s<seed>`` (``real:`` written as ``real-``), so that a batch can be
-resumed: a folder whose ``metadata.json`` exists is complete (it is written last) and is skipped.
+resumed: a folder whose ``metadata.json`` exists is complete (it is written last) and is skipped, unless the
+preset it records differs from the preset of configs/synth.toml (the preset was retuned since): such a folder is
+rendered again.
 """
 
 from __future__ import annotations
 
+import json
+import shutil
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from estimator.synth.config import SynthConfig
-from estimator.synth.sequence import REAL_PREFIX, SequenceSpec, render_sequence
+from estimator.synth.sequence import REAL_PREFIX, SequenceSpec, preset_record, render_sequence
 from estimator.synth.trajectories import MOTION_GROUPS
 
 ALL = "all"
@@ -63,6 +67,16 @@ class BatchResult:
         return self.frames / self.seconds if self.seconds > 0 else 0.0
 
 
+def _rendered_with_current_preset(folder: Path, environment: str, config: SynthConfig) -> bool:
+    """True when ``folder`` holds a complete render whose recorded preset is the configured one."""
+    try:
+        recorded = json.loads((folder / "metadata.json").read_text()).get("preset")
+    except (OSError, ValueError):
+        return False
+    preset = config.preset(environment)
+    return recorded == preset_record(preset, config.camera_model(preset.camera_model))
+
+
 def render_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
                  config: SynthConfig, root: Path, processes: int | None = None) -> BatchResult:
     """Render environments × motions × seeds under ``root`` (``template`` gives length, size, lens, blur).
@@ -78,9 +92,10 @@ def render_batch(template: SequenceSpec, environments: list[str], motions: list[
                 spec = replace(template, environment=env, motion=motion,
                                seed=sequence_seed(seed, env, motion, config))
                 folder = root / sequence_folder_name(replace(spec, seed=seed))
-                if (folder / "metadata.json").is_file():
+                if _rendered_with_current_preset(folder, env, config):
                     skipped.append(folder)
                     continue
+                shutil.rmtree(folder, ignore_errors=True)  # unfinished, or rendered with an older preset
                 frames += len(render_sequence(spec, config, folder, processes))
                 rendered.append(folder)
     return BatchResult(rendered, skipped, frames, time.perf_counter() - start)

@@ -29,7 +29,7 @@ import numpy as np
 from rich.progress import Progress
 
 from estimator.synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
-from estimator.synth.config import CameraConfig, CameraModel, SynthConfig
+from estimator.synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
 from estimator.synth.environments import Scene, build_scene
 from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter, shift_depth
 from estimator.synth.renderer import RayGrid, render
@@ -255,6 +255,17 @@ def render_sequence(spec: SequenceSpec, config: SynthConfig, out: Path, processe
     return records
 
 
+def preset_record(preset: EnvironmentPreset, model: CameraModel) -> dict:
+    """The preset as ``metadata.json`` records it (JSON types), and as a resumed batch compares it.
+
+    The camera model's name is left out when the model is ideal, so the metadata of a render with the ideal camera
+    stays as it was before camera models existed; a non-ideal model is recorded in full beside it."""
+    record = dataclasses.asdict(preset)
+    if model.ideal:
+        del record["camera_model"]
+    return json.loads(json.dumps(record))
+
+
 def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, records: list[FrameRecord]) -> None:
     """The TUM list files, ground truth, calibration, metadata and per-frame render log of a rendered plan."""
     stamps = [frame_stamp(config.start_time_s + t) for t in plan.frame_times]
@@ -276,10 +287,7 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
     _write_calibration(out / "calibration.yaml", plan, config)
     metadata = {
         "environment": plan.scene.preset.name,
-        # The camera model is listed (in full) only when it changes the renders: the metadata of a render with the
-        # ideal camera stays as it was before camera models existed.
-        "preset": {k: v for k, v in dataclasses.asdict(plan.scene.preset).items()
-                   if k != "camera_model" or not plan.camera_model.ideal},
+        "preset": preset_record(plan.scene.preset, plan.camera_model),
         "motion_group": plan.motion_group,
         "trajectory": plan.trajectory_name,
         "motion": plan.spec.motion,
