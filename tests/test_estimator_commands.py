@@ -12,7 +12,7 @@ from rich.progress import Progress
 
 from advisory.estimate_log import read_estimate_log
 from estimator.deepsee.checkpoint import ModelMismatch, load_model
-from estimator.deepsee.data import concat, session_windows
+from estimator.deepsee.data import DataError, concat, session_windows
 from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity
 from estimator.deepsee.finetune import finetune
 from estimator.deepsee.predictors import load_predictor
@@ -118,3 +118,15 @@ def test_finetune_on_a_few_sessions_lowers_the_error_on_held_out_sessions(traine
     before, after = rmse(base), rmse(result.model)
     assert after < 0.8 * before, (before, after)
     assert load_model(result.model, TRANSFORM)[1]["training"]["finetuned_on"] == [str(s) for s in train]
+
+
+def test_windows_of_another_camera_are_refused_with_a_clear_error(trained_runs, tmp_path):
+    session = write_session(tmp_path / "vga", seed=7, frames=80)
+    windows = session_windows(session, load_window_config(), labelled=False)
+    wide = dataclasses.replace(windows, psd=np.zeros((len(windows), 4, 64, 96, 3), np.uint8))
+    predictor = load_predictor(_model(trained_runs), TRANSFORM, 64)
+    assert len(predictor.metres(windows)) == len(windows)
+    with pytest.raises(DataError, match="psd_height=64, psd_width=96.*camera resolution"):
+        predictor.metres(wide)
+    forest = load_predictor(trained_runs / "round_0" / "random_forest" / "model.pkl", TRANSFORM, 64)
+    assert len(forest.metres(wide)) == len(windows)  # the forest reads the RTS window only

@@ -1,8 +1,8 @@
-"""Model inputs from the labelled dataset and from session folders, as torch datasets.
+"""Model inputs from the labelled dataset and from session folders.
 
-Every source gives the same thing per window: the raw RTS window (T, C) (normalised here, once), the PSD
-matrices (K_L, H, W, 3) uint8 (scaled inside the model, so the served model takes what the device sends), the
-label in metres and the window's end frame and time. The dataset is read only through
+Every source gives the same thing per window: the RTS window (T, C), normalised here once, the PSD matrices
+(K_L, H, W, 3) uint8 (scaled inside the model, so the served model takes what the device sends), the label in
+metres and the window's end frame and time. The dataset is read only through
 :class:`estimator.dataset.store.DatasetReader`; a session folder (``seesys track``/``monitor run`` with ground
 truth) is windowed with the protocol's :func:`seesys.protocol.windows.assemble_windows` and labelled with
 :func:`estimator.labels.label_session`, the same definitions the dataset builder uses.
@@ -16,14 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import torch
-from torch.utils.data import Dataset
 
 from estimator.dataset.config import load_dataset_config
 from estimator.dataset.splits import Splits
 from estimator.dataset.store import DatasetReader
 from estimator.deepsee.model import InputShape
-from estimator.deepsee.transforms import LabelTransform, prepare_rts
+from estimator.deepsee.transforms import prepare_rts
 from estimator.labels import LabelStatus, label_session, load_label_config
 from seesys.errors import SeesysError
 from seesys.protocol import rts_schema
@@ -164,17 +162,3 @@ def concat(parts: list[Windows]) -> Windows:
     return Windows(np.concatenate([p.rts for p in parts]), psd, np.concatenate([p.error_m for p in parts]),
                    pd.concat([p.meta for p in parts], ignore_index=True))
 
-
-class WindowDataset(Dataset):
-    """(rts float32 (T, C), psd uint8 (K, H, W, 3), target float32) per window, the target transformed."""
-
-    def __init__(self, windows: Windows, transform: LabelTransform):
-        self.windows = windows
-        self.targets = transform.forward(windows.error_m).astype(np.float32)
-
-    def __len__(self) -> int:
-        return len(self.windows)
-
-    def __getitem__(self, i: int):
-        return (torch.from_numpy(self.windows.rts[i]), torch.from_numpy(np.ascontiguousarray(self.windows.psd_at(i))),
-                torch.tensor(self.targets[i]))

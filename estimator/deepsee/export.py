@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from estimator.deepsee.checkpoint import ModelMismatch, check_compatible, compatibility, compatibility_hash
+from estimator.deepsee.model import InputShape
 from estimator.deepsee.transforms import LabelTransform
 from seesys.protocol.windows import WindowConfig, load_window_config
 
@@ -79,6 +80,8 @@ class OnnxModel:
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         self.session = ort.InferenceSession(proto.SerializeToString(), options, providers=["CPUExecutionProvider"])
+        rts, psd = (i.shape[1:] for i in self.session.get_inputs())
+        self.shape = InputShape(*rts, *psd[:3])
 
     def __call__(self, rts: np.ndarray, psd: np.ndarray) -> np.ndarray:
         return self.session.run(None, {"rts": np.ascontiguousarray(rts, np.float32),

@@ -13,25 +13,39 @@ import torch
 
 from estimator.deepsee.baselines import window_statistics
 from estimator.deepsee.checkpoint import ModelMismatch, check_compatible, load_model
-from estimator.deepsee.data import Windows
+from estimator.deepsee.data import DataError, Windows
 from estimator.deepsee.export import OnnxModel
 from estimator.deepsee.inference import predict
+from estimator.deepsee.model import InputShape
 from estimator.deepsee.transforms import LabelTransform
+from seesys.protocol.rts_schema import NUM_CHANNELS
 from seesys.protocol.windows import WindowConfig, load_window_config
 
 
 @dataclass
 class Predictor:
-    """``transformed(windows)``: outputs on the transformed scale; ``metres(windows)``: estimates in metres."""
+    """``transformed(windows)``: outputs on the transformed scale; ``metres(windows)``: estimates in metres.
+    ``shape``: the window the model was made for (PSD sizes 0: a model of the RTS window only)."""
 
     path: Path
     kind: str
     transform: LabelTransform
     _run: object
-    batch_size: int
+    shape: InputShape
 
     def transformed(self, windows: Windows) -> np.ndarray:
+        if len(windows):
+            self.check(windows.input_shape())
         return self._run(windows)
+
+    def check(self, shape: InputShape) -> None:
+        """Raise :class:`DataError` when windows of ``shape`` are not what the model takes (another camera
+        resolution gives another PSD size)."""
+        expected = self.shape if self.shape.psd_samples else InputShape(
+            self.shape.rts_length, self.shape.channels, shape.psd_samples, shape.psd_height, shape.psd_width)
+        if shape != expected:
+            raise DataError(f"{self.path} takes windows of {expected}, these are {shape}: the PSD size follows the "
+                            f"camera resolution; fine-tune or train a model for this camera")
 
     def metres(self, windows: Windows) -> np.ndarray:
         return self.transform.inverse(self.transformed(windows))
@@ -52,8 +66,8 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
     path = Path(path)
     windows = windows or load_window_config()
     if path.suffix == ".onnx":
-        return Predictor(path, "onnx", transform, _onnx_runner(OnnxModel(path, transform, windows), batch_size),
-                         batch_size)
+        model = OnnxModel(path, transform, windows)
+        return Predictor(path, "onnx", transform, _onnx_runner(model, batch_size), model.shape)
     if path.suffix == ".pkl":
         try:
             record = pickle.loads(path.read_bytes())
@@ -64,9 +78,11 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
         check_compatible(record["compatibility"], str(path), windows, transform)
         forest = record["forest"]
         return Predictor(path, "random_forest", transform,
-                         lambda w: forest.predict(window_statistics(w.rts)).astype(np.float32), batch_size)
+                         lambda w: forest.predict(window_statistics(w.rts)).astype(np.float32),
+                         InputShape(windows.rts_length, NUM_CHANNELS, 0, 0, 0))
     device = device or torch.device("cpu")
     model, payload = load_model(path, transform, windows)
     model = model.to(device)
+    shape = model.shape if hasattr(model, "shape") else InputShape(windows.rts_length, model.channels, 0, 0, 0)
     return Predictor(path, payload["model"]["kind"], transform, lambda w: predict(model, w, batch_size, device),
-                     batch_size)
+                     shape)
