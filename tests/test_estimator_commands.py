@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -24,6 +26,7 @@ from test_deepsee_sessions import (tiny_config, tiny_dataset, trained_runs,  # n
                                    write_session)
 
 TRANSFORM = LabelTransform(10000.0)
+REPO = Path(__file__).resolve().parent.parent
 
 
 def _model(trained_runs, row="deepsee"):
@@ -130,3 +133,36 @@ def test_windows_of_another_camera_are_refused_with_a_clear_error(trained_runs, 
         predictor.metres(wide)
     forest = load_predictor(trained_runs / "round_0" / "random_forest" / "model.pkl", TRANSFORM, 64)
     assert len(forest.metres(wide)) == len(windows)  # the forest reads the RTS window only
+
+
+def _toml(data: dict, prefix: str = "") -> list[str]:
+    """``data`` (plain values, lists, nested tables) as TOML lines."""
+    def value(v) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return f'"{v}"' if isinstance(v, str) else repr(v)
+
+    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines += ["", f"[{prefix}{k}]"] + _toml(v, f"{prefix}{k}.")
+    return lines
+
+
+def test_cli_trains_a_row_into_a_run_folder_and_resumes(tiny_dataset, tmp_path, capsys, monkeypatch):
+    """``seesys estimator train`` with configs/estimator.toml replaced by the tiny configuration."""
+    configs = tmp_path / "configs"
+    shutil.copytree(REPO / "configs", configs)
+    (configs / "estimator.toml").write_text("\n".join(_toml(dataclasses.asdict(tiny_config()))) + "\n")
+    args = ["estimator", "train", "--data", str(tiny_dataset.root), "--splits", str(tiny_dataset.splits),
+            "--row", "lstm", "--out", str(tmp_path / "run"), "--threads", "1"]
+    monkeypatch.setenv("SEESYS_CONFIG_DIR", str(configs))
+    assert main(args) == 0
+    assert "trained lstm (round 0, reduced schedule, cpu)" in capsys.readouterr().out
+    assert main(args) == 0  # resumed: nothing left to train
+    assert main(args[:-2] + ["--schedule", "full"]) == 2
+    assert "holds a run with a different schedule" in capsys.readouterr().err
+    metrics = pd.read_csv(tmp_path / "run" / "metrics.csv")
+    assert set(metrics.stage) == {"lstm"} and len(metrics) == tiny_config().schedules.reduced.lstm.epochs
