@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from study import commands_mocap
+from study import commands_mocap, commands_sessions
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``seesys study`` to the ``seesys`` command line."""
     parser = subparsers.add_parser("study", help="user studies: sessions, motion capture, calibration, metrics")
     commands = parser.add_subparsers(dest="study_command", metavar="COMMAND", required=True)
+    commands_sessions.register(commands)
     commands_mocap.register(commands)

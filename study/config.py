@@ -51,11 +51,23 @@ class CalibrationConfig:
 
 
 @dataclass(frozen=True)
+class RunnerConfig:
+    source: str
+    mode: str
+    record_mocap: bool
+    status_interval_s: float
+    ready_timeout_s: float
+    stop_timeout_s: float
+    calibrate_at_end: bool
+
+
+@dataclass(frozen=True)
 class StudyConfig:
     protocol: ProtocolConfig
     metrics: MetricsConfig
     mocap: MocapConfig
     calibration: CalibrationConfig
+    runner: RunnerConfig
 
 
 def load_study_config(directory: Path | None = None) -> StudyConfig:

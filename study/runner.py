@@ -1,0 +1,287 @@
+"""``seesys study run``: one participant's session in one phase, composed of the existing commands.
+
+Each run writes a new attempt folder (``study.sessions``) and, as child processes (``study.children``):
+
+- the device: ``seesys monitor run --stream`` (ORB-SLAM3 + RTS monitor, publishing the feature stream), writing
+  its session files into the attempt folder;
+- the advisory in the participant's condition: ``seesys advisory run --condition C``;
+- the motion-capture logger: ``seesys study mocap log`` (``mocap.tum``);
+- optionally an estimate source: ``seesys advisory replay --estimates CSV`` (until the estimator service runs
+  on the edge server, or for dry runs), started when the device has tracked its first frame.
+
+In the runner itself, a thread logs every estimate it receives (``study.watch``), another reads the operator's
+event keys (``study.operator``) into ``events.csv``, and a status line shows the tracking state, the latest
+estimate, the advisory's pulses, the mocap rate and the frames the device could not publish. The session ends
+when the device's source ends or the operator presses ``q`` (the device is interrupted and keeps its files);
+the other children are then stopped. ``run.json`` says ``running`` (with the runner's pid) until then and the
+outcome after; every log is appended line by line and flushed, so a runner killed at any moment leaves files
+that parse (its children die with it). Without a ground truth from the source, the mocap is calibrated into
+``groundtruth.tum`` at the end (``study.mocap.calibrate``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import queue
+import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from rich.console import Console
+from rich.live import Live
+from rich.text import Text
+
+from advisory.logs import ADVISORY_COLUMNS, ADVISORY_CSV, CsvLog
+from seesys.errors import SeesysError
+from seesys.network import load_network_config
+from slam_monitor.session import utc_now
+from study.children import Child
+from study.config import StudyConfig
+from study.logfiles import write_json_atomically
+from study.mocap.calibrate import CALIBRATION_JSON, GROUND_TRUTH, MOCAP_LOG, calibrate_session
+from study.mocap.logger import MOCAP_STATS
+from study.operator import KEYS_HELP, OperatorEvent, OperatorInput
+from study.protocol import Protocol, ProtocolError, read_protocol
+from study.sessions import (DONE, EVENTS_CSV, RUN_JSON, attempt_folders, next_attempt_folder, phase_status,
+                            read_run)
+from study.watch import StreamWatcher
+
+EVENT_COLUMNS = ("time", "kind", "detail")
+# How long the runner waits for its subscriber sockets before starting the publishers.
+SUBSCRIBER_READY_S = 5.0
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    study: Path
+    participant: str
+    phase: str
+    condition: str | None = None
+    source: str | None = None
+    mode: str | None = None
+    replay_estimates: Path | None = None
+    restart: bool = False
+    max_frames: int | None = None
+    pace: bool | None = None
+    record_mocap: bool | None = None
+
+
+@dataclass(frozen=True)
+class RunResult:
+    attempt: Path
+    status: str
+    frames: int
+    estimates: int
+    events: int
+
+
+def choose_condition(protocol: Protocol, study: Path, participant: str, phase: str, condition: str | None) -> str:
+    """The participant's condition; within-subjects, the first of their order not yet done (or ``condition``)."""
+    person = protocol.participant(participant)
+    if condition is not None:
+        if condition not in person.conditions:
+            raise ProtocolError(f"{participant} is not assigned condition {condition!r} ({', '.join(person.conditions)})")
+        return condition
+    for c in person.conditions:
+        if phase_status(protocol.phase_folder(study, participant, phase, c)) != DONE:
+            return c
+    return person.conditions[-1]
+
+
+def _supersede(phase_folder: Path) -> None:
+    for attempt in attempt_folders(phase_folder):
+        run = read_run(attempt)
+        run["superseded"] = True
+        write_json_atomically(attempt / RUN_JSON, run)
+
+
+def _tail(path: Path) -> str:
+    """The last complete line of a log ("" when none)."""
+    try:
+        with path.open("rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 4096))
+            lines = f.read().decode(errors="replace").split("\n")
+    except OSError:
+        return ""
+    complete = lines[:-1]  # the part after the last newline may be half-written
+    return complete[-1] if complete and not complete[-1].startswith(("frame_index", "wall_time")) else ""
+
+
+def _frames(path: Path) -> int:
+    try:
+        with path.open("rb") as f:
+            return max(0, sum(1 for _ in f) - 1)
+    except OSError:
+        return 0
+
+
+class Session:
+    """One run of ``seesys study run`` (see the module docstring)."""
+
+    def __init__(self, options: RunOptions, cfg: StudyConfig, operator: OperatorInput, console: Console):
+        self.o, self.cfg, self.operator, self.console = options, cfg, operator, console
+        self.protocol = read_protocol(options.study)
+        if options.phase not in self.protocol.phases:
+            raise ProtocolError(f"unknown phase {options.phase!r} (the protocol's phases: "
+                                f"{', '.join(self.protocol.phases)})")
+        self.condition = choose_condition(self.protocol, options.study, options.participant, options.phase,
+                                          options.condition)
+        self.phase_folder = self.protocol.phase_folder(options.study, options.participant, options.phase,
+                                                       self.condition)
+        if phase_status(self.phase_folder) == DONE and not options.restart:
+            raise SeesysError(f"{options.participant} has done {options.phase} ({self.condition}) already "
+                              f"({self.phase_folder}); pass --restart to record it again (the earlier attempts "
+                              f"are kept, marked superseded)")
+        self.source = options.source or cfg.runner.source
+        self.mode = options.mode or cfg.runner.mode
+        self.children: dict[str, Child] = {}
+        self.objects = 0
+        self.events_logged = 0
+        self.pulses = "–"
+
+    def _run_json(self, **changes: object) -> None:
+        run = read_run(self.attempt) if (self.attempt / RUN_JSON).exists() else {}
+        run.update(changes)
+        write_json_atomically(self.attempt / RUN_JSON, run)
+
+    def _event(self, log: CsvLog, kind: str, detail: str = "", at: float | None = None) -> None:
+        log.write(time.time() if at is None else at, kind, detail)
+        self.events_logged += 1
+
+    def _status_line(self, watcher: StreamWatcher) -> Text:
+        row = _tail(self.attempt / "frames.csv").split(",")
+        state = row[2] if len(row) > 2 else "starting"
+        advisory = _tail(self.attempt / ADVISORY_CSV).split(",")
+        if len(advisory) == len(ADVISORY_COLUMNS):
+            self.pulses = advisory[ADVISORY_COLUMNS.index("n_pulses")]
+        try:
+            mocap = f"{json.loads((self.attempt / MOCAP_STATS).read_text())['rate_hz']:.0f} Hz"
+        except (OSError, ValueError, KeyError):
+            mocap = "–" if self.record_mocap else "off"
+        estimate = "–" if math.isnan(watcher.latest_error_m) else f"{watcher.latest_error_m * 100:.2f} cm"
+        return Text(f"{self.o.participant} {self.o.phase} [{self.condition}]  frames {_frames(self.attempt / 'frames.csv')}"
+                    f" {state}  estimate {estimate} ({watcher.estimates})  pulses {self.pulses}  mocap {mocap}  "
+                    f"dropped {watcher.frames_skipped}+{watcher.losses.lost_in_transit}  objects {self.objects}  "
+                    f"| {KEYS_HELP}")
+
+    def _start_children(self) -> None:
+        """The advisory and the mocap logger first; the device once both are running, so that the participant
+        never starts without audio or ground truth."""
+        if self.record_mocap:
+            self.children["mocap"] = Child.start("mocap", ["study", "mocap", "log", "--out", str(self.attempt)],
+                                                 self.attempt)
+        self.children["advisory"] = Child.start("advisory", ["advisory", "run", "--condition", self.condition,
+                                                             "--out", str(self.attempt)], self.attempt)
+        ready = {"advisory": lambda: _frames(self.attempt / ADVISORY_CSV) > 0,
+                 "mocap": lambda: (self.attempt / MOCAP_STATS).exists()}
+        deadline = time.monotonic() + self.cfg.runner.ready_timeout_s
+        while not all(ready[name]() for name in self.children):
+            for name, child in self.children.items():
+                if not child.running:
+                    raise SeesysError(f"the {name} process exited while starting: {child.last_line()} "
+                                      f"(log: {child.log})")
+            if time.monotonic() > deadline:
+                late = [name for name in self.children if not ready[name]()]
+                raise SeesysError(f"{' and '.join(late)} not running after {self.cfg.runner.ready_timeout_s:g} s "
+                                  f"(logs: {self.attempt / 'logs'})")
+            time.sleep(self.cfg.runner.status_interval_s)
+        device = ["monitor", "run", "--source", self.source, "--mode", self.mode, "--out", str(self.attempt),
+                  "--stream"]
+        if self.o.max_frames:
+            device += ["--max-frames", str(self.o.max_frames)]
+        if self.o.pace is not None:
+            device.append("--pace" if self.o.pace else "--no-pace")
+        self.children["device"] = Child.start("device", device, self.attempt)
+
+    def _handle(self, event: OperatorEvent) -> bool:
+        """Act on an operator event (the input thread has logged it); False when it ends the session."""
+        if event.kind == "object":
+            self.objects = int(event.detail)
+        return event.kind != "end"
+
+    def run(self) -> RunResult:
+        if self.o.restart:
+            _supersede(self.phase_folder)
+        self.attempt = next_attempt_folder(self.phase_folder)
+        self.record_mocap = self.cfg.runner.record_mocap if self.o.record_mocap is None else self.o.record_mocap
+        self._run_json(participant=self.o.participant, phase=self.o.phase, condition=self.condition,
+                       attempt=self.attempt.name, status="running", pid=os.getpid(), started=utc_now(),
+                       source=self.source, mode=self.mode, superseded=False,
+                       replay_estimates=str(self.o.replay_estimates) if self.o.replay_estimates else None)
+        events = CsvLog(self.attempt / EVENTS_CSV, EVENT_COLUMNS)
+        watcher = StreamWatcher(load_network_config(), self.attempt)
+        watcher.start()
+        watcher.wait_ready(SUBSCRIBER_READY_S)
+        self._event(events, "start", self.attempt.name)
+        ended_by_operator = interrupted = False
+        device_rc: int | None = None
+        self.operator.record = lambda e: self._event(events, e.kind, e.detail, e.time)
+        self.operator.start()
+        start_error: str | None = None
+        try:
+            self._start_children()
+            self._event(events, "device", "started")
+            # The status line is drawn on a terminal only; a script or test gets the summary at the end.
+            with (Live(self._status_line(watcher), console=self.console, transient=True, refresh_per_second=4)
+                  if self.console.is_terminal else contextlib.nullcontext()) as live:
+                while self.children["device"].running:
+                    try:
+                        event = self.operator.events.get(timeout=self.cfg.runner.status_interval_s)
+                        if not self._handle(event):
+                            ended_by_operator = True
+                            self.children["device"].signal(signal.SIGINT)
+                            break
+                    except queue.Empty:
+                        pass
+                    if self.o.replay_estimates and "replay" not in self.children and \
+                            _frames(self.attempt / "frames.csv") > 0:
+                        self.children["replay"] = Child.start(
+                            "replay", ["advisory", "replay", "--estimates", str(self.o.replay_estimates)],
+                            self.attempt)
+                    if live is not None:
+                        live.update(self._status_line(watcher))
+        except KeyboardInterrupt:  # Ctrl-C: the device keeps its files, the attempt is marked interrupted
+            interrupted = True
+            if "device" in self.children:
+                self.children["device"].signal(signal.SIGINT)
+        except SeesysError as e:
+            start_error = str(e)
+        try:
+            device_rc = self.children["device"].process.wait() if "device" in self.children else None
+        finally:
+            self.operator.restore_terminal()
+            exits = {name: child.stop(self.cfg.runner.stop_timeout_s) for name, child in self.children.items()}
+            watcher.stop()
+        status = ("interrupted" if interrupted else "failed" if start_error else
+                  "completed" if device_rc == 0 or ended_by_operator else "failed")
+        self.operator.record = None  # events typed from now on belong to no session
+        self._event(events, "stop", status)
+        events.close()
+        details = {"status": status, "ended": utc_now(), "exit_codes": exits,
+                   "frames": _frames(self.attempt / "frames.csv"), "estimates": watcher.estimates,
+                   "bad_messages": watcher.bad_messages, "watcher_error": watcher.error,
+                   "device_error": None if status == "completed" or "device" not in self.children
+                   else self.children["device"].last_line(), "start_error": start_error}
+        details["calibration"] = self._calibrate()
+        self._run_json(**details)
+        if start_error:
+            raise SeesysError(f"{self.attempt}: {start_error}")
+        return RunResult(self.attempt, status, details["frames"], watcher.estimates, self.events_logged)
+
+    def _calibrate(self) -> str:
+        if (self.attempt / GROUND_TRUTH).exists():
+            return "the source's ground truth kept"
+        if not (self.cfg.runner.calibrate_at_end and self.record_mocap and (self.attempt / MOCAP_LOG).exists()):
+            return "not calibrated"
+        rig = self.o.study / CALIBRATION_JSON
+        try:
+            calibrate_session(self.attempt, self.cfg.calibration, self.cfg.mocap.body,
+                              marker_camera_from=rig if rig.exists() else None, monocular=self.mode == "mono")
+        except SeesysError as e:
+            return f"failed: {e} (run `seesys study calibrate {self.attempt}` once fixed)"
+        return "groundtruth.tum written from the mocap"

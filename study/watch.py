@@ -1,0 +1,85 @@
+"""The runner's view of the network: it logs every pose-error estimate it receives (``estimates.csv``, with the
+Unix time of arrival) and counts the device's feature frames that did not arrive, for the status line.
+
+Both sockets connect (SUB) to the endpoints of ``configs/network.toml``; the publishers (the device's feature
+stream, the estimator or ``seesys advisory replay``) bind, so either side may start first. Malformed messages are
+counted, not fatal.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from pathlib import Path
+
+import zmq
+
+from advisory.logs import CsvLog
+from seesys.network import NetworkConfig
+from seesys.protocol.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame, MessageError, decode
+from seesys.protocol.transport import LossCounter, subscriber
+from study.estimates import ESTIMATE_COLUMNS, ESTIMATES_CSV
+
+POLL_MS = 100
+
+
+class StreamWatcher(threading.Thread):
+    """A thread that logs estimates and watches the feature stream until :meth:`stop`."""
+
+    def __init__(self, network: NetworkConfig, folder: Path):
+        super().__init__(name="study-stream-watcher", daemon=True)
+        self._network = network
+        self._folder = folder
+        self._stopping = threading.Event()
+        self._ready = threading.Event()
+        self.estimates = 0
+        self.latest_error_m = math.nan
+        self.bad_messages = 0
+        self.frames_skipped = 0
+        self.losses = LossCounter()
+        self.error: str | None = None
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        return self._ready.wait(timeout_s)
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self.join()
+
+    def run(self) -> None:
+        ctx = zmq.Context()
+        log = CsvLog(self._folder / ESTIMATES_CSV, ESTIMATE_COLUMNS)
+        sockets = []
+        try:
+            sockets = [subscriber(ctx, self._network.estimates_endpoint, "estimates", [ESTIMATE_TOPIC]),
+                       subscriber(ctx, self._network.features_endpoint, "features", [FEATURE_TOPIC])]
+            poller = zmq.Poller()
+            for s in sockets:
+                poller.register(s, zmq.POLLIN)
+            self._ready.set()
+            while not self._stopping.is_set():
+                for sock, _ in poller.poll(POLL_MS):
+                    frames = sock.recv_multipart()
+                    arrived = time.time()
+                    try:
+                        message = decode(frames)
+                    except MessageError:
+                        self.bad_messages += 1
+                        continue
+                    if isinstance(message, Estimate):
+                        log.write(arrived, message.device_id, message.frame_index, message.timestamp,
+                                  message.error_m, message.model_version)
+                        self.estimates += 1
+                        self.latest_error_m = message.error_m
+                    elif isinstance(message, FeatureFrame):
+                        self.losses.observe(message)
+                        self.frames_skipped = message.frames_skipped
+        except Exception as e:  # noqa: BLE001 - reported on the status line and in run.json, the session goes on
+            self.error = f"{type(e).__name__}: {e}"
+            self._ready.set()
+        finally:
+            log.close()
+            for s in sockets:
+                s.close()
+            ctx.term()

@@ -1,0 +1,82 @@
+"""Study protocol: seeded balanced assignment, counterbalanced within-subjects orders, a protocol is never
+redrawn; operator events from a pipe; `seesys study new` and `status` on an empty study."""
+
+from __future__ import annotations
+
+import io
+import itertools
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from study.config import load_study_config
+from study.operator import OperatorInput, parse_command
+from study.protocol import ProtocolError, make_protocol, read_protocol, williams_orders, write_protocol
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_between_subjects_assignment_is_balanced_and_seeded():
+    cfg = load_study_config().protocol
+    a = make_protocol(cfg, participants_per_condition=10)
+    assert Counter(p.conditions[0] for p in a.participants) == {c: 10 for c in cfg.conditions}
+    assert [p.id for p in a.participants][:2] == ["P01", "P02"]
+    assert make_protocol(cfg, participants_per_condition=10) == a
+    assert make_protocol(cfg, participants_per_condition=10, seed=1) != a
+
+
+@pytest.mark.parametrize("k", [2, 3, 4, 5])
+def test_williams_orders_balance_positions_and_carry_over(k):
+    orders = williams_orders(k)
+    for position in range(k):
+        assert Counter(o[position] for o in orders) == {c: len(orders) // k for c in range(k)}
+    follows = Counter((o[i], o[i + 1]) for o in orders for i in range(k - 1))
+    assert len(set(follows.values())) == 1 and len(follows) == k * (k - 1)  # every ordered pair equally often
+
+
+def test_within_subjects_orders_are_counterbalanced():
+    cfg = load_study_config().protocol
+    p = make_protocol(cfg, participants_per_condition=2, design="within")
+    orders = Counter(tuple(x.conditions) for x in p.participants)
+    assert len(orders) == 6 and set(orders.values()) == {1}
+    assert all(sorted(x.conditions) == sorted(cfg.conditions) for x in p.participants)
+
+
+def test_protocol_is_written_once(tmp_path):
+    cfg = load_study_config().protocol
+    write_protocol(tmp_path / "s", make_protocol(cfg, 1))
+    assert read_protocol(tmp_path / "s").participants[0].id == "P01"
+    with pytest.raises(ProtocolError, match="drawn once"):
+        write_protocol(tmp_path / "s", make_protocol(cfg, 2))
+    with pytest.raises(ProtocolError, match="not a study folder"):
+        read_protocol(tmp_path)
+    with pytest.raises(ProtocolError, match="conditions"):
+        make_protocol(cfg, 1, conditions=["none", "loud"])
+
+
+def test_operator_events_from_a_pipe():
+    assert parse_command("o", 3).detail == "4" and parse_command("o 7", 3).detail == "7"
+    assert parse_command("x", 0) is None
+    recorded = []
+    reader = OperatorInput(io.StringIO("i\no\nbogus\nn scanned the back\no\nq\ni\n"))
+    reader.record = recorded.append
+    reader.run()
+    assert [(e.kind, e.detail) for e in recorded] == [("initialised", ""), ("object", "1"),
+                                                      ("note", "scanned the back"), ("object", "2"), ("end", "")]
+    assert all(a.time <= b.time for a, b in itertools.pairwise(recorded))
+    assert reader.events.qsize() == 5
+
+
+def test_new_and_status_commands(tmp_path):
+    run = lambda *a: subprocess.run([sys.executable, "-m", "seesys", "study", *a], capture_output=True,  # noqa: E731
+                                    text=True, cwd=REPO, timeout=120)
+    made = run("new", str(tmp_path / "s"), "--per-condition", "2", "--design", "within")
+    assert made.returncode == 0, made.stderr
+    assert "within-subjects, 6 participants" in made.stdout
+    status = run("status", str(tmp_path / "s"))
+    assert status.returncode == 0 and "task: 18 pending" in status.stdout
+    again = run("new", str(tmp_path / "s"))
+    assert again.returncode == 2 and "drawn once" in again.stderr
