@@ -12,6 +12,7 @@ windowing (``label_run``) and store writer (``write_run``): a sample for every l
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from pathlib import Path
 
@@ -39,8 +40,23 @@ FPS = 30.0
 PSD_SHAPE = (32, 48)  # small PSD matrices keep the tests fast; the model takes any multiple of its patch
 SEGMENT = 30
 _cache: dict[str, object] = {}
-# One thread: with the other core busy, two torch threads run tiny models tens of times slower.
-torch.set_num_threads(1)
+
+
+@contextlib.contextmanager
+def one_torch_thread():
+    """With the other core busy, two torch threads run tiny models tens of times slower than one."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+@pytest.fixture(autouse=True)
+def single_thread():
+    with one_torch_thread():
+        yield
 
 
 def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float = 1.0) -> Path:
@@ -190,7 +206,7 @@ def trained_runs(tiny_dataset) -> Path:
 
     if "runs" not in _cache:
         runs = tiny_dataset.root.parent / "runs"
-        with Progress(disable=True) as progress:
+        with Progress(disable=True) as progress, one_torch_thread():
             train_table([tiny_dataset.root], read_splits(tiny_dataset.splits), 0, TRAINED_ROWS, runs,
                         train_context(progress))
         _cache["runs"] = runs

@@ -22,7 +22,8 @@ from estimator.deepsee.run_folder import CONFIG_JSON, LOSS_PNG, METRICS_CSV, MOD
 from estimator.deepsee.stages import train_row
 from estimator.deepsee.transforms import LabelTransform
 from seesys.protocol.windows import load_window_config
-from test_deepsee_sessions import tiny_config, tiny_dataset, train_context, trained_runs  # noqa: F401 (fixtures)
+from test_deepsee_sessions import (  # noqa: F401 (pytest fixtures among them)
+    single_thread, tiny_config, tiny_dataset, train_context, trained_runs)
 
 _context = train_context
 

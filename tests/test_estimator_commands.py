@@ -22,8 +22,8 @@ from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIME
 from estimator.deepsee.transforms import LabelTransform
 from seesys.cli import main
 from seesys.protocol.windows import load_window_config
-from test_deepsee_sessions import (tiny_config, tiny_dataset, trained_runs,  # noqa: F401 (fixtures)
-                                   write_session)
+from test_deepsee_sessions import (  # noqa: F401 (pytest fixtures among them)
+    single_thread, tiny_config, tiny_dataset, trained_runs, write_session)
 
 TRANSFORM = LabelTransform(10000.0)
 REPO = Path(__file__).resolve().parent.parent
