@@ -77,7 +77,7 @@ def check_session(session: Path, min_tracked: float, min_rotation_corr: float | 
     assert (tracked["avg_mp_depth"] > 0).all() and (tracked["local_mapping_visual_error"] < 3).all()
 
     psds = list(read_psd_log(session))
-    assert [r.frame_index for r in psds] == [i for i in frames if i % 10 == 0]
+    assert [r.frame_index for r in psds] == [i for i in frames if load_monitor_config().windows.is_psd_frame(i)]
     assert all(r.psd.shape == (96, 128, 3) and r.psd.dtype == np.uint8 for r in psds)
     last = [r.psd for r in psds if r.frame_index in set(tracked["frame_index"])][-1]
     assert all(np.count_nonzero(last[..., layer]) > 50 for layer in range(3))

@@ -16,7 +16,7 @@ sender cannot know its losses, so receivers count them from gaps in frame indice
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import zmq
@@ -31,14 +31,17 @@ class TransportError(SeesysError):
 
 def open_socket(ctx: zmq.Context, socket_type: int, endpoint: str, what: str, *, bind: bool,
                 send_hwm: int | None = None, receive_hwm: int | None = None, conflate: bool = False,
-                subscribe: Iterable[bytes] = ()) -> zmq.Socket:
+                subscribe: Iterable[bytes] = (), options: Mapping[int, int | bytes] | None = None) -> zmq.Socket:
     """A socket of ``socket_type`` with its options set, then bound to or connected to ``endpoint``.
 
     ``what`` names the socket's purpose in error messages. ``conflate`` keeps only the newest message (single-part
-    messages only, a ZeroMQ restriction). ``subscribe`` lists SUB topics (``b""`` for everything).
+    messages only, a ZeroMQ restriction). ``subscribe`` lists SUB topics (``b""`` for everything). ``options`` are
+    further ``zmq`` socket options (CurveZMQ keys, ROUTER_MANDATORY, ...), also set before bind/connect.
     """
     sock = ctx.socket(socket_type)
     sock.setsockopt(zmq.LINGER, 0)
+    for option, value in (options or {}).items():
+        sock.setsockopt(option, value)
     if send_hwm is not None:
         sock.setsockopt(zmq.SNDHWM, send_hwm)
     if receive_hwm is not None:

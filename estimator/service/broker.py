@@ -1,0 +1,350 @@
+"""The broker: one process between the devices and the worker pool (the ZeroMQ guide's load-balancing broker).
+
+Sockets (endpoints in ``configs/service.toml`` and ``network.toml``):
+
+- ingest, SUB, bound at ``ingest_endpoint`` (devices connect their PUB) and connected to device streams that bind
+  their own PUB; it subscribes to everything, so that nothing sent to it goes uncounted, and every message is
+  checked here: larger than ``max_message_bytes`` (*oversized*), of another
+  protocol version (*wrong_version*) or anything :func:`seesys.protocol.messages.decode` refuses (*malformed*)
+  is counted and dropped;
+- backend, ROUTER, bound at ``worker_endpoint``: workers connect (DEALER) and say READY. A device is given to the
+  worker with the fewest devices when its first frame arrives and stays there, so that one worker holds its windows
+  and its estimates leave in order. A frame that finds its worker's queue (``worker_queue``) full is dropped and
+  counted; a worker silent for ``worker_timeout_ms`` is presumed dead and its devices go to the others;
+- estimates, PUB, bound at ``estimates_endpoint``: what the workers return, published for devices, advisories and
+  study loggers; an estimate not newer than the last one published for its device is dropped (order is kept even
+  while a device moves between workers);
+- status, REP, bound at ``status_endpoint``: ``seesys estimator status`` asks, the broker answers in JSON.
+
+With ``[curve] enabled`` the ingest and estimates sockets are CurveZMQ servers and a ZAP handler admits only the
+clients in the allow-list.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from estimator.service import envelope, keys
+from estimator.service.config import ServiceConfig
+from seesys.errors import SeesysError
+from seesys.network import NetworkConfig
+from seesys.protocol import messages
+from seesys.protocol.messages import FeatureFrame, MessageError
+from seesys.protocol.transport import LossCounter, bound_endpoint, open_socket
+
+# Messages handled from one socket before the broker looks at the others (keeps estimates flowing under a flood).
+_BURST = 256
+
+
+class ServiceError(SeesysError):
+    """The estimator service cannot start (no workers, bad endpoints, Curve keys) or a peer misbehaves."""
+
+
+def is_other_protocol_version(body: bytes) -> bool:
+    """A SEESys message body (magic, then the version byte) of a protocol version this end does not speak."""
+    head = len(messages.MAGIC)
+    return len(body) > head and body[:head] == messages.MAGIC and body[head] != messages.PROTOCOL_VERSION
+
+
+@dataclass
+class DeviceState:
+    worker: bytes | None = None
+    frames: int = 0
+    estimates: int = 0
+    queue_full: int = 0
+    no_worker: int = 0
+    out_of_order: int = 0
+    last_published: int = -1
+    latency_ms: deque = field(default_factory=deque)
+    frame_times: deque = field(default_factory=deque)
+    estimate_times: deque = field(default_factory=deque)
+
+
+@dataclass
+class WorkerState:
+    identity: bytes
+    name: str
+    pid: int
+    last_seen: float
+    forwarded: int = 0
+    devices: set[str] = field(default_factory=set)
+    report: dict = field(default_factory=dict)
+
+
+def _rate(times: deque, now: float, window_s: float) -> float:
+    while times and times[0] < now - window_s:
+        times.popleft()
+    return len(times) / window_s
+
+
+def _percentiles(values: Iterable[float]) -> dict[str, float | None]:
+    data = np.asarray(list(values), dtype=float)
+    if not data.size:
+        return {"p50": None, "p90": None, "p99": None}
+    p50, p90, p99 = np.percentile(data, [50, 90, 99])
+    return {"p50": float(p50), "p90": float(p90), "p99": float(p99)}
+
+
+class Broker:
+    """The broker's sockets and state; :meth:`run` serves until :meth:`stop`."""
+
+    def __init__(self, config: ServiceConfig, network: NetworkConfig, device_endpoints: Iterable[str] = (),
+                 ctx: zmq.Context | None = None):
+        self.config, self.network = config, network
+        self.device_endpoints = list(device_endpoints)
+        if config.curve.enabled and self.device_endpoints:
+            raise ServiceError("with Curve on, devices connect to ingest_endpoint; the service does not connect to "
+                               f"device streams ({', '.join(self.device_endpoints)})")
+        self.ctx = ctx or zmq.Context()
+        self.model_version: str | None = None
+        self.devices: dict[str, DeviceState] = {}
+        self.workers: dict[bytes, WorkerState] = {}
+        self.refused_workers = 0
+        self.rejected = {"oversized": 0, "wrong_version": 0, "malformed": 0}
+        self.losses = LossCounter()
+        self.started = time.monotonic()
+        self._stopping = False
+        self._authenticator = None
+        self._ingest = self._estimates = self._status = None
+        self._backend = open_socket(self.ctx, zmq.ROUTER, config.worker_endpoint, "estimator workers", bind=True,
+                                    send_hwm=config.worker_queue, options={zmq.ROUTER_MANDATORY: 1})
+        self.endpoints = {"workers": bound_endpoint(self._backend)}
+
+    # ----------------------------------------------------------------------------------------------- start-up
+    def wait_for_workers(self, count: int, timeout_s: float, alive: Callable[[], bool] = lambda: True) -> bool:
+        """Handle worker messages until ``count`` workers are ready (True) or :meth:`stop` is called (False);
+        raises :class:`ServiceError` on timeout or when ``alive`` says the local workers died."""
+        deadline = time.monotonic() + timeout_s
+        while len(self.workers) < count:
+            if self._stopping:
+                return False
+            if time.monotonic() > deadline:
+                raise ServiceError(f"only {len(self.workers)} of {count} workers were ready after {timeout_s:g} s")
+            if not alive():
+                raise ServiceError("a worker process ended before it was ready (see its error above)")
+            if self._backend.poll(100):
+                self._from_workers()
+        return True
+
+    def open(self) -> None:
+        """Bind the device-facing sockets (after the workers are ready, so no device waits on an empty pool)."""
+        cfg = self.config
+        server_options: dict = {}
+        if cfg.curve.enabled:
+            from seesys.resources import resolve
+
+            self._authenticator = keys.start_authenticator(self.ctx, resolve(cfg.curve.allowed_clients))
+            server_options = keys.server_socket_options(resolve(cfg.curve.server_secret_key))
+        self._ingest = open_socket(self.ctx, zmq.SUB, cfg.ingest_endpoint, "feature ingest", bind=True,
+                                   receive_hwm=cfg.ingest_queue, subscribe=[b""],
+                                   options=server_options)
+        for endpoint in self.device_endpoints:
+            self._ingest.connect(endpoint)
+        self._estimates = open_socket(self.ctx, zmq.PUB, self.network.estimates_endpoint, "estimates", bind=True,
+                                      send_hwm=self.network.send_high_water_mark, options=server_options)
+        self._status = open_socket(self.ctx, zmq.REP, cfg.status_endpoint, "estimator status", bind=True)
+        self.endpoints.update(ingest=bound_endpoint(self._ingest), estimates=bound_endpoint(self._estimates),
+                              status=bound_endpoint(self._status))
+
+    # ----------------------------------------------------------------------------------------------- loop
+    def stop(self, *_: object) -> None:
+        self._stopping = True
+
+    def run(self) -> None:
+        poller = zmq.Poller()
+        for sock in (self._backend, self._ingest, self._status):
+            poller.register(sock, zmq.POLLIN)
+        while not self._stopping:
+            events = dict(poller.poll(self.config.heartbeat_ms))
+            if self._backend in events:
+                self._from_workers()
+            if self._ingest in events:
+                self._from_devices()
+            if self._status in events:
+                self._status.recv_multipart()
+                self._status.send(envelope.pack_json(self.status()))
+            self._expire_workers()
+
+    def close(self) -> None:
+        """Tell the workers to stop, close every socket, stop the ZAP handler."""
+        for identity in list(self.workers):
+            try:
+                self._backend.send_multipart([identity, envelope.STOP], zmq.NOBLOCK)
+            except zmq.ZMQError:
+                pass  # gone or full: it stops on SIGTERM or when its parent ends
+        for sock in (self._ingest, self._estimates, self._status, self._backend):
+            if sock is not None:
+                sock.close()
+        if self._authenticator is not None:
+            self._authenticator.stop()
+
+    # ----------------------------------------------------------------------------------------------- devices
+    def _from_devices(self) -> None:
+        for _ in range(_BURST):
+            try:
+                parts = self._ingest.recv_multipart(zmq.NOBLOCK, copy=True)
+            except zmq.Again:
+                return
+            self._ingest_one(parts)
+
+    def _ingest_one(self, parts: list[bytes]) -> None:
+        stamp = time.time()
+        if sum(len(p) for p in parts) > self.config.max_message_bytes:
+            self.rejected["oversized"] += 1
+            return
+        if len(parts) == 2 and is_other_protocol_version(parts[1]):
+            self.rejected["wrong_version"] += 1
+            return
+        try:
+            frame = messages.decode(parts)
+        except MessageError:
+            self.rejected["malformed"] += 1
+            return
+        if not isinstance(frame, FeatureFrame):
+            self.rejected["malformed"] += 1
+            return
+        device = self.devices.get(frame.device_id)
+        if device is None:
+            device = self.devices[frame.device_id] = DeviceState(latency_ms=deque(maxlen=self.config.latency_window))
+        previous = self.losses.devices.get(frame.device_id)
+        if previous is not None and frame.frame_index <= previous.last_index:
+            device.last_published = -1  # the device restarted: its frame indices begin again
+        self.losses.observe(frame)
+        device.frames += 1
+        device.frame_times.append(time.monotonic())
+        self._forward(frame.device_id, device, stamp, parts)
+
+    def _assign(self, device_id: str, device: DeviceState) -> WorkerState | None:
+        worker = self.workers.get(device.worker) if device.worker is not None else None
+        if worker is None:
+            if not self.workers:
+                return None
+            worker = min(self.workers.values(), key=lambda w: (len(w.devices), w.forwarded))
+            worker.devices.add(device_id)
+            device.worker = worker.identity
+        return worker
+
+    def _forward(self, device_id: str, device: DeviceState, stamp: float, parts: list[bytes]) -> None:
+        worker = self._assign(device_id, device)
+        if worker is None:
+            device.no_worker += 1
+            return
+        try:
+            self._backend.send_multipart([worker.identity, envelope.FRAME, envelope.pack_stamp(stamp), *parts],
+                                         zmq.NOBLOCK)
+        except zmq.Again:
+            device.queue_full += 1
+            return
+        except zmq.ZMQError:  # EHOSTUNREACH: the worker's connection is gone
+            self._remove_worker(worker.identity)
+            device.no_worker += 1
+            return
+        worker.forwarded += 1
+
+    # ----------------------------------------------------------------------------------------------- workers
+    def _from_workers(self) -> None:
+        for _ in range(_BURST):
+            try:
+                identity, kind, *rest = self._backend.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if kind in (envelope.READY, envelope.STATS):
+                self._worker_says(identity, envelope.unpack_json(rest[0]), kind == envelope.STATS)
+            elif kind == envelope.ESTIMATES and identity in self.workers:
+                self.workers[identity].last_seen = time.monotonic()
+                self._publish(identity, rest)
+
+    def _worker_says(self, identity: bytes, data: dict, is_stats: bool) -> None:
+        worker = self.workers.get(identity)
+        if worker is None:  # a new worker, or one that outlived an earlier broker
+            version = data.get("model_version")
+            if self.model_version is not None and version != self.model_version:
+                self.refused_workers += 1
+                self._backend.send_multipart([identity, envelope.STOP], zmq.NOBLOCK)
+                return
+            self.model_version = version
+            worker = self.workers[identity] = WorkerState(identity, data["name"], data["pid"], time.monotonic())
+        worker.last_seen = time.monotonic()
+        if is_stats:
+            worker.report = data
+
+    def _publish(self, identity: bytes, parts: list[bytes]) -> None:
+        now = time.time()
+        for k in range(0, len(parts) - 2, 3):
+            topic, body, meta = parts[k:k + 3]
+            device_id = topic[len(messages.ESTIMATE_TOPIC):-len(messages.TOPIC_END)].decode("utf-8")
+            device = self.devices.get(device_id)
+            stamp, frame_index = envelope.unpack_meta(meta)
+            if device is None or device.worker != identity or frame_index <= device.last_published:
+                if device is not None:
+                    device.out_of_order += 1
+                continue
+            self._estimates.send_multipart([topic, body])
+            device.last_published = frame_index
+            device.estimates += 1
+            device.latency_ms.append((now - stamp) * 1000.0)
+            device.estimate_times.append(time.monotonic())
+
+    def _remove_worker(self, identity: bytes) -> None:
+        worker = self.workers.pop(identity, None)
+        if worker is None:
+            return
+        for device_id in worker.devices:
+            self.devices[device_id].worker = None  # reassigned with its next frame
+
+    def _expire_workers(self) -> None:
+        limit = time.monotonic() - self.config.worker_timeout_ms / 1000.0
+        for identity in [i for i, w in self.workers.items() if w.last_seen < limit]:
+            self._remove_worker(identity)
+
+    # ----------------------------------------------------------------------------------------------- status
+    def status(self) -> dict:
+        """Devices, workers, rates, queue depths, drops and latency percentiles, as plain data."""
+        now, window = time.monotonic(), self.config.rate_window_s
+        stale: dict[str, int] = {}
+        for w in self.workers.values():
+            for device_id, n in w.report.get("stale", {}).items():
+                stale[device_id] = stale.get(device_id, 0) + n
+        devices = {}
+        for device_id, d in sorted(self.devices.items()):
+            loss = self.losses.devices[device_id]
+            worker = self.workers.get(d.worker) if d.worker is not None else None
+            devices[device_id] = {
+                "worker": worker.name if worker else None, "frames": d.frames,
+                "frames_per_s": _rate(d.frame_times, now, window), "estimates": d.estimates,
+                "estimates_per_s": _rate(d.estimate_times, now, window),
+                "lost_in_transit": loss.lost_in_transit, "skipped_by_device": loss.skipped_by_device,
+                "dropped": {"stale": stale.get(device_id, 0), "queue_full": d.queue_full,
+                            "no_worker": d.no_worker, "out_of_order": d.out_of_order},
+                "server_ms": _percentiles(d.latency_ms)}
+        workers = [{"name": w.name, "pid": w.pid, "devices": sorted(w.devices),
+                    "queue_depth": max(0, w.forwarded - w.report.get("frames", 0)) + w.report.get("pending", 0),
+                    "last_seen_s": now - w.last_seen,
+                    **{k: w.report.get(k) for k in ("estimates", "batches", "batch_ms_p50", "batch_ms_p99",
+                                                    "batch_size_mean")}}
+                   for w in self.workers.values()]
+        all_latency = [v for d in self.devices.values() for v in d.latency_ms]
+        return {"uptime_s": now - self.started, "model_version": self.model_version, "endpoints": self.endpoints,
+                "curve": self.config.curve.enabled, "rejected": dict(self.rejected),
+                "refused_workers": self.refused_workers, "workers": workers, "devices": devices,
+                "estimates_per_s": sum(v["estimates_per_s"] for v in devices.values()),
+                "server_ms": _percentiles(all_latency)}
+
+
+def default_model(config: ServiceConfig, model: Path | None) -> Path:
+    """``model`` or the configured one; a missing file is a :class:`ServiceError` saying how to make one."""
+    from seesys.resources import resolve
+
+    path = Path(model) if model is not None else resolve(config.model)
+    if not path.is_file():
+        raise ServiceError(f"no model at {path}: pass --model FILE.onnx (`seesys estimator export`), or make an "
+                           f"untrained stand-in of the configured size with `seesys estimator untrained-model "
+                           f"--out {path}`")
+    return path

@@ -1,0 +1,69 @@
+"""The model a worker serves: an exported ONNX model (checked against this installation's RTS schema, windows and
+label transform when loaded), its version string, and the window shape it accepts; and the untrained stand-in
+served until a trained model ships."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from estimator.deepsee.config import ModelConfig, load_estimator_config
+from estimator.deepsee.transforms import LabelTransform, prepare_rts
+from seesys.protocol.windows import WindowConfig, WindowSample
+
+
+def model_version(path: Path) -> str:
+    """``<file stem>-<first 12 hex digits of the file's SHA-256>``: names the exact weights an estimate came from."""
+    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return f"{Path(path).stem}-{digest[:12]}"
+
+
+@dataclass
+class ServedModel:
+    """``estimate(samples)``: errors in metres for windows of several devices, in one batched run."""
+
+    version: str
+    psd_shape: tuple[int, int, int, int]  # (K_L, H, W, 3) of one window
+    _model: object
+    _transform: LabelTransform
+
+    @classmethod
+    def load(cls, path: Path, windows: WindowConfig, threads: int = 1) -> ServedModel:
+        """Load ``path`` on ``threads`` intra-op threads; raises ``ModelMismatch`` for a model made for other
+        inputs or a file that is not one."""
+        from estimator.deepsee.export import OnnxModel  # imports torch: only where a model is served
+
+        transform = LabelTransform(load_estimator_config().label_transform.k)
+        model = OnnxModel(Path(path), transform, windows, threads)
+        psd_input = model.session.get_inputs()[1].shape
+        return cls(model_version(path), tuple(int(d) for d in psd_input[1:]), model, transform)
+
+    def accepts(self, sample: WindowSample) -> bool:
+        return sample.psd.shape == self.psd_shape
+
+    def estimate(self, samples: list[WindowSample]) -> np.ndarray:
+        rts = prepare_rts(np.stack([s.rts for s in samples]))
+        psd = np.stack([s.psd for s in samples])
+        return self._transform.inverse(self._model(rts, psd))
+
+
+def export_untrained(path: Path, windows: WindowConfig, psd_size: tuple[int, int], seed: int,
+                     model_config: ModelConfig | None = None) -> Path:
+    """Export DeepSEE of the configured size (configs/estimator.toml, or ``model_config``) with untrained weights
+    (seeded): the model of the right shape and cost to serve until a trained one ships. Its estimates mean
+    nothing."""
+    import torch
+
+    from estimator.deepsee.export import export_onnx
+    from estimator.deepsee.model import DeepSEE, InputShape
+    from seesys.protocol import rts_schema
+
+    config = load_estimator_config()
+    torch.manual_seed(seed)
+    height, width = psd_size
+    shape = InputShape(windows.rts_length, rts_schema.NUM_CHANNELS, windows.psd_samples, height, width)
+    model = DeepSEE(model_config or config.model, shape)
+    return export_onnx(model, Path(path), windows, LabelTransform(config.label_transform.k))

@@ -1,0 +1,191 @@
+"""A worker process: holds the windows of the devices the broker routes to it, runs the model, returns estimates.
+
+Loop. The worker reads every frame already waiting (at most ``max_batch × end_stride × 4`` per round, so a flood
+cannot starve the model), adds each to its device's :class:`~seesys.protocol.windows.WindowAssembler`, and keeps
+at most one ready window per device: a newer window of the same device supersedes an older one not yet served,
+which is dropped as stale. It then serves up to ``max_batch`` ready windows, oldest first, in one batched run;
+a window whose last frame reached the broker more than ``stale_after_ms`` ago is dropped and counted instead
+(an estimate that late would mislead the advisory more than no estimate). Every ``heartbeat_ms`` it reports its
+counters to the broker.
+
+Frame indices that go backwards mean the device restarted: its windows start afresh. SIGINT and SIGTERM end the
+loop after the current batch; so does a stop message from the broker.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import time
+from collections import defaultdict, deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from estimator.service import envelope
+from estimator.service.config import ServiceConfig
+from estimator.service.model import ServedModel
+from seesys.protocol import messages
+from seesys.protocol.messages import Estimate, FeatureFrame
+from seesys.protocol.transport import open_socket
+from seesys.protocol.windows import WindowAssembler, WindowConfig, WindowSample
+
+# Inference times kept for the percentiles a heartbeat reports.
+_TIMING_SAMPLES = 512
+
+
+@dataclass
+class WorkerCounters:
+    """Cumulative counts a worker reports with every heartbeat (per device where it says so)."""
+
+    frames: int = 0
+    windows: int = 0
+    estimates: int = 0
+    batches: int = 0
+    stale: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    shape_mismatch: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    restarts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    batch_ms: deque = field(default_factory=lambda: deque(maxlen=_TIMING_SAMPLES))
+    batch_sizes: deque = field(default_factory=lambda: deque(maxlen=_TIMING_SAMPLES))
+
+    def report(self, pending: int) -> dict:
+        ms = np.asarray(self.batch_ms, dtype=float)
+        return {"frames": self.frames, "windows": self.windows, "estimates": self.estimates,
+                "batches": self.batches, "pending": pending, "stale": dict(self.stale),
+                "shape_mismatch": dict(self.shape_mismatch), "restarts": dict(self.restarts),
+                "batch_ms_p50": float(np.percentile(ms, 50)) if ms.size else None,
+                "batch_ms_p99": float(np.percentile(ms, 99)) if ms.size else None,
+                "batch_size_mean": float(np.mean(self.batch_sizes)) if self.batch_sizes else None}
+
+
+@dataclass
+class _Ready:
+    sample: WindowSample
+    stamp: float
+
+
+class Worker:
+    """One worker's state and loop; :meth:`run` returns when told to stop."""
+
+    def __init__(self, broker_endpoint: str, model: ServedModel, windows: WindowConfig, config: ServiceConfig,
+                 name: str | None = None):
+        self.model, self.windows, self.config = model, windows, config
+        self.name = name or f"{socket.gethostname()}:{os.getpid()}"
+        self.counters = WorkerCounters()
+        self._assemblers: dict[str, WindowAssembler] = {}
+        self._last_index: dict[str, int] = {}
+        self._ready: dict[str, _Ready] = {}
+        self._stopping = False
+        self._ctx = zmq.Context()
+        # The broker's ROUTER bounds what it queues for us (worker_queue); our own receive queue is bounded too.
+        self._socket = open_socket(self._ctx, zmq.DEALER, broker_endpoint, "estimator broker", bind=False,
+                                   receive_hwm=config.worker_queue, send_hwm=config.worker_queue)
+        self._drain_limit = config.max_batch * windows.end_stride * 4
+
+    def stop(self, *_: object) -> None:
+        self._stopping = True
+
+    def run(self) -> None:
+        self._socket.send_multipart([envelope.READY, envelope.pack_json(
+            {"name": self.name, "pid": os.getpid(), "model_version": self.model.version})])
+        next_heartbeat = time.monotonic()
+        try:
+            while not self._stopping:
+                timeout = 0 if self._ready else self.config.heartbeat_ms
+                if self._socket.poll(timeout):
+                    self._drain()
+                if self._ready and not self._stopping:
+                    self._serve_batch()
+                if time.monotonic() >= next_heartbeat:
+                    self._socket.send_multipart([envelope.STATS, envelope.pack_json(
+                        {"name": self.name, **self.counters.report(len(self._ready))})], zmq.NOBLOCK)
+                    next_heartbeat = time.monotonic() + self.config.heartbeat_ms / 1000.0
+        finally:
+            self._socket.close()
+            self._ctx.term()
+
+    def _drain(self) -> None:
+        for _ in range(self._drain_limit):
+            try:
+                parts = self._socket.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if parts[0] == envelope.STOP:
+                self._stopping = True
+                return
+            if parts[0] == envelope.FRAME:
+                self._add(envelope.unpack_stamp(parts[1]), parts[2:])
+
+    def _add(self, stamp: float, frames: list[bytes]) -> None:
+        frame = messages.decode(frames)  # validated by the broker already
+        assert isinstance(frame, FeatureFrame)
+        self.counters.frames += 1
+        device = frame.device_id
+        if frame.frame_index <= self._last_index.get(device, -1):
+            # A device that restarted counts its frames from 0 again: rows of its last session must not fill
+            # the new session's windows.
+            self._assemblers.pop(device, None)
+            self._ready.pop(device, None)
+            self.counters.restarts[device] += 1
+        self._last_index[device] = frame.frame_index
+        assembler = self._assemblers.get(device)
+        if assembler is None:
+            assembler = self._assemblers[device] = WindowAssembler(self.windows)
+        sample = assembler.add(frame)
+        if sample is None:
+            return
+        self.counters.windows += 1
+        if not self.model.accepts(sample):
+            self.counters.shape_mismatch[device] += 1
+            return
+        if device in self._ready:
+            self.counters.stale[device] += 1  # superseded before it was served
+        self._ready[device] = _Ready(sample, stamp)
+
+    def _serve_batch(self) -> None:
+        now = time.time()
+        limit = self.config.stale_after_ms / 1000.0
+        for device, ready in list(self._ready.items()):
+            if now - ready.stamp > limit:
+                del self._ready[device]
+                self.counters.stale[device] += 1
+        batch = sorted(self._ready.values(), key=lambda r: r.stamp)[:self.config.max_batch]
+        if not batch:
+            return
+        for ready in batch:
+            del self._ready[ready.sample.device_id]
+        start = time.perf_counter()
+        errors = self.model.estimate([r.sample for r in batch])
+        self.counters.batch_ms.append((time.perf_counter() - start) * 1000.0)
+        self.counters.batch_sizes.append(len(batch))
+        self.counters.batches += 1
+        parts = [envelope.ESTIMATES]
+        sent = time.time()
+        for ready, error_m in zip(batch, errors):
+            s = ready.sample
+            estimate = Estimate(s.device_id, s.frame_index, s.timestamp, float(error_m), self.model.version,
+                                (sent - ready.stamp) * 1000.0)
+            parts += [*messages.encode(estimate), envelope.pack_meta(ready.stamp, s.frame_index)]
+        self.counters.estimates += len(batch)
+        self._socket.send_multipart(parts)
+
+
+def run_worker(broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig,
+               name: str | None = None) -> None:
+    """Load the model on one intra-op thread and serve until SIGINT, SIGTERM or a stop from the broker."""
+    worker = Worker(broker_endpoint, ServedModel.load(model_path, windows, threads=1), windows, config, name)
+    signal.signal(signal.SIGINT, worker.stop)
+    signal.signal(signal.SIGTERM, worker.stop)
+    worker.run()
+
+
+def worker_process_main(broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig,
+                        parent_pid: int, name: str) -> None:
+    """Entry point of a worker started by ``serve``: dies with its parent (a SIGKILLed service leaves no worker)."""
+    from slam_monitor.supervisor import _die_with_parent  # the device worker's guard, the same need
+
+    _die_with_parent(parent_pid)
+    run_worker(broker_endpoint, model_path, windows, config, name)

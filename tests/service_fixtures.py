@@ -1,0 +1,205 @@
+"""Helpers for the estimator-service tests: a tiny untrained model, a config folder whose endpoints are private
+ipc:// sockets, synthetic devices, and ``seesys estimator serve`` run as a real subprocess."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zmq
+
+from seesys.errors import SeesysError
+from seesys.protocol import messages, rts_schema
+from seesys.protocol.messages import FeatureFrame
+from seesys.protocol.tracking_state import TrackingState
+from seesys.protocol.windows import load_window_config
+
+REPO = Path(__file__).resolve().parent.parent
+# Long enough for a worker to start (spawn, import torch, load the model) on a loaded 2-core machine.
+START_TIMEOUT_S = 240
+PSD_SHAPE = (96, 128, 3)
+
+
+def wait_for(condition: Callable[[], object], timeout_s: float = 120, what: str = "condition") -> object:
+    """Poll ``condition`` until it returns something true (returned); fails the test after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.02)
+
+
+@pytest.fixture(scope="session")
+def tiny_model(tmp_path_factory) -> Path:
+    """An untrained DeepSEE small enough for tests, exported as the service serves it (once per test session)."""
+    from estimator.deepsee.config import FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
+    from estimator.service.model import export_untrained
+
+    config = ModelConfig(32, PsdEncoderConfig(16, 1, 2, 2.0, 0.0), RtsEncoderConfig(16, 2, 3, 0.0),
+                         FusionConfig(1, 2, 2.0, (32,), 0.0))
+    path = tmp_path_factory.mktemp("service_model") / "tiny.onnx"
+    return export_untrained(path, load_window_config(), PSD_SHAPE[:2], seed=0, model_config=config)
+
+
+def _set(text: str, key: str, value: str) -> str:
+    pattern = re.compile(rf"^{key} = .*$", re.MULTILINE)
+    assert pattern.search(text), key
+    return pattern.sub(lambda _: f"{key} = {value}", text, count=1)
+
+
+def _toml(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return str(value)
+
+
+class ServiceSetup:
+    """A copy of configs/ whose service and network endpoints are ipc:// sockets in a fresh short folder."""
+
+    def __init__(self, **service: object):
+        self.folder = Path(tempfile.mkdtemp(prefix="svc"))  # ipc paths must stay short (108 bytes)
+        self.config_dir = self.folder / "configs"
+        shutil.copytree(REPO / "configs", self.config_dir)
+        self.endpoints = {name: f"ipc://{self.folder}/{name}" for name in
+                          ("ingest", "workers", "status", "estimates", "features")}
+        text = (self.config_dir / "service.toml").read_text()
+        settings = {"ingest_endpoint": self.endpoints["ingest"], "worker_endpoint": self.endpoints["workers"],
+                    "status_endpoint": self.endpoints["status"], "connect_device_stream": False,
+                    # windows are served long after their frames on a loaded test machine: not what these test
+                    "stale_after_ms": 60000.0, **service}
+        for key, value in settings.items():
+            if key.startswith("curve_"):
+                section = text.index("[curve]")
+                text = text[:section] + _set(text[section:], key[len("curve_"):], _toml(value))
+            else:
+                text = _set(text, key, _toml(value))
+        (self.config_dir / "service.toml").write_text(text)
+        network = (self.config_dir / "network.toml").read_text()
+        network = _set(network, "estimates_endpoint", _toml(self.endpoints["estimates"]))
+        network = _set(network, "features_endpoint", _toml(self.endpoints["features"]))
+        (self.config_dir / "network.toml").write_text(network)
+        self.env = {**os.environ, "SEESYS_CONFIG_DIR": str(self.config_dir)}
+
+    def cleanup(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+class ServiceProcess:
+    """``seesys estimator serve`` in a subprocess; :meth:`wait_ready` returns once its status endpoint answers."""
+
+    def __init__(self, setup: ServiceSetup, model: Path, *args: str):
+        self.setup = setup
+        self.log = open(setup.folder / f"serve-{time.monotonic_ns()}.log", "w+")
+        self.process = subprocess.Popen([sys.executable, "-m", "seesys", "estimator", "serve", "--model", str(model),
+                                         *args], cwd=REPO, env=setup.env, stdout=self.log, stderr=subprocess.STDOUT)
+
+    def output(self) -> str:
+        return Path(self.log.name).read_text()
+
+    def status(self, timeout_ms: int = 500) -> dict | None:
+        from estimator.service.status import query_status
+
+        try:
+            return query_status(self.setup.endpoints["status"], timeout_ms)
+        except SeesysError:
+            return None
+
+    def wait_ready(self) -> dict:
+        def ready():
+            assert self.process.poll() is None, f"serve ended early:\n{self.output()}"
+            return self.status()
+        return wait_for(ready, START_TIMEOUT_S, "the estimator service to start")
+
+    def stop(self, sig: int = signal.SIGTERM) -> int:
+        if self.process.poll() is None:
+            self.process.send_signal(sig)
+        try:
+            return self.process.wait(60)
+        finally:
+            self.log.close()
+
+    def kill(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+
+
+def device_frames(device_id: str, count: int, seed: int = 0) -> list[FeatureFrame]:
+    """A synthetic tracked device stream: RTS rows of plausible magnitude, a sparse PSD on every window end."""
+    rng = np.random.default_rng(seed)
+    windows = load_window_config()
+    frames = []
+    for i in range(count):
+        psd = None
+        if windows.is_psd_frame(i):
+            cells = rng.random(PSD_SHAPE)
+            psd = np.where(cells < 0.05, rng.integers(1, 256, PSD_SHAPE), 0).astype(np.uint8)
+        rts = np.abs(rng.normal(1.0, 0.5, rts_schema.NUM_CHANNELS)).astype(np.float32)
+        frames.append(FeatureFrame(device_id, i, 10.0 + i / 30.0, TrackingState.OK, rts, psd))
+    return frames
+
+
+class Client:
+    """A device (PUB connected to the ingest endpoint) that also subscribes to estimates (of ``topics``)."""
+
+    def __init__(self, setup: ServiceSetup, topics: list[bytes], options: dict | None = None):
+        from seesys.protocol.transport import open_socket
+
+        self.ctx = zmq.Context()
+        self.pub = open_socket(self.ctx, zmq.PUB, setup.endpoints["ingest"], "test device", bind=False,
+                               send_hwm=100_000, options=options)
+        self.sub = open_socket(self.ctx, zmq.SUB, setup.endpoints["estimates"], "test estimates", bind=False,
+                               subscribe=topics, options=options)
+
+    def send(self, frame: FeatureFrame) -> None:
+        self.pub.send_multipart(messages.encode(frame))
+
+    def receive(self, timeout_ms: int) -> messages.Estimate | None:
+        if not self.sub.poll(timeout_ms):
+            return None
+        return messages.decode(self.sub.recv_multipart())
+
+    def close(self) -> None:
+        self.pub.close()
+        self.sub.close()
+        self.ctx.term()
+
+
+def serve_in_lockstep(client: Client, frames: list[FeatureFrame], timeout_s: float = 120) -> list:
+    """Send ``frames``; after each window end, wait for its estimate before going on (no stale windows, no
+    sleeps). PUB–SUB connections are made asynchronously, so the first window end is re-sent (the service
+    ignores a repeated frame index) until its estimate shows that both connections are up."""
+    windows = load_window_config()
+    estimates = []
+    first = True
+    for frame in frames:
+        client.send(frame)
+        if frame.frame_index < windows.history or not windows.is_psd_frame(frame.frame_index):
+            continue
+        deadline = time.monotonic() + timeout_s
+        while True:
+            estimate = client.receive(200)
+            if estimate is not None and estimate.frame_index == frame.frame_index:
+                estimates.append(estimate)
+                break
+            assert time.monotonic() < deadline, f"no estimate for frame {frame.frame_index}"
+            if first and estimate is None:
+                for earlier in frames[:frame.frame_index + 1]:
+                    client.send(earlier)
+        first = False
+    return estimates

@@ -1,0 +1,210 @@
+"""``seesys estimator serve`` as a real subprocess over real ZeroMQ sockets: bad input is counted while a valid
+device is served exactly what the model computes, Curve admits only allowed clients, a device's estimates stay in
+order across two workers, and the default endpoints are loopback."""
+
+from __future__ import annotations
+
+import ipaddress
+import signal
+from urllib.parse import urlparse
+
+import numpy as np
+import pytest
+
+from estimator.service.config import load_service_config
+from estimator.service.keys import ClientKeys, make_key_pair
+from estimator.service.model import ServedModel
+from seesys.network import load_network_config
+from seesys.protocol import messages
+from seesys.protocol.windows import assemble_windows, load_window_config
+from service_fixtures import (Client, ServiceProcess, ServiceSetup, device_frames, serve_in_lockstep,  # noqa: F401
+                              tiny_model, wait_for)
+
+
+@pytest.fixture
+def setup_factory():
+    made = []
+
+    def make(**service) -> ServiceSetup:
+        made.append(ServiceSetup(**service))
+        return made[-1]
+    yield make
+    for setup in made:
+        setup.cleanup()
+
+
+def expected_errors(model_path, frames) -> dict[int, float]:
+    """What the model gives for the stream's windows, computed here, one window at a time."""
+    windows = load_window_config()
+    model = ServedModel.load(model_path, windows)
+    return {w.frame_index: float(model.estimate([w])[0]) for w in assemble_windows(frames, windows)}
+
+
+def bad_messages(count: int, max_bytes: int) -> tuple[list[list[bytes]], dict[str, int]]:
+    """``count`` messages the service must refuse, a quarter of each kind, and how many of each kind."""
+    rng = np.random.default_rng(7)
+    valid = messages.encode(device_frames("bad-device", 1)[0])
+    out: list[list[bytes]] = []
+    kinds = {"malformed": 0, "wrong_version": 0, "oversized": 0}
+    for k in range(count):
+        kind = k % 4
+        if kind == 0:  # random bytes, random number of parts
+            out.append([rng.bytes(int(rng.integers(0, 200))) for _ in range(int(rng.integers(1, 4)))])
+            kinds["malformed"] += 1
+        elif kind == 1:  # a valid message cut short
+            out.append([valid[0], valid[1][:int(rng.integers(0, len(valid[1])))]])
+            kinds["malformed"] += 1
+        elif kind == 2:  # another protocol version
+            body = bytearray(valid[1])
+            body[len(messages.MAGIC)] = messages.PROTOCOL_VERSION + 1 + int(rng.integers(0, 5))
+            out.append([valid[0], bytes(body)])
+            kinds["wrong_version"] += 1
+        else:  # larger than the service accepts
+            out.append([valid[0], valid[1] + bytes(max_bytes)])
+            kinds["oversized"] += 1
+    return out, kinds
+
+
+def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exactly(setup_factory, tiny_model):
+    setup = setup_factory()
+    service = ServiceProcess(setup, tiny_model)
+    try:
+        service.wait_ready()
+        max_bytes = load_service_config(setup.config_dir).max_message_bytes
+        flood, kinds = bad_messages(10_000, max_bytes)
+        client = Client(setup, [messages.topic(messages.ESTIMATE_TOPIC, "dev-1")])
+        probe = messages.encode(device_frames("probe", 1)[0])
+        # PUB connects asynchronously: a valid probe frame is repeated until the service has seen one.
+        wait_for(lambda: client.pub.send_multipart(probe) or "probe" in (service.status() or {}).get("devices", {}),
+                 what="the client to connect")
+        for parts in flood:
+            client.pub.send_multipart(parts)
+        status = wait_for(lambda: (s := service.status()) and sum(s["rejected"].values()) == 10_000 and s,
+                          what="every bad message to be counted")
+        assert status["rejected"] == kinds
+        assert list(status["devices"]) == ["probe"]  # nothing refused reached a worker
+
+        frames = device_frames("dev-1", 120, seed=3)
+        estimates = serve_in_lockstep(client, frames)
+        expected = expected_errors(tiny_model, frames)
+        assert [e.frame_index for e in estimates] == sorted(expected)
+        np.testing.assert_allclose([e.error_m for e in estimates], [expected[e.frame_index] for e in estimates],
+                                   rtol=1e-4)
+        assert all(e.device_id == "dev-1" and e.model_version.startswith("tiny-") and e.server_ms >= 0
+                   and e.timestamp == frames[e.frame_index].timestamp for e in estimates)
+        status = service.status()
+        assert status["devices"]["dev-1"]["estimates"] >= len(estimates)
+        assert status["devices"]["dev-1"]["server_ms"]["p99"] is not None
+        client.close()
+        assert service.stop(signal.SIGTERM) == 0
+        assert "stopped: 2 device(s)" in service.output()  # the probe and dev-1
+    finally:
+        service.kill()
+
+
+def test_with_curve_a_client_not_allowed_gets_nothing_and_is_not_served(setup_factory, tiny_model, tmp_path):
+    keys = tmp_path / "keys"
+    _, server_secret = make_key_pair(keys / "server", "server")
+    allowed_public, allowed_secret = make_key_pair(keys / "clients", "device")
+    _, stranger_secret = make_key_pair(keys / "strangers", "stranger")
+    setup = setup_factory(curve_enabled=True, curve_server_secret_key=str(server_secret),
+                          curve_allowed_clients=str(allowed_public.parent))
+    server_public = server_secret.with_suffix(".key")
+    service = ServiceProcess(setup, tiny_model)
+    try:
+        assert service.wait_ready()["curve"] is True
+        stranger = Client(setup, [messages.ESTIMATE_TOPIC],  # every device's estimates
+                          ClientKeys(stranger_secret, server_public).socket_options())
+        plain = Client(setup, [messages.ESTIMATE_TOPIC])  # no Curve at all
+        device = Client(setup, [messages.topic(messages.ESTIMATE_TOPIC, "dev-ok")],
+                        ClientKeys(allowed_secret, server_public).socket_options())
+        for frame in device_frames("intruder", 80, seed=1):
+            stranger.send(frame)
+            plain.send(frame)
+        estimates = serve_in_lockstep(device, device_frames("dev-ok", 80, seed=2))
+        assert [e.frame_index for e in estimates] == list(range(30, 80, load_window_config().end_stride))
+        for frame in device_frames("intruder", 80, seed=1):  # again, now that the service certainly runs
+            stranger.send(frame)
+            plain.send(frame)
+        serve_in_lockstep(device, device_frames("dev-ok", 80, seed=2)[:31])  # a restart of dev-ok, served
+        assert stranger.receive(0) is None and plain.receive(0) is None
+        assert list(service.status()["devices"]) == ["dev-ok"]
+        for client in (stranger, plain, device):
+            client.close()
+    finally:
+        service.stop()
+        service.kill()
+
+
+def test_two_workers_share_the_devices_and_keep_each_devices_order(setup_factory, tiny_model):
+    setup = setup_factory()
+    service = ServiceProcess(setup, tiny_model, "--workers", "2")
+    try:
+        assert len(service.wait_ready()["workers"]) == 2
+        names = [f"dev-{k}" for k in range(6)]
+        client = Client(setup, [messages.ESTIMATE_TOPIC])
+        serve_in_lockstep(client, device_frames("probe", 31))  # both connections are up
+        streams = {name: device_frames(name, 150, seed=k) for k, name in enumerate(names)}
+        for i in range(150):  # interleaved, as fast as the client can send
+            for name in names:
+                client.send(streams[name][i])
+        seen: dict[str, list[int]] = {name: [] for name in names}
+        last_end = max(i for i in range(150) if load_window_config().is_psd_frame(i))
+
+        def all_received():
+            while (estimate := client.receive(100)) is not None:
+                if estimate.device_id in seen:
+                    seen[estimate.device_id].append(estimate.frame_index)
+            return all(s and s[-1] == last_end for s in seen.values())
+        wait_for(all_received, what="the last estimate of every device")
+        for name, indices in seen.items():
+            assert len(indices) > 10 and indices == sorted(set(indices)), f"{name}: out of order {indices}"
+        status = service.status()
+        per_worker = sorted(len(w["devices"]) for w in status["workers"])
+        assert per_worker == [3, 4]  # six devices and the probe
+        client.close()
+        assert service.stop(signal.SIGINT) == 0
+    finally:
+        service.kill()
+
+
+def test_default_endpoints_are_loopback():
+    config, network = load_service_config(), load_network_config()
+    endpoints = [config.ingest_endpoint, config.worker_endpoint, config.status_endpoint,
+                 network.estimates_endpoint, network.features_endpoint]
+    for endpoint in endpoints:
+        host = urlparse(endpoint).hostname
+        assert ipaddress.ip_address(host).is_loopback, endpoint
+    assert config.curve.enabled is False
+
+
+def test_stale_windows_are_dropped_and_counted_never_served(setup_factory, tiny_model):
+    """With a limit nothing can meet, every window is dropped at the worker and counted; none is served late."""
+    setup = setup_factory(stale_after_ms=0.0)
+    service = ServiceProcess(setup, tiny_model)
+    try:
+        service.wait_ready()
+        client = Client(setup, [messages.ESTIMATE_TOPIC])
+        frames = device_frames("dev-s", 200, seed=4)
+        ends = len(range(30, 200, load_window_config().end_stride))
+
+        def counted():
+            for frame in frames:  # again until the connection is up and all of them were seen
+                client.send(frame)
+            device = service.status()["devices"].get("dev-s")
+            return device and device["dropped"]["stale"] >= ends
+        wait_for(counted, what="stale windows to be counted")
+        assert client.receive(0) is None
+        assert service.status()["devices"]["dev-s"]["estimates"] == 0
+        client.close()
+    finally:
+        service.stop()
+        service.kill()
+
+
+def test_keys_refuses_to_overwrite(tmp_path):
+    from seesys.errors import SeesysError
+
+    make_key_pair(tmp_path, "server")
+    with pytest.raises(SeesysError, match="already exists"):
+        make_key_pair(tmp_path, "server")
