@@ -25,7 +25,7 @@ from analysis.config import AnalysisConfig
 from analysis.stats import Comparison, compare
 from seesys.errors import SeesysError
 from study.config import MetricsConfig
-from study.sessions import DONE, StudyData, collect_study
+from study.sessions import DONE, collect_study
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"

@@ -138,9 +138,11 @@ def compare_between(table: pd.DataFrame, variable: Variable, conditions: list[st
     model = smf.ols("value ~ C(condition)", data=data).fit()
     rows = [{"check": "Shapiro-Wilk", "group": c, "statistic": s, "p": p} for c in present
             for s, p in [_shapiro(groups[c])]]
-    rows.append(dict(zip(("check", "group", "statistic", "p"), ("Shapiro-Wilk", "residuals", *_shapiro(model.resid.to_numpy())))))
+    statistic, p = _shapiro(model.resid.to_numpy())
+    rows.append({"check": "Shapiro-Wilk", "group": "residuals", "statistic": statistic, "p": p})
     levene = stats.levene(*samples, center="median")
-    rows.append({"check": "Levene (median)", "group": "all", "statistic": float(levene.statistic), "p": float(levene.pvalue)})
+    rows.append({"check": "Levene (median)", "group": "all", "statistic": float(levene.statistic),
+                 "p": float(levene.pvalue)})
     result.assumptions = pd.DataFrame(rows)
     result.assumptions["passed"] = ~(result.assumptions.p < cfg.alpha)  # an unchecked (NaN) p does not fail
 

@@ -9,7 +9,7 @@ import signal
 import threading
 from pathlib import Path
 
-from seesys.trajectory import write_tum, read_tum
+from seesys.trajectory import read_tum, write_tum
 from study.config import load_study_config
 from study.metrics import format_metrics, read_frame_log, tracking_metrics
 
@@ -68,12 +68,14 @@ def register(commands: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=Path, metavar="frames.csv",
                    help="the session's frame log: completeness counted on camera frames")
     p.add_argument("--mono", action="store_true", help="monocular SLAM: Sim(3) alignment")
-    p.add_argument("--json", action="store_true", help="print JSON (keys rpe_mean_m, rpe_rmse_m, pairs, completeness, ...)")
+    p.add_argument("--json", action="store_true",
+                   help="print JSON (keys rpe_mean_m, rpe_rmse_m, pairs, completeness, ...)")
     p.set_defaults(func=metrics_command)
 
     p = commands.add_parser("calibrate", help="clock offset and hand-eye of a session's mocap; writes groundtruth.tum")
     p.add_argument("session", type=Path, metavar="SESSION")
-    p.add_argument("--mocap", type=Path, metavar="FILE", help="mocap file (TUM or Vicon CSV; default SESSION/mocap.tum)")
+    p.add_argument("--mocap", type=Path, metavar="FILE",
+                   help="mocap file (TUM or Vicon CSV; default SESSION/mocap.tum)")
     p.add_argument("--body", help="rigid body in a Vicon CSV (default configs/study.toml)")
     p.add_argument("--hand-eye-from", type=Path, metavar="calibration.json",
                    help="reuse the marker-to-camera transform of an earlier (RGB-D) calibration")

@@ -182,7 +182,8 @@ def format_metrics(m: TrackingMetrics) -> str:
     """The metrics as the lines ``seesys study metrics`` prints."""
     return "\n".join([
         f"tracking error (RPE, translation, delta {m.delta_frames} frames, {m.alignment}, "
-        f"{'all pairs' if m.all_pairs else 'non-overlapping pairs'}, association <= {m.association_max_dt_s * 1e3:g} ms):",
+        f"{'all pairs' if m.all_pairs else 'non-overlapping pairs'}, "
+        f"association <= {m.association_max_dt_s * 1e3:g} ms):",
         f"  mean {m.rpe_mean_m * 100:.3f} cm, RMSE {m.rpe_rmse_m * 100:.3f} cm, median {m.rpe_median_m * 100:.3f} cm, "
         f"max {m.rpe_max_m * 100:.3f} cm over {m.pairs} pairs",
         f"tracking completeness: {m.completeness * 100:.1f} % ({m.tracking_losses} losses, "

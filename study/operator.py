@@ -2,8 +2,8 @@
 
 On a terminal, single keys: ``i`` tracking initialised (the operator confirms it, as in the paper's procedure),
 ``o`` the next object reached (1, 2, ...), ``n`` a note (typed, ended by Enter), ``q`` end of the session. From a
-pipe or file (scripts, tests), one command per line: ``i``, ``o [k]``, ``n TEXT``, ``q``. Every event carries the Unix time
-at which it was read, and is written to ``events.csv`` with it.
+pipe or file (scripts, tests), one command per line: ``i``, ``o [k]``, ``n TEXT``, ``q``. Every event carries the
+Unix time at which it was read, and is written to ``events.csv`` with it.
 """
 
 from __future__ import annotations

@@ -84,7 +84,8 @@ def choose_condition(protocol: Protocol, study: Path, participant: str, phase: s
     person = protocol.participant(participant)
     if condition is not None:
         if condition not in person.conditions:
-            raise ProtocolError(f"{participant} is not assigned condition {condition!r} ({', '.join(person.conditions)})")
+            raise ProtocolError(f"{participant} is not assigned condition {condition!r} "
+                                f"({', '.join(person.conditions)})")
         return condition
     for c in person.conditions:
         if phase_status(protocol.phase_folder(study, participant, phase, c)) != DONE:
@@ -112,12 +113,25 @@ def _tail(path: Path) -> str:
     return complete[-1] if complete and not complete[-1].startswith(("frame_index", "wall_time")) else ""
 
 
-def _frames(path: Path) -> int:
-    try:
-        with path.open("rb") as f:
-            return max(0, sum(1 for _ in f) - 1)
-    except OSError:
-        return 0
+class RowCounter:
+    """Complete data rows of a growing log (lines after the header), reading only what was added since the
+    last call."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._offset = 0
+        self._lines = 0
+
+    def __call__(self) -> int:
+        try:
+            with self.path.open("rb") as f:
+                f.seek(self._offset)
+                added = f.read()
+        except OSError:
+            return 0
+        self._offset += len(added)
+        self._lines += added.count(b"\n")
+        return max(0, self._lines - 1)
 
 
 class Session:
@@ -140,6 +154,7 @@ class Session:
         self.source = options.source or cfg.runner.source
         self.mode = options.mode or cfg.runner.mode
         self.children: dict[str, Child] = {}
+        self.frames = self.advisory_rows = lambda: 0
         self.objects = 0
         self.events_logged = 0
         self.pulses = "–"
@@ -164,7 +179,7 @@ class Session:
         except (OSError, ValueError, KeyError):
             mocap = "–" if self.record_mocap else "off"
         estimate = "–" if math.isnan(watcher.latest_error_m) else f"{watcher.latest_error_m * 100:.2f} cm"
-        return Text(f"{self.o.participant} {self.o.phase} [{self.condition}]  frames {_frames(self.attempt / 'frames.csv')}"
+        return Text(f"{self.o.participant} {self.o.phase} [{self.condition}]  frames {self.frames()}"
                     f" {state}  estimate {estimate} ({watcher.estimates})  pulses {self.pulses}  mocap {mocap}  "
                     f"dropped {watcher.frames_skipped}+{watcher.losses.lost_in_transit}  objects {self.objects}  "
                     f"| {KEYS_HELP}")
@@ -177,7 +192,7 @@ class Session:
                                                  self.attempt)
         self.children["advisory"] = Child.start("advisory", ["advisory", "run", "--condition", self.condition,
                                                              "--out", str(self.attempt)], self.attempt)
-        ready = {"advisory": lambda: _frames(self.attempt / ADVISORY_CSV) > 0,
+        ready = {"advisory": lambda: self.advisory_rows() > 0,
                  "mocap": lambda: (self.attempt / MOCAP_STATS).exists()}
         deadline = time.monotonic() + self.cfg.runner.ready_timeout_s
         while not all(ready[name]() for name in self.children):
@@ -208,6 +223,8 @@ class Session:
         if self.o.restart:
             _supersede(self.phase_folder)
         self.attempt = next_attempt_folder(self.phase_folder)
+        self.frames = RowCounter(self.attempt / "frames.csv")
+        self.advisory_rows = RowCounter(self.attempt / ADVISORY_CSV)
         self.record_mocap = self.cfg.runner.record_mocap if self.o.record_mocap is None else self.o.record_mocap
         self._run_json(participant=self.o.participant, phase=self.o.phase, condition=self.condition,
                        attempt=self.attempt.name, status="running", pid=os.getpid(), started=utc_now(),
@@ -239,7 +256,7 @@ class Session:
                     except queue.Empty:
                         pass
                     if self.o.replay_estimates and "replay" not in self.children and \
-                            _frames(self.attempt / "frames.csv") > 0:
+                            self.frames() > 0:
                         self.children["replay"] = Child.start(
                             "replay", ["advisory", "replay", "--estimates", str(self.o.replay_estimates)],
                             self.attempt)
@@ -263,7 +280,7 @@ class Session:
         self._event(events, "stop", status)
         events.close()
         details = {"status": status, "ended": utc_now(), "exit_codes": exits,
-                   "frames": _frames(self.attempt / "frames.csv"), "estimates": watcher.estimates,
+                   "frames": self.frames(), "estimates": watcher.estimates,
                    "bad_messages": watcher.bad_messages, "watcher_error": watcher.error,
                    "device_error": None if status == "completed" or "device" not in self.children
                    else self.children["device"].last_line(), "start_error": start_error}

@@ -121,7 +121,8 @@ def _read_poses(path: Path):
         return None
 
 
-def participant_metrics(attempts: list[Path], cfg: MetricsConfig) -> tuple[TrackingMetrics, list[AttemptMetrics]] | None:
+def participant_metrics(attempts: list[Path],
+                        cfg: MetricsConfig) -> tuple[TrackingMetrics, list[AttemptMetrics]] | None:
     """Pooled metrics of ``attempts`` (None when none has a trajectory and a ground truth)."""
     rpes, parts, per_attempt, durations = [], [], [], []
     for attempt in attempts:

@@ -21,7 +21,7 @@ from seesys.trajectory import Poses, read_tum, write_tum
 from study.config import load_study_config
 from study.mocap.calibrate import calibrate_session
 from study.mocap.clock import CalibrationError, estimate_clock_offset
-from study.mocap.handeye import matrices, to_matrix
+from study.mocap.handeye import to_matrix
 from study.mocap.importers import MocapImportError, read_vicon_csv
 from study.mocap.logger import MocapUnavailable, connect
 

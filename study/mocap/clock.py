@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import optimize, signal
 from scipy.ndimage import uniform_filter1d
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Slerp
 
 from seesys.errors import SeesysError
 from seesys.trajectory import Poses

@@ -28,7 +28,8 @@ class MocapImportError(SeesysError):
     """A motion-capture file is missing, malformed, or lacks the requested body."""
 
 
-def _block(rows: list[list[str]], title: str, path: Path) -> tuple[float, list[str], list[str], list[str], list[list[str]]]:
+def _block(rows: list[list[str]], title: str,
+           path: Path) -> tuple[float, list[str], list[str], list[str], list[list[str]]]:
     starts = [i for i, row in enumerate(rows) if row and row[0].strip() == title]
     if not starts:
         raise MocapImportError(f"{path}: no '{title}' block (blocks: "
