@@ -59,7 +59,8 @@ def _build(args: argparse.Namespace) -> int:
     stored = [r for r in result.runs_done if r.status in WITH_SAMPLES]
     render_rate = result.rendered_frames / result.render_seconds if result.rendered_frames else 0.0
     print(f"{result.sequences} sequences ({result.rendered_frames} frames rendered in {result.render_seconds:.0f} s, "
-          f"{render_rate:.1f} frames/s); {len(stored)} runs stored, {len(result.crashed)} crashed, "
+          f"{render_rate:.1f} frames/s); {len(stored)} runs stored ({sum(r.samples for r in stored)} samples), "
+          f"{len(result.crashed)} crashed, "
           f"{result.runs_skipped} already done; SLAM + labelling {result.slam_seconds:.0f} s; under {args.out}")
     for run in result.crashed:
         kept = f" ({run.frames} frames before it stored)" if run.frames else ""
