@@ -7,6 +7,7 @@ import io
 import itertools
 import subprocess
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -80,3 +81,28 @@ def test_new_and_status_commands(tmp_path):
     assert status.returncode == 0 and "task: 18 pending" in status.stdout
     again = run("new", str(tmp_path / "s"))
     assert again.returncode == 2 and "drawn once" in again.stderr
+
+
+def test_operator_keys_on_a_terminal():
+    """Single keys on a (pseudo) terminal, a note typed up to Enter; the terminal's mode is restored."""
+    import os
+    import termios
+
+    master, slave = os.openpty()
+    before = termios.tcgetattr(slave)
+    with os.fdopen(slave, "r") as terminal:
+        recorded = []
+        reader = OperatorInput(terminal)
+        reader.record = recorded.append
+        reader.start()
+        deadline = time.monotonic() + 30
+        while termios.tcgetattr(slave)[3] & termios.ICANON:  # until the reader has put it in cbreak mode
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        os.write(master, b"io" + b"nback side\n" + b"xq")
+        reader.join(timeout=30)
+        assert not reader.is_alive()
+        assert [(e.kind, e.detail) for e in recorded] == [("initialised", ""), ("object", "1"),
+                                                          ("note", "back side"), ("end", "")]
+        assert termios.tcgetattr(slave) == before
+    os.close(master)
