@@ -4,11 +4,8 @@ ipc:// sockets, synthetic devices, and ``seesys estimator serve`` run as a real 
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import signal
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -24,7 +21,6 @@ from seesys.protocol.messages import FeatureFrame
 from seesys.protocol.tracking_state import TrackingState
 from seesys.protocol.windows import load_window_config
 
-REPO = Path(__file__).resolve().parent.parent
 # Long enough for a worker to start (spawn, import torch, load the model) on a loaded 2-core machine.
 START_TIMEOUT_S = 240
 PSD_SHAPE = (96, 128, 3)
@@ -54,45 +50,16 @@ def tiny_model(tmp_path_factory) -> Path:
     return export_untrained(path, load_window_config(), PSD_SHAPE[:2], seed=0, model_config=config)
 
 
-def _set(text: str, key: str, value: str) -> str:
-    pattern = re.compile(rf"^{key} = .*$", re.MULTILINE)
-    assert pattern.search(text), key
-    return pattern.sub(lambda _: f"{key} = {value}", text, count=1)
-
-
-def _toml(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return f'"{value}"'
-    return str(value)
-
-
 class ServiceSetup:
     """A copy of configs/ whose service and network endpoints are ipc:// sockets in a fresh short folder."""
 
     def __init__(self, **service: object):
-        self.folder = Path(tempfile.mkdtemp(prefix="svc"))  # ipc paths must stay short (108 bytes)
-        self.config_dir = self.folder / "configs"
-        shutil.copytree(REPO / "configs", self.config_dir)
-        self.endpoints = {name: f"ipc://{self.folder}/{name}" for name in
-                          ("ingest", "workers", "status", "estimates", "features")}
-        text = (self.config_dir / "service.toml").read_text()
-        settings = {"ingest_endpoint": self.endpoints["ingest"], "worker_endpoint": self.endpoints["workers"],
-                    "status_endpoint": self.endpoints["status"], "connect_device_stream": False,
-                    # windows are served long after their frames on a loaded test machine: not what these test
-                    "stale_after_ms": 60000.0, **service}
-        for key, value in settings.items():
-            if key.startswith("curve_"):
-                section = text.index("[curve]")
-                text = text[:section] + _set(text[section:], key[len("curve_"):], _toml(value))
-            else:
-                text = _set(text, key, _toml(value))
-        (self.config_dir / "service.toml").write_text(text)
-        network = (self.config_dir / "network.toml").read_text()
-        network = _set(network, "estimates_endpoint", _toml(self.endpoints["estimates"]))
-        network = _set(network, "features_endpoint", _toml(self.endpoints["features"]))
-        (self.config_dir / "network.toml").write_text(network)
+        from estimator.service.sandbox import private_configs
+
+        self.folder = Path(tempfile.mkdtemp(prefix="svc"))  # ipc paths must stay short (107 bytes)
+        # Windows are served long after their frames on a loaded test machine: not what these tests test.
+        settings = {"connect_device_stream": False, "stale_after_ms": 60000.0, **service}
+        self.config_dir, self.endpoints = private_configs(self.folder, **settings)
         self.env = {**os.environ, "SEESYS_CONFIG_DIR": str(self.config_dir)}
 
     def cleanup(self) -> None:
@@ -103,13 +70,14 @@ class ServiceProcess:
     """``seesys estimator serve`` in a subprocess; :meth:`wait_ready` returns once its status endpoint answers."""
 
     def __init__(self, setup: ServiceSetup, model: Path, *args: str):
+        from estimator.service.sandbox import start_service
+
         self.setup = setup
-        self.log = open(setup.folder / f"serve-{time.monotonic_ns()}.log", "w+")
-        self.process = subprocess.Popen([sys.executable, "-m", "seesys", "estimator", "serve", "--model", str(model),
-                                         *args], cwd=REPO, env=setup.env, stdout=self.log, stderr=subprocess.STDOUT)
+        self.log = setup.folder / f"serve-{time.monotonic_ns()}.log"
+        self.process = start_service(setup.config_dir, model, *args, log=self.log)
 
     def output(self) -> str:
-        return Path(self.log.name).read_text()
+        return self.log.read_text()
 
     def status(self, timeout_ms: int = 500) -> dict | None:
         from estimator.service.status import query_status
@@ -120,18 +88,14 @@ class ServiceProcess:
             return None
 
     def wait_ready(self) -> dict:
-        def ready():
-            assert self.process.poll() is None, f"serve ended early:\n{self.output()}"
-            return self.status()
-        return wait_for(ready, START_TIMEOUT_S, "the estimator service to start")
+        from estimator.service.sandbox import wait_ready
+
+        return wait_ready(self.process, self.setup.endpoints["status"], START_TIMEOUT_S, self.log)
 
     def stop(self, sig: int = signal.SIGTERM) -> int:
         if self.process.poll() is None:
             self.process.send_signal(sig)
-        try:
-            return self.process.wait(60)
-        finally:
-            self.log.close()
+        return self.process.wait(60)
 
     def kill(self) -> None:
         if self.process.poll() is None:

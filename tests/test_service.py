@@ -107,8 +107,8 @@ def test_with_curve_a_client_not_allowed_gets_nothing_and_is_not_served(setup_fa
     _, server_secret = make_key_pair(keys / "server", "server")
     allowed_public, allowed_secret = make_key_pair(keys / "clients", "device")
     _, stranger_secret = make_key_pair(keys / "strangers", "stranger")
-    setup = setup_factory(curve_enabled=True, curve_server_secret_key=str(server_secret),
-                          curve_allowed_clients=str(allowed_public.parent))
+    setup = setup_factory(enabled=True, server_secret_key=str(server_secret),
+                          allowed_clients=str(allowed_public.parent))
     server_public = server_secret.with_suffix(".key")
     service = ServiceProcess(setup, tiny_model)
     try:
