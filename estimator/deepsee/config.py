@@ -166,4 +166,5 @@ def check_model_config(model: ModelConfig) -> None:
     """Raise :class:`ConfigError` when the widths do not divide into the attention heads."""
     for where, heads in (("psd", model.psd.heads), ("fusion", model.fusion.heads)):
         if model.dim % heads:
-            raise ConfigError(f"configs/estimator.toml: model.dim {model.dim} is not a multiple of {where}.heads {heads}")
+            raise ConfigError(f"configs/estimator.toml: model.dim {model.dim} is not a multiple of "
+                              f"{where}.heads {heads}")

@@ -61,7 +61,8 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
         return CM_PER_M * float(np.sqrt(np.mean((estimate - val.error_m) ** 2)))
 
     before = rmse_cm()
-    run = RunFolder(run_dir, {"finetune": asdict(config.finetune), "base_compatibility_hash": payload["compatibility_hash"], **ctx.provenance}, device)
+    run = RunFolder(run_dir, {"finetune": asdict(config.finetune),
+                              "base_compatibility_hash": payload["compatibility_hash"], **ctx.provenance}, device)
     supervised(run, "finetune_sessions", model, train, val, config.finetune.schedule, ctx)
     after = rmse_cm()
     training = {**payload["training"], "finetuned_on": [str(s) for s in sessions], "train_windows": len(train),

@@ -58,7 +58,8 @@ def _provenance(runs: Path, row: str) -> str:
 
 def table(scores: pd.DataFrame, set_name: str, runs: Path) -> list[str]:
     part = scores[scores.set == set_name]
-    lines = ["| Category | Method | " + " | ".join(h for _, h, _ in COLUMNS) + " | windows | rounds | schedule, device |",
+    headings = " | ".join(h for _, h, _ in COLUMNS)
+    lines = [f"| Category | Method | {headings} | windows | rounds | schedule, device |",
              "|---" * (len(COLUMNS) + 5) + "|"]
     for row in ROWS:
         rows = part[part.row == row.name]

@@ -3,7 +3,7 @@
 ::
 
     RUN/config.json      everything the run was asked to do (configuration, schedule, variant, data, round)
-    RUN/hardware.json    where it ran: device, CPU, GPU, threads, library versions (one entry per invocation)
+    RUN/hardware.json    where and how it ran: command line, device, CPU, GPU, threads, load, versions (per invocation)
     RUN/metrics.csv      one row per epoch of every stage: stage, epoch, train_loss, val_loss, lr, seconds, best
     RUN/loss_curves.png  train and validation loss of every stage, redrawn after each epoch
     RUN/state/           per-stage checkpoints (resume) and best weights
@@ -16,6 +16,7 @@ import csv
 import json
 import os
 import platform
+import sys
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -52,7 +53,7 @@ class EpochRecord:
 
 def hardware(device: torch.device) -> dict:
     """What the run is using: for the record of what ran where."""
-    info = {"time": utc_now(), "device": str(device), "platform": platform.platform(),
+    info = {"time": utc_now(), "command": " ".join(sys.argv), "device": str(device), "platform": platform.platform(),
             "cpu": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
             "torch_threads": torch.get_num_threads(), "torch": torch.__version__,
             "load_average": list(os.getloadavg())}
