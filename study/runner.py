@@ -179,10 +179,11 @@ class Session:
         except (OSError, ValueError, KeyError):
             mocap = "–" if self.record_mocap else "off"
         estimate = "–" if math.isnan(watcher.latest_error_m) else f"{watcher.latest_error_m * 100:.2f} cm"
-        return Text(f"{self.o.participant} {self.o.phase} [{self.condition}]  frames {self.frames()}"
-                    f" {state}  estimate {estimate} ({watcher.estimates})  pulses {self.pulses}  mocap {mocap}  "
-                    f"dropped {watcher.frames_skipped}+{watcher.losses.lost_in_transit}  objects {self.objects}  "
-                    f"| {KEYS_HELP}")
+        # One line of at most ~80 characters: frames and state, estimate, pulses N, mocap rate, frames dropped
+        # (skipped by the device + lost in transit), objects reached.
+        return Text(f"{self.o.participant} {self.o.phase}/{self.condition}  {self.frames()} {state}  est {estimate}"
+                    f"  N {self.pulses}  mocap {mocap}  drop {watcher.frames_skipped}+"
+                    f"{watcher.losses.lost_in_transit}  obj {self.objects}")
 
     def _start_children(self) -> None:
         """The advisory and the mocap logger first; the device once both are running, so that the participant
@@ -244,6 +245,8 @@ class Session:
             self._start_children()
             self._event(events, "device", "started")
             # The status line is drawn on a terminal only; a script or test gets the summary at the end.
+            if self.console.is_terminal:
+                self.console.print(f"{self.attempt}: {KEYS_HELP}")
             with (Live(self._status_line(watcher), console=self.console, transient=True, refresh_per_second=4)
                   if self.console.is_terminal else contextlib.nullcontext()) as live:
                 while self.children["device"].running:
