@@ -28,7 +28,7 @@ def calibrate_command(args: argparse.Namespace) -> int:
     cfg = load_study_config()
     result = calibrate_session(args.session, cfg.calibration, args.body or cfg.mocap.body, mocap=args.mocap,
                                marker_camera_from=args.hand_eye_from, monocular=args.mono,
-                               overwrite=args.overwrite)
+                               overwrite=args.overwrite, offset_guess_s=args.offset_guess)
     print(format_calibration(result))
     print(f"wrote {args.session / 'groundtruth.tum'} and {args.session / 'calibration.json'}")
     return 0
@@ -81,6 +81,9 @@ def register(commands: argparse._SubParsersAction) -> None:
                    help="reuse the marker-to-camera transform of an earlier (RGB-D) calibration")
     p.add_argument("--mono", action="store_true", help="monocular trajectory (needs --hand-eye-from)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing groundtruth.tum")
+    p.add_argument("--offset-guess", type=float, metavar="S",
+                   help="search the clock offset around S seconds (default: 0 when the recordings overlap in time, "
+                        "else the difference of their start times)")
     p.set_defaults(func=calibrate_command)
 
     mocap = commands.add_parser("mocap", help="live motion-capture logging and file import")

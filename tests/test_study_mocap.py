@@ -146,3 +146,15 @@ def test_an_unreachable_server_is_an_error_not_a_hang():
         with pytest.raises(MocapUnavailable, match=f"127.0.0.1:{port}"):
             connect(cfg)
     assert issubclass(MocapUnavailable, SeesysError)
+
+
+def test_an_export_timed_from_the_capture_start_is_found(simulated_session):
+    """A Vicon export's time starts at 0: the search starts from the recordings' start times."""
+    cfg = load_study_config()
+    markers = read_tum(simulated_session / "mocap.tum")
+    capture_start = markers.timestamps[0] - 0.4  # the capture started 0.4 s before the first pose logged
+    write_tum(simulated_session / "export.tum", Poses(markers.timestamps - capture_start, markers.positions,
+                                                      markers.quaternions_xyzw))
+    result = calibrate_session(simulated_session, cfg.calibration, cfg.mocap.body,
+                               mocap=simulated_session / "export.tum")
+    assert abs(result.clock.offset_s - (OFFSET_S + capture_start)) < 0.002

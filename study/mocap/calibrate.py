@@ -9,6 +9,7 @@ any other: ``seesys dataset label`` and the metrics read its ``groundtruth.tum``
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass
@@ -18,7 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from seesys.errors import SeesysError
-from seesys.trajectory import read_tum, write_tum
+from seesys.trajectory import Poses, read_tum, write_tum
 from study.config import CalibrationConfig
 from study.logfiles import write_json_atomically
 from study.mocap.clock import ClockOffset, estimate_clock_offset, shift
@@ -48,12 +49,23 @@ def load_marker_camera(path: Path) -> np.ndarray:
         raise SeesysError(f"{path}: not a calibration with a hand-eye transform ({e})") from None
 
 
+def initial_offset(camera: Poses, markers: Poses) -> float:
+    """0 when the two recordings overlap in time (one clock, as with live logging); otherwise the difference of
+    their start times (an export whose time starts at 0 with the capture, assumed started within
+    ``max_offset_s`` of the camera)."""
+    if len(camera) == 0 or len(markers) == 0:
+        return 0.0
+    overlap = min(camera.timestamps[-1], markers.timestamps[-1]) - max(camera.timestamps[0], markers.timestamps[0])
+    return 0.0 if overlap > 0 else float(camera.timestamps[0] - markers.timestamps[0])
+
+
 def calibrate_session(folder: Path, cfg: CalibrationConfig, body: str, mocap: Path | None = None,
                       marker_camera_from: Path | None = None, monocular: bool = False,
-                      overwrite: bool = False) -> SessionCalibration:
+                      overwrite: bool = False, offset_guess_s: float | None = None) -> SessionCalibration:
     """Calibrate ``folder``'s mocap against its SLAM trajectory and write ``groundtruth.tum`` and
     ``calibration.json``. A monocular session needs ``marker_camera_from`` (its scale is not metric). An existing
-    ``groundtruth.tum`` is kept unless ``overwrite``."""
+    ``groundtruth.tum`` is kept unless ``overwrite``. The offset is searched within ``max_offset_s`` of
+    ``offset_guess_s`` (default :func:`initial_offset`)."""
     folder = Path(folder)
     target = folder / GROUND_TRUTH
     if target.exists() and not overwrite:
@@ -63,7 +75,9 @@ def calibrate_session(folder: Path, cfg: CalibrationConfig, body: str, mocap: Pa
                           "calibration.json of an RGB-D session of the same rig (--hand-eye-from)")
     camera = read_tum(folder / TRAJECTORY)
     markers = read_mocap(mocap or folder / MOCAP_LOG, body).sorted_unique()
-    clock = estimate_clock_offset(camera, markers, cfg)
+    guess = initial_offset(camera, markers) if offset_guess_s is None else offset_guess_s
+    found = estimate_clock_offset(camera, shift(markers, guess), cfg)
+    clock = dataclasses.replace(found, offset_s=guess + found.offset_s, searched_from_s=guess)
     if marker_camera_from is not None:
         hand_eye, x = None, load_marker_camera(marker_camera_from)
     else:

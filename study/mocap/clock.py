@@ -36,6 +36,7 @@ class ClockOffset:
     peak_correlation: float
     residual_rms_deg_s: float
     samples: int
+    searched_from_s: float = 0.0  # the centre of the ±max_offset_s search
 
     def as_dict(self) -> dict:
         return asdict(self)
