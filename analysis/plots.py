@@ -56,13 +56,14 @@ def wall_to_camera_offset(attempt: Path) -> float:
 
 
 def _estimated_error_at(attempt: Path, times: np.ndarray, max_gap_s: float = 0.5) -> np.ndarray:
-    log = read_estimate_log(attempt).sort_values("timestamp")
+    """The estimate of the frame nearest each time (sorted), NaN where none is within ``max_gap_s``."""
+    log = read_estimate_log(attempt)
     if log.empty:
         return np.full(len(times), np.nan)
-    t, e = log.timestamp.to_numpy(), log.error_m.to_numpy()
-    idx = np.clip(np.searchsorted(t, times), 1, len(t) - 1) if len(t) > 1 else np.zeros(len(times), int)
-    nearest = np.where(np.abs(t[idx - 1] - times) < np.abs(t[idx] - times), idx - 1, idx) if len(t) > 1 else idx
-    return np.where(np.abs(t[nearest] - times) <= max_gap_s, e[nearest], np.nan)
+    merged = pd.merge_asof(pd.DataFrame({"timestamp": np.asarray(times, float)}),
+                           log[["timestamp", "error_m"]].astype(float).sort_values("timestamp"), on="timestamp",
+                           direction="nearest", tolerance=max_gap_s)
+    return merged.error_m.to_numpy()
 
 
 def _participants_to_plot(data: StudyData, condition: str, cfg: AnalysisConfig) -> list[tuple[str, list]]:
@@ -71,31 +72,39 @@ def _participants_to_plot(data: StudyData, condition: str, cfg: AnalysisConfig) 
 
 
 def trajectories(data: StudyData, condition: str, cfg: AnalysisConfig, out: Path) -> Path | None:
-    """Top views of participants' trajectories, coloured by the estimated error (cm)."""
+    """Top views (the two axes of largest extent) of participants' trajectories, coloured by the estimated error
+    (cm) on one colour scale for the whole figure."""
     chosen = _participants_to_plot(data, condition, cfg)
     if not chosen:
         return None
-    fig, axes = plt.subplots(1, len(chosen), figsize=(3.4 * len(chosen), 3.4), squeeze=False)
-    mappable = None
-    for ax, (participant, attempts) in zip(axes[0], chosen):
+    drawn = []
+    for participant, attempts in chosen:
         for a in attempts:
             try:
                 poses = read_tum(a.folder / "trajectory.tum")
             except TrajectoryError:
                 continue
-            if len(poses) < 2:
-                continue
-            axis = np.argsort(np.ptp(poses.positions, axis=0))[::-1][:2]
-            error_cm = _estimated_error_at(a.folder, poses.timestamps) * 100
-            ax.plot(poses.positions[:, axis[0]], poses.positions[:, axis[1]], color="0.8", lw=0.8, zorder=1)
-            mappable = ax.scatter(poses.positions[:, axis[0]], poses.positions[:, axis[1]], c=error_cm, s=6,
-                                  cmap="viridis", zorder=2)
+            if len(poses) > 1:
+                drawn.append((participant, poses, _estimated_error_at(a.folder, poses.timestamps) * 100))
+    errors = np.concatenate([e for _, _, e in drawn]) if drawn else np.zeros(0)
+    finite = errors[np.isfinite(errors)]
+    norm = plt.Normalize(*(np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0)))
+    fig, axes = plt.subplots(1, len(chosen), figsize=(3.4 * len(chosen) + 1.2, 3.8), squeeze=False,
+                             layout="constrained")
+    panel = {participant: ax for ax, (participant, _) in zip(axes[0], chosen)}
+    for participant, poses, error_cm in drawn:
+        ax = panel[participant]
+        u, v = np.argsort(np.ptp(poses.positions, axis=0))[::-1][:2]
+        ax.plot(poses.positions[:, u], poses.positions[:, v], color="0.8", lw=0.8, zorder=1)
+        ax.scatter(poses.positions[:, u], poses.positions[:, v], c=error_cm, s=6, cmap="viridis", norm=norm,
+                   zorder=2, plotnonfinite=True)
+    for participant, ax in panel.items():
         ax.set_title(participant)
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("m")
     fig.suptitle(f"Trajectories, {condition}: coloured by estimated error")
-    if mappable is not None:
-        fig.colorbar(mappable, ax=axes[0].tolist(), label="estimated error (cm)")
+    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap="viridis"), ax=axes[0].tolist(),
+                 label="estimated error (cm)")
     path = out / f"trajectories_{condition}.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from estimator.labels import tracked_stretches
 from seesys.errors import SeesysError
 from seesys.protocol.tracking_state import TrackingState
 from seesys.trajectory import Poses
@@ -116,13 +117,14 @@ def completeness_from_frames(frames: pd.DataFrame) -> Completeness:
     if not tracked.any():
         return Completeness(0.0, len(tracked), 0, 0.0, duration)
     first = int(np.argmax(tracked))
-    after = tracked[first:]
-    starts = np.flatnonzero(~after[1:] & after[:-1]) + 1  # tracked -> not tracked
-    ends = np.flatnonzero(after[1:] & ~after[:-1]) + 1  # not tracked -> tracked
-    t = times[first:]
-    durations = [(t[e] if (e := next((x for x in ends if x > s), None)) is not None else t[-1]) - t[s]
-                 for s in starts]
-    return Completeness(float(after.mean()), len(after), len(starts), float(np.sum(durations)), duration)
+    after, t = tracked[first:], times[first:]
+    stretches = tracked_stretches(after)
+    # A loss runs from its first untracked frame to the next tracked one (or to the last frame).
+    losses = [(stop, following) for (_, stop), (following, _) in zip(stretches, stretches[1:])]
+    if stretches[-1][1] < len(after):
+        losses.append((stretches[-1][1], len(after) - 1))
+    lost_s = float(sum(t[end] - t[start] for start, end in losses))
+    return Completeness(float(after.mean()), len(after), len(losses), lost_s, duration)
 
 
 def completeness_from_poses(estimate: Poses, reference: Poses, cfg: MetricsConfig) -> Completeness:

@@ -82,6 +82,9 @@ def test_completeness_from_frame_log_counts_after_initialisation():
     assert result.fraction == pytest.approx(15 / 20)
     assert result.losses == 1
     assert result.loss_duration_s == pytest.approx(0.5)
+    ending_lost = pd.concat([frames, pd.DataFrame({"timestamp": [2.5, 2.6, 2.7], "state": ["LOST"] * 3})])
+    result = completeness_from_frames(ending_lost)
+    assert result.losses == 2 and result.loss_duration_s == pytest.approx(0.5 + 0.2)
 
 
 def test_completeness_from_poses_finds_gaps():
