@@ -12,9 +12,11 @@ note gives the participants per group that the observed effect (Cohen's f from Î
 power (statsmodels ``FTestAnovaPower``).
 
 Within-subjects: repeated-measures ANOVA with Mauchly's sphericity test and the Greenhouseâ€“Geisser correction
-(pingouin ``rm_anova``), Friedman's test with Kendall's W (pingouin), paired post hoc t tests or Wilcoxon tests
-with Holm correction (pingouin ``pairwise_tests``), and a power note from pingouin's ``power_rm_anova``. Only
-participants with a value in every condition enter.
+(pingouin ``rm_anova``), Friedman's test with Kendall's W (pingouin), a linear mixed model with a random
+intercept per participant (statsmodels ``mixedlm``, which also uses participants missing a condition), paired
+post hoc t tests or Wilcoxon tests with Holm correction (pingouin ``pairwise_tests``), and a power note from
+pingouin's ``power_rm_anova``. Only participants with a value in every condition enter, except in the mixed
+model.
 
 Values are in the variable's reported unit (``scale`` applied) everywhere.
 """
@@ -217,10 +219,14 @@ def compare_within(table: pd.DataFrame, variable: Variable, conditions: list[str
     import pingouin as pg
 
     data = values_of(table, variable)
+    everyone = data[data.condition.isin(conditions)]
     counts = data.groupby("participant").condition.nunique()
     complete = counts.index[counts == len(conditions)]
     data = data[data.participant.isin(complete) & data.condition.isin(conditions)]
     result = Comparison(variable, "within", descriptives(data, conditions, cfg.confidence))
+    if len(complete) < everyone.participant.nunique():
+        result.notes.append(f"{everyone.participant.nunique() - len(complete)} participant(s) without every "
+                            f"condition: left out of all but the mixed model")
     if len(complete) < 3 or data.value.std() == 0:
         result.notes.append(f"fewer than three participants with every condition, or no variation: no tests for "
                             f"{variable.label}")
@@ -249,6 +255,7 @@ def compare_within(table: pd.DataFrame, variable: Variable, conditions: list[str
         {"test": "Friedman", "statistic": "Q", "value": float(friedman.Q), "df1": float(friedman.ddof1),
          "df2": math.nan, "p": float(friedman.get("p_unc", friedman.get("p-unc"))), "effect": "Kendall W",
          "effect_value": float(friedman.W), "effect_ci_low": math.nan, "effect_ci_high": math.nan},
+        _mixed_model(everyone),
     ])
     rows = []
     for parametric, method in ((True, "paired t (Holm)"), (False, "Wilcoxon (Holm)")):
@@ -281,6 +288,23 @@ def compare_within(table: pd.DataFrame, variable: Variable, conditions: list[str
     else:
         result.power_note = "no effect observed: no sample size can be given"
     return result
+
+
+def _mixed_model(data: pd.DataFrame) -> dict:
+    """Linear mixed model ``value ~ condition`` with a random intercept per participant (statsmodels, REML) and
+    the Wald chi-square test of the condition terms: unlike the repeated-measures ANOVA it keeps participants
+    who miss a condition (a crashed session)."""
+    import statsmodels.formula.api as smf
+
+    row = {"test": "mixed model (random intercept)", "statistic": "chi2", "value": math.nan, "df1": math.nan,
+           "df2": math.nan, "p": math.nan, "effect": "", "effect_value": math.nan, "effect_ci_low": math.nan,
+           "effect_ci_high": math.nan}
+    try:
+        fit = smf.mixedlm("value ~ C(condition)", data, groups=data["participant"]).fit(reml=True)
+        wald = fit.wald_test_terms(scalar=True).table.loc["C(condition)"]
+    except (ValueError, np.linalg.LinAlgError):  # a singular fit (e.g. no variation between participants)
+        return row
+    return {**row, "value": float(wald.statistic), "df1": float(wald.df_constraint), "p": float(wald.pvalue)}
 
 
 def compare(table: pd.DataFrame, variable: Variable, conditions: list[str], design: str,

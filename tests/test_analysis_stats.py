@@ -153,6 +153,11 @@ def test_within_subjects_agrees_with_statsmodels_anovarm(tmp_path):
                                           for c in CONDITIONS])
     r = row(tests, variable="rpe_mean_m", test="Friedman")
     assert (r.value, r.p) == pytest.approx((fried.statistic, fried.pvalue))
+    import statsmodels.formula.api as smf
+    mixed = smf.mixedlm("value ~ C(condition)", table, groups=table["participant"]).fit(reml=True)
+    wald = mixed.wald_test_terms(scalar=True).table.loc["C(condition)"]
+    r = row(tests, variable="rpe_mean_m", test="mixed model (random intercept)")
+    assert (r.value, r.p) == pytest.approx((wald.statistic, wald.pvalue))
     paired = pg.pairwise_tests(data=table, dv="value", within="condition", subject="participant", padjust="holm")
     posthoc = pd.read_csv(tmp_path / "out" / "posthoc.csv")
     for pr in paired.itertuples():
