@@ -43,7 +43,7 @@ from study.children import Child
 from study.config import StudyConfig
 from study.logfiles import write_json_atomically
 from study.mocap.calibrate import CALIBRATION_JSON, GROUND_TRUTH, MOCAP_LOG, calibrate_session
-from study.mocap.logger import MOCAP_STATS
+from study.mocap.logger import CLOCKS, MOCAP_STATS
 from study.operator import KEYS_HELP, OperatorEvent, OperatorInput
 from study.protocol import Protocol, ProtocolError, read_protocol
 from study.sessions import (DONE, EVENTS_CSV, RUN_JSON, attempt_folders, next_attempt_folder, phase_status,
@@ -175,8 +175,12 @@ class Session:
         if len(advisory) == len(ADVISORY_COLUMNS):
             self.pulses = advisory[ADVISORY_COLUMNS.index("n_pulses")]
         try:
-            mocap = f"{json.loads((self.attempt / MOCAP_STATS).read_text())['rate_hz']:.0f} Hz"
-        except (OSError, ValueError, KeyError):
+            stats = json.loads((self.attempt / MOCAP_STATS).read_text())
+            # The body unseen for a stats interval: occluded markers or a wrong body name, worth the operator's eye.
+            last = stats["last_pose_time"]
+            unseen = last is None or CLOCKS[self.cfg.mocap.clock]() - last > 2 * self.cfg.mocap.stats_interval_s
+            mocap = "NO BODY" if unseen else f"{stats['rate_hz']:.0f} Hz"
+        except (OSError, ValueError, KeyError, TypeError):
             mocap = "–" if self.record_mocap else "off"
         estimate = "–" if math.isnan(watcher.latest_error_m) else f"{watcher.latest_error_m * 100:.2f} cm"
         # One line of at most ~80 characters: frames and state, estimate, pulses N, mocap rate, frames dropped

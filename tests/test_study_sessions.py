@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import time
 
 import pytest
 from rich.console import Console
@@ -81,11 +82,14 @@ def test_status_line_reads_the_growing_logs(within):
     session.record_mocap = True
     (session.attempt / "frames.csv").write_text("frame_index,timestamp,state,tracked_points,track_ms\n"
                                                 "0,1.0,OK,300,20.0\n1,1.03,LOST,0,20.0\n2,1.06,O")  # half a row
-    (session.attempt / MOCAP_STATS).write_text(json.dumps({"rate_hz": 99.6}))
-    line = session._status_line(StreamWatcher(load_network_config(), session.attempt)).plain
+    (session.attempt / MOCAP_STATS).write_text(json.dumps({"rate_hz": 99.6, "last_pose_time": time.time()}))
+    watcher = StreamWatcher(load_network_config(), session.attempt)
+    line = session._status_line(watcher).plain
     assert " 2 LOST " in line
     assert "mocap 100 Hz" in line
     assert "est –" in line and "drop 0+0" in line and len(line) <= 80
+    (session.attempt / MOCAP_STATS).write_text(json.dumps({"rate_hz": 99.6, "last_pose_time": time.time() - 5}))
+    assert "mocap NO BODY" in session._status_line(watcher).plain
 
 
 def test_row_counter_counts_complete_rows_incrementally(tmp_path):
