@@ -1,5 +1,6 @@
 """The RTS monitor: an observer of the device worker that turns each tracked frame into a :class:`FeatureFrame`
-(RTS row, and PSD on every frame that ends a model window: every ``end_stride``-th), logs it to the session folder and publishes it on the feature stream.
+(RTS row, and PSD on every frame that ends a model window: every ``end_stride``-th), logs it to the session
+folder and publishes it on the feature stream.
 
 Threading. :meth:`RtsMonitor.on_frame` runs in the tracking loop and only hands references to a bounded queue
 (``queue_size``) with ``put_nowait``: tracking never waits for the monitor. When the queue is full the frame is
