@@ -176,6 +176,9 @@ def test_study_end_to_end_with_kills(sandbox):
     assert len(read_tum(attempt / "mocap.tum")) > 10
     assert set(read_events(attempt).kind) >= {"start", "initialised", "object", "stop"}
     assert len(pd.read_csv(attempt / "advisory.csv")) > 0
+    labelled = seesys(env, "dataset", "label", str(attempt), "--out", str(root / "labels.csv"))
+    assert labelled.returncode == 0, labelled.stderr  # a study session is a labelled session like any other
+    assert (pd.read_csv(root / "labels.csv").status == "labelled").sum() > FRAMES / 2
 
     analysis = seesys(env, "analyze", str(root / "study"))
     assert analysis.returncode == 0, analysis.stderr
