@@ -176,7 +176,7 @@ class Session:
             self.pulses = advisory[ADVISORY_COLUMNS.index("n_pulses")]
         try:
             stats = json.loads((self.attempt / MOCAP_STATS).read_text())
-            # The body unseen for a stats interval: occluded markers or a wrong body name, worth the operator's eye.
+            # The body unseen for two stats intervals: occluded markers or a wrong body name, worth the operator's eye.
             last = stats["last_pose_time"]
             unseen = last is None or CLOCKS[self.cfg.mocap.clock]() - last > 2 * self.cfg.mocap.stats_interval_s
             mocap = "NO BODY" if unseen else f"{stats['rate_hz']:.0f} Hz"
