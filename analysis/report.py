@@ -126,19 +126,29 @@ def _section(c: Comparison, cfg: AnalysisConfig, figures: dict[str, Path], out: 
     return lines
 
 
+def metrics_note(metrics: MetricsConfig) -> str:
+    """How the tracking error and completeness were computed, for the report."""
+    return (f"Tracking error: the mean of evo's RPE (translation part, delta = {metrics.delta_frames} frames, "
+            f"{'all' if metrics.all_pairs else 'non-overlapping'} pairs, association within "
+            f"{metrics.association_max_dt_s * 1e3:g} ms, SE(3) alignment, Sim(3) for monocular) over a "
+            "participant's task; completeness: the share of camera frames tracked from initialisation on.")
+
+
 def render_report(table: pd.DataFrame, comparisons: list[Comparison], conditions: list[str],
-                  design: str, cfg: AnalysisConfig, figures: dict[str, Path], out: Path, title: str) -> str:
-    counts = table.groupby("condition").participant.nunique().reindex(conditions, fill_value=0)
+                  design: str, cfg: AnalysisConfig, figures: dict[str, Path], out: Path, title: str,
+                  note: str = "") -> str:
+    measured = table.dropna(subset=[c.variable.column for c in comparisons], how="all")
+    counts = measured.groupby("condition").participant.nunique().reindex(conditions, fill_value=0)
     statuses = table.status.value_counts().to_dict() if "status" in table else {}
     lines = [f"# {title}", "",
-             f"Design: {design}-subjects, conditions {', '.join(conditions)}; participants per condition: "
+             f"Design: {design}-subjects, conditions {', '.join(conditions)}; participants with data per "
+             f"condition: "
              f"{', '.join(f'{c} {n}' for c, n in counts.items())}"
              + (f"; sessions {', '.join(f'{k} {v}' for k, v in statuses.items())}." if statuses else "."),
              f"Tests at alpha = {cfg.alpha}; intervals at {cfg.confidence:.0%}. Tidy tables: participants.csv, "
              "rpe_pairs.csv, descriptives.csv, assumptions.csv, tests.csv, posthoc.csv.", ""]
-    if any(c.variable.column == "rpe_mean_m" for c in comparisons):
-        lines.append("Tracking error: the mean of evo's RPE (translation part) over all pairs of a participant's "
-                     "task; completeness: the share of camera frames tracked from initialisation on.")
+    if note:
+        lines.append(note)
     lines += ["", "## Results per condition (Table 5 layout: mean ± SD [95 % CI])", "",
               table5(comparisons, conditions, cfg).to_markdown(index=False), ""]
     for c in comparisons:
@@ -181,8 +191,8 @@ def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: M
             if path is not None:
                 figures[f"{kind}_{condition}"] = path
     title = f"Study {Path(study).resolve().name}"
-    write_report(render_report(table, comparisons, conditions, data.protocol.design, cfg, figures, out, title),
-                 out, title)
+    write_report(render_report(table, comparisons, conditions, data.protocol.design, cfg, figures, out, title,
+                               metrics_note(metrics)), out, title)
     return AnalysisResult(out, comparisons, table)
 
 
