@@ -144,3 +144,15 @@ def create_observer(context: Any, device_id: str | None = None, client_keys: dic
                              Path(client_keys["server_public_key_file"])).socket_options()
     return EstimateObserver(context.out_dir, device_id or load_monitor_config(config_dir).device_id,
                             network.features_endpoint, network.estimates_endpoint, options)
+
+
+def summary_line(out_dir: Path) -> str:
+    """One line on the session's ``estimates.csv``: how many estimates came and their end-to-end latency."""
+    import pandas as pd
+
+    table = pd.read_csv(Path(out_dir) / ESTIMATES_CSV)
+    if table.empty:
+        return f"estimates: none received (is `seesys estimator serve` running?); {ESTIMATES_CSV} is empty"
+    p50, p99 = table.end_to_end_ms.quantile([0.5, 0.99])
+    return (f"estimates: {len(table)} received, end to end (frame tracked → estimate on the device) p50 "
+            f"{p50:.1f} ms, p99 {p99:.1f} ms ({ESTIMATES_CSV})")

@@ -8,11 +8,13 @@ import json
 
 from seesys.errors import SeesysError
 from slam_monitor.device_worker import ObserverSpec
+from slam_monitor.estimates import summary_line
 from slam_monitor.monitor import MONITOR_STATS_JSON
 from slam_monitor.tracking_commands import (add_session_arguments, format_summary, run_session_with_progress,
                                             session_options_from_args)
 
 MONITOR_FACTORY = "slam_monitor.monitor:create_observer"
+ESTIMATES_FACTORY = "slam_monitor.estimates:create_observer"
 
 
 class MonitorFailed(SeesysError):
@@ -30,12 +32,16 @@ def format_monitor_stats(stats: dict) -> str:
 
 
 def monitor_run_command(args: argparse.Namespace) -> int:
-    observer = ObserverSpec(MONITOR_FACTORY, {"stream": args.stream, "device_id": args.device_id})
-    options = session_options_from_args(args, observers=[observer])
+    observers = [ObserverSpec(MONITOR_FACTORY, {"stream": args.stream or args.estimates, "device_id": args.device_id})]
+    if args.estimates:
+        observers.append(ObserverSpec(ESTIMATES_FACTORY, {"device_id": args.device_id}))
+    options = session_options_from_args(args, observers=observers)
     summary = run_session_with_progress(options)
     stats = json.loads((options.out_dir / MONITOR_STATS_JSON).read_text())
     print(format_summary(summary))
     print(format_monitor_stats(stats))
+    if args.estimates:
+        print(summary_line(options.out_dir))
     print(f"session: {options.out_dir}")
     if stats["error"] is not None:
         raise MonitorFailed(f"the RTS monitor stopped at {stats['error']}; tracking went on, its logs up to there "
@@ -55,5 +61,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_session_arguments(run)
     run.add_argument("--stream", action="store_true",
                      help="publish the features over ZeroMQ (the device keeps going when nobody listens)")
+    run.add_argument("--estimates", action="store_true",
+                     help="also receive this device's estimates from the estimator service and log them with their "
+                          "latency in estimates.csv (implies --stream)")
     run.add_argument("--device-id", metavar="ID", help="device id on the stream (default configs/monitor.toml)")
     run.set_defaults(func=monitor_run_command)

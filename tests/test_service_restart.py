@@ -17,7 +17,7 @@ from service_fixtures import ServiceProcess, ServiceSetup, tiny_model, wait_for 
 from slam_monitor import session
 from slam_monitor.device_worker import ObserverSpec, SessionOptions
 from slam_monitor.estimates import ESTIMATES_CSV
-from slam_monitor.monitor_commands import MONITOR_FACTORY
+from slam_monitor.monitor_commands import ESTIMATES_FACTORY, MONITOR_FACTORY
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.rts_log import read_rts_csv
 from slam_monitor.supervisor import run_supervised_session
@@ -25,8 +25,8 @@ from slam_monitor.supervisor import run_supervised_session
 from conftest import SAMPLE
 
 pytestmark = pytest.mark.slam
-# Back and forth over the sample: continuous motion for ORB-SLAM3, long enough (20 s at 30 Hz; a device on a loaded machine runs slower still) to outlast a
-# restart of the service on a loaded machine.
+# Back and forth over the sample: continuous motion for ORB-SLAM3, long enough (20 s at 30 Hz; a device on a
+# loaded machine runs slower still) to outlast a restart of the service.
 LEGS = 4
 
 
@@ -57,7 +57,7 @@ def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, re
     options = SessionOptions(source=f"tum:{tmp_path / 'source'}", mode=SlamMode.RGBD, out_dir=out, pace=True,
                              config_dir=setup.config_dir,
                              observers=(ObserverSpec(MONITOR_FACTORY, {"stream": True}),
-                                        ObserverSpec("slam_monitor.estimates:create_observer")))
+                                        ObserverSpec(ESTIMATES_FACTORY)))
     service = ServiceProcess(setup, tiny_model)
     restarted = None
     outcome: dict = {}

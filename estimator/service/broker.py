@@ -146,7 +146,10 @@ class Broker:
                                    receive_hwm=cfg.ingest_queue, subscribe=[b""],
                                    options=server_options)
         for endpoint in self.device_endpoints:
-            self._ingest.connect(endpoint)
+            try:
+                self._ingest.connect(endpoint)
+            except zmq.ZMQError as e:
+                raise ServiceError(f"cannot connect to the device stream at {endpoint}: {e}") from None
         self._estimates = open_socket(self.ctx, zmq.PUB, self.network.estimates_endpoint, "estimates", bind=True,
                                       send_hwm=self.network.send_high_water_mark, options=server_options)
         self._status = open_socket(self.ctx, zmq.REP, cfg.status_endpoint, "estimator status", bind=True)

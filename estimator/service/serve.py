@@ -15,6 +15,7 @@ from pathlib import Path
 
 from estimator.service.broker import Broker
 from estimator.service.config import ServiceConfig
+from estimator.service.model import ServedModel
 from estimator.service.worker import worker_process_main
 from seesys.network import NetworkConfig
 from seesys.protocol.windows import WindowConfig
@@ -25,7 +26,10 @@ _WORKER_EXIT_S = 10.0
 
 def serve(config: ServiceConfig, network: NetworkConfig, windows: WindowConfig, model: Path, workers: int,
           device_endpoints: list[str], on_ready: Callable[[Broker], None] = lambda broker: None) -> Broker:
-    """Run the service until SIGINT/SIGTERM; returns the stopped broker (its final counters)."""
+    """Run the service until SIGINT/SIGTERM; returns the stopped broker (its final counters). A model made for
+    other inputs, or a file that is no model, is refused here with one message (``ModelMismatch``), not in each
+    worker."""
+    ServedModel.load(model, windows)
     broker = Broker(config, network, device_endpoints)
     context = multiprocessing.get_context("spawn")
     backend = broker.endpoints["workers"]

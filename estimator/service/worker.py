@@ -45,6 +45,7 @@ class WorkerCounters:
     windows: int = 0
     estimates: int = 0
     batches: int = 0
+    undelivered: int = 0
     stale: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     shape_mismatch: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     restarts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
@@ -54,8 +55,8 @@ class WorkerCounters:
     def report(self, pending: int) -> dict:
         ms = np.asarray(self.batch_ms, dtype=float)
         return {"frames": self.frames, "windows": self.windows, "estimates": self.estimates,
-                "batches": self.batches, "pending": pending, "stale": dict(self.stale),
-                "shape_mismatch": dict(self.shape_mismatch), "restarts": dict(self.restarts),
+                "batches": self.batches, "undelivered": self.undelivered, "pending": pending,
+                "stale": dict(self.stale), "shape_mismatch": dict(self.shape_mismatch), "restarts": dict(self.restarts),
                 "batch_ms_p50": float(np.percentile(ms, 50)) if ms.size else None,
                 "batch_ms_p99": float(np.percentile(ms, 99)) if ms.size else None,
                 "batch_size_mean": float(np.mean(self.batch_sizes)) if self.batch_sizes else None}
@@ -89,8 +90,7 @@ class Worker:
         self._stopping = True
 
     def run(self) -> None:
-        self._socket.send_multipart([envelope.READY, envelope.pack_json(
-            {"name": self.name, "pid": os.getpid(), "model_version": self.model.version})])
+        self._send([envelope.READY, envelope.pack_json(self._identity())])
         next_heartbeat = time.monotonic()
         try:
             while not self._stopping:
@@ -100,12 +100,24 @@ class Worker:
                 if self._ready and not self._stopping:
                     self._serve_batch()
                 if time.monotonic() >= next_heartbeat:
-                    self._socket.send_multipart([envelope.STATS, envelope.pack_json(
-                        {"name": self.name, **self.counters.report(len(self._ready))})], zmq.NOBLOCK)
+                    self._send([envelope.STATS, envelope.pack_json(
+                        {**self._identity(), **self.counters.report(len(self._ready))})])
                     next_heartbeat = time.monotonic() + self.config.heartbeat_ms / 1000.0
         finally:
             self._socket.close()
             self._ctx.term()
+
+    def _identity(self) -> dict:
+        # Every report says who we are, so that a broker restarted while we ran takes us on from any message.
+        return {"name": self.name, "pid": os.getpid(), "model_version": self.model.version}
+
+    def _send(self, parts: list[bytes]) -> None:
+        """Send to the broker without ever blocking: while it is gone, messages queue up to the high-water mark and
+        the rest are dropped (estimates by then stale, reports superseded by the next)."""
+        try:
+            self._socket.send_multipart(parts, zmq.NOBLOCK)
+        except zmq.Again:
+            self.counters.undelivered += 1
 
     def _drain(self) -> None:
         for _ in range(self._drain_limit):
@@ -170,7 +182,7 @@ class Worker:
                                 (sent - ready.stamp) * 1000.0)
             parts += [*messages.encode(estimate), envelope.pack_meta(ready.stamp, s.frame_index)]
         self.counters.estimates += len(batch)
-        self._socket.send_multipart(parts)
+        self._send(parts)
 
 
 def run_worker(broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig,
