@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from estimator import dataset_commands, model_commands
+from estimator import dataset_commands, model_commands, service_commands
 from estimator.diversity import diversity_report, write_report
 from estimator.synth.batch import expand_environments, expand_motions, render_batch
 from estimator.synth.config import load_synth_config
@@ -101,3 +101,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     dataset_commands.register(subparsers)
     model_commands.register(subparsers)
+    service_commands.register(subparsers)
