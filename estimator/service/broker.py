@@ -145,6 +145,7 @@ class Broker:
         self._ingest = open_socket(self.ctx, zmq.SUB, cfg.ingest_endpoint, "feature ingest", bind=True,
                                    receive_hwm=cfg.ingest_queue, subscribe=[b""],
                                    options=server_options)
+        self.endpoints["ingest"] = bound_endpoint(self._ingest)  # before the connects, which change LAST_ENDPOINT
         for endpoint in self.device_endpoints:
             try:
                 self._ingest.connect(endpoint)
@@ -153,8 +154,7 @@ class Broker:
         self._estimates = open_socket(self.ctx, zmq.PUB, self.network.estimates_endpoint, "estimates", bind=True,
                                       send_hwm=self.network.send_high_water_mark, options=server_options)
         self._status = open_socket(self.ctx, zmq.REP, cfg.status_endpoint, "estimator status", bind=True)
-        self.endpoints.update(ingest=bound_endpoint(self._ingest), estimates=bound_endpoint(self._estimates),
-                              status=bound_endpoint(self._status))
+        self.endpoints.update(estimates=bound_endpoint(self._estimates), status=bound_endpoint(self._status))
 
     # ----------------------------------------------------------------------------------------------- loop
     def stop(self, *_: object) -> None:
