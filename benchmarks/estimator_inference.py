@@ -28,7 +28,7 @@ from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.export import OnnxModel, example_inputs, export_onnx, parity
 from estimator.deepsee.model import DeepSEE, InputShape
 from estimator.deepsee.transforms import LabelTransform
-from seesys.config import config_dir
+from seesys import resources
 from seesys.protocol import rts_schema
 from seesys.protocol.windows import load_window_config
 from slam_monitor.monitor_config import load_monitor_config
@@ -76,7 +76,7 @@ def main() -> None:
     if args.untrained:
         model, source = untrained_model(0), "untrained (configs/estimator.toml size)"
     else:
-        path = args.model or config_dir().parent / load_estimator_config().shipped_model
+        path = args.model or resources.resolve(load_estimator_config().shipped_model)
         model, source = load_model(path, transform, windows)[0], str(path)
     params = sum(p.numel() for p in model.parameters())
     load_before = os.getloadavg()

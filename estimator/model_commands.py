@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from estimator.deepsee.rows import ROW_NAMES, row
-from seesys.config import config_dir
+from seesys import resources
 from seesys.errors import SeesysError
 
 # torch, onnx and the model code are imported inside the commands: every `seesys` command builds this parser.
@@ -107,7 +107,7 @@ def _default_model(args: argparse.Namespace) -> Path:
 
     if args.model is not None:
         return args.model
-    shipped = config_dir().parent / load_estimator_config().shipped_model
+    shipped = resources.resolve(load_estimator_config().shipped_model)
     if not shipped.is_file():
         raise SeesysError(f"no shipped model at {shipped} yet; pass --model MODEL (a file from `seesys estimator "
                           f"train`)")
