@@ -38,16 +38,22 @@ def wait_for(condition: Callable[[], object], timeout_s: float = 120, what: str 
         time.sleep(0.02)
 
 
+_exported: dict[str, Path] = {}
+
+
 @pytest.fixture(scope="session")
 def tiny_model(tmp_path_factory) -> Path:
-    """An untrained DeepSEE small enough for tests, exported as the service serves it (once per test session)."""
+    """An untrained DeepSEE small enough for tests, exported as the service serves it (once per test session: each
+    module importing this fixture has its own copy of it, hence the cache)."""
     from estimator.deepsee.config import FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
     from estimator.service.model import export_untrained
 
-    config = ModelConfig(32, PsdEncoderConfig(16, 1, 2, 2.0, 0.0), RtsEncoderConfig(16, 2, 3, 0.0),
-                         FusionConfig(1, 2, 2.0, (32,), 0.0))
-    path = tmp_path_factory.mktemp("service_model") / "tiny.onnx"
-    return export_untrained(path, load_window_config(), PSD_SHAPE[:2], seed=0, model_config=config)
+    if "tiny" not in _exported:
+        config = ModelConfig(32, PsdEncoderConfig(16, 1, 2, 2.0, 0.0), RtsEncoderConfig(16, 2, 3, 0.0),
+                             FusionConfig(1, 2, 2.0, (32,), 0.0))
+        path = tmp_path_factory.mktemp("service_model") / "tiny.onnx"
+        _exported["tiny"] = export_untrained(path, load_window_config(), PSD_SHAPE[:2], seed=0, model_config=config)
+    return _exported["tiny"]
 
 
 class ServiceSetup:
