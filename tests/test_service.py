@@ -4,6 +4,7 @@ order across two workers, and the default endpoints are loopback."""
 
 from __future__ import annotations
 
+import dataclasses
 import ipaddress
 import signal
 from urllib.parse import urlparse
@@ -216,3 +217,15 @@ def test_keys_refuses_to_overwrite(tmp_path):
     make_key_pair(tmp_path, "server")
     with pytest.raises(SeesysError, match="already exists"):
         make_key_pair(tmp_path, "server")
+
+
+def test_the_served_model_fits_any_end_stride_but_not_another_window(tiny_model):
+    """The estimate rate (end_stride) is not part of what a model was made for; the window's content is."""
+    from estimator.deepsee.checkpoint import ModelMismatch
+
+    windows = load_window_config()
+    for stride in (1, 5, 10):
+        model = ServedModel.load(tiny_model, dataclasses.replace(windows, end_stride=stride))
+        assert model.psd_shape == (windows.psd_samples, 96, 128, 3)
+    with pytest.raises(ModelMismatch, match="windows"):
+        ServedModel.load(tiny_model, dataclasses.replace(windows, psd_stride=20))

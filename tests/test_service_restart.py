@@ -108,3 +108,7 @@ def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, re
     assert log.frame_index.is_monotonic_increasing
     assert (log.frame_index % load_window_config().end_stride == 0).all()
     assert log.end_to_end_ms.notna().sum() > 0 and (log.error_m >= 0).all()
+    timed = log.dropna(subset=["preprocess_ms", "transmit_inference_ms", "end_to_end_ms"])
+    assert len(timed) > 0 and (timed[["preprocess_ms", "transmit_inference_ms"]] >= 0).all().all()
+    assert (abs(timed.preprocess_ms + timed.transmit_inference_ms - timed.end_to_end_ms) < 0.01).all()
+    assert (abs(log.tracking_ms + log.end_to_end_ms - log.capture_to_estimate_ms) < 0.01).all()
