@@ -1,12 +1,15 @@
 """``seesys estimator serve`` as a real subprocess over real ZeroMQ sockets: bad input is counted while a valid
-device is served exactly what the model computes, Curve admits only allowed clients, a device's estimates stay in
-order across two workers, and the default endpoints are loopback."""
+device is served exactly what the model computes, Curve admits only allowed clients, a worker started later takes
+its share of devices and each device's estimates stay in order, stale windows are dropped and counted, and the
+default endpoints are loopback."""
 
 from __future__ import annotations
 
 import dataclasses
 import ipaddress
 import signal
+import subprocess
+import sys
 from urllib.parse import urlparse
 
 import numpy as np
@@ -137,11 +140,18 @@ def test_with_curve_a_client_not_allowed_gets_nothing_and_is_not_served(setup_fa
         service.kill()
 
 
-def test_two_workers_share_the_devices_and_keep_each_devices_order(setup_factory, tiny_model):
+def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(setup_factory, tiny_model):
+    """``serve`` with one worker, then ``seesys estimator worker`` started beside it: new devices are shared
+    between the two, and each device's estimates arrive in frame order."""
     setup = setup_factory()
-    service = ServiceProcess(setup, tiny_model, "--workers", "2")
+    service = ServiceProcess(setup, tiny_model, "--workers", "1")
+    extra = None
     try:
-        assert len(service.wait_ready()["workers"]) == 2
+        service.wait_ready()
+        extra = subprocess.Popen([sys.executable, "-m", "seesys", "estimator", "worker", "--model", str(tiny_model),
+                                  "--name", "extra"], env=setup.env, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL)
+        wait_for(lambda: len(service.status()["workers"]) == 2, what="the second worker to join")
         names = [f"dev-{k}" for k in range(6)]
         client = Client(setup, [messages.ESTIMATE_TOPIC])
         serve_in_lockstep(client, device_frames("probe", 31))  # both connections are up
@@ -173,8 +183,11 @@ def test_two_workers_share_the_devices_and_keep_each_devices_order(setup_factory
         assert per_worker == [3, 4]  # six devices and the probe
         client.close()
         assert service.stop(signal.SIGINT) == 0
+        assert extra.wait(60) == 0  # the broker told it to stop
     finally:
         service.kill()
+        if extra is not None and extra.poll() is None:
+            extra.kill()
 
 
 def test_default_endpoints_are_loopback():
