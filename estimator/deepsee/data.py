@@ -85,13 +85,14 @@ def reader_windows(reader: DatasetReader) -> Windows:
     return Windows(rts, reader, reader.index.error_m.to_numpy(np.float64), reader.index.reset_index(drop=True))
 
 
-def split_windows(roots: list[Path], splits: Splits, round_index: int) -> dict[str, Windows]:
-    """Usable windows of each part (train, validation, test) of one cross-validation round."""
+def split_windows(roots: list[Path], splits: Splits, round_index: int,
+                  parts: tuple[str, ...] = PARTS) -> dict[str, Windows]:
+    """Usable windows of the given parts (train, validation, test) of one cross-validation round."""
     if not 0 <= round_index < len(splits.rounds):
         raise DataError(f"round {round_index} not in the splits ({len(splits.rounds)} rounds)")
     split_round = splits.rounds[round_index]
     return {part: reader_windows(DatasetReader(roots, runs=getattr(split_round, part), usable_only=True))
-            for part in PARTS}
+            for part in parts}
 
 
 def read_splits(path: Path) -> Splits:

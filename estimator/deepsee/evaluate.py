@@ -70,7 +70,7 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
         trained = [(row, path) for row, path in trained if path is not None]
         if not trained:
             raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
-        sets = _sets(split_windows(roots, splits, r)["test"], splits.heldout_environments)
+        sets = _sets(split_windows(roots, splits, r, ("test",))["test"], splits.heldout_environments)
         if other is not None:
             sets[OUT_OF_DOMAIN] = other
         for row, path in trained:
