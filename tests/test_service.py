@@ -99,6 +99,11 @@ def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exa
         status = service.status()
         assert status["devices"]["dev-1"]["estimates"] >= len(estimates)
         assert status["devices"]["dev-1"]["server_ms"]["p99"] is not None
+        shown = subprocess.run([sys.executable, "-m", "seesys", "estimator", "status"], env=setup.env,
+                               capture_output=True, text=True, timeout=120)
+        assert shown.returncode == 0, shown.stderr
+        assert f"oversized {kinds['oversized']}, wrong_version {kinds['wrong_version']}" in shown.stdout
+        assert any(line.startswith("dev-1 ") and "local-0" in line for line in shown.stdout.splitlines())
         client.close()
         assert service.stop(signal.SIGTERM) == 0
         assert "stopped: 2 device(s)" in service.output()  # the probe and dev-1
