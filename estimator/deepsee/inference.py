@@ -9,9 +9,18 @@ from torch import nn
 from estimator.deepsee.data import Windows
 
 
-def batch_tensors(windows: Windows, index: np.ndarray, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
-    """The RTS (B, T, C) float32 and PSD (B, K, H, W, 3) uint8 inputs of windows ``index``, on ``device``."""
+def uses_psd(model: nn.Module) -> bool:
+    """False for the models of the RTS window only (the LSTM, DeepSEE w/o PSD): their PSD input is not read."""
+    return getattr(model, "psd_encoder", None) is not None
+
+
+def batch_tensors(windows: Windows, index: np.ndarray, device: torch.device,
+                  with_psd: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    """The RTS (B, T, C) float32 and PSD (B, K, H, W, 3) uint8 inputs of windows ``index``, on ``device``; without
+    ``with_psd`` an empty PSD tensor (the matrices are the large part to read)."""
     rts = torch.from_numpy(windows.rts[index]).to(device)
+    if not with_psd:
+        return rts, torch.zeros((len(index), 0), dtype=torch.uint8, device=device)
     psd = torch.from_numpy(np.stack([windows.psd_at(int(i)) for i in index])).to(device)
     return rts, psd
 
@@ -24,6 +33,6 @@ def predict(model: nn.Module, windows: Windows, batch_size: int, device: torch.d
     out = []
     for start in range(0, len(windows), batch_size):
         index = np.arange(start, min(start + batch_size, len(windows)))
-        out.append(model(*batch_tensors(windows, index, device)).float().cpu().numpy())
+        out.append(model(*batch_tensors(windows, index, device, uses_psd(model))).float().cpu().numpy())
     model.train(was_training)
     return np.concatenate(out) if out else np.zeros(0, np.float32)

@@ -30,7 +30,7 @@ from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_model
 from estimator.deepsee.config import EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.data import Windows, limit
-from estimator.deepsee.inference import batch_tensors, predict
+from estimator.deepsee.inference import batch_tensors, predict, uses_psd
 from estimator.deepsee.loop import run_stage, stage_seed
 from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
@@ -146,7 +146,8 @@ def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: st
     rs, ps = [], []
     batch = ctx.config.evaluation.batch_size
     for start in range(0, len(windows), batch):
-        r, p = model.encode(*batch_tensors(windows, np.arange(start, min(start + batch, len(windows))), ctx.device))
+        index = np.arange(start, min(start + batch, len(windows)))
+        r, p = model.encode(*batch_tensors(windows, index, ctx.device, uses_psd(model)))
         rs.append(r.cpu().numpy().astype(np.float16))
         if p is not None:
             ps.append(p.cpu().numpy().astype(np.float16))
@@ -197,8 +198,11 @@ def supervised(run: RunFolder, name: str, model: nn.Module, train: Windows, val:
     """A supervised stage on the whole model (stage (d), the LSTM, fine-tuning on sessions)."""
     y_train = torch.from_numpy(_targets(train, ctx.transform))
 
+    with_psd = uses_psd(model)
+
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
-        return nn.functional.mse_loss(model(*batch_tensors(train, index, ctx.device)), y_train[index].to(ctx.device))
+        inputs = batch_tensors(train, index, ctx.device, with_psd)
+        return nn.functional.mse_loss(model(*inputs), y_train[index].to(ctx.device))
 
     validate = _mse_validator(model, val, _targets(val, ctx.transform), ctx) if len(val) else None
     run_stage(run, name, model, model.parameters(), schedule, len(train), step, validate, ctx.config.seed, ctx.progress)
