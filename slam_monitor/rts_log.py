@@ -135,7 +135,8 @@ def read_psd_log(session: Path) -> Iterator[PsdRecord]:
 
 def check_rts_schema(session: Path) -> None:
     """Raise :class:`MonitorLogError` unless the session's ``rts.json`` says its ``rts.csv`` has this schema."""
-    path = Path(session) / RTS_JSON
+    session = Path(session)
+    path = session / RTS_JSON
     try:
         meta = json.loads(path.read_text())
         version, fingerprint = int(meta["rts_schema_version"]), int(meta["rts_schema_fingerprint"])

@@ -60,3 +60,23 @@ def test_shipped_network_config_loads():
     cfg = load_network_config()
     assert cfg.features_endpoint.startswith("tcp://")
     assert cfg.send_high_water_mark > 0
+
+
+def test_no_two_shipped_endpoints_share_a_port():
+    """Device, estimator service and advisory run side by side on one machine: every TCP endpoint the shipped
+    configs bind or connect to must be its own (a service and an advisory on one port cannot both start)."""
+    from seesys.config import config_dir, read_toml
+
+    def endpoints(value, where):
+        if isinstance(value, dict):
+            for key, item in value.items():
+                yield from endpoints(item, f"{where}.{key}")
+        elif isinstance(value, str) and value.startswith("tcp://"):
+            yield value.rsplit(":", 1)[1], where
+
+    seen: dict[str, str] = {}
+    for path in sorted(config_dir().glob("*.toml")):
+        for port, where in endpoints(read_toml(path), path.stem):
+            assert port not in seen, f"port {port} of {where} is also {seen[port]}"
+            seen[port] = where
+    assert len(seen) >= 6
