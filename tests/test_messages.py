@@ -1,6 +1,7 @@
 import dataclasses
 import math
 import struct
+import zlib
 
 import numpy as np
 import pytest
@@ -113,3 +114,17 @@ def test_topics_are_exact_and_device_ids_are_checked():
     for bad in ("", "a\x00b"):
         with pytest.raises(ValueError, match="device id"):
             messages.topic(messages.ESTIMATE_TOPIC, bad)
+
+
+@pytest.mark.parametrize("fill", [0.0, 0.05, 0.5, 1.0])
+def test_psd_codec_round_trips_any_matrix(fill):
+    rng = np.random.default_rng(3)
+    psd = np.where(rng.random((96, 128, 3)) < fill, rng.integers(1, 256, (96, 128, 3)), 0).astype(np.uint8)
+    np.testing.assert_array_equal(messages.unpack_psd(messages.pack_psd(psd)), psd)
+
+
+def test_a_psd_that_inflates_beyond_its_header_is_rejected():
+    bomb = zlib.compress(b"\xff" * 10_000_000)   # 10 MB of "every cell set" for a 4x4x3 header
+    data = struct.pack("<HHHI", 4, 4, 3, len(bomb)) + bomb
+    with pytest.raises(MessageError, match="does not fit its header"):
+        messages.unpack_psd(data)

@@ -186,27 +186,42 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
 
 def pack_psd(psd: np.ndarray) -> bytes:
     """The compressed form of a PSD matrix (H, W, L) uint8, as carried in a :class:`FeatureFrame` and in the
-    session's PSD log: ``u16 H | u16 W | u16 L | u32 n | n bytes zlib(H·W·L bytes, row-major)``.
+    session's PSD log: ``u16 H | u16 W | u16 L | u32 n | n bytes zlib(mask + values)``, where, layer by layer
+    (L, H, W order), ``mask`` is one bit per cell (set where the cell is non-zero, ``numpy.packbits`` order) and
+    ``values`` are the non-zero cells in the same order.
 
-    A 96×128×3 PSD of the sample (36,864 bytes, mostly zeros) deflates to ~2.5 kB.
+    A PSD is mostly zeros and each layer's values are alike, so splitting where from what and grouping by layer
+    compresses better than the raw matrix: a 96×128×3 PSD of the sample (36,864 bytes) takes ~2.45 kB instead of
+    ~2.95 kB, which keeps the device's stream under 150 kbit/s at 6 windows/s.
     """
     psd = np.asarray(psd)
     if psd.ndim != 3 or psd.dtype != np.uint8:
         raise ValueError(f"PSD must be (H, W, L) uint8, got {psd.dtype} {psd.shape}")
-    packed = zlib.compress(np.ascontiguousarray(psd).tobytes(), _PSD_LEVEL)
+    planes = np.ascontiguousarray(psd.transpose(2, 0, 1))
+    nonzero = planes != 0
+    packed = zlib.compress(np.packbits(nonzero).tobytes() + planes[nonzero].tobytes(), _PSD_LEVEL)
     return _PSD_HEAD.pack(*psd.shape, len(packed)) + packed
 
 
 def _read_psd(r: _Reader) -> np.ndarray:
     h, w, layers, n = r.unpack(_PSD_HEAD, "PSD header")
     packed = bytes(r.take(n, "PSD"))
+    cells = h * w * layers
+    mask_bytes = (cells + 7) // 8
+    inflate = zlib.decompressobj()
     try:
-        raw = zlib.decompress(packed, bufsize=h * w * layers or 1)
+        raw = inflate.decompress(packed, mask_bytes + cells)  # bounded: a small message cannot inflate to GBs
     except zlib.error as e:
         raise MessageError(f"PSD does not decompress: {e}") from None
-    if len(raw) != h * w * layers:
-        raise MessageError(f"PSD holds {len(raw)} bytes, header says {h}x{w}x{layers}")
-    return np.frombuffer(raw, dtype=np.uint8).reshape(h, w, layers)
+    if inflate.unconsumed_tail or not inflate.eof or len(raw) < mask_bytes:
+        raise MessageError(f"PSD data does not fit its header ({h}x{w}x{layers})")
+    nonzero = np.unpackbits(np.frombuffer(raw, np.uint8, mask_bytes), count=cells).astype(bool)
+    values = np.frombuffer(raw, np.uint8, offset=mask_bytes)
+    if values.size != np.count_nonzero(nonzero) or np.any(values == 0):
+        raise MessageError(f"PSD holds {values.size} values for {np.count_nonzero(nonzero)} marked cells")
+    planes = np.zeros(cells, np.uint8)
+    planes[nonzero] = values
+    return planes.reshape(layers, h, w).transpose(1, 2, 0).copy()
 
 
 def unpack_psd(data: bytes) -> np.ndarray:
