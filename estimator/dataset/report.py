@@ -1,5 +1,6 @@
-"""Label report of a dataset (issue 4, paper §5.2 and Fig. 2): how the labelled errors are spread, checked
-against the targets for a batch of RGB-D runs, and how strongly each RTS window feature follows the error.
+"""Label report of a dataset (paper §5.2 and Fig. 2): how the labelled errors are spread, checked against the
+label-spread targets for a batch of RGB-D runs (``[targets]`` of configs/dataset.toml), and how strongly each
+RTS window feature follows the error.
 
 - Label figures use every frame of every run (``frames.csv``): median, p90, p99, the shares above the advisory
   thresholds, the share of frames tracked (:class:`estimator.labels.LabelSummary`), per mode, environment and
