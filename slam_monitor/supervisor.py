@@ -11,7 +11,6 @@ process behind that hangs on a queue nobody reads.
 
 from __future__ import annotations
 
-import ctypes
 import multiprocessing
 import os
 import queue
@@ -23,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from seesys.errors import SeesysError
+from seesys.processes import die_with_parent
 from slam_monitor import session
 from slam_monitor.device_worker import (
     ProgressCallback,
@@ -36,7 +36,6 @@ POLL_S = 0.2
 # ORB-SLAM3 calls exit(-1) when a required setting is missing.
 ORBSLAM_EXIT_STATUS = 255
 # prctl(2) option: the signal this process gets when the thread that started it dies.
-PR_SET_PDEATHSIG = 1
 
 
 class WorkerCrash(SeesysError):
@@ -63,20 +62,9 @@ def _redirect_console(log_path: Path) -> None:
     os.close(fd)
 
 
-def _die_with_parent(parent_pid: int) -> None:
-    """Have the kernel kill this process when its parent dies (Linux; elsewhere nothing is done)."""
-    if not sys.platform.startswith("linux"):
-        return
-    libc = ctypes.CDLL(None, use_errno=True)
-    if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
-        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
-    if os.getppid() != parent_pid:  # the parent died before the request took effect
-        os._exit(1)
-
-
 def worker_main(options: SessionOptions, events: multiprocessing.Queue, parent_pid: int) -> None:
     """Child-process entry point: run the session, reporting progress and the outcome on ``events``."""
-    _die_with_parent(parent_pid)
+    die_with_parent(parent_pid)
     try:
         options.out_dir.mkdir(parents=True, exist_ok=True)
         _redirect_console(options.out_dir / session.SLAM_LOG)

@@ -8,7 +8,7 @@ operator believes stopped, and none holds a ZeroMQ endpoint the next session nee
 
 from __future__ import annotations
 
-import ctypes
+import functools
 import os
 import signal
 import subprocess
@@ -16,20 +16,13 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-PR_SET_PDEATHSIG = 1
+from seesys.processes import die_with_parent
+
 LOGS = "logs"
 
 
 def seesys_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "seesys", *args]
-
-
-def _die_with_parent() -> None:
-    """Runs in the child between fork and exec: SIGTERM when the parent dies."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):  # not Linux: the child may outlive a killed runner
-        pass
 
 
 @dataclass
@@ -48,7 +41,8 @@ class Child:
             # cleanly), and a child that does not stop can be killed with the processes it started.
             process = subprocess.Popen(seesys_command(*args), stdout=out, stderr=subprocess.STDOUT,
                                        stdin=subprocess.DEVNULL, env=env or os.environ.copy(),
-                                       preexec_fn=_die_with_parent, start_new_session=True)
+                                       preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM),
+                                       start_new_session=True)
         return cls(name, process, log)
 
     @property

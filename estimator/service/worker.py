@@ -28,6 +28,7 @@ import zmq
 from estimator.service import envelope
 from estimator.service.config import ServiceConfig
 from estimator.service.model import ServedModel
+from seesys.processes import die_with_parent
 from seesys.protocol import messages
 from seesys.protocol.messages import Estimate, FeatureFrame
 from seesys.protocol.transport import open_socket
@@ -197,7 +198,5 @@ def run_worker(broker_endpoint: str, model_path: Path, windows: WindowConfig, co
 def worker_process_main(broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig,
                         parent_pid: int, name: str) -> None:
     """Entry point of a worker started by ``serve``: dies with its parent (a SIGKILLed service leaves no worker)."""
-    from slam_monitor.supervisor import _die_with_parent  # the device worker's guard, the same need
-
-    _die_with_parent(parent_pid)
+    die_with_parent(parent_pid)
     run_worker(broker_endpoint, model_path, windows, config, name)
