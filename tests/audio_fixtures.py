@@ -23,6 +23,7 @@ from advisory.process import advisory_command
 from advisory.synth import pulse_onsets as buffer_onsets
 from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
 from advisory.wav import read_wav
+from polling import wait_for
 from seesys.protocol import rts_schema
 from seesys.protocol.messages import Estimate, FeatureFrame, encode
 from seesys.protocol.tracking_state import TrackingState
@@ -111,11 +112,7 @@ class Sandbox:
 def wait_until(predicate: Callable[[], bool], what: str | Callable[[], str], timeout_s: float = 60.0) -> None:
     """Poll ``predicate`` until true; a generous timeout, as the machine may be shared and loaded. ``what`` (or
     what it returns, read at the timeout) says what did not happen."""
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what() if callable(what) else what}")
-        time.sleep(0.1)  # the polling interval, not a synchronisation
+    wait_for(predicate, timeout_s, what, interval_s=0.1)
 
 
 def wait_started(sandbox: Sandbox, process: str, count: int = 1, timeout_s: float = 60.0) -> None:

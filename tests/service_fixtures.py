@@ -8,13 +8,13 @@ import shutil
 import signal
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zmq
 
+from polling import wait_for  # noqa: F401 (the service tests import it from here)
 from seesys.errors import SeesysError
 from seesys.protocol import messages, rts_schema
 from seesys.protocol.messages import FeatureFrame
@@ -24,18 +24,6 @@ from seesys.protocol.windows import load_window_config
 # Long enough for a worker to start (spawn, import torch, load the model) on a loaded 2-core machine.
 START_TIMEOUT_S = 240
 PSD_SHAPE = (96, 128, 3)
-
-
-def wait_for(condition: Callable[[], object], timeout_s: float = 120, what: str = "condition") -> object:
-    """Poll ``condition`` until it returns something true (returned); fails the test after ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.02)
 
 
 _exported: dict[str, Path] = {}

@@ -23,6 +23,7 @@ import psutil
 import pytest
 
 from advisory.config import load_advisory_config
+from polling import wait_for
 from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
 from seesys.trajectory import read_tum
 from study.estimates import read_estimate_log
@@ -74,19 +75,13 @@ def frames_logged(attempt: Path) -> int:
         return 0
 
 
-def wait_for(condition, timeout_s: float = 300) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        assert time.monotonic() < deadline, "condition not reached"
-        time.sleep(0.05)
-
-
 def run_with_events(root: Path, env: dict, participant: str, attempt: Path, *extra: str) -> None:
     """A full session: 'initialised' at once, 'object 1' once the device has tracked 20 frames."""
     proc = start_run(root, env, participant, *extra)
     proc.stdin.write("i\n")
     proc.stdin.flush()
-    wait_for(lambda: frames_logged(attempt) >= 20 or proc.poll() is not None)
+    wait_for(lambda: frames_logged(attempt) >= 20 or proc.poll() is not None, 300, "20 frames tracked",
+             interval_s=0.05)
     proc.stdin.write("o\n")
     proc.stdin.flush()
     out, err = proc.communicate(timeout=600)
@@ -101,7 +96,7 @@ def kill_at_random(root: Path, env: dict, participant: str, attempt: Path, rng: 
     proc.stdin.write("i\nn before the kill\n")
     proc.stdin.flush()
     if during_tracking:
-        wait_for(lambda: frames_logged(attempt) >= 5)
+        wait_for(lambda: frames_logged(attempt) >= 5, 300, "5 frames tracked", interval_s=0.05)
         time.sleep(rng.uniform(0.0, 1.5))
     else:
         time.sleep(rng.uniform(0.3, 8.0))
