@@ -6,7 +6,8 @@ batch sizes: (a) PSD masked reconstruction, (b) TS2Vec, the encoder pass that fi
 on cached encodings, (d) a full forward-backward step, and a validation forward pass. Data loading from the
 dataset's memory maps is not included. The load average is printed: co-tenants slow every step.
 
-Usage: ``.venv/bin/python benchmarks/estimator_training_cost.py [--windows 50000] [--steps 5] [--threads 2]``
+Usage: ``.venv/bin/python benchmarks/estimator_training_cost.py [--windows 50000] [--steps 5] [--threads 2]
+[--device cuda]`` (on a GPU every timed call ends with a device synchronisation, so the figures are wall time).
 """
 
 from __future__ import annotations
@@ -28,11 +29,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from estimator_inference import untrained_model  # noqa: E402
 
 
-def seconds_per_call(call, steps: int) -> float:
-    call()
+def seconds_per_call(call, steps: int, device: torch.device) -> float:
+    def timed() -> None:
+        call()
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+    timed()
     start = time.perf_counter()
     for _ in range(steps):
-        call()
+        timed()
     return (time.perf_counter() - start) / steps
 
 
@@ -73,35 +78,38 @@ def main() -> None:
     parser.add_argument("--windows", type=int, default=50000, help="training windows to project for")
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    device = torch.device(args.device)
     config = load_estimator_config()
     reduced = config.schedules.reduced
-    model = untrained_model(0).train()
+    model = untrained_model(0).to(device).train()
     load_before = os.getloadavg()
     batch = reduced.finetune.batch_size
-    rts, psd = example_inputs(model.shape, batch)
-    y = torch.rand(batch)
+    rts, psd = (t.to(device) for t in example_inputs(model.shape, batch))
+    y = torch.rand(batch, device=device)
     generator = torch.Generator().manual_seed(0)
-    recon = PsdReconstruction(model.psd_encoder, model.config.dim)
+    recon = PsdReconstruction(model.psd_encoder, model.config.dim).to(device)
     costs = {"psd_ssl": seconds_per_call(step(lambda: recon.loss(model.psd_input(psd), 0.5, generator),
-                                              list(recon.parameters())), args.steps),
+                                              list(recon.parameters())), args.steps, device),
              "ts2vec": seconds_per_call(step(lambda: ts2vec_loss(model.rts_encoder, rts[:16], 0.5, 0.5, generator),
-                                             list(model.rts_encoder.parameters())), args.steps),
+                                             list(model.rts_encoder.parameters())), args.steps, device),
              "full": seconds_per_call(step(lambda: torch.nn.functional.mse_loss(model(rts, psd), y),
-                                           list(model.parameters())), args.steps)}
+                                           list(model.parameters())), args.steps, device)}
     with torch.no_grad():
         model.eval()
-        costs["encode"] = seconds_per_call(lambda: model.encode(rts, psd), args.steps) / batch
-        costs["validate"] = seconds_per_call(lambda: model(rts, psd), args.steps) / batch
+        costs["encode"] = seconds_per_call(lambda: model.encode(rts, psd), args.steps, device) / batch
+        costs["validate"] = seconds_per_call(lambda: model(rts, psd), args.steps, device) / batch
         r, p = model.encode(rts, psd)
     model.train()
     head_batch = reduced.supervised_frozen.batch_size
     r, p = r.repeat(head_batch // batch, 1, 1), p.repeat(head_batch // batch, 1, 1)
     head = [q for name, q in model.named_parameters() if not name.startswith(("rts_encoder", "psd_encoder"))]
     costs["head"] = seconds_per_call(step(lambda: torch.nn.functional.mse_loss(
-        model.head(r, p), torch.rand(len(r))), head), args.steps)
-    print(f"{args.threads} torch threads, {os.cpu_count()} cores; load average before "
+        model.head(r, p), torch.rand(len(r), device=device)), head), args.steps, device)
+    hardware = torch.cuda.get_device_name(device) if device.type == "cuda" else f"{args.threads} torch threads"
+    print(f"{hardware}, {os.cpu_count()} cores; load average before "
           f"{load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}")
     print("seconds per step: " + ", ".join(f"{k} {v:.3f}" for k, v in costs.items() if k not in ("encode", "validate"))
           + f"; per window: encode {1000 * costs['encode']:.1f} ms, validate {1000 * costs['validate']:.1f} ms")

@@ -90,18 +90,24 @@ def _build(spec: dict) -> nn.Module:
     return DeepSEE(_model_config(spec["config"]), InputShape(**spec["shape"]), variant)
 
 
+def save_atomic(obj: object, path: Path) -> Path:
+    """``torch.save`` through a temporary file and a rename: a process killed while saving, or another process
+    waiting for the file, never sees half of it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(path.name + ".tmp")
+    torch.save(obj, temporary)
+    temporary.replace(path)
+    return path
+
+
 def save_model(path: Path, model: nn.Module, windows: WindowConfig, transform: LabelTransform,
                training: dict) -> Path:
     record = compatibility(windows, transform)
     payload = {"format": FORMAT_VERSION, "compatibility": record, "compatibility_hash": compatibility_hash(record),
                "model": _spec(model),
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "training": training}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(path.name + ".tmp")
-    torch.save(payload, temporary)
-    temporary.replace(path)
-    return path
+    return save_atomic(payload, path)
 
 
 def _model_config(data: dict) -> ModelConfig:

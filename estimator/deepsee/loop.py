@@ -20,6 +20,7 @@ import torch
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from torch import nn
 
+from estimator.deepsee.checkpoint import save_atomic
 from estimator.deepsee.config import StageSchedule
 from estimator.deepsee.run_folder import EpochRecord, RunFolder
 
@@ -96,15 +97,15 @@ def run_stage(run: RunFolder, name: str, module: nn.Module, parameters: Iterable
         improved = validate is not None and val_loss < best_val
         if improved:
             best_val, bad_epochs = val_loss, 0
-            torch.save(module.state_dict(), best_path)
+            save_atomic(module.state_dict(), best_path)
         elif validate is not None:
             bad_epochs += 1
         epoch += 1
         stopped = validate is not None and bad_epochs >= schedule.patience
         done = stopped or epoch >= schedule.epochs
         progress.update(task, loss=f"{train_loss:.4f} / val {val_loss:.4f}")
-        torch.save({"module": module.state_dict(), "optimizer": optimizer.state_dict(), "epoch": epoch,
-                    "best_val": best_val, "bad_epochs": bad_epochs, "stopped_early": stopped}, state_path)
+        save_atomic({"module": module.state_dict(), "optimizer": optimizer.state_dict(), "epoch": epoch,
+                     "best_val": best_val, "bad_epochs": bad_epochs, "stopped_early": stopped}, state_path)
         run.record(EpochRecord(name, epoch, train_loss, val_loss, schedule.lr, time.perf_counter() - start, improved))
     progress.update(task, completed=schedule.epochs * steps)
     if epoch > first_epoch:

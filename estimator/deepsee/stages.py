@@ -27,7 +27,7 @@ from rich.progress import Progress
 from torch import nn
 
 from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
-from estimator.deepsee.checkpoint import compatibility, save_model
+from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
 from estimator.deepsee.config import EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.data import Windows, limit
 from estimator.deepsee.inference import batch_tensors, predict, uses_psd
@@ -240,7 +240,7 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
             if model.psd_encoder is not None:
                 _psd_ssl(run, model, train, val, ctx)
             _rts_ssl(run, model, train, ctx)
-            torch.save(_encoder_state(model), run.state / ENCODERS_PT)
+            save_atomic(_encoder_state(model), run.state / ENCODERS_PT)
         frozen, finetune = ((schedule.ablation_frozen, schedule.ablation_finetune) if row.ablation
                             else (schedule.supervised_frozen, schedule.finetune))
         _frozen(run, model, train, val, frozen, ctx)
