@@ -52,7 +52,10 @@ def test_training_runs_every_stage_and_the_losses_fall(trained):
     metrics = pd.read_csv(out / METRICS_CSV)
     assert list(dict.fromkeys(metrics.stage)) == ["a_psd_ssl", "b_rts_ssl", "c_supervised_frozen", "d_finetune"]
     for stage in ("a_psd_ssl", "c_supervised_frozen"):
-        losses = metrics[metrics.stage == stage].train_loss.to_numpy()
+        rows = metrics[metrics.stage == stage]
+        # epoch 0 validates the starting weights; training epochs follow
+        assert rows.epoch.iloc[0] == 0 and np.isnan(rows.train_loss.iloc[0]) and np.isfinite(rows.val_loss.iloc[0])
+        losses = rows.train_loss.to_numpy()[1:]
         assert losses[-1] < 0.8 * losses[0], (stage, losses)
     assert (out / LOSS_PNG).stat().st_size > 1000 and model_path == out / MODEL_PT
     config = json.loads((out / CONFIG_JSON).read_text())
@@ -98,8 +101,8 @@ def test_an_interrupted_stage_resumes_from_its_last_epoch(trained, tiny_dataset,
 
     def record_then_die(self, entry):
         record(self, entry)
-        if entry.stage == "d_finetune":
-            raise KeyboardInterrupt  # killed right after the epoch's checkpoint was written
+        if entry.stage == "d_finetune" and entry.epoch >= 1:
+            raise KeyboardInterrupt  # killed right after the first training epoch's checkpoint was written
 
     monkeypatch.setattr(RunFolder, "record", record_then_die)
     with Progress(disable=True) as progress, pytest.raises(KeyboardInterrupt):

@@ -2,8 +2,9 @@
 loss, a rich progress bar with the loss and the time left.
 
 Resuming: the stage's checkpoint (``state/<stage>.pt``) holds the weights, the optimizer, the epoch reached and the
-early-stopping counters. Batch order depends only on the seed, the stage and the epoch, so a resumed stage sees the
-batches an uninterrupted one would have seen. A finished stage (its epochs done, or stopped early) is skipped on resume,
+early-stopping counters. The weights a stage starts from are validated first (epoch 0 of its metrics) and count
+as its best until an epoch beats them. Batch order depends only on the seed, the stage and the epoch, so a resumed
+stage sees the batches an uninterrupted one would have seen. A finished stage (its epochs done, or stopped early) is skipped on resume,
 its best weights loaded; giving it more epochs than it had continues it.
 """
 
@@ -79,6 +80,13 @@ def run_stage(run: RunFolder, name: str, module: nn.Module, parameters: Iterable
     steps = len(epoch_batches(n_train, schedule, seed, name, 0))
     task = progress.add_task(name, total=schedule.epochs * steps, completed=epoch * steps, loss="-")
     first_epoch = epoch
+    if not done and epoch == 0 and validate is not None:
+        # The starting weights compete too: a stage that never beats them (fine-tuning on a few sessions that
+        # over-fits from the first epoch) ends with the weights it was given, not a worse epoch.
+        start = time.perf_counter()
+        best_val = validate()
+        save_atomic(module.state_dict(), best_path)
+        run.record(EpochRecord(name, 0, float("nan"), best_val, schedule.lr, time.perf_counter() - start, True))
     while not done and epoch < schedule.epochs:
         start = time.perf_counter()
         module.train()
