@@ -1,6 +1,6 @@
 """The ``seesys`` command: one subcommand group per part of the system.
 
-Each part (``slam_monitor``, ``estimator``, ``advisory``, ``study``, ``analysis``) exposes
+Each part (``slam_monitor``, ``estimator``, ``advisory``, ``study``, ``analysis``, and the app, ``seesys.app``) exposes
 ``register(subparsers)`` in its ``cli`` module; a registered command sets ``func`` to a callable taking the
 parsed arguments and returning an exit status. The CLI layer only parses and reports: the work is in the
 libraries.
@@ -21,6 +21,7 @@ PART_MODULES = (
     "advisory.cli",
     "study.cli",
     "analysis.cli",
+    "seesys.app.cli",
 )
 
 

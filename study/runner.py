@@ -1,6 +1,6 @@
 """``seesys study run``: one participant's session in one phase, composed of the existing commands.
 
-Each run writes a new attempt folder (``study.sessions``) and, as child processes (``study.children``):
+Each run writes a new attempt folder (``study.sessions``) and, as child processes (``seesys.children``):
 
 - the device: ``seesys monitor run --stream`` (ORB-SLAM3 + RTS monitor, publishing the feature stream), writing
   its session files into the attempt folder;
@@ -36,10 +36,10 @@ from rich.live import Live
 from rich.text import Text
 
 from advisory.logs import ADVISORY_COLUMNS, ADVISORY_CSV, CsvLog
+from seesys.children import Child, RowCounter, last_line
 from seesys.errors import SeesysError
 from seesys.network import load_network_config
 from slam_monitor.session import utc_now
-from study.children import Child
 from study.config import StudyConfig
 from study.logfiles import write_json_atomically
 from study.mocap.calibrate import CALIBRATION_JSON, GROUND_TRUTH, MOCAP_LOG, calibrate_session
@@ -100,40 +100,6 @@ def _supersede(phase_folder: Path) -> None:
         write_json_atomically(attempt / RUN_JSON, run)
 
 
-def _tail(path: Path) -> str:
-    """The last complete line of a log ("" when none)."""
-    try:
-        with path.open("rb") as f:
-            f.seek(0, os.SEEK_END)
-            f.seek(max(0, f.tell() - 4096))
-            lines = f.read().decode(errors="replace").split("\n")
-    except OSError:
-        return ""
-    complete = lines[:-1]  # the part after the last newline may be half-written
-    return complete[-1] if complete and not complete[-1].startswith(("frame_index", "wall_time")) else ""
-
-
-class RowCounter:
-    """Complete data rows of a growing log (lines after the header), reading only what was added since the
-    last call."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self._offset = 0
-        self._lines = 0
-
-    def __call__(self) -> int:
-        try:
-            with self.path.open("rb") as f:
-                f.seek(self._offset)
-                added = f.read()
-        except OSError:
-            return 0
-        self._offset += len(added)
-        self._lines += added.count(b"\n")
-        return max(0, self._lines - 1)
-
-
 class Session:
     """One run of ``seesys study run`` (see the module docstring)."""
 
@@ -169,9 +135,9 @@ class Session:
         self.events_logged += 1
 
     def _status_line(self, watcher: StreamWatcher) -> Text:
-        row = _tail(self.attempt / "frames.csv").split(",")
+        row = last_line(self.attempt / "frames.csv").split(",")
         state = row[2] if len(row) > 2 else "starting"
-        advisory = _tail(self.attempt / ADVISORY_CSV).split(",")
+        advisory = last_line(self.attempt / ADVISORY_CSV).split(",")
         if len(advisory) == len(ADVISORY_COLUMNS):
             self.pulses = advisory[ADVISORY_COLUMNS.index("n_pulses")]
         try:

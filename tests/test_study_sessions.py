@@ -11,13 +11,14 @@ import time
 import pytest
 from rich.console import Console
 
+from seesys.children import RowCounter
 from seesys.errors import SeesysError
 from seesys.network import load_network_config
 from study.config import load_study_config
 from study.mocap.logger import MOCAP_STATS
 from study.operator import OperatorInput
 from study.protocol import make_protocol, write_protocol
-from study.runner import RowCounter, RunOptions, Session, choose_condition
+from study.runner import RunOptions, Session, choose_condition
 from study.sessions import INCOMPLETE, next_attempt_folder, phase_status, read_run
 from study.watch import StreamWatcher
 

@@ -1,0 +1,59 @@
+"""``seesys run``: a thin wrapper over :mod:`seesys.app.run`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from advisory.conditions import Condition
+
+
+def _run(args: argparse.Namespace) -> int:
+    from seesys.app.run import App, RunOptions
+
+    options = RunOptions(source=args.source, condition=Condition(args.condition), out=args.out, local=args.local,
+                         estimator=args.estimator, model=args.model, wav=args.wav, mode=args.mode, pace=args.pace,
+                         max_frames=args.max_frames)
+    result = App(options).run()
+    s = result.summary
+    latency = s["end_to_end_ms"]
+    print(f"{result.status}: {s['frames']} frames, {s['estimates']} estimates (end to end p50 {latency['p50']} / "
+          f"p95 {latency['p95']} ms), {s['buffers']} advisory buffers; audio {s['audio']}; "
+          f"session {result.folder}" + (f"\nerror: {s['error']}" if s["error"] else ""))
+    return {"completed": 0, "interrupted": 130}.get(result.status, 1)
+
+
+def _positive(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
+    return int(text)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``seesys run`` to the command line."""
+    p = subparsers.add_parser(
+        "run", help="the handheld advisory as one app: device, estimator and advisory, supervised, with a live view",
+        description="Start the device (ORB-SLAM3 + RTS monitor), the estimator (local, or a remote service's "
+                    "estimates) and the advisory; supervise them, show a live view, and write one session folder "
+                    "with every part's logs and summary.json. Ctrl-C stops everything cleanly. Defaults: "
+                    "configs/app.toml.")
+    p.add_argument("--source", required=True, metavar="KIND:PATH",
+                   help="frame source, as for `seesys track` (tum:DIR, realsense:, rsbag:FILE, ...)")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--local", action="store_true", help="run the estimator service on this machine")
+    where.add_argument("--estimator", metavar="HOST:PORT",
+                       help="a remote estimator service's estimates endpoint (it must reach this device's feature "
+                            "stream: features_endpoint of configs/network.toml)")
+    p.add_argument("--condition", choices=[c.value for c in Condition], required=True,
+                   help="what the advisory plays: seesys (Equation 2 on the estimates), rotation, none (silent)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="session folder to create (new or empty)")
+    p.add_argument("--wav", action="store_true",
+                   help="write the audio to a WAV in the session folder instead of playing it (needs jackd)")
+    p.add_argument("--model", type=Path, help="the local estimator's ONNX model (default: configs/service.toml)")
+    p.add_argument("--mode", choices=["rgbd", "mono"], help="SLAM mode (default: configs/app.toml)")
+    pacing = p.add_mutually_exclusive_group()
+    pacing.add_argument("--pace", dest="pace", action="store_true", default=None,
+                        help="play a recording at camera rate (default: configs/app.toml)")
+    pacing.add_argument("--no-pace", dest="pace", action="store_false", help="feed frames as fast as SLAM takes them")
+    p.add_argument("--max-frames", type=_positive, metavar="N", help="stop the device after N frames")
+    p.set_defaults(func=_run)

@@ -1,0 +1,323 @@
+"""``seesys run``: the device, the estimator and the advisory started and supervised as one app.
+
+One run writes one session folder (``--out``, new or empty):
+
+- the device's files (``seesys monitor run --stream --estimates``): ``frames.csv``, ``trajectory.tum``, ``rts.csv``,
+  ``psd/``, ``estimates.csv`` (every estimate the device received, with its end-to-end latency) and, from a
+  recording with one, ``groundtruth.tum``;
+- the advisory's files (generator and player): ``advisory.csv``, ``playback.csv``, ``advisory_events.csv`` and,
+  when the audio goes to a file, the WAV (``configs/app.toml`` ``output.wav``);
+- ``logs/<part>.log``: each child's output (device, estimator, generator, player), and ``logs/estimates.csv``, the
+  estimates as the app itself received them (``study.watch``);
+- ``app_events.csv``: what the app did and saw (starts, exits, restarts, the stop), one row each, flushed;
+- ``configs/``: the configuration every child ran with (a copy of the configs in use, with the run's changes);
+- at the end ``summary.json`` and the plot (``seesys.app.summary``).
+
+Children start in dependency order: the estimator (``--local``: ``seesys estimator serve``) until it answers its
+status endpoint, the advisory until the generator logs a buffer and the player has started, then the device, so
+that no frame is tracked without an estimator or audio. The device is never restarted: its exit ends the run
+(``completed`` at the end of a recording, ``failed`` otherwise, with its logs kept). A local estimator, generator
+or player that exits is reported in the view and in ``app_events.csv`` and restarted after ``restart_delay_s``,
+at most ``max_restarts`` times; the device goes on tracking and logging meanwhile, and estimates resume once the
+new estimator has filled a window. Ctrl-C or SIGTERM interrupts the device (it closes its files) and then stops
+the rest; every child also dies with the app if the app itself is killed (``seesys.processes``).
+
+Audio: the configured output device (``configs/advisory.toml`` ``[audio]``; the default one unless named). With
+none (no sound card), or with ``--wav``, the player plays into a private JACK dummy server that the app starts
+(``advisory.sandbox``) and writes what it played to the WAV; without ``jackd`` installed that is an error.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from advisory.conditions import Condition
+from advisory.config import load_advisory_config
+from advisory.logs import ADVISORY_CSV, EVENTS_CSV, CsvLog
+from advisory.process import stop_on_signals
+from advisory.sandbox import JACK_HOST_API, JackDummy, write_config_dir
+from advisory.supervisor import process_commands
+from seesys.app.config import AppConfig, load_app_config
+from seesys.app.summary import write_summary
+from seesys.app.view import LiveView
+from seesys.children import LOGS, Child, CsvTail, RowCounter
+from seesys.config import CONFIG_DIR_ENV
+from seesys.errors import SeesysError
+from seesys.network import load_network_config
+from slam_monitor.session import utc_now
+from study.watch import StreamWatcher
+
+EVENT_COLUMNS = ("wall_time", "part", "event", "detail")
+CONFIGS = "configs"
+# How long the app waits for its own subscriber sockets before any publisher starts.
+SUBSCRIBER_READY_S = 5.0
+# Parts restarted when they exit; the device's exit ends the run.
+RESTARTABLE = ("estimator", "generator", "player")
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    source: str
+    condition: Condition
+    out: Path
+    local: bool = False
+    estimator: str | None = None  # HOST:PORT of a remote service's estimates endpoint
+    model: Path | None = None  # a local estimator's ONNX model (default: configs/service.toml)
+    wav: bool = False
+    mode: str | None = None
+    pace: bool | None = None
+    max_frames: int | None = None
+
+
+@dataclass
+class RunResult:
+    folder: Path
+    status: str
+    summary: dict
+
+
+def estimates_endpoint(host_port: str) -> str:
+    """``tcp://HOST:PORT`` from ``HOST:PORT``; SeesysError naming the problem when it is not one."""
+    host, sep, port = host_port.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise SeesysError(f"--estimator wants HOST:PORT (the service's estimates endpoint, e.g. 192.168.1.20:5556), "
+                          f"got {host_port!r}")
+    return f"tcp://{host}:{port}"
+
+
+def _new_folder(out: Path) -> Path:
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise SeesysError(f"{out} exists and is not an empty folder: give a new folder for the session")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+@dataclass
+class _Part:
+    """A supervised child and how often it was restarted."""
+
+    name: str
+    args: list[str]
+    child: Child
+    restarts: int = 0
+    restart_at: float | None = None  # monotonic time of a pending restart
+    exits: list[int] = field(default_factory=list)
+
+
+class App:
+    """One run of ``seesys run`` (see the module docstring)."""
+
+    def __init__(self, options: RunOptions, cfg: AppConfig | None = None):
+        if options.local == (options.estimator is not None):
+            raise SeesysError("give either --local (start the estimator on this machine) or --estimator HOST:PORT")
+        self.o = options
+        self.cfg = cfg or load_app_config()
+        self.advisory = load_advisory_config()
+        self.mode = options.mode or self.cfg.device.mode
+        self.pace = self.cfg.device.pace if options.pace is None else options.pace
+        self.folder = _new_folder(options.out)
+        self.parts: dict[str, _Part] = {}
+        self.jack: JackDummy | None = None
+        self.audio = "none (silent condition)"
+        self.stopping = False
+
+    # -- set-up ---------------------------------------------------------------------------------------------------
+
+    def _audio_overrides(self) -> dict[str, object]:
+        """Where the audio goes: the output device, or a JACK dummy server and the WAV (see the module doc)."""
+        if not self.o.condition.audible:
+            return {}
+        if not self.o.wav:
+            from advisory.audio_device import AudioDeviceError, check_output_device
+
+            try:
+                device = check_output_device(self.advisory.audio)
+                self.audio = f"output device {device.name!r} ({device.host_api})"
+                return {}
+            except AudioDeviceError as e:
+                self.event("app", "no audio output", f"{e}; playing into a WAV instead")
+        if not JackDummy.available():
+            raise SeesysError("no sound card, and jackd is not installed to write the audio to a WAV instead "
+                              "(apt package jackd2), or run with --condition none")
+        self.jack = JackDummy(self.advisory.audio.sample_rate, self.advisory.audio.blocksize)
+        self.jack.start()
+        self.audio = f"WAV {self.cfg.output.wav} (JACK dummy server {self.jack.name})"
+        return {"host_api": JACK_HOST_API, "output_device": ""}
+
+    def _configure(self) -> dict[str, str]:
+        """The run's config folder and the children's environment."""
+        overrides = self._audio_overrides()
+        if self.o.estimator is not None:
+            overrides["estimates_endpoint"] = estimates_endpoint(self.o.estimator)
+        self.config_dir = write_config_dir(self.folder / CONFIGS, overrides)
+        env = {**os.environ, CONFIG_DIR_ENV: str(self.config_dir)}
+        if self.jack is not None:
+            env.update(self.jack.env())
+        return env
+
+    def event(self, part: str, event: str, detail: str = "") -> None:
+        self.events.write(time.time(), part, event, detail)
+        if hasattr(self, "view"):
+            self.view.note(f"{part}: {event}" + (f" ({detail})" if detail else ""))
+
+    def _start(self, name: str, args: list[str]) -> None:
+        child = Child.start(name, args, self.folder, self.env)
+        part = self.parts.get(name)
+        if part is None:
+            self.parts[name] = _Part(name, args, child)
+        else:
+            part.child, part.restart_at = child, None
+        self.event(name, "started", f"pid {child.process.pid}")
+
+    def _estimator_args(self) -> list[str]:
+        return ["estimator", "serve"] + (["--model", str(self.o.model)] if self.o.model else [])
+
+    def _advisory_args(self) -> dict[str, list[str]]:
+        """``seesys advisory generator|player`` arguments (the advisory supervisor's commands, the player writing
+        the WAV when the audio goes to a file)."""
+        commands = {name: command[command.index("advisory"):]
+                    for name, command in process_commands(self.o.condition, self.folder).items()}
+        if "player" in commands and self.jack is not None:
+            commands["player"] += ["--capture", str(self.folder / self.cfg.output.wav)]
+        return commands
+
+    def _device_args(self) -> list[str]:
+        args = ["monitor", "run", "--source", self.o.source, "--mode", self.mode, "--out", str(self.folder),
+                "--estimates", "--pace" if self.pace else "--no-pace"]
+        return args + (["--max-frames", str(self.o.max_frames)] if self.o.max_frames else [])
+
+    def _wait_ready(self, ready: dict[str, object], stop) -> None:
+        """Until each named child's readiness check passes; SeesysError when one exits or the time is up."""
+        deadline = time.monotonic() + self.cfg.supervision.ready_timeout_s
+        while not all(check() for check in ready.values()):
+            for name in ready:
+                child = self.parts[name].child
+                if not child.running:
+                    raise SeesysError(f"the {name} exited while starting (status {child.process.returncode}): "
+                                      f"{child.last_line()} (log: {child.log})")
+            if time.monotonic() > deadline:
+                late = [name for name, check in ready.items() if not check()]
+                raise SeesysError(f"{' and '.join(late)} not ready after {self.cfg.supervision.ready_timeout_s:g} s "
+                                  f"(logs: {self.folder / LOGS})")
+            self.view.update()
+            if stop.wait(self.cfg.supervision.status_interval_s):
+                raise KeyboardInterrupt
+
+    def _player_started(self) -> bool:
+        rows = self._advisory_events.new_rows()
+        self._player_up = getattr(self, "_player_up", False) or any(
+            r["process"].startswith("player[") and r["event"] == "started" for r in rows)
+        return self._player_up
+
+    def _start_children(self, stop) -> None:
+        if self.o.local:
+            self._start("estimator", self._estimator_args())
+            self._wait_ready({"estimator": self.view.estimator_answers}, stop)
+        advisory = self._advisory_args()
+        for name, args in advisory.items():
+            self._start(name, args)
+        generator_rows = RowCounter(self.folder / ADVISORY_CSV)
+        self._advisory_events = CsvTail(self.folder / EVENTS_CSV)
+        checks = {"generator": lambda: generator_rows() > 0, "player": self._player_started}
+        self._wait_ready({name: checks[name] for name in advisory}, stop)
+        self._start("device", self._device_args())
+
+    # -- supervision ----------------------------------------------------------------------------------------------
+
+    def _supervise(self, part: _Part) -> None:
+        """Notice an exit of a restartable part; restart it when its delay is over (or give up, ending the run)."""
+        now = time.monotonic()
+        if part.restart_at is None:
+            if part.child.running:
+                return
+            code = part.child.process.returncode
+            part.exits.append(code)
+            how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"status {code}"
+            if part.restarts >= self.cfg.supervision.max_restarts:
+                self.event(part.name, "exited", f"{how}; restarted {part.restarts} times already, giving up")
+                raise SeesysError(f"the {part.name} exited ({how}) after {part.restarts} restarts: "
+                                  f"{part.child.last_line()} (log: {part.child.log})")
+            self.event(part.name, "exited", f"{how}: {part.child.last_line()}; restarting in "
+                                            f"{self.cfg.supervision.restart_delay_s:g} s")
+            part.restart_at = now + self.cfg.supervision.restart_delay_s
+        elif now >= part.restart_at:
+            part.restarts += 1
+            self._start(part.name, part.args)
+            self.event(part.name, "restarted", f"restart {part.restarts}")
+
+    def _stop_children(self) -> dict[str, int | None]:
+        timeout = self.cfg.supervision.stop_timeout_s
+        exits: dict[str, int | None] = {}
+        device = self.parts.get("device")
+        if device is not None:
+            # SIGINT: the device ends its source, flushes and closes its files, and prints its summary.
+            device.child.signal(signal.SIGINT)
+            try:
+                exits["device"] = device.child.process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                exits["device"] = device.child.stop(timeout)
+        for name, part in self.parts.items():
+            if name != "device":
+                exits[name] = part.child.stop(timeout)
+        return exits
+
+    def run(self) -> RunResult:
+        """Run until the device ends, a signal stops it, or a part fails beyond restarting; then stop every child,
+        write the summary and return it. SeesysError when the app cannot start."""
+        self.events = CsvLog(self.folder / self.cfg.output.events, EVENT_COLUMNS)
+        started = utc_now()
+        stop = stop_on_signals()
+        status, error = "completed", None
+        watcher: StreamWatcher | None = None
+        try:
+            self.env = self._configure()
+            self.event("app", "started", f"source {self.o.source}, condition {self.o.condition.value}, "
+                                         f"estimator {'local' if self.o.local else self.o.estimator}, "
+                                         f"audio {self.audio}")
+            network = load_network_config(self.config_dir)
+            watcher = StreamWatcher(network, self.folder / LOGS)
+            (self.folder / LOGS).mkdir(exist_ok=True)
+            watcher.start()
+            watcher.wait_ready(SUBSCRIBER_READY_S)
+            self.view = LiveView(self, watcher)
+            with self.view.shown():
+                self._start_children(stop)
+                device = self.parts["device"].child
+                while not stop.wait(self.cfg.supervision.status_interval_s):
+                    if not device.running:
+                        code = device.process.returncode
+                        status = "completed" if code == 0 else "failed"
+                        if code != 0:
+                            error = f"the device exited with status {code}: {device.last_line()}"
+                        self.event("device", "ended", f"status {code}")
+                        break
+                    for name in RESTARTABLE:
+                        if name in self.parts:
+                            self._supervise(self.parts[name])
+                    self.view.update()
+                else:
+                    status = "interrupted"
+                    self.event("app", "interrupted", "signal received")
+        except KeyboardInterrupt:
+            status = "interrupted"
+            self.event("app", "interrupted", "signal received while starting")
+        except SeesysError as e:
+            status, error = "failed", str(e)
+            self.event("app", "failed", error)
+        finally:
+            self.stopping = True
+            exits = self._stop_children()
+            if watcher is not None:
+                watcher.stop()
+            if self.jack is not None:
+                self.jack.stop()
+            self.event("app", "stopped", status)
+            self.events.close()
+        summary = write_summary(self, status=status, error=error, started=started, ended=utc_now(), exits=exits,
+                                watcher=watcher)
+        return RunResult(self.folder, status, summary)
