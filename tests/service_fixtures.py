@@ -21,7 +21,7 @@ from seesys.protocol.messages import FeatureFrame
 from seesys.protocol.tracking_state import TrackingState
 from seesys.protocol.windows import load_window_config
 
-# Long enough for a worker to start (spawn, import torch, load the model) on a loaded 2-core machine.
+# Long enough for a worker to start (spawn, import ONNX Runtime, load the model) on a loaded 2-core machine.
 START_TIMEOUT_S = 240
 PSD_SHAPE = (96, 128, 3)
 

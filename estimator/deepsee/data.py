@@ -20,7 +20,7 @@ import pandas as pd
 from estimator.dataset.config import load_dataset_config
 from estimator.dataset.splits import Splits
 from estimator.dataset.store import DatasetReader
-from estimator.deepsee.model import InputShape
+from estimator.deepsee.compatibility import InputShape
 from estimator.deepsee.transforms import prepare_rts
 from estimator.labels import LabelStatus, label_session, load_label_config
 from seesys.errors import SeesysError

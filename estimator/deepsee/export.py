@@ -1,5 +1,5 @@
-"""The served model: ONNX export with the weights inside the one file, a parity check against PyTorch, and an
-ONNX Runtime session that refuses a model made for other inputs.
+"""The served model: ONNX export with the weights inside the one file and a parity check against PyTorch. The
+ONNX Runtime session that serves it, without PyTorch, is :class:`estimator.deepsee.onnx_model.OnnxModel`.
 
 The exported graph takes ``rts`` (B, T, C) float32 (normalised) and ``psd`` (B, K_L, H, W, 3) uint8 and returns
 ``y`` (B,), the transformed error; the batch size is dynamic. The checkpoint's compatibility record and hash
@@ -16,17 +16,14 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-import onnxruntime as ort
 import torch
 from torch import nn
 
-from estimator.deepsee.checkpoint import ModelMismatch, check_compatible, compatibility, compatibility_hash
-from estimator.deepsee.model import InputShape
+from estimator.deepsee.compatibility import compatibility, compatibility_hash
+from estimator.deepsee.onnx_model import COMPATIBILITY_KEY, HASH_KEY, OnnxModel
 from estimator.deepsee.transforms import LabelTransform
-from seesys.protocol.windows import WindowConfig, load_window_config
+from seesys.protocol.windows import WindowConfig
 
-COMPATIBILITY_KEY = "seesys_compatibility"
-HASH_KEY = "seesys_compatibility_hash"
 PARITY_TOLERANCE = 1e-4
 
 
@@ -56,36 +53,6 @@ def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: 
         entry.key, entry.value = key, value
     onnx.save_model(proto, str(path), save_as_external_data=False)
     return path
-
-
-class OnnxModel:
-    """An ONNX Runtime session of an exported model on ``threads`` intra-op threads (1: the serving setting; a
-    second thread helps little and, with anything else running, costs more than it gives)."""
-
-    def __init__(self, path: Path, transform: LabelTransform, windows: WindowConfig | None = None, threads: int = 1):
-        path = Path(path)
-        try:
-            proto = onnx.load_model(str(path), load_external_data=False)
-        except FileNotFoundError:
-            raise ModelMismatch(f"model file not found: {path}") from None
-        except Exception as e:  # onnx raises DecodeError and others on a file that is not a model
-            raise ModelMismatch(f"{path} is not an ONNX model: {e}") from None
-        meta = {p.key: p.value for p in proto.metadata_props}
-        if COMPATIBILITY_KEY not in meta:
-            raise ModelMismatch(f"{path} carries no SEESys compatibility record: not exported by seesys estimator")
-        check_compatible(json.loads(meta[COMPATIBILITY_KEY]), str(path), windows or load_window_config(), transform)
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
-        options.inter_op_num_threads = 1
-        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        self.session = ort.InferenceSession(proto.SerializeToString(), options, providers=["CPUExecutionProvider"])
-        rts, psd = (i.shape[1:] for i in self.session.get_inputs())
-        self.shape = InputShape(*rts, *psd[:3])
-
-    def __call__(self, rts: np.ndarray, psd: np.ndarray) -> np.ndarray:
-        return self.session.run(None, {"rts": np.ascontiguousarray(rts, np.float32),
-                                       "psd": np.ascontiguousarray(psd, np.uint8)})[0]
 
 
 def parity(model: nn.Module, onnx_model: OnnxModel, batches: tuple[int, ...] = (1, 7)) -> float:

@@ -17,26 +17,14 @@ parameters, and it fixes T and K_L); the cross-attention layers have residual pa
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from estimator.deepsee.compatibility import InputShape
 from estimator.deepsee.config import FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
 from estimator.deepsee.rows import Variant
 from estimator.deepsee.transforms import psd_layer_mask, rts_channel_mask
-
-
-@dataclass(frozen=True)
-class InputShape:
-    """What one window holds: T RTS rows of C channels, K_L PSD matrices of H × W cells."""
-
-    rts_length: int
-    channels: int
-    psd_samples: int
-    psd_height: int
-    psd_width: int
 
 
 class Attention(nn.Module):

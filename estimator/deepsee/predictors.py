@@ -1,6 +1,9 @@
 """Any trained model file as one thing that maps windows to estimates: a PyTorch checkpoint (DeepSEE, an
 ablation, the LSTM), an exported ONNX model, or the random forest's pickle. Each is checked against this
-installation's RTS schema, windows and label transform before it is used."""
+installation's RTS schema, windows and label transform before it is used.
+
+PyTorch and scikit-learn are imported only for the kinds that need them: loading an ONNX model imports neither.
+"""
 
 from __future__ import annotations
 
@@ -8,18 +11,19 @@ import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import torch
+from typing import TYPE_CHECKING
 
-from estimator.deepsee.baselines import window_statistics
-from estimator.deepsee.checkpoint import ModelMismatch, check_compatible, load_model
+import numpy as np
+
+from estimator.deepsee.compatibility import InputShape, ModelMismatch, check_compatible
 from estimator.deepsee.data import DataError, Windows
-from estimator.deepsee.export import OnnxModel
-from estimator.deepsee.inference import predict
-from estimator.deepsee.model import InputShape
+from estimator.deepsee.onnx_model import OnnxModel
 from estimator.deepsee.transforms import LabelTransform
 from seesys.protocol.rts_schema import NUM_CHANNELS
 from seesys.protocol.windows import WindowConfig, load_window_config
+
+if TYPE_CHECKING:
+    import torch
 
 
 @dataclass
@@ -69,6 +73,8 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
         model = OnnxModel(path, transform, windows)
         return Predictor(path, "onnx", transform, _onnx_runner(model, batch_size), model.shape)
     if path.suffix == ".pkl":
+        from estimator.deepsee.baselines import window_statistics
+
         try:
             record = pickle.loads(path.read_bytes())
         except FileNotFoundError:
@@ -80,6 +86,11 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
         return Predictor(path, "random_forest", transform,
                          lambda w: forest.predict(window_statistics(w.rts)).astype(np.float32),
                          InputShape(windows.rts_length, NUM_CHANNELS, 0, 0, 0))
+    import torch
+
+    from estimator.deepsee.checkpoint import load_model
+    from estimator.deepsee.inference import predict
+
     device = device or torch.device("cpu")
     model, payload = load_model(path, transform, windows)
     model = model.to(device)

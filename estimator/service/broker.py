@@ -72,6 +72,7 @@ class WorkerState:
     identity: bytes
     name: str
     pid: int
+    provider: str
     last_seen: float
     forwarded: int = 0
     devices: set[str] = field(default_factory=set)
@@ -273,7 +274,8 @@ class Broker:
                 self._backend.send_multipart([identity, envelope.STOP], zmq.NOBLOCK)
                 return
             self.model_version = version
-            worker = self.workers[identity] = WorkerState(identity, data["name"], data["pid"], time.monotonic())
+            worker = self.workers[identity] = WorkerState(identity, data["name"], data["pid"],
+                                                          data.get("provider", "unknown"), time.monotonic())
         worker.last_seen = time.monotonic()
         if is_stats:
             worker.report = data
@@ -327,7 +329,7 @@ class Broker:
                 "dropped": {"stale": stale.get(device_id, 0), "queue_full": d.queue_full,
                             "no_worker": d.no_worker, "out_of_order": d.out_of_order},
                 "server_ms": _percentiles(d.latency_ms)}
-        workers = [{"name": w.name, "pid": w.pid, "devices": sorted(w.devices),
+        workers = [{"name": w.name, "pid": w.pid, "provider": w.provider, "devices": sorted(w.devices),
                     "queue_depth": max(0, w.forwarded - w.report.get("frames", 0)) + w.report.get("pending", 0),
                     "last_seen_s": now - w.last_seen,
                     **{k: w.report.get(k) for k in ("estimates", "batches", "batch_ms_p50", "batch_ms_p99",

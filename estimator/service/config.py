@@ -24,6 +24,7 @@ class ServiceConfig:
     status_endpoint: str
     workers: int
     model: str
+    providers: str
     max_message_bytes: int
     max_batch: int
     stale_after_ms: float

@@ -1,6 +1,9 @@
 """The model a worker serves: an exported ONNX model (checked against this installation's RTS schema, windows and
-label transform when loaded), its version string, and the window shape it accepts; and the untrained stand-in
-served until a trained model ships."""
+label transform when loaded), its version string, the window shape it accepts and the ONNX Runtime execution
+provider that runs it; and the untrained stand-in served until a trained model ships.
+
+Serving imports neither PyTorch nor the ``onnx`` package (:mod:`estimator.deepsee.onnx_model`): a worker starts in
+well under a second plus the model's load. Only :func:`export_untrained` needs PyTorch."""
 
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.deepsee.config import ModelConfig, load_estimator_config
+from estimator.deepsee.onnx_model import OnnxModel
 from estimator.deepsee.transforms import LabelTransform, prepare_rts
 from seesys.protocol.windows import WindowConfig, WindowSample
 
@@ -27,19 +31,19 @@ class ServedModel:
 
     version: str
     psd_shape: tuple[int, int, int, int]  # (K_L, H, W, 3) of one window
+    provider: str  # the ONNX Runtime execution provider that runs it, e.g. CPUExecutionProvider
     _model: object
     _transform: LabelTransform
 
     @classmethod
-    def load(cls, path: Path, windows: WindowConfig, threads: int = 1) -> ServedModel:
-        """Load ``path`` on ``threads`` intra-op threads; raises ``ModelMismatch`` for a model made for other
-        inputs or a file that is not one."""
-        from estimator.deepsee.export import OnnxModel  # imports torch: only where a model is served
-
+    def load(cls, path: Path, windows: WindowConfig, threads: int = 1, providers: str = "auto") -> ServedModel:
+        """Load ``path`` on ``threads`` intra-op threads and the execution providers of ``providers`` (``auto``,
+        ``cpu`` or ``cuda``: see :mod:`estimator.deepsee.onnx_model`); raises ``ModelMismatch`` for a model made
+        for other inputs or a file that is not one, ``ConfigError`` for a provider setting that cannot be met."""
         transform = LabelTransform(load_estimator_config().label_transform.k)
-        model = OnnxModel(Path(path), transform, windows, threads)
+        model = OnnxModel(Path(path), transform, windows, threads, providers)
         psd_input = model.session.get_inputs()[1].shape
-        return cls(model_version(path), tuple(int(d) for d in psd_input[1:]), model, transform)
+        return cls(model_version(path), tuple(int(d) for d in psd_input[1:]), model.provider, model, transform)
 
     def accepts(self, sample: WindowSample) -> bool:
         return sample.psd.shape == self.psd_shape

@@ -29,7 +29,7 @@ def serve(config: ServiceConfig, network: NetworkConfig, windows: WindowConfig, 
     """Run the service until SIGINT/SIGTERM; returns the stopped broker (its final counters). A model made for
     other inputs, or a file that is no model, is refused here with one message (``ModelMismatch``), not in each
     worker."""
-    ServedModel.load(model, windows)
+    ServedModel.load(model, windows, providers=config.providers)
     broker = Broker(config, network, device_endpoints)
     context = multiprocessing.get_context("spawn")
     backend = broker.endpoints["workers"]

@@ -27,6 +27,11 @@ def _ms(value: float | None) -> str:
     return "-" if value is None else f"{value:.1f}"
 
 
+def _provider(name: str) -> str:
+    """``CPUExecutionProvider`` → ``CPU``: the column stays narrow."""
+    return name.removesuffix("ExecutionProvider")
+
+
 def format_status(status: dict) -> str:
     """A plain-text report of :meth:`estimator.service.broker.Broker.status`."""
     lat = status["server_ms"]
@@ -35,11 +40,11 @@ def format_status(status: dict) -> str:
              f"latency p50/p90/p99 {_ms(lat['p50'])}/{_ms(lat['p90'])}/{_ms(lat['p99'])} ms",
              "rejected messages: " + ", ".join(f"{k} {v}" for k, v in status["rejected"].items())
              + f"; refused workers {status['refused_workers']}",
-             "", f"{'worker':<24}{'pid':>8}{'devices':>9}{'queue':>7}{'estimates':>11}{'batch p50':>11}"
+             "", f"{'worker':<24}{'pid':>8}{'provider':>10}{'devices':>9}{'queue':>7}{'estimates':>11}{'batch p50':>11}"
              f"{'batch p99':>11}{'mean batch':>12}"]
     for w in status["workers"]:
         mean = "-" if w["batch_size_mean"] is None else f"{w['batch_size_mean']:.2f}"
-        lines.append(f"{w['name']:<24}{w['pid']:>8}{len(w['devices']):>9}{w['queue_depth']:>7}"
+        lines.append(f"{w['name']:<24}{w['pid']:>8}{_provider(w['provider']):>10}{len(w['devices']):>9}{w['queue_depth']:>7}"
                      f"{w['estimates'] or 0:>11}{_ms(w['batch_ms_p50']):>11}{_ms(w['batch_ms_p99']):>11}{mean:>12}")
     lines += ["", f"{'device':<20}{'worker':<16}{'frames/s':>9}{'est/s':>7}{'estimates':>10}{'lost':>6}"
                   f"{'stale':>6}{'q-full':>7}{'no-wkr':>7}{'p50 ms':>8}{'p99 ms':>8}"]

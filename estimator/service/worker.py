@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import sys
 import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
@@ -110,7 +111,8 @@ class Worker:
 
     def _identity(self) -> dict:
         # Every report says who we are, so that a broker restarted while we ran takes us on from any message.
-        return {"name": self.name, "pid": os.getpid(), "model_version": self.model.version}
+        return {"name": self.name, "pid": os.getpid(), "model_version": self.model.version,
+                "provider": self.model.provider}
 
     def _send(self, parts: list[bytes]) -> None:
         """Send to the broker without ever blocking: while it is gone, messages queue up to the high-water mark and
@@ -188,8 +190,12 @@ class Worker:
 
 def run_worker(broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig,
                name: str | None = None) -> None:
-    """Load the model on one intra-op thread and serve until SIGINT, SIGTERM or a stop from the broker."""
-    worker = Worker(broker_endpoint, ServedModel.load(model_path, windows, threads=1), windows, config, name)
+    """Load the model on one intra-op thread and the configured execution providers, say which provider runs it,
+    and serve until SIGINT, SIGTERM or a stop from the broker."""
+    model = ServedModel.load(model_path, windows, threads=1, providers=config.providers)
+    worker = Worker(broker_endpoint, model, windows, config, name)
+    print(f"estimator worker {worker.name}: model {model.version} on {model.provider}, broker {broker_endpoint}",
+          file=sys.stderr, flush=True)
     signal.signal(signal.SIGINT, worker.stop)
     signal.signal(signal.SIGTERM, worker.stop)
     worker.run()

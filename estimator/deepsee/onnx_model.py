@@ -1,0 +1,87 @@
+"""An exported model served by ONNX Runtime, without PyTorch (``import torch`` costs a worker seconds of start-up).
+
+The exported graph (:mod:`estimator.deepsee.export`) takes ``rts`` (B, T, C) float32 (normalised) and ``psd``
+(B, K_L, H, W, 3) uint8 and returns ``y`` (B,), the transformed error. Its metadata carries the compatibility record
+(:mod:`estimator.deepsee.compatibility`); a model made for other inputs is refused when it is loaded.
+
+Execution providers: ``"cpu"`` runs on the CPU; ``"cuda"`` on an NVIDIA GPU (an error where this ONNX Runtime
+offers none); ``"auto"`` takes CUDA when ONNX Runtime lists it (``onnxruntime.get_available_providers()``) and the
+CPU otherwise. ONNX Runtime falls back to the CPU by itself when a listed CUDA provider cannot start (a missing CUDA
+library): :attr:`OnnxModel.provider` names the one that actually runs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from estimator.deepsee.compatibility import InputShape, ModelMismatch, check_compatible
+from estimator.deepsee.transforms import LabelTransform
+from seesys.errors import ConfigError
+from seesys.protocol.windows import WindowConfig, load_window_config
+
+COMPATIBILITY_KEY = "seesys_compatibility"
+HASH_KEY = "seesys_compatibility_hash"
+PROVIDER_SETTINGS = ("auto", "cpu", "cuda")
+CPU = "CPUExecutionProvider"
+CUDA = "CUDAExecutionProvider"
+
+
+def choose_providers(setting: str, available: list[str] | None = None) -> list[str]:
+    """ONNX Runtime's provider list for ``setting`` (one of :data:`PROVIDER_SETTINGS`), best first; the CPU is
+    always last, as ONNX Runtime's fallback. ``available`` defaults to what this ONNX Runtime offers."""
+    if setting not in PROVIDER_SETTINGS:
+        raise ConfigError(f"providers must be one of {', '.join(PROVIDER_SETTINGS)}, got {setting!r}")
+    available = ort.get_available_providers() if available is None else available
+    if setting == "cuda" and CUDA not in available:
+        raise ConfigError(f"providers = 'cuda', but this ONNX Runtime offers only {', '.join(available)} "
+                          f"(install onnxruntime-gpu, or use 'auto' or 'cpu')")
+    if setting != "cpu" and CUDA in available:
+        return [CUDA, CPU]
+    return [CPU]
+
+
+class OnnxModel:
+    """An ONNX Runtime session of an exported model on ``threads`` intra-op threads (1: the serving setting; a
+    second thread helps little and, with anything else running, costs more than it gives) and the execution
+    providers of ``providers`` (see the module's docstring).
+
+    Raises :class:`ModelMismatch` for a missing file, a file that is not an ONNX model, one exported elsewhere
+    (no compatibility record) or one made for other inputs; :class:`~seesys.errors.ConfigError` for an unknown or
+    unavailable ``providers`` setting.
+    """
+
+    def __init__(self, path: Path, transform: LabelTransform, windows: WindowConfig | None = None, threads: int = 1,
+                 providers: str = "cpu"):
+        path = Path(path)
+        chosen = choose_providers(providers)
+        try:
+            # From bytes, not the path: ONNX Runtime then cannot read weights from a side file, so a copied model
+            # with a stale ``.onnx.data`` beside it is refused instead of served with other weights.
+            content = path.read_bytes()
+        except FileNotFoundError:
+            raise ModelMismatch(f"model file not found: {path}") from None
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        try:
+            session = ort.InferenceSession(content, options, providers=chosen)
+        except Exception as e:  # ONNX Runtime raises InvalidProtobuf, Fail and others on a file that is not a model
+            raise ModelMismatch(f"{path} is not an ONNX model: {e}") from None
+        meta = session.get_modelmeta().custom_metadata_map
+        if COMPATIBILITY_KEY not in meta:
+            raise ModelMismatch(f"{path} carries no SEESys compatibility record: not exported by seesys estimator")
+        check_compatible(json.loads(meta[COMPATIBILITY_KEY]), str(path), windows or load_window_config(), transform)
+        self.session = session
+        self.provider: str = session.get_providers()[0]
+        rts, psd = (i.shape[1:] for i in session.get_inputs())
+        self.shape = InputShape(*rts, *psd[:3])
+
+    def __call__(self, rts: np.ndarray, psd: np.ndarray) -> np.ndarray:
+        return self.session.run(None, {"rts": np.ascontiguousarray(rts, np.float32),
+                                       "psd": np.ascontiguousarray(psd, np.uint8)})[0]
