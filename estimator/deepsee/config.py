@@ -135,6 +135,20 @@ class EvaluationConfig:
 
 
 @dataclass(frozen=True)
+class AugmentationConfig:
+    """Training-time changes of what a real camera changes (estimator/deepsee/augment.py); gains are drawn
+    log-uniformly in [low, high], offsets uniformly in [-x, x], once per window."""
+
+    enabled: bool
+    brightness_offset: float  # fraction of full scale
+    contrast_gain: tuple[float, float]
+    entropy_offset_bits: float
+    laplacian_gain: tuple[float, float]  # sharpness: variance of the Laplacian
+    count_gain: tuple[float, float]  # matched inliers, outliers, matches before pose optimisation
+    keypoint_response_gain: tuple[float, float]  # the PSD keypoint layer (FAST response, i.e. local contrast)
+
+
+@dataclass(frozen=True)
 class FinetuneConfig:
     """Stage (d) on labelled session folders (``seesys estimator finetune``)."""
 
@@ -153,6 +167,7 @@ class EstimatorConfig:
     lstm: LstmConfig
     evaluation: EvaluationConfig
     finetune: FinetuneConfig
+    augmentation: AugmentationConfig
 
 
 def load_estimator_config(directory: Path | None = None) -> EstimatorConfig:

@@ -26,6 +26,7 @@ import torch
 from rich.progress import Progress
 from torch import nn
 
+from estimator.deepsee.augment import Augmenter
 from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
 from estimator.deepsee.config import EstimatorConfig, Schedule, StageSchedule
@@ -195,13 +196,14 @@ def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedu
 
 def supervised(run: RunFolder, name: str, model: nn.Module, train: Windows, val: Windows, schedule: StageSchedule,
                ctx: TrainContext) -> None:
-    """A supervised stage on the whole model (stage (d), the LSTM, fine-tuning on sessions)."""
+    """A supervised stage on the whole model (stage (d), the LSTM, fine-tuning on sessions), its training batches
+    augmented as ``[augmentation]`` of configs/estimator.toml says."""
     y_train = torch.from_numpy(_targets(train, ctx.transform))
-
+    augment = Augmenter(ctx.config.augmentation)
     with_psd = uses_psd(model)
 
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
-        inputs = batch_tensors(train, index, ctx.device, with_psd)
+        inputs = augment(*batch_tensors(train, index, ctx.device, with_psd), generator)
         return nn.functional.mse_loss(model(*inputs), y_train[index].to(ctx.device))
 
     validate = _mse_validator(model, val, _targets(val, ctx.transform), ctx) if len(val) else None
