@@ -43,7 +43,8 @@ class Generator:
         self._log = CsvLog(out / ADVISORY_CSV, ADVISORY_COLUMNS)
         self._ctx = zmq.Context()
         self._pub = publisher(self._ctx, cfg.handoff.endpoint, "advisory hand-off", cfg.handoff.send_high_water_mark)
-        self._sub = subscriber(self._ctx, self._input.endpoint, f"{condition.value} input", [self._input.topic])
+        self._sub = subscriber(self._ctx, self._input.endpoint, f"{condition.value} input", [self._input.topic],
+                               options=network.client_options(self._input.endpoint))
         self._scheduler = PulseScheduler(self._input.rule, cfg.timing.window_s, cfg.timing.cadence_s,
                                          cfg.timing.stale_after_s, time.monotonic())
         self._status = self._scheduler.status

@@ -130,20 +130,15 @@ class EstimateObserver:
         self._file.close()
 
 
-def create_observer(context: Any, device_id: str | None = None, client_keys: dict | None = None) -> EstimateObserver:
-    """Observer factory for :class:`slam_monitor.device_worker.ObserverSpec`: endpoints of network.toml, device id
-    of monitor.toml unless given (use the monitor's). ``client_keys`` (``secret_key_file``,
-    ``server_public_key_file``) turn on CurveZMQ for the estimates."""
+def create_observer(context: Any, device_id: str | None = None) -> EstimateObserver:
+    """Observer factory for :class:`slam_monitor.device_worker.ObserverSpec`: endpoints and Curve keys of
+    network.toml (estimates encrypted when its ``[curve]`` is set), device id of monitor.toml unless given (use the
+    monitor's)."""
     config_dir = context.options.config_dir
     network = load_network_config(config_dir)
-    options = None
-    if client_keys is not None:
-        from estimator.service.keys import ClientKeys
-
-        options = ClientKeys(Path(client_keys["secret_key_file"]),
-                             Path(client_keys["server_public_key_file"])).socket_options()
     return EstimateObserver(context.out_dir, device_id or load_monitor_config(config_dir).device_id,
-                            network.features_endpoint, network.estimates_endpoint, options)
+                            network.features_endpoint, network.estimates_endpoint,
+                            network.client_options(network.estimates_endpoint))
 
 
 def summary_line(out_dir: Path) -> str:

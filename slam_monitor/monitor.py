@@ -266,7 +266,8 @@ class RtsMonitor:
 def create_observer(context: Any, stream: bool = False, device_id: str | None = None,
                     end_stride: int | None = None) -> RtsMonitor:
     """Observer factory for :class:`slam_monitor.device_worker.ObserverSpec`: a monitor logging into the
-    session folder and, when ``stream`` is true, publishing on ``features_endpoint`` of network.toml.
+    session folder and, when ``stream`` is true, publishing on ``features_endpoint`` of network.toml (and to the
+    estimator service's ``ingest_endpoint``, encrypted, when its ``[curve]`` is set).
     ``device_id`` replaces the one of monitor.toml; ``end_stride`` the windows' end stride of windows.toml (the
     dataset builder computes the PSD on every frame, ``end_stride = 1``; a stride that does not divide
     ``psd_stride`` raises ``ValueError``)."""
@@ -279,5 +280,5 @@ def create_observer(context: Any, stream: bool = False, device_id: str | None = 
     publisher = None
     if stream:
         network = load_network_config(config_dir)
-        publisher = FeaturePublisher(network.features_endpoint, network.send_high_water_mark)
+        publisher = FeaturePublisher.for_network(network)
     return RtsMonitor(config, context.out_dir, publisher)

@@ -6,14 +6,21 @@ subscriber lags by more than the high-water mark, new messages are dropped — t
 either way. ZeroMQ does not tell the sender what it dropped, so the publisher counts only what it sent, and every
 message carries the device's count of frames it did not publish; the subscriber counts per device what it
 missed (:class:`seesys.protocol.transport.LossCounter`).
+
+With CurveZMQ configured (``[curve]`` of ``network.toml``), the device also connects a second PUB socket, encrypted
+with its own key pair, to the estimator service's ``ingest_endpoint`` and publishes every frame there too: an
+encrypting service accepts only connections its clients make, and the bound stream stays for local subscribers
+(the device's own estimate observer, an advisory on the device).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import zmq
 
+from seesys.network import NetworkConfig
 from seesys.protocol import messages
 from seesys.protocol.messages import FeatureFrame, MessageError
 from seesys.protocol.transport import LossCounter, bound_endpoint, publisher, subscriber
@@ -34,25 +41,46 @@ class StreamStats:
 
 
 class FeaturePublisher:
-    """Publishes feature frames on a bound PUB socket, counting what it sends."""
+    """Publishes feature frames on a bound PUB socket, counting what it sends; and, where ``service_endpoint`` is
+    given, on a PUB socket connected there with ``service_options`` (the device's Curve keys)."""
 
-    def __init__(self, endpoint: str, send_high_water_mark: int):
+    def __init__(self, endpoint: str, send_high_water_mark: int, service_endpoint: str | None = None,
+                 service_options: Mapping[int, int | bytes] | None = None):
         self.endpoint = endpoint
-        self._socket = publisher(zmq.Context.instance(), endpoint, "feature stream", send_high_water_mark)
+        ctx = zmq.Context.instance()
+        self._socket = publisher(ctx, endpoint, "feature stream", send_high_water_mark)
         #: The endpoint actually bound (differs from ``endpoint`` when that uses a wildcard port, ``tcp://host:*``).
         self.bound_endpoint = bound_endpoint(self._socket)
+        #: The socket connected to the service (None: the service connects to the bound one), for a socket monitor
+        #: that sees the handshake a service refuses (``zmq.EVENT_HANDSHAKE_FAILED_AUTH``: a key not allowed).
+        self.service_socket: zmq.Socket | None = None
+        if service_endpoint is not None:
+            self.service_socket = publisher(ctx, service_endpoint, "estimator service ingest", send_high_water_mark,
+                                            bind=False, options=service_options)
+        self._sockets = [s for s in (self._socket, self.service_socket) if s is not None]
         self.stats = StreamStats()
+
+    @classmethod
+    def for_network(cls, network: NetworkConfig) -> FeaturePublisher:
+        """The device's publisher of ``network.toml``: bound at ``features_endpoint``, and connected to the
+        service's ``ingest_endpoint`` with the device's keys when ``[curve]`` is set."""
+        if not network.curve.enabled:
+            return cls(network.features_endpoint, network.send_high_water_mark)
+        return cls(network.features_endpoint, network.send_high_water_mark, network.ingest_endpoint,
+                   network.client_options(network.ingest_endpoint))
 
     def publish(self, frame: FeatureFrame) -> None:
         parts = messages.encode(frame)
-        self._socket.send_multipart(parts, flags=zmq.NOBLOCK)
+        for sock in self._sockets:
+            sock.send_multipart(parts, flags=zmq.NOBLOCK)
         payload = sum(len(p) for p in parts)
         self.stats.messages += 1
         self.stats.payload_bytes += payload
         self.stats.wire_bytes += payload + sum(_zmtp_frame_overhead(len(p)) for p in parts)
 
     def close(self) -> None:
-        self._socket.close()
+        for sock in self._sockets:
+            sock.close()
 
 
 class FeatureSubscriber:

@@ -2,7 +2,8 @@
 Unix time of arrival) and counts the device's feature frames that did not arrive, for the status line.
 
 Both sockets connect (SUB) to the endpoints of ``configs/network.toml``; the publishers (the device's feature
-stream, the estimator or ``seesys advisory replay``) bind, so either side may start first. Malformed messages are
+stream, the estimator or ``seesys advisory replay``) bind, so either side may start first. The estimates come
+encrypted, with the logger's own key pair, when ``[curve]`` of ``network.toml`` is set. Malformed messages are
 counted, not fatal.
 """
 
@@ -52,8 +53,10 @@ class StreamWatcher(threading.Thread):
         log = CsvLog(self._folder / ESTIMATES_CSV, ESTIMATE_COLUMNS)
         sockets = []
         try:
-            sockets = [subscriber(ctx, self._network.estimates_endpoint, "estimates", [ESTIMATE_TOPIC]),
-                       subscriber(ctx, self._network.features_endpoint, "features", [FEATURE_TOPIC])]
+            network = self._network
+            sockets = [subscriber(ctx, network.estimates_endpoint, "estimates", [ESTIMATE_TOPIC],
+                                  options=network.client_options(network.estimates_endpoint)),
+                       subscriber(ctx, network.features_endpoint, "features", [FEATURE_TOPIC])]
             poller = zmq.Poller()
             for s in sockets:
                 poller.register(s, zmq.POLLIN)

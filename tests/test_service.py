@@ -116,7 +116,7 @@ def test_with_curve_a_client_not_allowed_gets_nothing_and_is_not_served(setup_fa
     _, server_secret = make_key_pair(keys / "server", "server")
     allowed_public, allowed_secret = make_key_pair(keys / "clients", "device")
     _, stranger_secret = make_key_pair(keys / "strangers", "stranger")
-    setup = setup_factory(enabled=True, server_secret_key=str(server_secret),
+    setup = setup_factory(server_secret_key=str(server_secret),
                           allowed_clients=str(allowed_public.parent))
     server_public = server_secret.with_suffix(".key")
     service = ServiceProcess(setup, tiny_model)
@@ -197,7 +197,7 @@ def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(set
 
 def test_default_endpoints_are_loopback():
     config, network = load_service_config(), load_network_config()
-    endpoints = [config.ingest_endpoint, config.worker_endpoint, config.status_endpoint,
+    endpoints = [network.ingest_endpoint, config.worker_endpoint, config.status_endpoint,
                  network.estimates_endpoint, network.features_endpoint]
     for endpoint in endpoints:
         host = urlparse(endpoint).hostname

@@ -2,7 +2,7 @@
 
 Sockets (endpoints in ``configs/service.toml`` and ``network.toml``):
 
-- ingest, SUB, bound at ``ingest_endpoint`` (devices connect their PUB) and connected to device streams that bind
+- ingest, SUB, bound at ``ingest_endpoint`` of ``network.toml`` (devices connect their PUB) and connected to device streams that bind
   their own PUB; it subscribes to everything, so that nothing sent to it goes uncounted, and every message is
   checked here: larger than ``max_message_bytes`` (*oversized*), of another
   protocol version (*wrong_version*) or anything :func:`seesys.protocol.messages.decode` refuses (*malformed*)
@@ -16,7 +16,7 @@ Sockets (endpoints in ``configs/service.toml`` and ``network.toml``):
   while a device moves between workers);
 - status, REP, bound at ``status_endpoint``: ``seesys estimator status`` asks, the broker answers in JSON.
 
-With ``[curve] enabled`` the ingest and estimates sockets are CurveZMQ servers and a ZAP handler admits only the
+With ``[curve]`` set the ingest and estimates sockets are CurveZMQ servers and a ZAP handler admits only the
 clients in the allow-list.
 """
 
@@ -143,7 +143,7 @@ class Broker:
 
             self._authenticator = keys.start_authenticator(self.ctx, resolve(cfg.curve.allowed_clients))
             server_options = keys.server_socket_options(resolve(cfg.curve.server_secret_key))
-        self._ingest = open_socket(self.ctx, zmq.SUB, cfg.ingest_endpoint, "feature ingest", bind=True,
+        self._ingest = open_socket(self.ctx, zmq.SUB, self.network.ingest_endpoint, "feature ingest", bind=True,
                                    receive_hwm=cfg.ingest_queue, subscribe=[b""],
                                    options=server_options)
         self.endpoints["ingest"] = bound_endpoint(self._ingest)  # before the connects, which change LAST_ENDPOINT

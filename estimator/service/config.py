@@ -11,14 +11,23 @@ from seesys.errors import ConfigError
 
 @dataclass(frozen=True)
 class CurveConfig:
-    enabled: bool
+    """The server's secret key file and the allow-list folder of client public keys; both empty: plaintext."""
+
     server_secret_key: str
     allowed_clients: str
+
+    def __post_init__(self) -> None:
+        if bool(self.server_secret_key) != bool(self.allowed_clients):
+            raise ConfigError("service.toml: [curve] needs both server_secret_key and allowed_clients (or neither, "
+                              "for plaintext)")
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.server_secret_key)
 
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    ingest_endpoint: str
     connect_device_stream: bool
     worker_endpoint: str
     status_endpoint: str
@@ -44,8 +53,6 @@ class ServiceConfig:
                 raise ConfigError(f"service.toml: {name} must be at least 1, got {getattr(self, name)}")
         if self.worker_timeout_ms <= 2 * self.heartbeat_ms:
             raise ConfigError("service.toml: worker_timeout_ms must exceed two heartbeats")
-        if self.curve.enabled and not (self.curve.server_secret_key and self.curve.allowed_clients):
-            raise ConfigError("service.toml: [curve] enabled needs server_secret_key and allowed_clients")
 
 
 def load_service_config(directory: Path | None = None) -> ServiceConfig:

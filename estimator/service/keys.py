@@ -1,5 +1,6 @@
-"""CurveZMQ for the service: key pairs, the socket options of each end, and the ZAP handler that lets in only the
-clients whose public keys are in an allow-list folder.
+"""CurveZMQ for the service: key pairs, the server's socket options, and the ZAP handler that lets in only the
+clients whose public keys are in an allow-list folder (a client's options: :class:`ClientKeys`, from
+:mod:`seesys.protocol.transport`, which every client uses).
 
 Key files are ZeroMQ's certificate files (``NAME.key`` holds the public key, ``NAME.key_secret`` both), written by
 :func:`make_key_pair` (``seesys estimator keys``). The server's sockets use its secret key; every client (device,
@@ -10,18 +11,15 @@ during the handshake, so such a client's messages never reach the service and it
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
-from seesys.errors import SeesysError
+from seesys.protocol.transport import ClientKeys, CurveKeyError, load_curve_key
 
-
-class CurveKeyError(SeesysError):
-    """A Curve key file is missing or malformed."""
+__all__ = ["ClientKeys", "CurveKeyError", "make_key_pair", "server_socket_options", "start_authenticator"]
 
 
 def make_key_pair(folder: Path, name: str) -> tuple[Path, Path]:
@@ -35,36 +33,9 @@ def make_key_pair(folder: Path, name: str) -> tuple[Path, Path]:
     return Path(public), Path(secret)
 
 
-def _load(path: Path, secret: bool) -> tuple[bytes, bytes | None]:
-    try:
-        public_key, secret_key = zmq.auth.load_certificate(str(path))
-    except (OSError, ValueError) as e:
-        raise CurveKeyError(f"cannot read the Curve key file {path}: {e}") from None
-    if secret and secret_key is None:
-        raise CurveKeyError(f"{path} holds no secret key (pass the .key_secret file)")
-    return public_key, secret_key
-
-
-def public_key(path: Path) -> bytes:
-    return _load(path, secret=False)[0]
-
-
-@dataclass(frozen=True)
-class ClientKeys:
-    """A client's key pair and the server's public key: what a device or subscriber needs to connect."""
-
-    secret_key_file: Path
-    server_public_key_file: Path
-
-    def socket_options(self) -> dict[int, bytes]:
-        public, secret = _load(self.secret_key_file, secret=True)
-        return {zmq.CURVE_PUBLICKEY: public, zmq.CURVE_SECRETKEY: secret,
-                zmq.CURVE_SERVERKEY: public_key(self.server_public_key_file)}
-
-
 def server_socket_options(secret_key_file: Path) -> dict[int, int | bytes]:
     """Options of a socket that accepts Curve clients (checked by the ZAP handler)."""
-    public, secret = _load(Path(secret_key_file), secret=True)
+    public, secret = load_curve_key(Path(secret_key_file), secret=True)
     return {zmq.CURVE_SERVER: 1, zmq.CURVE_PUBLICKEY: public, zmq.CURVE_SECRETKEY: secret}
 
 

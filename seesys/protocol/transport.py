@@ -9,6 +9,9 @@ One function opens a socket, so every socket gets the same treatment:
   terminator, so subscribing to ``messages.topic(kind, "dev-1")`` cannot also match ``dev-10``.
 - **Clear failures**: a bind or connect that fails (address in use, malformed endpoint) is a
   :class:`TransportError` naming the endpoint and what it was for.
+- **CurveZMQ clients**: :class:`ClientKeys` turns a client's key files (``seesys estimator keys``) into the socket
+  options of an encrypted, authenticated connection to the estimator service; every client (device, advisory,
+  study logger) connects the same way.
 
 A PUB socket never blocks and never reports what it drops (no subscriber, or one past its high-water mark): a
 sender cannot know its losses, so receivers count them from gaps in frame indices with :class:`LossCounter`.
@@ -18,8 +21,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import zmq
+import zmq.auth
 
 from seesys.errors import SeesysError
 from seesys.protocol.messages import FeatureFrame
@@ -27,6 +32,37 @@ from seesys.protocol.messages import FeatureFrame
 
 class TransportError(SeesysError):
     """A ZeroMQ endpoint cannot be bound or connected."""
+
+
+class CurveKeyError(SeesysError):
+    """A Curve key file is missing or malformed."""
+
+
+def load_curve_key(path: Path, secret: bool) -> tuple[bytes, bytes | None]:
+    """The public and secret key of a ZeroMQ certificate file (``NAME.key``: public only; ``NAME.key_secret``:
+    both); :class:`CurveKeyError` when it cannot be read, or holds no secret key where ``secret`` asks for one."""
+    try:
+        public_key, secret_key = zmq.auth.load_certificate(str(path))
+    except (OSError, ValueError) as e:
+        raise CurveKeyError(f"cannot read the Curve key file {path}: {e}") from None
+    if secret and secret_key is None:
+        raise CurveKeyError(f"{path} holds no secret key (pass the .key_secret file)")
+    return public_key, secret_key
+
+
+@dataclass(frozen=True)
+class ClientKeys:
+    """A client's key pair and the server's public key: what a device or subscriber needs to connect to a Curve
+    server. The server refuses, during the handshake, a client whose public key it does not allow: such a client
+    sends nothing that arrives and receives nothing."""
+
+    secret_key_file: Path
+    server_public_key_file: Path
+
+    def socket_options(self) -> dict[int, bytes]:
+        public, secret = load_curve_key(self.secret_key_file, secret=True)
+        return {zmq.CURVE_PUBLICKEY: public, zmq.CURVE_SECRETKEY: secret,
+                zmq.CURVE_SERVERKEY: load_curve_key(self.server_public_key_file, secret=False)[0]}
 
 
 def open_socket(ctx: zmq.Context, socket_type: int, endpoint: str, what: str, *, bind: bool,
@@ -62,16 +98,18 @@ def open_socket(ctx: zmq.Context, socket_type: int, endpoint: str, what: str, *,
     return sock
 
 
-def publisher(ctx: zmq.Context, endpoint: str, what: str, send_hwm: int, bind: bool = True) -> zmq.Socket:
+def publisher(ctx: zmq.Context, endpoint: str, what: str, send_hwm: int, bind: bool = True,
+              options: Mapping[int, int | bytes] | None = None) -> zmq.Socket:
     """A PUB socket (bound by default: the side that outlives its peers binds)."""
-    return open_socket(ctx, zmq.PUB, endpoint, what, bind=bind, send_hwm=send_hwm)
+    return open_socket(ctx, zmq.PUB, endpoint, what, bind=bind, send_hwm=send_hwm, options=options)
 
 
 def subscriber(ctx: zmq.Context, endpoint: str, what: str, topics: Iterable[bytes], *, conflate: bool = False,
-               receive_hwm: int | None = None, bind: bool = False) -> zmq.Socket:
+               receive_hwm: int | None = None, bind: bool = False,
+               options: Mapping[int, int | bytes] | None = None) -> zmq.Socket:
     """A SUB socket for ``topics`` (connected by default; ZeroMQ reconnects it after its peer restarts)."""
     return open_socket(ctx, zmq.SUB, endpoint, what, bind=bind, receive_hwm=receive_hwm, conflate=conflate,
-                       subscribe=topics)
+                       subscribe=topics, options=options)
 
 
 def bound_endpoint(sock: zmq.Socket) -> str:

@@ -1,0 +1,86 @@
+"""CurveZMQ end to end with the clients as they ship: a device (its feature publisher and estimate observer) and a
+study logger take their keys from ``[curve]`` of network.toml. The allowed device is served and its estimates
+reach it and the logger; a device whose key is not in the service's allow-list completes no handshake, so none of
+its features is served and it receives no estimate."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pandas as pd
+import zmq
+
+from estimator.service.keys import make_key_pair
+from seesys.network import ClientCurveConfig, load_network_config
+from service_fixtures import ServiceProcess, ServiceSetup, device_frames, tiny_model, wait_for  # noqa: F401
+from slam_monitor.estimates import ESTIMATES_CSV, EstimateObserver
+from slam_monitor.stream import FeaturePublisher
+from study.estimates import ESTIMATES_CSV as STUDY_ESTIMATES_CSV
+from study.watch import StreamWatcher
+
+
+def observer_for(network, folder, device_id: str) -> EstimateObserver:
+    folder.mkdir()
+    return EstimateObserver(folder, device_id, network.features_endpoint, network.estimates_endpoint,
+                            network.client_options(network.estimates_endpoint))
+
+
+def test_with_curve_from_network_toml_only_the_allowed_device_is_served(tiny_model, tmp_path):
+    keys = tmp_path / "keys"
+    _, server_secret = make_key_pair(keys / "server", "server")
+    server_public = server_secret.with_suffix(".key")
+    allowed_public, allowed_secret = make_key_pair(keys / "clients", "device")
+    _, stranger_secret = make_key_pair(keys / "strangers", "stranger")
+    setup = ServiceSetup(server_secret_key=str(server_secret), allowed_clients=str(allowed_public.parent),
+                         server_public_key=str(server_public), client_secret_key=str(allowed_secret))
+    network = load_network_config(setup.config_dir)
+    stranger_network = dataclasses.replace(
+        network, features_endpoint=f"ipc://{setup.folder}/stranger-features",
+        curve=ClientCurveConfig(str(server_public), str(stranger_secret)))
+    service = ServiceProcess(setup, tiny_model)
+    device = stranger = watcher = None
+    observers = []
+    try:
+        assert service.wait_ready()["curve"] is True
+        stranger = FeaturePublisher.for_network(stranger_network)
+        refused = stranger.service_socket.get_monitor_socket(zmq.EVENT_HANDSHAKE_FAILED_AUTH)
+        observers.append(stranger_observer := observer_for(stranger_network, tmp_path / "stranger", "dev-x"))
+        device = FeaturePublisher.for_network(network)
+        observers.append(device_observer := observer_for(network, tmp_path / "device", "dev-ok"))
+        watcher = StreamWatcher(network, tmp_path)
+        watcher.start()
+        assert watcher.wait_ready(60)
+        ours, theirs = device_frames("dev-ok", 80, seed=2), device_frames("dev-x", 80, seed=1)
+
+        def stream_until_estimated():
+            for frame, intruding in zip(ours, theirs):
+                stranger.publish(dataclasses.replace(intruding, device_id="dev-ok"))  # even posing as dev-ok
+                stranger.publish(intruding)
+                device.publish(frame)
+            return device_observer.received >= 2 and watcher.estimates >= 2
+        wait_for(stream_until_estimated, what="estimates at the allowed device and the study logger")
+        assert refused.poll(60_000), "the service did not refuse the stranger's handshake"
+        for frame in theirs:  # again, now that its handshake was certainly refused
+            stranger.publish(frame)
+        seen = device_observer.received
+        wait_for(lambda: stream_until_estimated() and device_observer.received > seen, what="more estimates")
+        assert stranger_observer.received == 0
+        assert pd.read_csv(tmp_path / "stranger" / ESTIMATES_CSV).empty
+        logged = pd.read_csv(tmp_path / "device" / ESTIMATES_CSV)
+        assert set(logged.frame_index) <= set(range(30, 80))
+        assert len(logged) == device_observer.received
+        assert list(service.status()["devices"]) == ["dev-ok"]
+        assert watcher.estimates >= 2 and watcher.error is None
+        assert (tmp_path / STUDY_ESTIMATES_CSV).exists()
+        refused.close()
+    finally:
+        if watcher is not None:
+            watcher.stop()
+        for observer in observers:
+            observer.close()
+        for publisher in (device, stranger):
+            if publisher is not None:
+                publisher.close()
+        service.stop()
+        service.kill()
+        setup.cleanup()
