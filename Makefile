@@ -1,5 +1,5 @@
 # Two commands on a fresh machine:
-#   make demo   creates .venv, installs the apt packages and pinned Python packages, runs the pipeline on the sample
+#   make demo   creates .venv, installs the apt packages and pinned Python packages, runs the app on the sample
 #   make test   the same setup, then the test suite
 PYTHON ?= python3.11
 VENV := .venv
@@ -34,13 +34,13 @@ venv: $(STAMP)
 
 setup: apt venv
 
-# The pipeline on the embedded sample: ORB-SLAM3 + RTS monitor (session folder with frames, trajectory, RTS rows and
-# PSD matrices), the true per-frame pose error from the ground truth, and what the SEESys advisory would play
-# for it (the estimator service is not built yet, so the true error stands in for its estimates).
+# The whole app on the embedded sample (150 frames at camera rate): ORB-SLAM3 + RTS monitor, the estimator
+# service with the shipped DeepSEE model, the advisory in the seesys condition. The audio goes to the default output
+# device (or, with no sound card, only to the WAV); the session folder gets every part's logs, the WAV of what
+# was played, summary.json and plot.png (estimated vs true error, the pulses, Equation 2's thresholds).
 demo: setup
-	$(BIN)/seesys monitor run --source tum:data/sample --mode rgbd --out $(DEMO_OUT)/session
-	$(BIN)/seesys dataset label $(DEMO_OUT)/session --labelled-only --out $(DEMO_OUT)/true-error.csv
-	$(BIN)/seesys advisory render --estimates $(DEMO_OUT)/true-error.csv --out $(DEMO_OUT)/advisory-preview.wav
+	rm -rf $(DEMO_OUT)
+	$(BIN)/seesys run --source tum:data/sample --local --condition seesys --out $(DEMO_OUT)
 
 test: setup
 	$(BIN)/python -m pytest

@@ -48,7 +48,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="what the advisory plays: seesys (Equation 2 on the estimates), rotation, none (silent)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="session folder to create (new or empty)")
     p.add_argument("--wav", action="store_true",
-                   help="write the audio to a WAV in the session folder instead of playing it (needs jackd)")
+                   help="do not play the audio, only write it to the WAV in the session folder (needs jackd; the WAV "
+                        "is written in any case)")
     p.add_argument("--model", type=Path, help="the local estimator's ONNX model (default: configs/service.toml)")
     p.add_argument("--mode", choices=["rgbd", "mono"], help="SLAM mode (default: configs/app.toml)")
     pacing = p.add_mutually_exclusive_group()

@@ -5,8 +5,8 @@ One run writes one session folder (``--out``, new or empty):
 - the device's files (``seesys monitor run --stream --estimates``): ``frames.csv``, ``trajectory.tum``, ``rts.csv``,
   ``psd/``, ``estimates.csv`` (every estimate the device received, with its end-to-end latency) and, from a
   recording with one, ``groundtruth.tum``;
-- the advisory's files (generator and player): ``advisory.csv``, ``playback.csv``, ``advisory_events.csv`` and,
-  when the audio goes to a file, the WAV (``configs/app.toml`` ``output.wav``);
+- the advisory's files (generator and player): ``advisory.csv``, ``playback.csv``, ``advisory_events.csv`` and
+  the WAV of what the player played (``configs/app.toml`` ``output.wav``; not in the silent condition);
 - ``logs/<part>.log``: each child's output (device, estimator, generator, player), and ``logs/estimates.csv``, the
   estimates as the app itself received them (``study.watch``);
 - ``app_events.csv``: what the app did and saw (starts, exits, restarts, the stop), one row each, flushed;
@@ -24,7 +24,8 @@ the rest; every child also dies with the app if the app itself is killed (``sees
 
 Audio: the configured output device (``configs/advisory.toml`` ``[audio]``; the default one unless named). With
 none (no sound card), or with ``--wav``, the player plays into a private JACK dummy server that the app starts
-(``advisory.sandbox``) and writes what it played to the WAV; without ``jackd`` installed that is an error.
+(``advisory.sandbox``), paced in real time like a sound card, and the WAV is the only output; without ``jackd``
+installed that is an error.
 """
 
 from __future__ import annotations
@@ -124,7 +125,9 @@ class App:
         self.parts: dict[str, _Part] = {}
         self.jack: JackDummy | None = None
         self.audio = "none (silent condition)"
-        self.stopping = False
+        self.view: LiveView | None = None
+        self.config_dir: Path | None = None  # the run's copy of the configs, once written
+        self._player_up = False
 
     # -- set-up ---------------------------------------------------------------------------------------------------
 
@@ -146,7 +149,7 @@ class App:
                               "(apt package jackd2), or run with --condition none")
         self.jack = JackDummy(self.advisory.audio.sample_rate, self.advisory.audio.blocksize)
         self.jack.start()
-        self.audio = f"WAV {self.cfg.output.wav} (JACK dummy server {self.jack.name})"
+        self.audio = f"WAV only (JACK dummy server {self.jack.name}, no sound card used)"
         return {"host_api": JACK_HOST_API, "output_device": ""}
 
     def _configure(self) -> dict[str, str]:
@@ -162,7 +165,7 @@ class App:
 
     def event(self, part: str, event: str, detail: str = "") -> None:
         self.events.write(time.time(), part, event, detail)
-        if hasattr(self, "view"):
+        if self.view is not None:
             self.view.note(f"{part}: {event}" + (f" ({detail})" if detail else ""))
 
     def _start(self, name: str, args: list[str]) -> None:
@@ -178,11 +181,11 @@ class App:
         return ["estimator", "serve"] + (["--model", str(self.o.model)] if self.o.model else [])
 
     def _advisory_args(self) -> dict[str, list[str]]:
-        """``seesys advisory generator|player`` arguments (the advisory supervisor's commands, the player writing
-        the WAV when the audio goes to a file)."""
+        """``seesys advisory generator|player`` arguments (the advisory supervisor's commands, the player also
+        writing what it played to the WAV)."""
         commands = {name: command[command.index("advisory"):]
                     for name, command in process_commands(self.o.condition, self.folder).items()}
-        if "player" in commands and self.jack is not None:
+        if "player" in commands:
             commands["player"] += ["--capture", str(self.folder / self.cfg.output.wav)]
         return commands
 
@@ -210,8 +213,8 @@ class App:
 
     def _player_started(self) -> bool:
         rows = self._advisory_events.new_rows()
-        self._player_up = getattr(self, "_player_up", False) or any(
-            r["process"].startswith("player[") and r["event"] == "started" for r in rows)
+        self._player_up = self._player_up or any(r["process"].startswith("player[") and r["event"] == "started"
+                                                 for r in rows)
         return self._player_up
 
     def _start_children(self, stop) -> None:
@@ -310,7 +313,6 @@ class App:
             status, error = "failed", str(e)
             self.event("app", "failed", error)
         finally:
-            self.stopping = True
             exits = self._stop_children()
             if watcher is not None:
                 watcher.stop()

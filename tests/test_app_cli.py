@@ -1,0 +1,38 @@
+"""`seesys run`'s bad input: each a one-line error naming the problem, before anything starts."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import SAMPLE, run_seesys
+
+from advisory.sandbox import write_config_dir
+from seesys.app.config import load_app_config
+from seesys.app.run import estimates_endpoint
+from seesys.errors import ConfigError, SeesysError
+
+
+def test_estimator_address_is_host_and_port():
+    assert estimates_endpoint("192.168.1.20:5556") == "tcp://192.168.1.20:5556"
+    for bad in ("192.168.1.20", ":5556", "host:port", "host:70000"):
+        with pytest.raises(SeesysError, match="--estimator wants HOST:PORT"):
+            estimates_endpoint(bad)
+
+
+def test_a_session_folder_in_use_is_refused(tmp_path):
+    (tmp_path / "earlier.csv").write_text("x\n")
+    done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--local", "--condition", "none", "--out", str(tmp_path))
+    assert done.returncode == 2
+    assert done.stderr.strip() == (f"seesys: error: {tmp_path} exists and is not an empty folder: give a new folder "
+                                   f"for the session")
+
+
+def test_local_and_remote_estimator_exclude_each_other(tmp_path):
+    done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--local", "--estimator", "h:1", "--condition", "none",
+                      "--out", str(tmp_path / "s"))
+    assert done.returncode == 2 and "not allowed with argument" in done.stderr
+
+
+def test_app_config_is_checked(tmp_path):
+    configs = write_config_dir(tmp_path / "configs", {"mode": "stereo", "max_restarts": -1})
+    with pytest.raises(ConfigError, match="device.mode must be one of rgbd, mono .*max_restarts must not be negative"):
+        load_app_config(configs)
