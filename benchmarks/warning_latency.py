@@ -23,7 +23,7 @@ Latency = DAC time − capture time; p50/p95 over all onsets of all runs, agains
 buffer period included). CLOCK_MONOTONIC (the player's DAC times) is turned into Unix time (the device's logs) with
 the offset between the two clocks measured here: every process runs on this machine.
 
-Usage: ``.venv/bin/python benchmarks/warning_latency.py [--runs 5] [--source tum:data/sample] [--max-frames N]
+Usage: ``.venv/bin/python benchmarks/warning_latency.py [--runs 10] [--source tum:data/sample] [--max-frames N]
 [--horizon 1.0] [--keep DIR]``. Run it on a quiet machine: the device, the service and the advisory share its cores.
 """
 
@@ -124,7 +124,7 @@ def report(name: str, values: list[float | None]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--runs", type=int, default=5, help="app runs (default 5)")
+    parser.add_argument("--runs", type=int, default=10, help="app runs (default 10)")
     parser.add_argument("--source", default="tum:data/sample", help="recording to replay (default the sample)")
     parser.add_argument("--max-frames", type=int, help="stop each run after N frames (a smoke test)")
     parser.add_argument("--horizon", type=float, default=1.0,
@@ -150,8 +150,9 @@ def main() -> None:
             print(f"target p95 <= {TARGET_P95_MS:.0f} ms from the estimate's frame: "
                   f"{'met' if p95 <= TARGET_P95_MS else 'NOT met'} ({p95:.0f} ms)")
     finally:
-        if args.keep:
-            shutil.copytree(root, args.keep, dirs_exist_ok=True)
+        if args.keep:  # the session folders only (the configs' ipc sockets cannot be copied)
+            for folder in sorted(root.glob("run*")):
+                shutil.copytree(folder, args.keep / folder.name, dirs_exist_ok=True)
         shutil.rmtree(root, ignore_errors=True)
 
 

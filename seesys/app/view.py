@@ -240,6 +240,9 @@ class LiveView:
         self._events.append(f"{time.strftime('%H:%M:%S')} {text}")
         if self._live is None:
             self.console.print(f"[{time.strftime('%H:%M:%S')}] {text}", markup=False, highlight=False)
+        else:  # at once: the run may end before the next update
+            self.snapshot.events = list(self._events)
+            self._live.update(panel(self.snapshot, self._title))
 
     def update(self) -> None:
         snapshot = self.collect()
