@@ -115,6 +115,7 @@ def _default_model(args: argparse.Namespace) -> Path:
 
 
 def _finetune(args: argparse.Namespace) -> int:
+    from advisory.config import load_advisory_config
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.finetune import finetune
     from estimator.deepsee.loop import progress_bar
@@ -126,11 +127,18 @@ def _finetune(args: argparse.Namespace) -> int:
     progress = progress_bar()
     with progress:
         result = finetune(_default_model(args), args.sessions, args.out, run_dir, config, load_window_config(),
-                          device, progress, {"command": " ".join(sys.argv)})
+                          device, progress, {"command": " ".join(sys.argv)}, args.held_out or [],
+                          load_advisory_config())
     print(f"fine-tuned on {len(args.sessions)} sessions ({result.train_windows} training windows, "
           f"{result.validation_windows} validation windows, the last "
           f"{100 * config.finetune.validation_fraction:.0f} % of each session): validation RMSE "
           f"{result.rmse_before_cm:.3f} cm before, {result.rmse_after_cm:.3f} cm after -> {result.model}")
+    if result.held_out_before is not None:
+        print(f"held-out sessions ({result.held_out_before.windows} windows, never trained on):")
+        for name, scores in (("before", result.held_out_before), ("after", result.held_out_after)):
+            print(f"  {name:6} RMSE {scores.rmse_cm:.3f} cm, within 1 mm-2 cm {scores.rmse_paper_range_cm:.3f} cm, "
+                  f"Spearman {scores.spearman:.2f}, advisory agreement {scores.agreement:.2f}, recall >= 12 mm "
+                  f"{scores.recall_large:.2f} ({scores.large_bins} of {scores.bins} bins)")
     return 0
 
 
@@ -215,6 +223,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("finetune", help="stage (d) on labelled session folders (real cameras with ground truth)")
     p.add_argument("--sessions", type=Path, nargs="+", required=True, help="session folders with groundtruth.tum")
+    p.add_argument("--held-out", type=Path, nargs="+",
+                   help="whole sessions with groundtruth.tum never trained on, judged before and after")
     p.add_argument("--model", type=Path, help="model to start from (default: the shipped model)")
     p.add_argument("--out", type=Path, required=True, help="the fine-tuned model file")
     p.add_argument("--run", type=Path, help="run folder for its metrics and checkpoints (default: next to --out)")

@@ -12,6 +12,7 @@ import pytest
 import torch
 from rich.progress import Progress
 
+from advisory.config import load_advisory_config
 from advisory.estimate_log import read_estimate_log
 from estimator.deepsee.checkpoint import ModelMismatch, load_model
 from estimator.deepsee.data import DataError, concat, session_windows
@@ -115,12 +116,20 @@ def test_finetune_on_a_few_sessions_lowers_the_error_on_held_out_sessions(traine
     base = _model(trained_runs)
     with Progress(disable=True) as progress:
         result = finetune(base, train, tmp_path / "lab.pt", tmp_path / "lab_run", config, windows,
-                          torch.device("cpu"), progress, {})
+                          torch.device("cpu"), progress, {}, held_out, load_advisory_config())
+        with pytest.raises(DataError, match="both fine-tuned on and held out"):
+            finetune(base, train, tmp_path / "x.pt", tmp_path / "x_run", config, windows, torch.device("cpu"),
+                     progress, {}, held_out[:1] + train[:1], load_advisory_config())
     assert result.train_windows > 3 * result.validation_windows > 0
     assert result.rmse_after_cm < result.rmse_before_cm
     before, after = rmse(base), rmse(result.model)
     assert after < 0.8 * before, (before, after)
-    assert load_model(result.model, TRANSFORM)[1]["training"]["finetuned_on"] == [str(s) for s in train]
+    # the command's own judgement of the held-out sessions is the same measurement
+    assert result.held_out_before.windows == len(truth)
+    assert result.held_out_before.rmse_cm == pytest.approx(100 * before, rel=1e-4)
+    assert result.held_out_after.rmse_cm == pytest.approx(100 * after, rel=1e-4)
+    training = load_model(result.model, TRANSFORM)[1]["training"]
+    assert training["finetuned_on"] == [str(s) for s in train] and training["held_out"] == [str(s) for s in held_out]
 
 
 def test_windows_of_another_camera_are_refused_with_a_clear_error(trained_runs, tmp_path):

@@ -5,13 +5,18 @@
 Each session is split in time: its first part trains, its last ``validation_fraction`` decides early stopping and
 gives the before/after figures (windows of one session are strongly correlated, so a random split would let the
 model see the validation windows' neighbours). Few-shot friendly: the whole model is fine-tuned with a small
-learning rate from the given model, and the best epoch on the validation part is kept.
+learning rate from the given model, and the best epoch on the validation part is kept (the given model itself when
+no epoch beats it). Whole held-out sessions, never trained on, are judged before and after with the scores of the
+Table 3 report (:func:`estimator.deepsee.metrics.score`): the in-session validation tail is correlated with the
+training part and flatters the model.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from pathlib import Path
+
+from advisory.config import AdvisoryConfig
 
 import numpy as np
 import torch
@@ -20,7 +25,7 @@ from estimator.deepsee.checkpoint import load_model, save_model
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import DataError, Windows, concat, session_windows
 from estimator.deepsee.inference import predict
-from estimator.deepsee.metrics import CM_PER_M
+from estimator.deepsee.metrics import CM_PER_M, Scores, score
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
 from seesys.protocol.windows import WindowConfig
@@ -33,6 +38,8 @@ class FinetuneResult:
     validation_windows: int
     rmse_before_cm: float
     rmse_after_cm: float
+    held_out_before: Scores | None  # the held-out sessions, all windows together; None without any
+    held_out_after: Scores | None
 
 
 def split_in_time(windows: Windows, validation_fraction: float) -> tuple[Windows, Windows]:
@@ -43,7 +50,16 @@ def split_in_time(windows: Windows, validation_fraction: float) -> tuple[Windows
 
 
 def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config: EstimatorConfig,
-             windows: WindowConfig, device: torch.device, progress, provenance: dict) -> FinetuneResult:
+             windows: WindowConfig, device: torch.device, progress, provenance: dict,
+             held_out: list[Path] = (), advisory: AdvisoryConfig | None = None) -> FinetuneResult:
+    """Fine-tune ``base`` on ``sessions`` into ``out``; ``held_out`` sessions (scored with ``advisory``'s
+    Equation 2) are only judged."""
+    overlap = sorted({Path(s).resolve() for s in sessions} & {Path(s).resolve() for s in held_out})
+    if overlap:
+        raise DataError(f"sessions both fine-tuned on and held out: {', '.join(map(str, overlap))}")
+    if held_out and advisory is None:
+        raise ValueError("held-out sessions are scored with the advisory's Equation 2: pass advisory")
+    test = concat([session_windows(s, windows, labelled=True) for s in held_out]) if held_out else None
     parts = [split_in_time(session_windows(s, windows, labelled=True), config.finetune.validation_fraction)
              for s in sessions]
     train, val = concat([p[0] for p in parts]), concat([p[1] for p in parts])
@@ -56,16 +72,24 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     model, payload = load_model(base, transform, windows)
     model = model.to(device)
 
-    def rmse_cm() -> float:
-        estimate = transform.inverse(predict(model, val, config.evaluation.batch_size, device))
-        return CM_PER_M * float(np.sqrt(np.mean((estimate - val.error_m) ** 2)))
+    def estimate_m(data: Windows) -> np.ndarray:
+        return transform.inverse(predict(model, data, config.evaluation.batch_size, device))
 
-    before = rmse_cm()
+    def rmse_cm() -> float:
+        return CM_PER_M * float(np.sqrt(np.mean((estimate_m(val) - val.error_m) ** 2)))
+
+    def judge() -> Scores | None:
+        return score(test.meta, estimate_m(test), test.error_m, config.evaluation, advisory) if test else None
+
+    before, held_out_before = rmse_cm(), judge()
     run = RunFolder(run_dir, {"finetune": asdict(config.finetune),
                               "base_compatibility_hash": payload["compatibility_hash"], **ctx.provenance}, device)
     supervised(run, "finetune_sessions", model, train, val, config.finetune.schedule, ctx)
-    after = rmse_cm()
+    after, held_out_after = rmse_cm(), judge()
     training = {**payload["training"], "finetuned_on": [str(s) for s in sessions], "train_windows": len(train),
-                "validation_windows": len(val), "rmse_before_cm": before, "rmse_after_cm": after}
+                "validation_windows": len(val), "rmse_before_cm": before, "rmse_after_cm": after,
+                "held_out": [str(s) for s in held_out],
+                "held_out_before": asdict(held_out_before) if held_out_before else None,
+                "held_out_after": asdict(held_out_after) if held_out_after else None}
     save_model(out, model.cpu(), windows, transform, training)
-    return FinetuneResult(Path(out), len(train), len(val), before, after)
+    return FinetuneResult(Path(out), len(train), len(val), before, after, held_out_before, held_out_after)
