@@ -8,8 +8,10 @@ STAMP := $(VENV)/.installed
 DEMO_OUT ?= demo-output
 
 # libportaudio2: sounddevice; jackd2: real-time audio with no sound card (tests, benchmarks);
-# libusb-1.0-0: pyrealsense2; the GL/EGL/X11 runtime: pyorbslam3's Pangolin-linked extension.
-APT_PACKAGES := libportaudio2 jackd2 libusb-1.0-0 libgl1 libegl1 libopengl0 libglx0 libsm6 libice6 libx11-6 libxext6
+# libusb-1.0-0: pyrealsense2; the GL/EGL/X11 runtime: pyorbslam3's Pangolin-linked extension; tmux: the test that
+# reads `seesys run`'s live view from a terminal as a person sees it (a pseudo-terminal stands in without it).
+APT_PACKAGES := libportaudio2 jackd2 libusb-1.0-0 libgl1 libegl1 libopengl0 libglx0 libsm6 libice6 libx11-6 libxext6 \
+	tmux
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 .PHONY: all setup apt venv demo test clean

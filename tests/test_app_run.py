@@ -1,7 +1,7 @@
-"""`seesys run --local` end to end, as a person runs it: in a terminal (tmux, its pane captured), on a recording of
-the embedded sample slowed down (so that the run outlasts an estimator restart), with the shipped model, the
-audio into a WAV through a private JACK dummy server (`--wav`), the estimator killed with SIGKILL mid-run, and
-Ctrl-C at the end. One run, shared by the tests of this module.
+"""`seesys run --local` end to end, as a person runs it: in a terminal (tmux, its pane captured; a pseudo-terminal
+where tmux is not installed), on a recording of the embedded sample slowed down (so that the run outlasts an
+estimator restart), with the shipped model, the audio into a WAV through a private JACK dummy server (`--wav`), the
+estimator killed with SIGKILL mid-run, and Ctrl-C at the end. One run, shared by the tests of this module.
 
 Checked: the view shows every field while estimates come, and the restart after the kill; the kill is logged, the
 estimator restarted and estimates resume; the device logged every frame; Ctrl-C stops every child and leaves a
@@ -10,15 +10,21 @@ summary; the WAV holds, buffer by buffer, the pulses that Equation 2 gives for t
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import os
+import pty
+import re
 import shlex
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
+import termios
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +49,9 @@ STRETCH = 6
 # Equation 2 made to sound at the sample's estimates (3 to 6 mm, below the paper's alpha of 4 mm at times), so that
 # the WAV holds pulses to check; the rule is the same.
 EQUATION2 = {"alpha_m": 0.001, "pulses_per_metre": 500.0}
+
+COLUMNS, ROWS = 160, 40
+ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 
 pytestmark = [pytest.mark.slam, pytest.mark.audio]
 
@@ -72,31 +81,69 @@ def stretched_sample(folder: Path, factor: int) -> Path:
 
 
 class Pane:
-    """A tmux session of its own running one command; its screen as text."""
+    """A terminal running one command, and its screen as text: a tmux session of its own (the screen as tmux
+    draws it, ``capture-pane``) or, without tmux, a pseudo-terminal (the screen is the newest redraw of the output,
+    escape sequences removed)."""
 
     def __init__(self, name: str, command: str):
         self.name = name
-        subprocess.run(["tmux", "new-session", "-d", "-s", name, "-x", "160", "-y", "40", command], check=True)
-        subprocess.run(["tmux", "set-option", "-t", name, "remain-on-exit", "on"], check=True)
+        self.tmux = shutil.which("tmux") is not None
+        if self.tmux:
+            subprocess.run(["tmux", "new-session", "-d", "-s", name, "-x", str(COLUMNS), "-y", str(ROWS), command],
+                           check=True)
+            subprocess.run(["tmux", "set-option", "-t", name, "remain-on-exit", "on"], check=True)
+            self.pid = int(self._tmux("display-message", "-p", "-t", name, "#{pane_pid}"))
+            return
+        master, slave = pty.openpty()
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", ROWS, COLUMNS, 0, 0))
+        self._process = subprocess.Popen(["sh", "-c", command], stdin=slave, stdout=slave, stderr=slave,
+                                         start_new_session=True)
+        os.close(slave)
+        self.pid = self._process.pid
+        self._output = bytearray()
+        self._reader = threading.Thread(target=self._read, args=(master,), daemon=True)
+        self._reader.start()
+
+    def _tmux(self, *args: str) -> str:
+        return subprocess.run(["tmux", *args], capture_output=True, text=True).stdout.strip()
+
+    def _read(self, master: int) -> None:
+        while True:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:  # the command ended and its side of the terminal closed
+                break
+            if not chunk:
+                break
+            self._output += chunk
+        os.close(master)
 
     def text(self) -> str:
-        return subprocess.run(["tmux", "capture-pane", "-p", "-t", self.name], capture_output=True,
-                              text=True).stdout
+        if self.tmux:
+            return self._tmux("capture-pane", "-p", "-t", self.name)
+        text = ANSI.sub("", self._output.decode(errors="replace"))
+        if self._process.poll() is not None:
+            return text
+        panels = [part for part in text.split("╭") if "╯" in part]  # the newest complete redraw of the panel
+        return "╭" + panels[-1] if panels else text
 
     def ctrl_c(self) -> None:
-        subprocess.run(["tmux", "send-keys", "-t", self.name, "C-c"], check=True)
+        if self.tmux:
+            subprocess.run(["tmux", "send-keys", "-t", self.name, "C-c"], check=True)
+        else:
+            os.kill(self.pid, signal.SIGINT)
 
     def dead(self) -> bool:
-        out = subprocess.run(["tmux", "display-message", "-p", "-t", self.name, "#{pane_dead}"],
-                             capture_output=True, text=True).stdout.strip()
-        return out == "1"
-
-    def pid(self) -> int:
-        return int(subprocess.run(["tmux", "display-message", "-p", "-t", self.name, "#{pane_pid}"],
-                                  capture_output=True, text=True).stdout.strip())
+        if self.tmux:
+            return self._tmux("display-message", "-p", "-t", self.name, "#{pane_dead}") == "1"
+        return self._process.poll() is not None
 
     def close(self) -> None:
-        subprocess.run(["tmux", "kill-session", "-t", self.name], capture_output=True)
+        if self.tmux:
+            subprocess.run(["tmux", "kill-session", "-t", self.name], capture_output=True)
+        elif self._process.poll() is None:
+            self._process.kill()
+            self._process.wait()
 
     def showing(self, *words: str) -> str | None:
         """The screen if it shows every word; fails at once when the app has ended."""
@@ -129,8 +176,6 @@ def estimates(folder: Path) -> pd.DataFrame:
 @pytest.fixture(scope="module")
 def run():
     """The run (see the module docstring); yields what the tests look at."""
-    if shutil.which("tmux") is None:
-        pytest.skip("tmux is not installed")
     if not JackDummy.available():
         pytest.skip("jackd is not installed (apt package jackd2)")
     root = Path(tempfile.mkdtemp(prefix="sapp", dir="/tmp"))  # ipc paths must stay short
@@ -141,7 +186,7 @@ def run():
                "seesys", "--out", str(out), "--wav"]
     pane = Pane(f"seesys-app-{os.getpid()}", f"cd {shlex.quote(str(REPO))} && SEESYS_CONFIG_DIR="
                                              f"{shlex.quote(str(config_dir))} exec {shlex.join(command)}")
-    app = psutil.Process(pane.pid())
+    app = psutil.Process(pane.pid)
     seen: dict[str, object] = {}
     try:
         pane.wait(lambda: len(estimates(out)) >= 3, "three estimates")
