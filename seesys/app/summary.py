@@ -134,7 +134,9 @@ def write_summary(app: App, *, status: str, error: str | None, started: str, end
                **session_figures(folder)}
     if watcher is not None:
         summary["drops"] = {"skipped_by_device": watcher.frames_skipped,
-                            "lost_in_transit": watcher.losses.lost_in_transit, "bad_messages": watcher.bad_messages}
+                            "lost_in_transit": watcher.losses.lost_in_transit, "bad_messages": watcher.bad_messages,
+                            # what a local estimator last reported dropping or rejecting (None: remote, or unknown)
+                            "estimator": app.view.snapshot.estimator_dropped if app.view is not None else None}
     files = {"events": out.events, "logs": "logs"}
     if (folder / out.wav).exists():
         files["wav"] = out.wav
