@@ -26,6 +26,13 @@ def test_a_session_folder_in_use_is_refused(tmp_path):
                                    f"for the session")
 
 
+def test_a_bad_estimator_address_leaves_no_session_folder(tmp_path):
+    done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--estimator", "edge-server", "--condition", "none",
+                      "--out", str(tmp_path / "s"))
+    assert done.returncode == 2 and "--estimator wants HOST:PORT" in done.stderr
+    assert not (tmp_path / "s").exists()
+
+
 def test_local_and_remote_estimator_exclude_each_other(tmp_path):
     done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--local", "--estimator", "h:1", "--condition", "none",
                       "--out", str(tmp_path / "s"))

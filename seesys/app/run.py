@@ -63,6 +63,8 @@ RESTARTABLE = ("estimator", "generator", "player")
 
 @dataclass(frozen=True)
 class RunOptions:
+    """What ``seesys run`` was asked for; None takes the default of ``configs/app.toml``."""
+
     source: str
     condition: Condition
     out: Path
@@ -77,6 +79,8 @@ class RunOptions:
 
 @dataclass
 class RunResult:
+    """The session folder, the outcome (completed, interrupted, failed) and ``summary.json``'s content."""
+
     folder: Path
     status: str
     summary: dict
@@ -117,6 +121,7 @@ class App:
         if options.local == (options.estimator is not None):
             raise SeesysError("give either --local (start the estimator on this machine) or --estimator HOST:PORT")
         self.o = options
+        self.estimates_endpoint = estimates_endpoint(options.estimator) if options.estimator is not None else None
         self.cfg = cfg or load_app_config()
         self.advisory = load_advisory_config()
         self.mode = options.mode or self.cfg.device.mode
@@ -155,8 +160,8 @@ class App:
     def _configure(self) -> dict[str, str]:
         """The run's config folder and the children's environment."""
         overrides = self._audio_overrides()
-        if self.o.estimator is not None:
-            overrides["estimates_endpoint"] = estimates_endpoint(self.o.estimator)
+        if self.estimates_endpoint is not None:
+            overrides["estimates_endpoint"] = self.estimates_endpoint
         self.config_dir = write_config_dir(self.folder / CONFIGS, overrides)
         env = {**os.environ, CONFIG_DIR_ENV: str(self.config_dir)}
         if self.jack is not None:
