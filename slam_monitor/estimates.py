@@ -10,10 +10,10 @@ Three moments per frame, on this process's monotonic clock:
 - *received*: its estimate arrived from ``estimates_endpoint``.
 
 ``estimates.csv``: ``frame_index, timestamp, error_m, model_version, server_ms, received_unix, tracking_ms,
-preprocess_ms`` (tracked → sent: the monitor's features, PSD, logs and publish), ``transmit_inference_ms`` (sent →
-received), ``end_to_end_ms`` (tracked → received, what the paper reports as end to end) and
-``capture_to_estimate_ms`` (tracking included). A time not observed is empty (for example the first frames, before
-the local subscriber is connected). Rows are flushed as they come.
+preprocess_ms`` (tracked → sent: the monitor's features, PSD and encoding; it writes its logs after publishing),
+``transmit_inference_ms`` (sent → received), ``end_to_end_ms`` (tracked → received, what the paper reports as end
+to end) and ``capture_to_estimate_ms`` (tracking included). A time not observed is empty (for example the first
+frames, before the local subscriber is connected). Rows are flushed as they come.
 
 Nothing here can stop tracking: the receiving thread only reads sockets and writes the log; sockets reconnect by
 themselves after the estimator restarts, and the estimates simply resume.
