@@ -67,13 +67,17 @@ class PsdGeometry:
         return self.image_rows * self.expansion, self.image_cols * self.expansion, NUM_LAYERS
 
     def cells(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat cell index (row · cols + col) of each pixel position (N, 2), and which fall inside the grid."""
+        """Flat cell index (row · cols + col) of each pixel position (N, 2), and which fall inside the grid (the
+        index of a position outside, or not finite, is 0)."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         rows, cols, _ = self.shape
-        col = np.floor(uv[:, 0] / self.patch_px).astype(np.int64) + self.col_offset
-        row = np.floor(uv[:, 1] / self.patch_px).astype(np.int64) + self.row_offset
-        inside = (col >= 0) & (col < cols) & (row >= 0) & (row < rows) & np.isfinite(uv).all(axis=1)
-        return row * cols + col, inside
+        # Both coordinates at once and in floating point (exact for any grid index): comparisons with NaN are false,
+        # so a non-finite position falls outside without a test of its own, and no NaN is cast to an integer.
+        grid = np.floor(uv / self.patch_px)
+        grid += (self.col_offset, self.row_offset)
+        col, row = grid[:, 0], grid[:, 1]
+        inside = (col >= 0) & (col < cols) & (row >= 0) & (row < rows)
+        return np.where(inside, row * cols + col, 0).astype(np.int64), inside
 
 
 def inverse_depth_code(z: np.ndarray, near_depth: float) -> np.ndarray:
