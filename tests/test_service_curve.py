@@ -8,9 +8,13 @@ from __future__ import annotations
 import dataclasses
 
 import pandas as pd
+import pytest
 import zmq
 
+from estimator.service.config import load_service_config
 from estimator.service.keys import make_key_pair
+from estimator.service.sandbox import private_configs
+from seesys.errors import ConfigError
 from seesys.network import ClientCurveConfig, load_network_config
 from service_fixtures import ServiceProcess, ServiceSetup, device_frames, tiny_model, wait_for  # noqa: F401
 from slam_monitor.estimates import ESTIMATES_CSV, EstimateObserver
@@ -84,3 +88,16 @@ def test_with_curve_from_network_toml_only_the_allowed_device_is_served(tiny_mod
         service.stop()
         service.kill()
         setup.cleanup()
+
+
+def test_curve_keys_come_in_pairs_on_both_sides(tmp_path):
+    """A half-configured [curve] is refused when the configuration loads, naming what is missing."""
+    client, _ = private_configs(tmp_path / "client", server_public_key="keys/server.key")
+    with pytest.raises(ConfigError, match="client_secret_key"):
+        load_network_config(client)
+    server, _ = private_configs(tmp_path / "server", server_secret_key="keys/server.key_secret")
+    with pytest.raises(ConfigError, match="allowed_clients"):
+        load_service_config(server)
+    plain = load_network_config(private_configs(tmp_path / "plain")[0])
+    assert not plain.curve.enabled
+    assert plain.client_options(plain.estimates_endpoint) == {}
