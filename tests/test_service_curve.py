@@ -41,13 +41,15 @@ def test_with_curve_from_network_toml_only_the_allowed_device_is_served(tiny_mod
     stranger_network = dataclasses.replace(
         network, features_endpoint=f"ipc://{setup.folder}/stranger-features",
         curve=ClientCurveConfig(str(server_public), str(stranger_secret)))
+    # The stranger connects before the service is up (ZeroMQ retries), so that its socket monitor is in place
+    # before the handshake the service refuses.
+    stranger = FeaturePublisher.for_network(stranger_network)
+    refused = stranger.service_socket.get_monitor_socket(zmq.EVENT_HANDSHAKE_FAILED_AUTH)
     service = ServiceProcess(setup, tiny_model)
-    device = stranger = watcher = None
+    device = watcher = None
     observers = []
     try:
         assert service.wait_ready()["curve"] is True
-        stranger = FeaturePublisher.for_network(stranger_network)
-        refused = stranger.service_socket.get_monitor_socket(zmq.EVENT_HANDSHAKE_FAILED_AUTH)
         observers.append(stranger_observer := observer_for(stranger_network, tmp_path / "stranger", "dev-x"))
         device = FeaturePublisher.for_network(network)
         observers.append(device_observer := observer_for(network, tmp_path / "device", "dev-ok"))
@@ -76,8 +78,8 @@ def test_with_curve_from_network_toml_only_the_allowed_device_is_served(tiny_mod
         assert list(service.status()["devices"]) == ["dev-ok"]
         assert watcher.estimates >= 2 and watcher.error is None
         assert (tmp_path / STUDY_ESTIMATES_CSV).exists()
-        refused.close()
     finally:
+        refused.close()
         if watcher is not None:
             watcher.stop()
         for observer in observers:
