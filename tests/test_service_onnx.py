@@ -1,5 +1,6 @@
 """The ONNX serving path: loading a served model imports no PyTorch, the execution providers follow the
-``providers`` setting and what ONNX Runtime offers, and a running service says which provider runs its workers."""
+``providers`` setting and what ONNX Runtime offers, a running service says which provider runs its workers, and a
+worker's batch is no larger than its oldest window can finish in time."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pytest
 
 from estimator.deepsee.onnx_model import CPU, CUDA, choose_providers
 from estimator.service.status import format_status
+from estimator.service.worker import batch_size
 from seesys.errors import ConfigError
 from service_fixtures import ServiceProcess, ServiceSetup, tiny_model  # noqa: F401
 
@@ -76,3 +78,13 @@ def test_a_provider_setting_that_cannot_be_met_stops_serve_with_one_message(tiny
     finally:
         service.kill()
         setup.cleanup()
+
+
+def test_a_batch_is_cut_to_what_its_oldest_window_can_finish_in_time():
+    """At 5 ms a window and a 150 ms limit, a window 100 ms old leaves room for 10 in its batch; no cost measured
+    yet, or a fresh window, and max_batch decides; at least one window always runs."""
+    assert batch_size(ready=16, max_batch=16, oldest_age_ms=100.0, window_ms=5.0, stale_after_ms=150.0) == 10
+    assert batch_size(ready=16, max_batch=16, oldest_age_ms=100.0, window_ms=0.0, stale_after_ms=150.0) == 16
+    assert batch_size(ready=30, max_batch=16, oldest_age_ms=1.0, window_ms=1.0, stale_after_ms=150.0) == 16
+    assert batch_size(ready=3, max_batch=16, oldest_age_ms=0.0, window_ms=5.0, stale_after_ms=150.0) == 3
+    assert batch_size(ready=8, max_batch=16, oldest_age_ms=149.0, window_ms=5.0, stale_after_ms=150.0) == 1

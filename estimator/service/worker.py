@@ -8,6 +8,12 @@ a window whose last frame reached the broker more than ``stale_after_ms`` ago is
 (an estimate that late would mislead the advisory more than no estimate). Every ``heartbeat_ms`` it reports its
 counters to the broker.
 
+Batch size. A batch's estimates all leave when the batch ends, and on a CPU a batch costs about its size times one
+window (DeepSEE on one thread: 5.7, 22.0 and 95.0 ms for 1, 4 and 16 windows), so a large batch gains no
+throughput there and only holds back its first estimates. The worker therefore keeps a running cost per window
+and shrinks a batch until its oldest window can still finish within ``stale_after_ms`` (:func:`batch_size`); on a
+GPU, where a batch costs little more than one window, batches stay large.
+
 Frame indices that go backwards mean the device restarted: its windows start afresh. SIGINT and SIGTERM end the
 loop after the current batch; so does a stop message from the broker.
 """
@@ -37,6 +43,18 @@ from seesys.protocol.windows import WindowAssembler, WindowConfig, WindowSample
 
 # Inference times kept for the percentiles a heartbeat reports.
 _TIMING_SAMPLES = 512
+# Weight of the newest batch in the running cost per window (a few batches settle it; a slower machine shows soon).
+_COST_WEIGHT = 0.2
+
+
+def batch_size(ready: int, max_batch: int, oldest_age_ms: float, window_ms: float, stale_after_ms: float) -> int:
+    """How many of ``ready`` windows to run in one batch: at most ``max_batch``, and no more than lets the oldest
+    (``oldest_age_ms`` since its last frame reached the broker) finish within ``stale_after_ms`` at ``window_ms``
+    per window; at least one (whether that one is still in time is the stale check's to decide)."""
+    n = min(ready, max_batch)
+    if window_ms > 0:
+        n = min(n, int((stale_after_ms - oldest_age_ms) // window_ms))
+    return max(1, n)
 
 
 @dataclass
@@ -87,6 +105,7 @@ class Worker:
         self._socket = open_socket(self._ctx, zmq.DEALER, broker_endpoint, "estimator broker", bind=False,
                                    receive_hwm=config.worker_queue, send_hwm=config.worker_queue)
         self._drain_limit = config.max_batch * windows.end_stride * 4
+        self._window_ms = 0.0  # running model cost per window of a batch; 0 until the first batch is measured
 
     def stop(self, *_: object) -> None:
         self._stopping = True
@@ -167,14 +186,20 @@ class Worker:
             if now - ready.stamp > limit:
                 del self._ready[device]
                 self.counters.stale[device] += 1
-        batch = sorted(self._ready.values(), key=lambda r: r.stamp)[:self.config.max_batch]
-        if not batch:
+        waiting = sorted(self._ready.values(), key=lambda r: r.stamp)
+        if not waiting:
             return
+        batch = waiting[:batch_size(len(waiting), self.config.max_batch, (now - waiting[0].stamp) * 1000.0,
+                                    self._window_ms, self.config.stale_after_ms)]
         for ready in batch:
             del self._ready[ready.sample.device_id]
         start = time.perf_counter()
         errors = self.model.estimate([r.sample for r in batch])
-        self.counters.batch_ms.append((time.perf_counter() - start) * 1000.0)
+        elapsed_ms = (time.perf_counter() - start) * 1000.0
+        per_window = elapsed_ms / len(batch)
+        self._window_ms = per_window if not self._window_ms else (
+            (1 - _COST_WEIGHT) * self._window_ms + _COST_WEIGHT * per_window)
+        self.counters.batch_ms.append(elapsed_ms)
         self.counters.batch_sizes.append(len(batch))
         self.counters.batches += 1
         parts = [envelope.ESTIMATES]
