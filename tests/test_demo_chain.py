@@ -1,4 +1,5 @@
-"""The `make demo` chain on a short run: device session → true per-frame error → advisory preview."""
+"""The offline preview chain on a short run: device session → true per-frame error → advisory preview (what a
+researcher runs to hear what the advisory would have played for a recorded session)."""
 
 import numpy as np
 import pandas as pd
