@@ -13,16 +13,19 @@ that is why the audio always runs in child processes here.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import tempfile
 from pathlib import Path
 
 from seesys.config import CONFIG_DIR_ENV, config_dir
 from seesys.errors import SeesysError
+from seesys.processes import die_with_parent
 
 JACK_HOST_API = "JACK Audio Connection Kit"
 _JACK_WAIT_S = 5
@@ -70,8 +73,11 @@ class JackDummy:
             self.name = name
             # jackd reports every xrun: its output goes to a file, as a pipe nobody reads would fill up and block it.
             self._log = tempfile.NamedTemporaryFile(prefix="jackd-", suffix=".log")
+            # A JACK server left behind by a killed parent would hold one of the pool's names for good: the kernel
+            # stops it with its parent (SIGTERM, so it clears its registry entry).
             self._proc = subprocess.Popen(["jackd", "-n", name, *self._args], env={**os.environ, **self.env()},
-                                          stdout=self._log, stderr=subprocess.STDOUT)
+                                          stdout=self._log, stderr=subprocess.STDOUT,
+                                          preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM))
             ready = self._jack_wait(name, "-w", "-t", str(_JACK_WAIT_S))
             if ready.returncode == 0 and self._proc.poll() is None:
                 return

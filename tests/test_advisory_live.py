@@ -4,6 +4,7 @@ real Estimate and FeatureFrame messages over real ZeroMQ sockets; the player tee
 import os
 import signal
 import subprocess
+import sys
 import time
 
 import numpy as np
@@ -16,6 +17,7 @@ from advisory.sandbox import JackDummy
 from advisory.scheduler import LIVE, STALE, TICK
 from audio_fixtures import (Publisher, estimate_message, jack, make_sandbox, pulse_onsets,  # noqa: F401
                             pulses_per_buffer, rotation_frame, run_lengths, wait_started, wait_until)
+from polling import wait_for
 
 pytestmark = pytest.mark.audio
 
@@ -230,3 +232,24 @@ def test_missing_audio_device_is_a_clear_error_at_start(make_sandbox, tmp_path):
         assert result.returncode == 2, result.stderr
         assert "seesys: error: audio output device 'headphones' not found" in result.stderr
         assert "'default'" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_jack_server_does_not_outlive_a_killed_parent():
+    """A parent killed with SIGKILL cannot stop its JACK dummy server; the kernel does, so no server keeps one of
+    the pool's names (four leaked servers would leave no name for the next run)."""
+    if not JackDummy.available():
+        pytest.skip("jackd is not installed")
+    code = ("import time; from advisory.sandbox import JackDummy; server = JackDummy(48000, 256); server.start(); "
+            "print(server.pid, flush=True); time.sleep(120)")
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    jackd = int(parent.stdout.readline())
+    parent.kill()
+    parent.wait()
+
+    def gone() -> bool:
+        try:
+            os.kill(jackd, 0)
+        except ProcessLookupError:
+            return True
+        return False
+    wait_for(gone, 30, f"jackd {jackd} to exit after its parent was killed")
