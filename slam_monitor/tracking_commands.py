@@ -46,11 +46,16 @@ def add_session_arguments(parser: argparse.ArgumentParser) -> None:
     pacing.add_argument("--pace", dest="pace", action="store_true", default=None,
                         help="feed frames no faster than their timestamps (default: configs/slam.toml [pacing])")
     pacing.add_argument("--no-pace", dest="pace", action="store_false", help="feed frames as fast as SLAM takes them")
+    pacing.add_argument("--real-time", dest="pace", action="store_const", const="real-time",
+                        help="feed frames at their timestamps and never wait for ORB-SLAM3's mapping, as a live camera "
+                             "delivers them (a recording standing in for a camera: what the estimator and the "
+                             "advisory see is then real time)")
 
 
 def session_options_from_args(args: argparse.Namespace, observers: Sequence[ObserverSpec] = ()) -> SessionOptions:
     """:class:`SessionOptions` from the arguments of :func:`add_session_arguments`, plus observers."""
     parse_source_spec(args.source)  # an unknown kind is reported before a process is started
+    real_time = args.pace == "real-time"
     return SessionOptions(
         source=args.source,
         mode=SlamMode(args.mode),
@@ -58,7 +63,8 @@ def session_options_from_args(args: argparse.Namespace, observers: Sequence[Obse
         max_frames=args.max_frames,
         settings_file=args.settings,
         vocabulary=args.vocabulary,
-        pace=args.pace,
+        pace=True if real_time else args.pace,
+        wait_for_mapping=False if real_time else None,
         observers=tuple(observers),
     )
 

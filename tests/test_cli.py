@@ -68,3 +68,24 @@ def test_a_user_error_is_one_line_with_status_2(tmp_path):
 def test_an_unknown_command_is_a_usage_error():
     out = subprocess.run([sys.executable, "-m", "seesys", "frobnicate"], capture_output=True, text=True)
     assert out.returncode == 2 and "invalid choice: 'frobnicate'" in out.stderr
+
+
+@pytest.mark.parametrize("flags, pace, wait_for_mapping", [
+    ([], None, None),  # slam.toml decides
+    (["--pace"], True, None),  # at camera rate, waiting for mapping where slam.toml says so (offline runs)
+    (["--no-pace"], False, None),
+    (["--real-time"], True, False),  # as a live camera: camera rate, never waiting for mapping
+])
+def test_pacing_flags_of_a_device_session(flags, pace, wait_for_mapping, tmp_path):
+    from slam_monitor.tracking_commands import session_options_from_args
+
+    args = cli.build_parser().parse_args(["monitor", "run", "--source", "tum:data/sample", "--out", str(tmp_path),
+                                          *flags])
+    options = session_options_from_args(args)
+    assert (options.pace, options.wait_for_mapping) == (pace, wait_for_mapping)
+
+
+def test_pacing_flags_exclude_each_other(capsys):
+    with pytest.raises(SystemExit):
+        cli.build_parser().parse_args(["track", "--source", "tum:x", "--out", "y", "--pace", "--real-time"])
+    assert "not allowed with argument" in capsys.readouterr().err

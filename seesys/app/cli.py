@@ -54,7 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--mode", choices=["rgbd", "mono"], help="SLAM mode (default: configs/app.toml)")
     pacing = p.add_mutually_exclusive_group()
     pacing.add_argument("--pace", dest="pace", action="store_true", default=None,
-                        help="play a recording at camera rate (default: configs/app.toml)")
+                        help="play a recording at camera rate, as a live camera delivers it, never waiting for "
+                             "ORB-SLAM3's mapping (default: configs/app.toml)")
     pacing.add_argument("--no-pace", dest="pace", action="store_false", help="feed frames as fast as SLAM takes them")
     p.add_argument("--max-frames", type=_positive, metavar="N", help="stop the device after N frames")
     p.set_defaults(func=_run)

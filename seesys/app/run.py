@@ -196,7 +196,7 @@ class App:
 
     def _device_args(self) -> list[str]:
         args = ["monitor", "run", "--source", self.o.source, "--mode", self.mode, "--out", str(self.folder),
-                "--estimates", "--pace" if self.pace else "--no-pace"]
+                "--estimates", "--real-time" if self.pace else "--no-pace"]
         return args + (["--max-frames", str(self.o.max_frames)] if self.o.max_frames else [])
 
     def _wait_ready(self, ready: dict[str, object], stop) -> None:
