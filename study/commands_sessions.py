@@ -87,7 +87,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     p.add_argument("--restart", action="store_true", help="record the phase again; earlier attempts are superseded")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop the device after N frames")
     pace = p.add_mutually_exclusive_group()
-    pace.add_argument("--pace", dest="pace", action="store_true", default=None, help="feed frames at camera rate")
+    pace.add_argument("--pace", dest="pace", action="store_true", default=None,
+                      help="feed a recording at camera rate, as the participant's camera would (never waiting for "
+                           "ORB-SLAM3's mapping)")
     pace.add_argument("--no-pace", dest="pace", action="store_false")
     mocap = p.add_mutually_exclusive_group()
     mocap.add_argument("--mocap", dest="mocap", action="store_true", default=None, help="log motion capture")

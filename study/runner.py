@@ -181,7 +181,8 @@ class Session:
         if self.o.max_frames:
             device += ["--max-frames", str(self.o.max_frames)]
         if self.o.pace is not None:
-            device.append("--pace" if self.o.pace else "--no-pace")
+            # a recording standing in for the participant's camera plays in real time, as the camera would
+            device.append("--real-time" if self.o.pace else "--no-pace")
         self.children["device"] = Child.start("device", device, self.attempt)
 
     def _handle(self, event: OperatorEvent) -> bool:

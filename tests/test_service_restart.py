@@ -54,8 +54,9 @@ def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, re
     setup = ServiceSetup(connect_device_stream=True)
     frames = back_and_forth(tmp_path / "source")
     out = tmp_path / "session"
+    # at camera rate as a live camera, never waiting for ORB-SLAM3's mapping (which made this run last minutes)
     options = SessionOptions(source=f"tum:{tmp_path / 'source'}", mode=SlamMode.RGBD, out_dir=out, pace=True,
-                             config_dir=setup.config_dir,
+                             wait_for_mapping=False, config_dir=setup.config_dir,
                              observers=(ObserverSpec(MONITOR_FACTORY, {"stream": True}),
                                         ObserverSpec(ESTIMATES_FACTORY)))
     service = ServiceProcess(setup, tiny_model)
