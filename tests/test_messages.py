@@ -128,3 +128,19 @@ def test_a_psd_that_inflates_beyond_its_header_is_rejected():
     data = struct.pack("<HHHI", 4, 4, 3, len(bomb)) + bomb
     with pytest.raises(MessageError, match="does not fit its header"):
         messages.unpack_psd(data)
+
+
+@pytest.mark.parametrize("values", [b"\x07\x07\x07", b"\x07", b"\x07\x00"])
+def test_a_psd_whose_values_do_not_match_its_marked_cells_is_rejected(values):
+    mask = np.packbits(np.array([1, 0, 0, 1], bool)).tobytes()  # two cells of a 2x2x1 matrix marked
+    packed = zlib.compress(mask + values)
+    with pytest.raises(MessageError, match="marked cells"):
+        messages.unpack_psd(struct.pack("<HHHI", 2, 2, 1, len(packed)) + packed)
+
+
+def test_psd_cells_come_back_in_place_across_layers():
+    psd = np.zeros((2, 3, 3), np.uint8)
+    psd[0, 1, 2], psd[1, 2, 0], psd[1, 0, 1] = 9, 200, 1
+    out = messages.unpack_psd(messages.pack_psd(psd))
+    assert out.shape == (2, 3, 3) and out.flags.c_contiguous
+    np.testing.assert_array_equal(out, psd)

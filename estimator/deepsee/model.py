@@ -217,7 +217,9 @@ class DeepSEE(nn.Module):
 
     def psd_input(self, psd: torch.Tensor) -> torch.Tensor:
         """uint8 (B, K, H, W, 3) → float (B, K, 3, H, W) in [0, 1], dropped layers zero."""
-        return (psd.to(torch.float32) * self.psd_mask).permute(0, 1, 4, 2, 3)
+        # Channels first before scaling: ONNX Runtime broadcasts a (3,) factor over a last axis of 3 about 30 times
+        # slower than a (3, 1, 1) one over whole layers (1 ms of a 6 ms inference).
+        return psd.permute(0, 1, 4, 2, 3).to(torch.float32) * self.psd_mask.view(-1, 1, 1)
 
     def encode(self, rts: torch.Tensor, psd: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """RTS tokens (B, T, D) and PSD tokens (B, K+1, D): one per matrix (mean of its patches) and the class
