@@ -2,7 +2,9 @@
 
 Each simulated device replays a logged session's feature stream (``rts.csv`` + ``psd/``) at 30 Hz on its own
 connection to ``seesys estimator serve`` (a subprocess with a private configuration: ipc:// endpoints, the
-configured windows, stale limit and batching). Per row it prints, over ``--seconds`` of replay:
+configured windows, stale limit and batching). The devices' window ends are spread evenly over one estimate period,
+as independent devices' are (``--bunched``: all in the same frame period, one burst per estimate period; see
+:mod:`estimator.service.simulate`). Per row it prints, over ``--seconds`` of replay:
 
 - **latency** p50/p90/p99: feature message of a window's last frame sent → its estimate received, at the device
   (transmit + inference; the device's own preprocessing is not part of a replay);
@@ -16,7 +18,8 @@ Then, per worker count, the largest number of devices served with no drop at the
 records a session on the embedded sample (`seesys monitor run`, about a minute) unless ``--session`` is given,
 and exports the untrained model of the configured size unless the configured one exists or ``--model`` is given.
 
-Usage: ``.venv/bin/python benchmarks/estimator_service.py [--devices 1,4,16,64] [--workers 1,2] [--seconds 20]``
+Usage: ``.venv/bin/python benchmarks/estimator_service.py [--devices 1,4,16,64] [--workers 1,2] [--seconds 20]
+[--bunched]``
 (run it on a quiet machine: the figures are only as good as the CPU left to the service).
 """
 
@@ -88,14 +91,15 @@ def drops(status: dict) -> dict[str, int]:
     return totals
 
 
-def run_row(endpoints: dict, process: psutil.Process, frames, devices: int, seconds: float, row: int) -> dict:
+def run_row(endpoints: dict, process: psutil.Process, frames, devices: int, seconds: float, row: int,
+            bunched: bool) -> dict:
     windows = load_window_config()
     fleet = DeviceFleet(endpoints["ingest"], endpoints["estimates"], [f"bench-{row}-{k}" for k in range(devices)])
     time.sleep(1.0)  # connections and subscriptions settle; frames sent before would be lost, and counted missing
     try:
         before_status, before_cpu, start = query_status(endpoints["status"], 5000), service_cpu_s(process), \
             time.perf_counter()
-        result = fleet.replay(frames, seconds, RATE_HZ, windows)
+        result = fleet.replay(frames, seconds, RATE_HZ, windows, bunched=bunched)
         wall = time.perf_counter() - start
         cpu = service_cpu_s(process) - before_cpu
         after_status = query_status(endpoints["status"], 5000)
@@ -119,6 +123,9 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="replay per row (default 20)")
     parser.add_argument("--session", type=Path, help="session folder to replay (default: record the sample)")
     parser.add_argument("--model", type=Path, help="ONNX model (default: configured, else an untrained stand-in)")
+    parser.add_argument("--bunched", action="store_true",
+                        help="all devices end their windows in the same frame period (default: spread evenly over "
+                             "one estimate period, as independent devices are)")
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="svcb") as tmp:
@@ -129,6 +136,7 @@ def main() -> None:
         windows = load_window_config()
         print(f"estimator service benchmark: {platform.node()}, {os.cpu_count()} CPUs, model {model.name}, session "
               f"{session} ({len(frames)} frames), {RATE_HZ:g} Hz, end_stride {windows.end_stride}, "
+              f"{'bunched' if args.bunched else 'spread'} phases, "
               f"{args.seconds:g} s per row; load average before: {os.getloadavg()[0]:.2f}")
         header = (f"{'workers':>7}{'devices':>8}{'p50 ms':>8}{'p90 ms':>8}{'p99 ms':>8}{'est/s':>8}{'expected':>9}"
                   f"{'missing':>8}{'stale':>7}{'q-full':>7}{'lost':>6}{'cores':>7}")
@@ -141,7 +149,8 @@ def main() -> None:
             try:
                 wait_ready(serve, endpoints["status"], START_TIMEOUT_S, log)
                 for row, devices in enumerate(args.devices):
-                    r = run_row(endpoints, psutil.Process(serve.pid), frames, devices, args.seconds, row)
+                    r = run_row(endpoints, psutil.Process(serve.pid), frames, devices, args.seconds, row,
+                                args.bunched)
                     print(f"{workers:>7}{devices:>8}{r['p50']:>8.1f}{r['p90']:>8.1f}{r['p99']:>8.1f}"
                           f"{r['estimates_per_s']:>8.1f}{r['expected_per_s']:>9.1f}{r['missing']:>8}{r['stale']:>7}"
                           f"{r['queue_full']:>7}{r['lost']:>6}{r['cores']:>7.2f}", flush=True)

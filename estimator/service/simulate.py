@@ -3,8 +3,14 @@ camera rate, each on its own connection to the service, with the latency of ever
 device would see it (feature message sent → estimate received: transmit + inference).
 
 Every message is encoded before the clock starts, so the replay's own cost while running is a send per frame and a
-receive per estimate. Devices start evenly spread over one frame period; the session loops with frame indices
-and timestamps going on (a window across the seam is just another window).
+receive per estimate. The session loops with frame indices and timestamps going on (a window across the seam is
+just another window).
+
+Phases. Devices that run independently end their windows at unrelated moments, so by default the devices start
+evenly spread over one estimate period (``end_stride`` frames) and their window ends arrive at an even pace. With
+``bunched`` they start within one frame period: every device's window ends in the same frame period, and the
+service gets them as one burst per estimate period (the worst case, as if all devices had been started together
+to the frame).
 """
 
 from __future__ import annotations
@@ -51,6 +57,12 @@ def looped(frames: Sequence[FeatureFrame], count: int, device_id: str, rate_hz: 
             for k in range(count)]
 
 
+def send_schedule(devices: int, frames: int, rate_hz: float, spread_s: float) -> list[tuple[float, int, int]]:
+    """``(due time in s from the start, device, frame index)`` of every message, in time order: each device sends
+    ``frames`` frames at ``rate_hz``, and the devices' first frames are spread evenly over ``spread_s``."""
+    return sorted((k / rate_hz + j * spread_s / devices, j, k) for j in range(devices) for k in range(frames))
+
+
 class DeviceFleet:
     """``devices`` simulated devices connected to a service (``ingest_endpoint`` in, ``estimates_endpoint`` out).
 
@@ -67,13 +79,14 @@ class DeviceFleet:
                                 options=socket_options)
 
     def replay(self, frames: Sequence[FeatureFrame], duration_s: float, rate_hz: float,
-               windows: WindowConfig, drain_s: float = 1.0) -> FleetResult:
-        """Send ``duration_s`` of frames per device at ``rate_hz``, then wait up to ``drain_s`` for estimates."""
+               windows: WindowConfig, drain_s: float = 1.0, bunched: bool = False) -> FleetResult:
+        """Send ``duration_s`` of frames per device at ``rate_hz``, then wait up to ``drain_s`` for estimates;
+        ``bunched``: see the module's docstring."""
         count = int(duration_s * rate_hz)
         n = len(self.device_ids)
         encoded = [[messages.encode(f) for f in looped(frames, count, d, rate_hz)] for d in self.device_ids]
-        # (due time offset, device, frame): devices spread evenly over one frame period
-        schedule = sorted((k / rate_hz + j / (n * rate_hz), j, k) for j in range(n) for k in range(count))
+        spread_s = (1 if bunched else windows.end_stride) / rate_hz
+        schedule = send_schedule(n, count, rate_hz, spread_s)
         sent_at: dict[tuple[str, int], float] = {}
         result = FleetResult(n, duration_s, 0, 0)
         start = time.perf_counter()
