@@ -1,6 +1,6 @@
 """The ONNX serving path: loading a served model imports no PyTorch, the execution providers follow the
 ``providers`` setting and what ONNX Runtime offers, a running service says which provider runs its workers, and a
-worker's batch is no larger than its oldest window can finish in time."""
+worker's batch is the freshest windows that can all finish in time."""
 
 from __future__ import annotations
 
@@ -80,11 +80,15 @@ def test_a_provider_setting_that_cannot_be_met_stops_serve_with_one_message(tiny
         setup.cleanup()
 
 
-def test_a_batch_is_cut_to_what_its_oldest_window_can_finish_in_time():
-    """At 5 ms a window and a 150 ms limit, a window 100 ms old leaves room for 10 in its batch; no cost measured
-    yet, or a fresh window, and max_batch decides; at least one window always runs."""
-    assert batch_size(ready=16, max_batch=16, oldest_age_ms=100.0, window_ms=5.0, stale_after_ms=150.0) == 10
-    assert batch_size(ready=16, max_batch=16, oldest_age_ms=100.0, window_ms=0.0, stale_after_ms=150.0) == 16
-    assert batch_size(ready=30, max_batch=16, oldest_age_ms=1.0, window_ms=1.0, stale_after_ms=150.0) == 16
-    assert batch_size(ready=3, max_batch=16, oldest_age_ms=0.0, window_ms=5.0, stale_after_ms=150.0) == 3
-    assert batch_size(ready=8, max_batch=16, oldest_age_ms=149.0, window_ms=5.0, stale_after_ms=150.0) == 1
+def test_a_batch_is_the_freshest_windows_that_can_all_finish_in_time():
+    """At 5 ms a window and a 150 ms limit: the freshest windows go first, and a batch stops before the window that
+    could no longer finish in time; no cost measured yet, and max_batch decides; at least one window always runs."""
+    assert batch_size([0.0] * 3, max_batch=16, window_ms=5.0, stale_after_ms=150.0) == 3
+    assert batch_size([1.0] * 30, max_batch=16, window_ms=1.0, stale_after_ms=150.0) == 16
+    assert batch_size([100.0] * 16, max_batch=16, window_ms=5.0, stale_after_ms=150.0) == 10
+    assert batch_size([100.0] * 16, max_batch=16, window_ms=0.0, stale_after_ms=150.0) == 16
+    # 10, 20, ..., 140 ms old: in a batch of 10 the tenth (100 ms old) finishes at 150 ms, in one of 11 the
+    # eleventh (110 ms) at 165
+    ages = [10.0 * k for k in range(1, 15)]
+    assert batch_size(ages, max_batch=16, window_ms=5.0, stale_after_ms=150.0) == 10
+    assert batch_size([149.0] * 8, max_batch=16, window_ms=5.0, stale_after_ms=150.0) == 1

@@ -3,15 +3,21 @@
 Loop. The worker reads every frame already waiting (at most ``max_batch × end_stride × 4`` per round, so a flood
 cannot starve the model), adds each to its device's :class:`~seesys.protocol.windows.WindowAssembler`, and keeps
 at most one ready window per device: a newer window of the same device supersedes an older one not yet served,
-which is dropped as stale. It then serves up to ``max_batch`` ready windows, oldest first, in one batched run;
+which is dropped as stale. It then serves up to ``max_batch`` ready windows, freshest first, in one batched run;
 a window whose last frame reached the broker more than ``stale_after_ms`` ago is dropped and counted instead
 (an estimate that late would mislead the advisory more than no estimate). Every ``heartbeat_ms`` it reports its
 counters to the broker.
 
+Order. Below capacity the queue is short and the order hardly matters. Overloaded, oldest first would serve every
+window just before its deadline, one at a time (the oldest leaves no room for a batch), while the fresher ones
+age behind it: every estimate late, and fewer of them. Freshest first serves the windows that still have time,
+in batches, and lets the ones that cannot make it go stale. Each device's window is the freshest when it arrives,
+so no device is left out for long. Per-device order is kept: a device has at most one ready window.
+
 Batch size. A batch's estimates all leave when the batch ends, and on a CPU a batch costs about its size times one
-window (DeepSEE on one thread: 5.7, 22.0 and 95.0 ms for 1, 4 and 16 windows), so a large batch gains no
-throughput there and only holds back its first estimates. The worker therefore keeps a running cost per window
-and shrinks a batch until its oldest window can still finish within ``stale_after_ms`` (:func:`batch_size`); on a
+window (DeepSEE on one thread: 5.7, 22.0 and 95.0 ms for 1, 4 and 16 windows), so a large batch gains little
+throughput there and holds back its first estimates. The worker therefore keeps a running cost per window and
+takes the largest batch whose oldest window still finishes within ``stale_after_ms`` (:func:`batch_size`); on a
 GPU, where a batch costs little more than one window, batches stay large.
 
 Frame indices that go backwards mean the device restarted: its windows start afresh. SIGINT and SIGTERM end the
@@ -26,6 +32,7 @@ import socket
 import sys
 import time
 from collections import defaultdict, deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,13 +54,14 @@ _TIMING_SAMPLES = 512
 _COST_WEIGHT = 0.2
 
 
-def batch_size(ready: int, max_batch: int, oldest_age_ms: float, window_ms: float, stale_after_ms: float) -> int:
-    """How many of ``ready`` windows to run in one batch: at most ``max_batch``, and no more than lets the oldest
-    (``oldest_age_ms`` since its last frame reached the broker) finish within ``stale_after_ms`` at ``window_ms``
-    per window; at least one (whether that one is still in time is the stale check's to decide)."""
-    n = min(ready, max_batch)
-    if window_ms > 0:
-        n = min(n, int((stale_after_ms - oldest_age_ms) // window_ms))
+def batch_size(ages_ms: Sequence[float], max_batch: int, window_ms: float, stale_after_ms: float) -> int:
+    """How many of the ready windows to run in one batch, taken freshest first (``ages_ms``: each window's time
+    since its last frame reached the broker, ascending): the most, up to ``max_batch``, whose oldest still finishes
+    within ``stale_after_ms`` at ``window_ms`` per window; at least one (whether that one is still in time is the
+    stale check's to decide)."""
+    n = min(len(ages_ms), max_batch)
+    while n > 1 and ages_ms[n - 1] + n * window_ms > stale_after_ms:
+        n -= 1
     return max(1, n)
 
 
@@ -186,11 +194,11 @@ class Worker:
             if now - ready.stamp > limit:
                 del self._ready[device]
                 self.counters.stale[device] += 1
-        waiting = sorted(self._ready.values(), key=lambda r: r.stamp)
+        waiting = sorted(self._ready.values(), key=lambda r: r.stamp, reverse=True)  # freshest first
         if not waiting:
             return
-        batch = waiting[:batch_size(len(waiting), self.config.max_batch, (now - waiting[0].stamp) * 1000.0,
-                                    self._window_ms, self.config.stale_after_ms)]
+        ages_ms = [(now - r.stamp) * 1000.0 for r in waiting]
+        batch = waiting[:batch_size(ages_ms, self.config.max_batch, self._window_ms, self.config.stale_after_ms)]
         for ready in batch:
             del self._ready[ready.sample.device_id]
         start = time.perf_counter()
