@@ -27,30 +27,44 @@ from estimator.deepsee.rows import Variant
 from estimator.deepsee.transforms import psd_layer_mask, rts_channel_mask
 
 
+class TokenLinear(nn.Linear):
+    """``nn.Linear`` applied to the tokens flattened to one matrix: exported to ONNX as one Gemm with its bias
+    inside, instead of a batched MatMul and a separate Add (ONNX Runtime fuses the bias only in two dimensions)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.linear(x.reshape(-1, x.shape[-1]), self.weight, self.bias).reshape(*x.shape[:-1], -1)
+
+
 class Attention(nn.Module):
-    """Multi-head attention of queries ``x`` over keys/values ``context`` (self-attention when it is ``x``)."""
+    """Multi-head attention of queries ``x`` over keys/values ``context`` (self-attention when it is ``x``).
+
+    Written out (scaled product, softmax, weighted sum) rather than with ``F.scaled_dot_product_attention``: the
+    ONNX exporter decomposes that one into about a dozen shape computations per call, a sixth of the exported
+    graph's nodes. Every reshape leaves the batch as ``-1`` for the same reason: a batch size read from the input
+    costs Shape, Slice and Concat nodes at every use."""
 
     def __init__(self, dim: int, heads: int, dropout: float):
         super().__init__()
         self.heads = heads
-        self.q = nn.Linear(dim, dim)
-        self.kv = nn.Linear(dim, 2 * dim)
-        self.proj = nn.Linear(dim, dim)
-        self.dropout = dropout
+        self.q = TokenLinear(dim, dim)
+        self.kv = TokenLinear(dim, 2 * dim)
+        self.proj = TokenLinear(dim, dim)
+        self.dropout = nn.Dropout(dropout)
 
     def forward(self, x: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
-        b, n, d = x.shape
+        n, d = x.shape[1:]
         h = self.heads
-        q = self.q(x).reshape(b, n, h, d // h).transpose(1, 2)
-        k, v = self.kv(context).reshape(b, context.shape[1], 2, h, d // h).permute(2, 0, 3, 1, 4)
-        out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
-        return self.proj(out.transpose(1, 2).reshape(b, n, d))
+        q = self.q(x).reshape(-1, n, h, d // h).transpose(1, 2) * (d // h) ** -0.5
+        kv = self.kv(context).reshape(-1, context.shape[1], 2 * h, d // h)
+        weights = self.dropout(torch.softmax(q @ kv[:, :, :h].permute(0, 2, 3, 1), dim=-1))
+        out = weights @ kv[:, :, h:].transpose(1, 2)
+        return self.proj(out.transpose(1, 2).reshape(-1, n, d))
 
 
 def feed_forward(dim: int, ratio: float, dropout: float) -> nn.Sequential:
     hidden = int(dim * ratio)
-    return nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, hidden), nn.GELU(), nn.Dropout(dropout),
-                         nn.Linear(hidden, dim), nn.Dropout(dropout))
+    return nn.Sequential(nn.LayerNorm(dim), TokenLinear(dim, hidden), nn.GELU(), nn.Dropout(dropout),
+                         TokenLinear(hidden, dim), nn.Dropout(dropout))
 
 
 class DividedSpaceTimeBlock(nn.Module):
@@ -61,7 +75,7 @@ class DividedSpaceTimeBlock(nn.Module):
         super().__init__()
         self.norm_t = nn.LayerNorm(dim)
         self.attn_t = Attention(dim, config.heads, config.dropout)
-        self.temporal_fc = nn.Linear(dim, dim)
+        self.temporal_fc = TokenLinear(dim, dim)
         if not first:  # TimeSformer starts every later block's temporal path at zero, so it begins as space-only
             nn.init.zeros_(self.temporal_fc.weight)
             nn.init.zeros_(self.temporal_fc.bias)
@@ -71,14 +85,14 @@ class DividedSpaceTimeBlock(nn.Module):
 
     def forward(self, cls: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``cls`` (B, 1, D), ``x`` (B, K, N, D) → the same shapes."""
-        b, k, n, d = x.shape
-        xt = x.permute(0, 2, 1, 3).reshape(b * n, k, d)
+        _, k, n, d = x.shape
+        xt = x.transpose(1, 2).reshape(-1, k, d)
         yt = self.norm_t(xt)
         xt = xt + self.temporal_fc(self.attn_t(yt, yt))
-        x = xt.reshape(b, n, k, d).permute(0, 2, 1, 3)
-        xs = torch.cat([cls.unsqueeze(1).expand(b, k, 1, d), x], dim=2).reshape(b * k, n + 1, d)
+        x = xt.reshape(-1, n, k, d).transpose(1, 2)
+        xs = torch.cat([cls.unsqueeze(1).expand(-1, k, -1, -1), x], dim=2).reshape(-1, n + 1, d)
         ys = self.norm_s(xs)
-        xs = (xs + self.attn_s(ys, ys)).reshape(b, k, n + 1, d)
+        xs = (xs + self.attn_s(ys, ys)).reshape(-1, k, n + 1, d)
         cls = xs[:, :, 0].mean(dim=1, keepdim=True)
         x = xs[:, :, 1:]
         x = x + self.mlp(x)
@@ -118,7 +132,7 @@ class PsdEncoder(nn.Module):
         """``psd`` (B, K, 3, H, W) float in [0, 1]."""
         b, k = psd.shape[:2]
         x = self.embed(psd.flatten(0, 1)).flatten(2).transpose(1, 2)
-        x = x.reshape(b, k, self.patches, -1)
+        x = x.reshape(-1, k, self.patches, x.shape[-1])
         if mask is not None:
             x = torch.where(mask.unsqueeze(-1), self.mask_token.to(x.dtype), x)
         x = x + self.pos + self.time
