@@ -1,6 +1,6 @@
 # Two commands on a fresh machine:
 #   make demo   creates .venv, installs the apt packages and pinned Python packages, runs the app on the sample
-#   make test   the same setup, then the test suite
+#   make test   the same setup, then the import contracts and the test suite
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
@@ -44,7 +44,9 @@ demo: setup
 	rm -rf $(DEMO_OUT)
 	$(BIN)/seesys run --source tum:data/sample --local --condition seesys --out $(DEMO_OUT)
 
+# lint-imports: the one-way layers of docs/architecture.md (a broken contract names the import and fails the run).
 test: setup
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest
 
 clean:

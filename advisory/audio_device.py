@@ -10,7 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from advisory.config import AudioConfig
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 
 class AudioDeviceError(SeesysError):

@@ -11,7 +11,7 @@ from advisory.config import load_advisory_config
 from advisory.estimate_log import read_estimate_log
 from advisory.process import stop_on_signals
 from advisory.wav import WavWriter
-from seesys.network import load_network_config
+from seesys.io.network import load_network_config
 
 _CONDITIONS = [c.value for c in Condition]
 

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 from enum import Enum
 
 from advisory.config import AdvisoryConfig
-from advisory.pulses import error_pulses, rotation_pulses
 from advisory.rotation import RotationSpeed
-from seesys.network import NetworkConfig
-from seesys.protocol.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame, topic
+from seesys.core.equation2 import error_pulses, rotation_pulses
+from seesys.core.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame, topic
+from seesys.io.network import NetworkConfig
 
 
 class Condition(str, Enum):

@@ -5,26 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.config import load_section
-from seesys.errors import ConfigError
-
-
-@dataclass(frozen=True)
-class Equation2Config:
-    alpha_m: float
-    beta_m: float
-    pulses_per_metre: float
-    pulse_s: float
-    interval_s: float
-    error_resolution_m: float
-
-
-@dataclass(frozen=True)
-class RotationConfig:
-    degrees_per_step: float
-    steps_below_first_pulse: int
-    speed_resolution_deg_s: float
-    max_frame_gap_s: float
+from seesys.core.equation2 import Equation2Config, RotationConfig
+from seesys.core.errors import ConfigError
+from seesys.io.config import load_section
 
 
 @dataclass(frozen=True)

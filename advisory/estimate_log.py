@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 COLUMNS = ("timestamp", "error_m")
 

@@ -19,12 +19,14 @@ import zmq
 from advisory.conditions import Condition, ConditionInput, condition_input
 from advisory.config import AdvisoryConfig
 from advisory.handoff import AudioBuffer, encode_buffer
-from advisory.logs import ADVISORY_COLUMNS, ADVISORY_CSV, CsvLog, EventLog
+from advisory.logs import EventLog
 from advisory.scheduler import Decision, PulseScheduler
 from advisory.synth import synthesise
-from seesys.network import NetworkConfig
-from seesys.protocol.messages import MessageError, decode
-from seesys.protocol.transport import publisher, subscriber
+from seesys.core.messages import MessageError, decode
+from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
+from seesys.io.logfiles import CsvLog
+from seesys.io.network import NetworkConfig
+from seesys.io.transport import publisher, subscriber
 
 # Bad messages: the first few are logged one by one, then one line per this many, so a broken sender cannot
 # flood the log.

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 MAGIC = b"SADV"
 VERSION = 1

@@ -32,9 +32,11 @@ import zmq
 from advisory.audio_device import find_output_device, open_output_stream
 from advisory.config import AdvisoryConfig
 from advisory.handoff import AudioBuffer, HandoffError, decode_buffer
-from advisory.logs import PLAYBACK_COLUMNS, PLAYBACK_CSV, CsvLog, EventLog
+from advisory.logs import EventLog
 from advisory.wav import WavWriter
-from seesys.protocol.transport import subscriber
+from seesys.core.session_layout import PLAYBACK_COLUMNS, PLAYBACK_CSV
+from seesys.io.logfiles import CsvLog
+from seesys.io.transport import subscriber
 
 DEVICE_LOST_EXIT = 3
 
@@ -180,4 +182,3 @@ class Player:
         self._events.close()
         if self._wav is not None:
             self._wav.close()
-

@@ -15,10 +15,10 @@ from rich.progress import Progress
 
 from advisory.config import ReplayConfig
 from advisory.estimate_log import EstimateLog
-from advisory.logs import CsvLog
-from seesys.network import NetworkConfig
-from seesys.protocol.messages import Estimate, encode
-from seesys.protocol.transport import publisher
+from seesys.core.messages import Estimate, encode
+from seesys.io.logfiles import CsvLog
+from seesys.io.network import NetworkConfig
+from seesys.io.transport import publisher
 
 SENT_LOG_COLUMNS = ("frame_index", "timestamp", "sent_mono")
 

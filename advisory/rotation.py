@@ -1,7 +1,7 @@
 """The rotation baseline's input: the device's angular speed from the relative rotation in its feature stream.
 
 Each tracked frame's RTS row holds the rotation since the previous tracked frame as rotation-vector components
-(``rel_roll``, ``rel_pitch``, ``rel_yaw``, rad/frame; see ``seesys.protocol.rts_schema``). The study's θ is their RMS,
+(``rel_roll``, ``rel_pitch``, ``rel_yaw``, rad/frame; see ``seesys.core.rts_schema``). The study's θ is their RMS,
 converted to degrees and divided by the time between the two frames (from the frames' own timestamps, so network
 jitter does not enter). Frames SLAM did not track carry no rotation and are skipped; the next tracked frame's
 rotation spans the gap, and so does its Δt. A gap longer than ``max_frame_gap_s``, a timestamp that does not
@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from advisory.config import RotationConfig
-from seesys.protocol import rts_schema
-from seesys.protocol.messages import FeatureFrame
+from seesys.core import rts_schema
+from seesys.core.equation2 import RotationConfig
+from seesys.core.messages import FeatureFrame
 
 _COLUMNS = [rts_schema.index_of(name) for name in rts_schema.ROTATION_CHANNELS]
 

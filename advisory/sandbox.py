@@ -3,8 +3,8 @@
 - :class:`JackDummy`: a private JACK server with the ``dummy`` backend (paced in real time, no hardware), under a
   server name no running server has, so that it cannot clash with another JACK server on the machine. Processes
   find it through ``JACK_DEFAULT_SERVER`` in :meth:`JackDummy.env`.
-- :func:`write_config_dir`: a copy of ``configs/`` with some keys changed (e.g. private ``ipc://`` endpoints and
-  the JACK host API), for ``SEESYS_CONFIG_DIR``.
+- a copy of ``configs/`` with private ``ipc://`` endpoints and the JACK host API comes from
+  :func:`seesys.io.config.write_config_dir`, for ``SEESYS_CONFIG_DIR``.
 - :func:`process_env`: the environment of an advisory process in the sandbox.
 
 PortAudio scans devices when ``sounddevice`` is imported, so the server must run before the audio process starts;
@@ -14,18 +14,16 @@ that is why the audio always runs in child processes here.
 from __future__ import annotations
 
 import functools
-import json
 import os
-import re
 import shutil
 import signal
 import subprocess
 import tempfile
 from pathlib import Path
 
-from seesys.config import CONFIG_DIR_ENV, config_dir
-from seesys.errors import SeesysError
-from seesys.processes import die_with_parent
+from seesys.core.errors import SeesysError
+from seesys.io.config import CONFIG_DIR_ENV
+from seesys.io.processes import die_with_parent
 
 JACK_HOST_API = "JACK Audio Connection Kit"
 _JACK_WAIT_S = 5
@@ -107,27 +105,6 @@ class JackDummy:
         self.stop()
 
 
-def write_config_dir(destination: Path, overrides: dict[str, object]) -> Path:
-    """Copy ``configs/*.toml`` into ``destination`` with each ``key = value`` of ``overrides`` replaced.
-
-    Keys are found by name (the advisory's keys are unique across its tables); an unknown key is an error, so a
-    renamed key cannot silently leave a test on the defaults.
-    """
-    destination.mkdir(parents=True, exist_ok=True)
-    left = dict(overrides)
-    for source in sorted(config_dir().glob("*.toml")):
-        text = source.read_text()
-        for key in list(left):
-            pattern = re.compile(rf"^{re.escape(key)} = .*$", re.MULTILINE)
-            if pattern.search(text):
-                text = pattern.sub(lambda _: f"{key} = {json.dumps(left.pop(key))}", text, count=1)
-        (destination / source.name).write_text(text)
-    if left:
-        raise KeyError(f"no such configuration key(s): {', '.join(left)}")
-    return destination
-
-
 def process_env(config: Path, jack: JackDummy | None) -> dict[str, str]:
     """The environment of an advisory process using ``config`` and, if given, the JACK server."""
     return {**os.environ, CONFIG_DIR_ENV: str(config), **(jack.env() if jack else {})}
-

@@ -18,7 +18,7 @@ from advisory.conditions import Condition
 from advisory.config import AdvisoryConfig
 from advisory.logs import EventLog
 from advisory.process import advisory_command
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 _SEESYS_ERROR_EXIT = 2
 _STOP_TIMEOUT_S = 5.0

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from advisory.config import AudioConfig, Equation2Config
+from advisory.config import AudioConfig
+from seesys.core.equation2 import Equation2Config
 
 
 def buffer_samples(buffer_s: float, sample_rate: int) -> int:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 
 def to_pcm16(samples: np.ndarray) -> bytes:

@@ -6,7 +6,7 @@ import argparse
 import warnings
 from pathlib import Path
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 
 def analyze_command(args: argparse.Namespace) -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.config import load_section
+from seesys.io.config import load_section
 
 
 @dataclass(frozen=True)

@@ -20,9 +20,10 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from analysis.config import AnalysisConfig, Variable  # noqa: E402
-from seesys.trajectory import TrajectoryError, read_tum  # noqa: E402
+from seesys.core.trajectory import TrajectoryError  # noqa: E402
+from seesys.io.logfiles import read_csv_log  # noqa: E402
+from seesys.io.trajectory_files import read_tum
 from study.estimates import read_estimate_log  # noqa: E402
-from study.logfiles import read_csv_log  # noqa: E402
 from study.sessions import StudyData, read_events  # noqa: E402
 
 ADVISORY_CSV = "advisory.csv"

@@ -23,7 +23,7 @@ from markdown_it import MarkdownIt
 from analysis import plots
 from analysis.config import AnalysisConfig
 from analysis.stats import Comparison, compare
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 from study.config import MetricsConfig
 from study.sessions import DONE, collect_study
 

@@ -30,11 +30,12 @@ import pandas as pd
 import zmq
 
 from advisory.config import load_advisory_config
-from advisory.logs import ADVISORY_CSV, EVENTS_CSV, PLAYBACK_CSV
 from advisory.process import advisory_command
-from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
-from seesys.protocol.messages import Estimate, encode
-from seesys.protocol.transport import publisher
+from advisory.sandbox import JACK_HOST_API, JackDummy, process_env
+from seesys.core.messages import Estimate, encode
+from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV, PLAYBACK_CSV
+from seesys.io.config import write_config_dir
+from seesys.io.transport import publisher
 
 PUBLISH_HZ = 30.0
 LEVELS_M = (0.002, 0.006, 0.010, 0.020)  # N = 0, 1, 2, 3

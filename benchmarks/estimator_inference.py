@@ -28,11 +28,11 @@ from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.export import OnnxModel, example_inputs, export_onnx, parity
 from estimator.deepsee.model import DeepSEE, InputShape
 from estimator.deepsee.transforms import LabelTransform
-from seesys import resources
-from seesys.protocol import rts_schema
-from seesys.protocol.windows import load_window_config
+from seesys.core import rts_schema
+from seesys.core.psd import PsdGeometry
+from seesys.io import resources
+from seesys.io.core_settings import load_window_config
 from slam_monitor.monitor_config import load_monitor_config
-from slam_monitor.psd import PsdGeometry
 
 WARMUP = 20
 

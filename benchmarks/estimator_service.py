@@ -40,9 +40,9 @@ from estimator.service.config import load_service_config
 from estimator.service.sandbox import private_configs, start_service, wait_ready
 from estimator.service.simulate import DeviceFleet
 from estimator.service.status import query_status
-from seesys.protocol.windows import load_window_config
-from seesys.resources import resolve
-from slam_monitor.rts_log import read_feature_frames
+from seesys.io.core_settings import load_window_config
+from seesys.io.resources import resolve
+from seesys.io.rts_log import read_feature_frames
 
 RATE_HZ = 30.0
 START_TIMEOUT_S = 300

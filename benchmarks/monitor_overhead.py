@@ -31,12 +31,12 @@ import psutil
 from rich.console import Console
 from rich.table import Table
 
-from seesys.network import load_network_config
+from seesys.core.session_layout import FRAMES_CSV
+from seesys.io.network import load_network_config
 from slam_monitor.device_worker import ObserverSpec, SessionOptions, run_device_session
 from slam_monitor.monitor import MONITOR_STATS_JSON
 from slam_monitor.monitor_commands import MONITOR_FACTORY
 from slam_monitor.orbslam_settings import SlamMode
-from slam_monitor.session import FRAMES_CSV
 from slam_monitor.stream import FeatureSubscriber
 from slam_monitor.supervisor import frames_logged
 

@@ -18,11 +18,13 @@ import numpy as np
 import pandas as pd
 from scipy.stats import spearmanr
 
-from estimator.labels import LabelStatus, LabelSummary, label_session, load_label_config
+from seesys.core.labels import LabelStatus, LabelSummary
+from seesys.core.rts_schema import CHANNEL_NAMES
+from seesys.io.core_settings import load_label_config
+from seesys.io.rts_log import RTS_CSV
+from seesys.io.session_labels import label_session
 from slam_monitor.device_worker import ObserverSpec, SessionOptions
 from slam_monitor.orbslam_settings import SlamMode
-from slam_monitor.rts_log import RTS_CSV
-from seesys.protocol.rts_schema import CHANNEL_NAMES
 from slam_monitor.supervisor import run_supervised_session
 
 THRESHOLDS_M = (0.004, 0.012)

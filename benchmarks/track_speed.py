@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from slam_monitor import session
+from seesys.core import session_layout
 from slam_monitor.device_worker import SessionOptions
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.supervisor import run_supervised_session
@@ -31,7 +31,7 @@ def measure(source: str, mode: SlamMode, runs: int) -> np.ndarray:
     for run in range(runs):
         with tempfile.TemporaryDirectory() as folder:
             run_supervised_session(SessionOptions(source, mode, Path(folder) / f"run{run}"))
-            times.append(pd.read_csv(Path(folder) / f"run{run}" / session.FRAMES_CSV)["track_ms"].to_numpy())
+            times.append(pd.read_csv(Path(folder) / f"run{run}" / session_layout.FRAMES_CSV)["track_ms"].to_numpy())
     return np.concatenate(times)
 
 

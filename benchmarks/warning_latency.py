@@ -13,7 +13,7 @@ server, all on private ipc endpoints), ``--runs`` times, then reads each session
   new band (``playback.csv``: the DAC time of its first sample), looked for within ``--horizon`` seconds (default
   1 s) of the capture: the advisory's 0.33 s moving average can smooth a one-estimate crossing away, and such
   onsets are counted as *not heard*.
-- **True-error onsets.** The same from the frame's true error (``estimator.labels``, the label the model learnt):
+- **True-error onsets.** The same from the frame's true error (``seesys.core.labels``, the label the model learnt):
   a labelled frame whose band differs from the previous labelled frame's. Frame capture times come from the
   estimates' (frame time → capture time) pairs, interpolated. The true error changes from frame to frame much more
   than the estimates: many of its onsets are not heard; the figure shows how late the advisory follows the ones
@@ -42,12 +42,11 @@ import numpy as np
 import pandas as pd
 
 from advisory.config import AdvisoryConfig, load_advisory_config
-from advisory.logs import PLAYBACK_CSV
-from advisory.pulses import max_pulses
 from estimator.service.sandbox import private_configs
 from seesys.app.summary import true_error
-from seesys.config import CONFIG_DIR_ENV
-from slam_monitor.estimates import ESTIMATES_CSV
+from seesys.core.equation2 import max_pulses
+from seesys.core.session_layout import ESTIMATES_CSV, PLAYBACK_CSV
+from seesys.io.config import CONFIG_DIR_ENV
 
 REPO = Path(__file__).resolve().parent.parent
 TARGET_P95_MS = 400.0

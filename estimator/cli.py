@@ -11,7 +11,7 @@ from estimator.diversity import diversity_report, write_report
 from estimator.synth.batch import expand_environments, expand_motions, render_batch
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec, render_sequence
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 
 def _size(text: str) -> tuple[int, int]:

@@ -1,5 +1,5 @@
 """``seesys dataset build | report | splits | sample | label``: thin wrappers over :mod:`estimator.dataset`
-and :mod:`estimator.labels`."""
+and :mod:`seesys.core.labels`."""
 
 from __future__ import annotations
 
@@ -14,13 +14,14 @@ from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
 from estimator.dataset.sample import make_sample
 from estimator.dataset.splits import write_splits
 from estimator.dataset.store import WITH_SAMPLES
-from estimator.labels import label_session, load_label_config
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
-from seesys.config import replace_fields
-from seesys.errors import SeesysError
-from slam_monitor import session
-from seesys.protocol.windows import load_window_config
+from seesys.core import session_layout
+from seesys.core.errors import SeesysError
+from seesys.io import session_files
+from seesys.io.config import replace_fields
+from seesys.io.core_settings import load_label_config, load_window_config
+from seesys.io.session_labels import label_session
 
 
 def _names(text: str) -> list[str]:
@@ -106,9 +107,9 @@ def _sample(args: argparse.Namespace) -> int:
 
 
 def _label(args: argparse.Namespace) -> int:
-    if not (args.session / session.MANIFEST).is_file():
-        raise SeesysError(f"{args.session} is not a session folder (no {session.MANIFEST})")
-    mode = session.read_manifest(args.session).get("mode")
+    if not (args.session / session_layout.MANIFEST).is_file():
+        raise SeesysError(f"{args.session} is not a session folder (no {session_layout.MANIFEST})")
+    mode = session_files.read_manifest(args.session).get("mode")
     if mode not in ("rgbd", "mono"):
         raise SeesysError(f"{args.session}: session.json names no SLAM mode (rgbd or mono)")
     labels = label_session(args.session, mode == "mono", load_label_config()).to_frame()

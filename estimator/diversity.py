@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from seesys.errors import SeesysError  # noqa: E402
+from seesys.core.errors import SeesysError  # noqa: E402
 from slam_monitor.image_features import image_features  # noqa: E402
 
 FEATURES = ("brightness", "contrast", "entropy", "laplacian")

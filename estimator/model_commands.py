@@ -8,10 +8,11 @@ import sys
 from pathlib import Path
 
 from estimator.deepsee.rows import ROW_NAMES, row
-from seesys import resources
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
+from seesys.io import resources
 
 # torch, onnx and the model code are imported inside the commands: every `seesys` command builds this parser.
+
 
 def _device(name: str, threads: int | None):
     import torch
@@ -48,8 +49,7 @@ def _context(args: argparse.Namespace, extra: dict):
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.loop import progress_bar
     from estimator.deepsee.stages import TrainContext
-    from seesys.protocol.windows import load_window_config
-
+    from seesys.io.core_settings import load_window_config
     device = _device(args.device, args.threads)
     return TrainContext(load_estimator_config(), args.schedule, load_window_config(), device, progress_bar(),
                         {**_provenance(args), **extra})
@@ -81,22 +81,20 @@ def _train_table(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from advisory.config import load_advisory_config
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.data import read_splits
     from estimator.deepsee.evaluate import evaluate
     from estimator.deepsee.report import write_report
-    from seesys.protocol.windows import load_window_config
-
+    from seesys.io.core_settings import load_pulse_settings, load_window_config
     config = load_estimator_config()
-    advisory = load_advisory_config()
+    pulses = load_pulse_settings()
     device = _device(args.device, None)
     result = evaluate(args.data, read_splits(args.splits), args.runs, args.rounds, args.sessions or [], config,
-                      advisory, load_window_config(), device)
+                      pulses, load_window_config(), device)
     notes = [f"Data: {', '.join(str(p) for p in args.data)}; splits {args.splits}; models under {args.runs}."]
     if args.sessions:
         notes.append(f"Out-of-domain sessions: {', '.join(str(s) for s in args.sessions)}.")
-    path = write_report(result, config, advisory, args.out, notes)
+    path = write_report(result, config, pulses, args.out, notes)
     print(path.read_text())
     print(f"wrote {path}")
     return 0
@@ -115,12 +113,10 @@ def _default_model(args: argparse.Namespace) -> Path:
 
 
 def _finetune(args: argparse.Namespace) -> int:
-    from advisory.config import load_advisory_config
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.finetune import finetune
     from estimator.deepsee.loop import progress_bar
-    from seesys.protocol.windows import load_window_config
-
+    from seesys.io.core_settings import load_pulse_settings, load_window_config
     config = load_estimator_config()
     device = _device(args.device, args.threads)
     run_dir = args.run or args.out.with_name(args.out.stem + "_finetune_run")
@@ -128,7 +124,7 @@ def _finetune(args: argparse.Namespace) -> int:
     with progress:
         result = finetune(_default_model(args), args.sessions, args.out, run_dir, config, load_window_config(),
                           device, progress, {"command": " ".join(sys.argv)}, args.held_out or [],
-                          load_advisory_config())
+                          load_pulse_settings())
     print(f"fine-tuned on {len(args.sessions)} sessions ({result.train_windows} training windows, "
           f"{result.validation_windows} validation windows, the last "
           f"{100 * config.finetune.validation_fraction:.0f} % of each session): validation RMSE "
@@ -147,8 +143,7 @@ def _export(args: argparse.Namespace) -> int:
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity
     from estimator.deepsee.transforms import LabelTransform
-    from seesys.protocol.windows import load_window_config
-
+    from seesys.io.core_settings import load_window_config
     transform = LabelTransform(load_estimator_config().label_transform.k)
     windows = load_window_config()
     model, _ = load_model(args.model, transform, windows)
@@ -166,8 +161,7 @@ def _estimate(args: argparse.Namespace) -> int:
     from estimator.deepsee.estimate import estimate_session
     from estimator.deepsee.predictors import load_predictor
     from estimator.deepsee.transforms import LabelTransform
-    from seesys.protocol.windows import load_window_config
-
+    from seesys.io.core_settings import load_window_config
     config = load_estimator_config()
     windows = load_window_config()
     predictor = load_predictor(_default_model(args), LabelTransform(config.label_transform.k),

@@ -7,14 +7,13 @@ import argparse
 import json
 from pathlib import Path
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 
 def _configs():
     from estimator.service.config import load_service_config
-    from seesys.network import load_network_config
-    from seesys.protocol.windows import load_window_config
-
+    from seesys.io.core_settings import load_window_config
+    from seesys.io.network import load_network_config
     return load_service_config(), load_network_config(), load_window_config()
 
 
@@ -74,9 +73,9 @@ def _keys(args: argparse.Namespace) -> int:
 
 def _untrained_model(args: argparse.Namespace) -> int:
     from estimator.service.model import export_untrained, model_version
-    from seesys.protocol.windows import load_window_config
+    from seesys.core.psd import PsdGeometry
+    from seesys.io.core_settings import load_window_config
     from slam_monitor.monitor_config import load_monitor_config
-    from slam_monitor.psd import PsdGeometry
     from slam_monitor.sources import load_camera_config
 
     camera = load_camera_config().files.intrinsics

@@ -13,7 +13,7 @@ import importlib
 import sys
 
 from seesys import __version__
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 PART_MODULES = (
     "slam_monitor.cli",

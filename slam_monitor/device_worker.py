@@ -19,10 +19,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from seesys.config import as_dict
-from seesys.errors import SeesysError
+from seesys.core import session_layout
+from seesys.core.camera import Intrinsics
+from seesys.core.errors import SeesysError
+from seesys.io.config import as_dict
 from slam_monitor import session
-from slam_monitor.frame import Frame, Intrinsics
+from slam_monitor.frame import Frame
 from slam_monitor.orbslam_settings import (
     SlamConfig,
     SlamMode,
@@ -32,7 +34,14 @@ from slam_monitor.orbslam_settings import (
     write_settings,
 )
 from slam_monitor.pacing import FramePacer, ThreadDemand
-from slam_monitor.sources import CameraConfig, FrameSource, SourceError, load_camera_config, open_source, parse_source_spec
+from slam_monitor.sources import (
+    CameraConfig,
+    FrameSource,
+    SourceError,
+    load_camera_config,
+    open_source,
+    parse_source_spec,
+)
 from slam_monitor.tracker import Tracker, TrackOutput
 
 
@@ -148,7 +157,7 @@ def _read_user_settings(options: SessionOptions) -> bytes | None:
 def _settings_file(options: SessionOptions, user_settings: bytes | None, source: FrameSource, config: SlamConfig,
                    out_dir: Path) -> Path:
     """The settings ORB-SLAM3 will read, saved in the session folder either way."""
-    target = out_dir / session.SETTINGS
+    target = out_dir / session_layout.SETTINGS
     if user_settings is not None:
         target.write_bytes(user_settings)
         return target
@@ -175,7 +184,7 @@ def run_device_session(
         "mode": options.mode.value,
         "max_frames": options.max_frames,
         "vocabulary": str(vocabulary),
-        "settings_file": str(options.settings_file or session.SETTINGS),
+        "settings_file": str(options.settings_file or session_layout.SETTINGS),
         "config": {"slam": as_dict(slam_config), "camera": as_dict(camera_config)},
     })
     active: list[FrameObserver] = []

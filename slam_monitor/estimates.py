@@ -31,15 +31,13 @@ from typing import Any
 
 import zmq
 
-from seesys.network import load_network_config
-from seesys.protocol import messages
-from seesys.protocol.messages import Estimate, FeatureFrame, MessageError
-from seesys.protocol.transport import open_socket
+from seesys.core import messages
+from seesys.core.messages import Estimate, FeatureFrame, MessageError
+from seesys.core.session_layout import ESTIMATE_COLUMNS, ESTIMATES_CSV
+from seesys.io.network import load_network_config
+from seesys.io.transport import open_socket
 from slam_monitor.monitor_config import load_monitor_config
 
-ESTIMATES_CSV = "estimates.csv"
-COLUMNS = ("frame_index", "timestamp", "error_m", "model_version", "server_ms", "received_unix", "tracking_ms",
-           "preprocess_ms", "transmit_inference_ms", "end_to_end_ms", "capture_to_estimate_ms")
 # Frames whose moments are remembered while their estimate may still come (10 s at 30 Hz).
 _REMEMBERED = 300
 _POLL_MS = 100
@@ -84,7 +82,7 @@ class EstimateObserver:
                                       options=socket_options)
         self._file = open(Path(out_dir) / ESTIMATES_CSV, "w", newline="")
         self._csv = csv.writer(self._file)
-        self._csv.writerow(COLUMNS)
+        self._csv.writerow(ESTIMATE_COLUMNS)
         self._file.flush()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="estimate-observer", daemon=True)

@@ -28,20 +28,19 @@ from typing import Any
 
 import numpy as np
 
-from seesys.config import replace_fields
-from seesys.network import load_network_config
-from seesys.protocol import rts_schema
+from seesys.core import rts_schema
+from seesys.core.messages import FeatureFrame
+from seesys.core.psd import PsdGeometry, build_psd
+from seesys.core.tracking_state import TrackingState
+from seesys.io.config import replace_fields
+from seesys.io.network import load_network_config
+from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from slam_monitor.frame import Frame
 from slam_monitor.image_features import image_features, keypoint_responses
 from slam_monitor.local_map import LocalMap
-from seesys.protocol.messages import FeatureFrame
 from slam_monitor.monitor_config import MonitorConfig, load_monitor_config
-from slam_monitor.psd import PsdGeometry, build_psd
-from slam_monitor.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
-from slam_monitor.slam_features import (RelativeMotion, SlamFeatures, project, relative_motion, slam_features,
-                                        to_camera)
+from slam_monitor.slam_features import RelativeMotion, SlamFeatures, project, relative_motion, slam_features, to_camera
 from slam_monitor.stream import FeaturePublisher
-from seesys.protocol.tracking_state import TrackingState
 
 MONITOR_STATS_JSON = "monitor_stats.json"
 

@@ -6,12 +6,16 @@ from __future__ import annotations
 import argparse
 import json
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 from slam_monitor.device_worker import ObserverSpec
 from slam_monitor.estimates import summary_line
 from slam_monitor.monitor import MONITOR_STATS_JSON
-from slam_monitor.tracking_commands import (add_session_arguments, format_summary, run_session_with_progress,
-                                            session_options_from_args)
+from slam_monitor.tracking_commands import (
+    add_session_arguments,
+    format_summary,
+    run_session_with_progress,
+    session_options_from_args,
+)
 
 MONITOR_FACTORY = "slam_monitor.monitor:create_observer"
 ESTIMATES_FACTORY = "slam_monitor.estimates:create_observer"

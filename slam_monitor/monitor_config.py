@@ -5,9 +5,10 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from seesys.config import build, config_dir, read_toml
-from seesys.errors import ConfigError
-from seesys.protocol.windows import WindowConfig, load_window_config
+from seesys.core.errors import ConfigError
+from seesys.core.windows import WindowConfig
+from seesys.io.config import build, config_dir, read_toml
+from seesys.io.core_settings import load_window_config
 
 
 @dataclass(frozen=True)

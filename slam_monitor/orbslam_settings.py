@@ -14,10 +14,10 @@ from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
-from seesys import resources
-from seesys.config import load_section
-from seesys.errors import SeesysError
-from slam_monitor.frame import Intrinsics
+from seesys.core.camera import Intrinsics
+from seesys.core.errors import SeesysError
+from seesys.io import resources
+from seesys.io.config import load_section
 from slam_monitor.vocabulary import TrainingConfig
 
 SETTINGS_VERSION = "1.0"
@@ -104,7 +104,7 @@ def load_slam_config(directory: Path | None = None) -> SlamConfig:
 
 def vocabulary_path(config: SlamConfig) -> Path:
     """The vocabulary to load: ``$PYORBSLAM3_VOCAB`` if set, else the configured file (relative to the SEESys
-    home, :mod:`seesys.resources`)."""
+    home, :mod:`seesys.io.resources`)."""
     return resources.resolve(os.environ.get(VOCABULARY_ENV) or config.vocabulary)
 
 

@@ -12,54 +12,15 @@ Every row is flushed when written. Other parts of SEESys add their own files to 
 
 from __future__ import annotations
 
-import datetime
-import json
-import os
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from seesys.errors import SeesysError
-from seesys.trajectory import TUM_HEADER, Poses, pose_tum_line, write_tum
+from seesys.core.errors import SeesysError
+from seesys.core.session_layout import FRAMES_CSV, FRAMES_HEADER, GROUND_TRUTH, MANIFEST, SETTINGS, TRAJECTORY
+from seesys.core.trajectory import TUM_HEADER, Poses, pose_tum_line
+from seesys.io.session_files import package_versions, update_manifest, utc_now
+from seesys.io.trajectory_files import write_tum
 from slam_monitor.tracker import TrackOutput
-
-MANIFEST = "session.json"
-FRAMES_CSV = "frames.csv"
-TRAJECTORY = "trajectory.tum"
-GROUND_TRUTH = "groundtruth.tum"
-SETTINGS = "orbslam3.yaml"
-SLAM_LOG = "orbslam3.log"
-FRAMES_HEADER = "frame_index,timestamp,state,tracked_points,track_ms"
-RECORDED_PACKAGES = ("seesys", "pyorbslam3", "numpy", "opencv-python-headless", "pyrealsense2", "evo", "scipy")
-
-
-def utc_now() -> str:
-    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-
-
-def package_versions() -> dict[str, str]:
-    versions = {}
-    for name in RECORDED_PACKAGES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = "not installed"
-    return versions
-
-
-def read_manifest(folder: Path) -> dict[str, Any]:
-    return json.loads((folder / MANIFEST).read_text())
-
-
-def update_manifest(folder: Path, **changes: Any) -> dict[str, Any]:
-    """Merge ``changes`` into ``session.json`` atomically (write a temporary file, then rename it)."""
-    path = folder / MANIFEST
-    manifest = json.loads(path.read_text()) if path.exists() else {}
-    manifest.update(changes)
-    temporary = path.with_suffix(".json.tmp")
-    temporary.write_text(json.dumps(manifest, indent=2, default=str) + "\n")
-    os.replace(temporary, path)
-    return manifest
 
 
 def prepare_session_folder(folder: Path) -> Path:

@@ -5,7 +5,7 @@ connect SUB sockets. A PUB socket never blocks its sender: with no subscriber, m
 subscriber lags by more than the high-water mark, new messages are dropped — the device keeps tracking and logging
 either way. ZeroMQ does not tell the sender what it dropped, so the publisher counts only what it sent, and every
 message carries the device's count of frames it did not publish; the subscriber counts per device what it
-missed (:class:`seesys.protocol.transport.LossCounter`).
+missed (:class:`seesys.io.transport.LossCounter`).
 
 With CurveZMQ configured (``[curve]`` of ``network.toml``), the device also connects a second PUB socket, encrypted
 with its own key pair, to the estimator service's ``ingest_endpoint`` and publishes every frame there too: an
@@ -20,10 +20,10 @@ from dataclasses import dataclass
 
 import zmq
 
-from seesys.network import NetworkConfig
-from seesys.protocol import messages
-from seesys.protocol.messages import FeatureFrame, MessageError
-from seesys.protocol.transport import LossCounter, bound_endpoint, publisher, subscriber
+from seesys.core import messages
+from seesys.core.messages import FeatureFrame, MessageError
+from seesys.io.network import NetworkConfig
+from seesys.io.transport import LossCounter, bound_endpoint, publisher, subscriber
 
 
 def _zmtp_frame_overhead(size: int) -> int:

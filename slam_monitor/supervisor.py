@@ -21,9 +21,10 @@ import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.errors import SeesysError
-from seesys.processes import die_with_parent
-from slam_monitor import session
+from seesys.core import session_layout
+from seesys.core.errors import SeesysError
+from seesys.io import session_files
+from seesys.io.processes import die_with_parent
 from slam_monitor.device_worker import (
     ProgressCallback,
     SessionOptions,
@@ -67,7 +68,7 @@ def worker_main(options: SessionOptions, events: multiprocessing.Queue, parent_p
     die_with_parent(parent_pid)
     try:
         options.out_dir.mkdir(parents=True, exist_ok=True)
-        _redirect_console(options.out_dir / session.SLAM_LOG)
+        _redirect_console(options.out_dir / session_layout.SLAM_LOG)
     except OSError as e:
         events.put(_Failed(f"cannot write the session folder {options.out_dir}: {e.strerror}"))
         return
@@ -80,7 +81,7 @@ def worker_main(options: SessionOptions, events: multiprocessing.Queue, parent_p
     except Exception as e:  # a bug: keep the traceback in the log, report one line
         traceback.print_exc()
         events.put(_Failed(f"internal error in the device worker: {type(e).__name__}: {e} (traceback in "
-                           f"{options.out_dir / session.SLAM_LOG})"))
+                           f"{options.out_dir / session_layout.SLAM_LOG})"))
     else:
         events.put(_Finished(result))
     finally:
@@ -89,7 +90,7 @@ def worker_main(options: SessionOptions, events: multiprocessing.Queue, parent_p
 
 
 def _last_log_line(out_dir: Path) -> str:
-    path = out_dir / session.SLAM_LOG
+    path = out_dir / session_layout.SLAM_LOG
     if not path.exists():
         return ""
     lines = [line.strip() for line in path.read_text(errors="replace").splitlines() if line.strip()]
@@ -98,7 +99,7 @@ def _last_log_line(out_dir: Path) -> str:
 
 def frames_logged(out_dir: Path) -> int:
     """Frames the session in ``out_dir`` has logged so far (rows of ``frames.csv``)."""
-    path = out_dir / session.FRAMES_CSV
+    path = out_dir / session_layout.FRAMES_CSV
     if not path.exists():
         return 0
     with open(path, "rb") as f:
@@ -119,7 +120,7 @@ def _ending_message(how: str, frame_index: int, out_dir: Path) -> str:
     said = _last_log_line(out_dir)
     said = f' after printing "{said}"' if said else ""
     if frame_index == 0:
-        return f"ORB-SLAM3 {how}{said} before the first frame; see {out_dir / session.SLAM_LOG}"
+        return f"ORB-SLAM3 {how}{said} before the first frame; see {out_dir / session_layout.SLAM_LOG}"
     return (f"ORB-SLAM3 {how}{said} at frame {frame_index}; the session files up to frame {frame_index - 1} "
             f"are kept in {out_dir}")
 
@@ -174,7 +175,7 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
                                   options.out_dir)
     else:
         message = _crash_message(child.exitcode, next_frame, options.out_dir)
-    if (options.out_dir / session.MANIFEST).exists():
-        session.update_manifest(options.out_dir, status="crashed", end_time=session.utc_now(), error=message,
-                                frames=next_frame)
+    if (options.out_dir / session_layout.MANIFEST).exists():
+        session_files.update_manifest(options.out_dir, status="crashed", end_time=session_files.utc_now(),
+                                      error=message, frames=next_frame)
     raise WorkerCrash(message)

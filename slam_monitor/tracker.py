@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from slam_monitor.frame import Frame, Intrinsics
+from seesys.core.camera import Intrinsics
+from seesys.core.tracking_state import TrackingState
+from slam_monitor.frame import Frame
 from slam_monitor.orbslam_settings import SlamMode, validate_settings_file
 from slam_monitor.pacing import thread_ids
-from seesys.protocol.tracking_state import TrackingState
 from slam_monitor.vocabulary import validate_vocabulary
 
 MS_PER_S = 1000.0

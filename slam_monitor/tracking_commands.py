@@ -14,7 +14,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from seesys.config import replace_fields
+from seesys.io.config import replace_fields
 from slam_monitor.device_worker import FrameTracked, ObserverSpec, SessionOptions, SessionStarted
 from slam_monitor.orbslam_settings import SlamMode, load_slam_config
 from slam_monitor.sources import load_camera_config, open_source, parse_source_spec, source_kinds_help

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from seesys.trajectory import read_tum
-from slam_monitor import session
+from seesys.core import session_layout
+from seesys.core.tracking_state import TrackingState
+from seesys.io.trajectory_files import read_tum
 from slam_monitor.orbslam_settings import SlamMode
-from seesys.protocol.tracking_state import TrackingState
 
 # Estimated and true poses are paired when their timestamps differ by at most this (seconds).
 ASSOCIATION_MAX_DT_S = 0.01
@@ -68,8 +68,9 @@ def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode
 
 def summarize_session(folder: Path, mode: SlamMode) -> SessionSummary:
     """Frames, tracked frames and, when the folder has ``groundtruth.tum``, the ATE of ``trajectory.tum``."""
-    frames = pd.read_csv(folder / session.FRAMES_CSV)
+    frames = pd.read_csv(folder / session_layout.FRAMES_CSV)
     tracked = int(frames["state"].isin([TrackingState.OK.name, TrackingState.OK_KLT.name]).sum())
-    ground_truth = folder / session.GROUND_TRUTH
-    ate = absolute_trajectory_error(ground_truth, folder / session.TRAJECTORY, mode) if ground_truth.exists() else None
+    ground_truth = folder / session_layout.GROUND_TRUTH
+    trajectory = folder / session_layout.TRAJECTORY
+    ate = absolute_trajectory_error(ground_truth, trajectory, mode) if ground_truth.exists() else None
     return SessionSummary(len(frames), tracked, ate)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 from slam_monitor.frame import Frame
 
 DESCRIPTOR_BYTES = 32

@@ -9,7 +9,7 @@ import signal
 import threading
 from pathlib import Path
 
-from seesys.trajectory import read_tum, write_tum
+from seesys.io.trajectory_files import read_tum, write_tum
 from study.config import load_study_config
 from study.metrics import format_metrics, read_frame_log, tracking_metrics
 

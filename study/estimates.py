@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from study.logfiles import read_csv_log
+from seesys.io.logfiles import read_csv_log
 
 ESTIMATES_CSV = "estimates.csv"
 ESTIMATE_COLUMNS = ("receipt_time", "device_id", "frame_index", "timestamp", "error_m", "model_version")

@@ -4,7 +4,7 @@
   trajectory against the motion-capture reference: the poses are associated by nearest timestamp within
   ``association_max_dt_s`` (evo's ``associate_trajectories``), the estimate is aligned to the reference (SE(3)
   for metric RGB-D SLAM, Sim(3) for monocular) and evo's ``main_rpe.rpe`` does the rest. This is evo's RPE over
-  the whole associated trajectory, not ``estimator/labels.py``'s per-frame label: a label must be one frame's
+  the whole associated trajectory, not ``seesys/core/labels.py``'s per-frame label: a label must be one frame's
   local error (pairs only inside a tracked stretch, a local monocular scale), while the study reports the error
   of the participant's whole trajectory exactly as evo computes it, so that a lab can reproduce it with evo's
   own command line (``evo_rpe tum REF EST --delta 10 --delta_unit f --pose_relation trans_part --align
@@ -26,12 +26,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator.labels import tracked_stretches
-from seesys.errors import SeesysError
-from seesys.protocol.tracking_state import TrackingState
-from seesys.trajectory import Poses
+from seesys.core.errors import SeesysError
+from seesys.core.labels import tracked_stretches
+from seesys.core.tracking_state import TrackingState
+from seesys.core.trajectory import Poses
+from seesys.io.logfiles import read_csv_log
 from study.config import MetricsConfig
-from study.logfiles import read_csv_log
 
 
 class MetricsError(SeesysError):

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
+from seesys.io.logfiles import write_json_atomically
 from study.config import ProtocolConfig
-from study.logfiles import write_json_atomically
 
 PROTOCOL_JSON = "protocol.json"
 PARTICIPANTS = "participants"

@@ -1,6 +1,6 @@
 """``seesys study run``: one participant's session in one phase, composed of the existing commands.
 
-Each run writes a new attempt folder (``study.sessions``) and, as child processes (``seesys.children``):
+Each run writes a new attempt folder (``study.sessions``) and, as child processes (``seesys.io.children``):
 
 - the device: ``seesys monitor run --stream`` (ORB-SLAM3 + RTS monitor, publishing the feature stream), writing
   its session files into the attempt folder;
@@ -35,19 +35,18 @@ from rich.console import Console
 from rich.live import Live
 from rich.text import Text
 
-from advisory.logs import ADVISORY_COLUMNS, ADVISORY_CSV, CsvLog
-from seesys.children import Child, RowCounter, last_line
-from seesys.errors import SeesysError
-from seesys.network import load_network_config
-from slam_monitor.session import utc_now
+from seesys.core.errors import SeesysError
+from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
+from seesys.io.children import Child, RowCounter, last_line
+from seesys.io.logfiles import CsvLog, write_json_atomically
+from seesys.io.network import load_network_config
+from seesys.io.session_files import utc_now
 from study.config import StudyConfig
-from study.logfiles import write_json_atomically
 from study.mocap.calibrate import CALIBRATION_JSON, GROUND_TRUTH, MOCAP_LOG, calibrate_session
 from study.mocap.logger import CLOCKS, MOCAP_STATS
 from study.operator import KEYS_HELP, OperatorEvent, OperatorInput
 from study.protocol import Protocol, ProtocolError, read_protocol
-from study.sessions import (DONE, EVENTS_CSV, RUN_JSON, attempt_folders, next_attempt_folder, phase_status,
-                            read_run)
+from study.sessions import DONE, EVENTS_CSV, RUN_JSON, attempt_folders, next_attempt_folder, phase_status, read_run
 from study.watch import StreamWatcher
 
 EVENT_COLUMNS = ("time", "kind", "detail")

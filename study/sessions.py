@@ -20,11 +20,19 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seesys.trajectory import TrajectoryError, read_tum
+from seesys.core.trajectory import TrajectoryError
+from seesys.io.logfiles import read_csv_log
+from seesys.io.trajectory_files import read_tum
 from study.config import MetricsConfig
-from study.logfiles import read_csv_log
-from study.metrics import (RpeResult, TrackingMetrics, combine, completeness_from_frames, completeness_from_poses,
-                           read_frame_log, relative_pose_error)
+from study.metrics import (
+    RpeResult,
+    TrackingMetrics,
+    combine,
+    completeness_from_frames,
+    completeness_from_poses,
+    read_frame_log,
+    relative_pose_error,
+)
 from study.protocol import Protocol, read_protocol
 
 RUN_JSON = "run.json"

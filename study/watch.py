@@ -16,10 +16,10 @@ from pathlib import Path
 
 import zmq
 
-from advisory.logs import CsvLog
-from seesys.network import NetworkConfig
-from seesys.protocol.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame, MessageError, decode
-from seesys.protocol.transport import LossCounter, subscriber
+from seesys.core.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame, MessageError, decode
+from seesys.io.logfiles import CsvLog
+from seesys.io.network import NetworkConfig
+from seesys.io.transport import LossCounter, subscriber
 from study.estimates import ESTIMATE_COLUMNS, ESTIMATES_CSV
 
 POLL_MS = 100

@@ -16,18 +16,19 @@ import numpy as np
 import pandas as pd
 import pytest
 import zmq
+from polling import wait_for
 
 from advisory.config import AdvisoryConfig, load_advisory_config
-from advisory.logs import ADVISORY_CSV, EVENTS_CSV, PLAYBACK_CSV
 from advisory.process import advisory_command
+from advisory.sandbox import JACK_HOST_API, JackDummy, process_env
 from advisory.synth import pulse_onsets as buffer_onsets
-from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
 from advisory.wav import read_wav
-from polling import wait_for
-from seesys.protocol import rts_schema
-from seesys.protocol.messages import Estimate, FeatureFrame, encode
-from seesys.protocol.tracking_state import TrackingState
-from seesys.protocol.transport import open_socket
+from seesys.core import rts_schema
+from seesys.core.messages import Estimate, FeatureFrame, encode
+from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV, PLAYBACK_CSV
+from seesys.core.tracking_state import TrackingState
+from seesys.io.config import write_config_dir
+from seesys.io.transport import open_socket
 
 PUBLISH_HZ = 30.0
 

@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zmq
-
 from polling import wait_for  # noqa: F401 (the service tests import it from here)
-from seesys.errors import SeesysError
-from seesys.protocol import messages, rts_schema
-from seesys.protocol.messages import FeatureFrame
-from seesys.protocol.tracking_state import TrackingState
-from seesys.protocol.windows import load_window_config
+
+from seesys.core import messages, rts_schema
+from seesys.core.errors import SeesysError
+from seesys.core.messages import FeatureFrame
+from seesys.core.tracking_state import TrackingState
+from seesys.io.core_settings import load_window_config
 
 # Long enough for a worker to start (spawn, import ONNX Runtime, load the model) on a loaded 2-core machine.
 START_TIMEOUT_S = 240
@@ -116,7 +116,7 @@ class Client:
     """A device (PUB connected to the ingest endpoint) that also subscribes to estimates (of ``topics``)."""
 
     def __init__(self, setup: ServiceSetup, topics: list[bytes], options: dict | None = None):
-        from seesys.protocol.transport import open_socket
+        from seesys.io.transport import open_socket
 
         self.ctx = zmq.Context()
         self.pub = open_socket(self.ctx, zmq.PUB, setup.endpoints["ingest"], "test device", bind=False,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from seesys.protocol.transport import LossCounter
+from seesys.io.transport import LossCounter
 from slam_monitor.stream import FeatureSubscriber
 
 

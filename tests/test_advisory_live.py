@@ -9,15 +9,25 @@ import time
 
 import numpy as np
 import pytest
+from audio_fixtures import (  # noqa: F401
+    Publisher,
+    estimate_message,
+    jack,
+    make_sandbox,
+    pulse_onsets,
+    pulses_per_buffer,
+    rotation_frame,
+    run_lengths,
+    wait_started,
+    wait_until,
+)
+from polling import wait_for
 
 from advisory.player import DEVICE_LOST_EXIT
 from advisory.process import advisory_command
-from advisory.pulses import error_pulses
 from advisory.sandbox import JackDummy
 from advisory.scheduler import LIVE, STALE, TICK
-from audio_fixtures import (Publisher, estimate_message, jack, make_sandbox, pulse_onsets,  # noqa: F401
-                            pulses_per_buffer, rotation_frame, run_lengths, wait_started, wait_until)
-from polling import wait_for
+from seesys.core.equation2 import error_pulses
 
 pytestmark = pytest.mark.audio
 

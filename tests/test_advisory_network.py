@@ -7,11 +7,11 @@ import subprocess
 import numpy as np
 import pandas as pd
 import zmq
+from audio_fixtures import make_sandbox, wait_started, wait_until  # noqa: F401
 
 from advisory.process import advisory_command
-from audio_fixtures import make_sandbox, wait_started, wait_until  # noqa: F401
-from seesys.protocol.messages import ESTIMATE_TOPIC, Estimate, decode, encode
-from seesys.protocol.transport import open_socket, subscriber
+from seesys.core.messages import ESTIMATE_TOPIC, Estimate, decode, encode
+from seesys.io.transport import open_socket, subscriber
 
 
 def live_rows(sandbox) -> pd.DataFrame:

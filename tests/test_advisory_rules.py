@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from advisory.config import load_advisory_config
-from advisory.pulses import error_pulses, max_pulses, rotation_pulses
-from advisory.sandbox import write_config_dir
 from advisory.synth import buffer_samples, pulse_onsets, synthesise
-from seesys.errors import ConfigError
+from seesys.core.equation2 import error_pulses, max_pulses, rotation_pulses
+from seesys.core.errors import ConfigError
+from seesys.io.config import write_config_dir
 
 CFG = load_advisory_config()
 EQ, ROT, BUFFER_S = CFG.equation2, CFG.rotation, CFG.timing.buffer_s

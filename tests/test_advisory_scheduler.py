@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+from audio_fixtures import PUBLISH_HZ, pulse_onsets, pulses_per_buffer, rotation_frame, run_lengths
 
 from advisory.conditions import Condition, pulse_rule
 from advisory.config import load_advisory_config
@@ -17,10 +18,9 @@ from advisory.render import render_estimates
 from advisory.rotation import RotationSpeed
 from advisory.scheduler import CHANGE, LIVE, STALE, TICK, WAITING, PulseScheduler
 from advisory.wav import read_wav
-from audio_fixtures import PUBLISH_HZ, pulse_onsets, pulses_per_buffer, rotation_frame, run_lengths
-from seesys.errors import SeesysError
-from seesys.protocol.messages import FeatureFrame
-from seesys.protocol.tracking_state import TrackingState
+from seesys.core.errors import SeesysError
+from seesys.core.messages import FeatureFrame
+from seesys.core.tracking_state import TrackingState
 
 CFG = load_advisory_config()
 PERIOD = CFG.timing.cadence_s
@@ -111,7 +111,7 @@ def test_rotation_speed_is_rms_of_roll_pitch_yaw_in_degrees_per_second():
     assert speed.update(rotation_frame(0, 0.0, 120.0)) is None  # no previous frame
     assert speed.update(rotation_frame(1, 1 / PUBLISH_HZ, 120.0)) == pytest.approx(120.0, rel=1e-5)
     rts = rotation_frame(2, 0.1, 0.0).rts.copy()
-    from seesys.protocol import rts_schema
+    from seesys.core import rts_schema
     rts[rts_schema.index_of("rel_roll")] = 0.03  # RMS of (0.03, 0, 0) = 0.03/√3 rad over 1/30 s
     got = speed.update(FeatureFrame("test-device", 2, 2 / PUBLISH_HZ, TrackingState.OK, rts))
     assert got == pytest.approx(math.degrees(0.03 / math.sqrt(3)) * PUBLISH_HZ, rel=1e-5)

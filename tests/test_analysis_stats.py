@@ -130,8 +130,8 @@ def test_power_note_matches_pingouin(between):
 
 
 def test_within_subjects_agrees_with_statsmodels_anovarm(tmp_path):
-    from statsmodels.stats.anova import AnovaRM
     import pingouin as pg
+    from statsmodels.stats.anova import AnovaRM
 
     rng = np.random.default_rng(5)
     people = [f"P{i + 1:02d}" for i in range(12)]

@@ -14,7 +14,8 @@ import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
 
-from seesys.trajectory import Poses, read_tum, write_tum
+from seesys.core.trajectory import Poses
+from seesys.io.trajectory_files import read_tum, write_tum
 from study.config import load_study_config
 from study.protocol import make_protocol, write_protocol
 from study.sessions import EVENTS_HEADER

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 from conftest import SAMPLE, run_seesys
 
-from advisory.sandbox import write_config_dir
 from seesys.app.config import load_app_config
 from seesys.app.run import estimates_endpoint
-from seesys.errors import ConfigError, SeesysError
+from seesys.core.errors import ConfigError, SeesysError
+from seesys.io.config import write_config_dir
 
 
 def test_estimator_address_is_host_and_port():

@@ -31,15 +31,15 @@ import numpy as np
 import pandas as pd
 import psutil
 import pytest
+from audio_fixtures import pulses_per_buffer
+from polling import wait_for
 
 from advisory.config import load_advisory_config
-from advisory.pulses import error_pulses
 from advisory.sandbox import JackDummy
 from advisory.wav import read_wav
-from audio_fixtures import pulses_per_buffer
 from estimator.service.sandbox import private_configs
-from polling import wait_for
 from seesys.app.view import SPARK, Snapshot, plain_line, sparkline
+from seesys.core.equation2 import error_pulses
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE = REPO / "data" / "sample"

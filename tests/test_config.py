@@ -3,8 +3,8 @@ from pathlib import Path
 
 import pytest
 
-from seesys.config import ConfigError, load_section
-from seesys.network import load_network_config
+from seesys.io.config import ConfigError, load_section
+from seesys.io.network import load_network_config
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ def test_shipped_network_config_loads():
 def test_no_two_shipped_endpoints_share_a_port():
     """Device, estimator service and advisory run side by side on one machine: every TCP endpoint the shipped
     configs bind or connect to must be its own (a service and an advisory on one port cannot both start)."""
-    from seesys.config import config_dir, read_toml
+    from seesys.io.config import config_dir, read_toml
 
     def endpoints(value, where):
         if isinstance(value, dict):

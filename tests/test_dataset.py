@@ -13,26 +13,44 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import run_seesys
+
 from estimator import dataset_commands
 from estimator.dataset import build as build_module
 from estimator.dataset.build import DATASET_JSON, SESSIONS_DIR, DatasetBuilder, plan_from_config
 from estimator.dataset.config import SplitConfig, load_dataset_config
 from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
 from estimator.dataset.splits import SplitError, check_no_leak, make_splits, run_table
-from estimator.dataset.store import (COMPLETED, CRASHED, FORMAT_VERSION, PARTIAL, PSD_FRAMES_NPY, PSD_NPY,
-                                     RTS_FRAMES_NPY, RTS_NPY, RUNS_DIR, SAMPLE_PSD_ROWS_NPY, SAMPLE_RTS_ROWS_NPY,
-                                     DatasetError, DatasetReader, gather_rts, list_runs, read_run_info, run_folder)
-from estimator.labels import LabelStatus, label_session, load_label_config
+from estimator.dataset.store import (
+    COMPLETED,
+    CRASHED,
+    FORMAT_VERSION,
+    PARTIAL,
+    PSD_FRAMES_NPY,
+    PSD_NPY,
+    RTS_FRAMES_NPY,
+    RTS_NPY,
+    RUNS_DIR,
+    SAMPLE_PSD_ROWS_NPY,
+    SAMPLE_RTS_ROWS_NPY,
+    DatasetError,
+    DatasetReader,
+    gather_rts,
+    list_runs,
+    read_run_info,
+    run_folder,
+)
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
-from seesys.config import replace_fields
-from seesys.errors import ConfigError, SeesysError
-from seesys.protocol import rts_schema
+from seesys.core import rts_schema
+from seesys.core.errors import ConfigError, SeesysError
+from seesys.core.labels import LabelStatus
+from seesys.core.windows import assemble_windows
+from seesys.io.config import replace_fields
+from seesys.io.core_settings import load_label_config, load_window_config
+from seesys.io.rts_log import read_feature_frames
+from seesys.io.session_labels import label_session
 from slam_monitor.device_worker import ObserverSpec
-from seesys.protocol.windows import assemble_windows, load_window_config
-from slam_monitor.rts_log import read_feature_frames
 
 ENVIRONMENTS = ["lab", "office", "living_room"]
 FRAMES = 60

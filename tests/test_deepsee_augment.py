@@ -10,8 +10,8 @@ import torch
 
 from estimator.deepsee.augment import COUNT_CHANNELS, Augmenter
 from estimator.deepsee.config import load_estimator_config
-from seesys.protocol import rts_schema
-from slam_monitor.psd import INLIER_LAYER, KEYPOINT_LAYER, MAP_POINT_LAYER
+from seesys.core import rts_schema
+from seesys.core.psd import INLIER_LAYER, KEYPOINT_LAYER, MAP_POINT_LAYER
 
 B, T, K, H, W = 16, 30, 4, 12, 16
 

@@ -26,15 +26,15 @@ from estimator.dataset.config import load_dataset_config
 from estimator.dataset.splits import SplitRound, Splits
 from estimator.dataset.store import COMPLETED, DatasetReader, RunInfo, write_run
 from estimator.deepsee.data import read_splits, session_windows, split_windows
-from estimator.labels import load_label_config
-from seesys.protocol import rts_schema
-from seesys.protocol.messages import FeatureFrame
-from seesys.protocol.tracking_state import TrackingState
-from seesys.protocol.windows import load_window_config
-from seesys.trajectory import Poses, write_tum
-from slam_monitor import session
+from seesys.core import rts_schema, session_layout
+from seesys.core.messages import FeatureFrame
+from seesys.core.tracking_state import TrackingState
+from seesys.core.trajectory import Poses
+from seesys.io import session_files
+from seesys.io.core_settings import load_label_config, load_window_config
+from seesys.io.rts_log import PsdLogWriter, RtsCsvWriter
+from seesys.io.trajectory_files import write_tum
 from slam_monitor.orbslam_settings import SlamMode
-from slam_monitor.rts_log import PsdLogWriter, RtsCsvWriter
 
 FPS = 30.0
 PSD_SHAPE = (32, 48)  # small PSD matrices keep the tests fast; the model takes any multiple of its patch
@@ -70,13 +70,13 @@ def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float
     sigma = noise_scale * (0.0005 + 0.006 * difficulty)
     est_pos = gt_pos + rng.normal(size=(frames, 3)) * sigma[:, None]
     quats = gt_rot.as_quat()
-    write_tum(folder / session.GROUND_TRUTH, Poses(t, gt_pos, quats))
-    write_tum(folder / session.TRAJECTORY, Poses(t, est_pos, quats))
-    with open(folder / session.FRAMES_CSV, "w") as f:
-        f.write(session.FRAMES_HEADER + "\n")
+    write_tum(folder / session_layout.GROUND_TRUTH, Poses(t, gt_pos, quats))
+    write_tum(folder / session_layout.TRAJECTORY, Poses(t, est_pos, quats))
+    with open(folder / session_layout.FRAMES_CSV, "w") as f:
+        f.write(session_layout.FRAMES_HEADER + "\n")
         for k in range(frames):
             f.write(f"{k},{t[k]:.6f},OK,{int(400 - 300 * difficulty[k])},5.0\n")
-    session.update_manifest(folder, mode="rgbd", status="completed", frames=frames)
+    session_files.update_manifest(folder, mode="rgbd", status="completed", frames=frames)
     rts_writer = RtsCsvWriter(folder / "rts.csv")
     psd_writer = PsdLogWriter(folder / "psd", 100)
     velocity = np.gradient(gt_pos, axis=0)
@@ -170,9 +170,17 @@ def test_session_windows_match_the_dataset_samples(tiny_dataset):
 
 def tiny_config():
     """configs/estimator.toml with a model and schedules small enough for a test (seconds on one core)."""
-    from estimator.deepsee.config import (FinetuneConfig, FusionConfig, ModelConfig, PsdEncoderConfig,
-                                          RtsEncoderConfig, Schedule, StageSchedule, Ts2VecSchedule,
-                                          load_estimator_config)
+    from estimator.deepsee.config import (
+        FinetuneConfig,
+        FusionConfig,
+        ModelConfig,
+        PsdEncoderConfig,
+        RtsEncoderConfig,
+        Schedule,
+        StageSchedule,
+        Ts2VecSchedule,
+        load_estimator_config,
+    )
     from estimator.deepsee.stages import with_schedule
 
     config = load_estimator_config()

@@ -11,19 +11,17 @@ import pandas as pd
 import pytest
 import torch
 from rich.progress import Progress
+from test_deepsee_sessions import single_thread, tiny_config, tiny_dataset, train_context, trained_runs  # noqa: F401 (pytest fixtures among them)
 
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, save_model
 from estimator.deepsee.data import read_splits, split_windows
 from estimator.deepsee.inference import predict
 from estimator.deepsee.model import DeepSEE
-from estimator.deepsee.rows import Variant
-from estimator.deepsee.rows import row
+from estimator.deepsee.rows import Variant, row
 from estimator.deepsee.run_folder import CONFIG_JSON, LOSS_PNG, METRICS_CSV, MODEL_PT, RunFolder
 from estimator.deepsee.stages import train_row
 from estimator.deepsee.transforms import LabelTransform
-from seesys.protocol.windows import load_window_config
-from test_deepsee_sessions import (  # noqa: F401 (pytest fixtures among them)
-    single_thread, tiny_config, tiny_dataset, train_context, trained_runs)
+from seesys.io.core_settings import load_window_config
 
 _context = train_context
 
@@ -159,7 +157,7 @@ def test_ablation_masks_hide_what_they_drop(tiny_dataset):
     rts = torch.from_numpy(test.rts[:4].copy())
     psd = torch.from_numpy(np.stack([test.psd_at(i) for i in range(4)]))
     base = model(rts, psd)
-    from seesys.protocol import rts_schema
+    from seesys.core import rts_schema
 
     changed_rts = rts.clone()
     changed_rts[..., rts_schema.index_of("matched_inliers")] += 5.0

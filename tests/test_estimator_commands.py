@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 import torch
 from rich.progress import Progress
+from test_deepsee_sessions import single_thread, tiny_config, tiny_dataset, trained_runs, write_session  # noqa: F401 (pytest fixtures among them)
 
-from advisory.config import load_advisory_config
 from advisory.estimate_log import read_estimate_log
 from estimator.deepsee.checkpoint import ModelMismatch, load_model
 from estimator.deepsee.data import DataError, concat, session_windows
@@ -22,9 +22,7 @@ from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIMESERIES_PNG
 from estimator.deepsee.transforms import LabelTransform
 from seesys.cli import main
-from seesys.protocol.windows import load_window_config
-from test_deepsee_sessions import (  # noqa: F401 (pytest fixtures among them)
-    single_thread, tiny_config, tiny_dataset, trained_runs, write_session)
+from seesys.io.core_settings import load_pulse_settings, load_window_config
 
 TRANSFORM = LabelTransform(10000.0)
 REPO = Path(__file__).resolve().parent.parent
@@ -116,10 +114,10 @@ def test_finetune_on_a_few_sessions_lowers_the_error_on_held_out_sessions(traine
     base = _model(trained_runs)
     with Progress(disable=True) as progress:
         result = finetune(base, train, tmp_path / "lab.pt", tmp_path / "lab_run", config, windows,
-                          torch.device("cpu"), progress, {}, held_out, load_advisory_config())
+                          torch.device("cpu"), progress, {}, held_out, load_pulse_settings())
         with pytest.raises(DataError, match="both fine-tuned on and held out"):
             finetune(base, train, tmp_path / "x.pt", tmp_path / "x_run", config, windows, torch.device("cpu"),
-                     progress, {}, held_out[:1] + train[:1], load_advisory_config())
+                     progress, {}, held_out[:1] + train[:1], load_pulse_settings())
     assert result.train_windows > 3 * result.validation_windows > 0
     assert result.rmse_after_cm < result.rmse_before_cm
     before, after = rmse(base), rmse(result.model)

@@ -58,7 +58,7 @@ def run(installed, *args: str, cwd: Path, timeout: float = 300) -> subprocess.Co
 def test_the_wheel_installs_code_configs_and_data_outside_the_checkout(installed, tmp_path):
     env_dir, env = installed
     where = subprocess.run([str(env_dir / "bin" / "python"), "-c",
-                            "import seesys, seesys.resources as r; print(seesys.__file__); print(r.home())"],
+                            "import seesys, seesys.io.resources as r; print(seesys.__file__); print(r.home())"],
                            cwd=tmp_path, env=env, capture_output=True, text=True, check=True).stdout.split()
     assert Path(where[0]).is_relative_to(env_dir), f"seesys imported from {where[0]}, not the new environment"
     home = Path(where[1])

@@ -1,4 +1,4 @@
-"""The pose-error label (estimator/labels.py): a real ground-truth trajectory (TUM fr1_xyz, re-timed to 30 Hz)
+"""The pose-error label (seesys/core/labels.py): a real ground-truth trajectory (TUM fr1_xyz, re-timed to 30 Hz)
 is perturbed by known amounts, and the labels are checked against the known errors and against evo's RPE."""
 
 from __future__ import annotations
@@ -10,13 +10,14 @@ import pytest
 from evo.core import metrics
 from scipy.spatial.transform import Rotation
 
-from estimator.labels import (LabelConfig, LabelError, LabelStatus, LabelSummary, label_frames,
-                              label_session,
-                              load_label_config)
 from estimator.synth.config import load_synth_config
 from estimator.synth.trajectories import load_tum
-from seesys.protocol.tracking_state import TrackingState
-from seesys.trajectory import Poses, write_tum
+from seesys.core.labels import LabelConfig, LabelError, LabelStatus, LabelSummary, label_frames
+from seesys.core.tracking_state import TrackingState
+from seesys.core.trajectory import Poses
+from seesys.io.core_settings import load_label_config
+from seesys.io.session_labels import label_session
+from seesys.io.trajectory_files import write_tum
 
 OK = int(TrackingState.OK)
 LOST = int(TrackingState.LOST)
@@ -171,25 +172,25 @@ def test_summary_and_bad_input(ground_truth, config):
 
 def test_label_session_reads_a_device_session_folder(ground_truth, config, tmp_path):
     """A session folder as the device writes it: every frame in frames.csv, poses only for tracked frames."""
-    from slam_monitor import session
+    from seesys.core import session_layout
 
     estimate = _moved(ground_truth, WORLD, OFFSET)
     states = np.array(["OK"] * 600, object)
     states[:5] = "NOT_INITIALIZED"
     states[300:303] = "RECENTLY_LOST"
-    with open(tmp_path / session.FRAMES_CSV, "w") as f:
-        f.write(session.FRAMES_HEADER + "\n")
+    with open(tmp_path / session_layout.FRAMES_CSV, "w") as f:
+        f.write(session_layout.FRAMES_HEADER + "\n")
         for i, (t, s) in enumerate(zip(estimate.timestamps, states)):
             f.write(f"{i},{t:.6f},{s},500,10.0\n")
 
     tracked = [i for i in range(600) if states[i] == "OK" and i != 450]  # frame 450: OK but no valid pose
-    write_tum(tmp_path / session.TRAJECTORY, estimate.take(np.array(tracked)))
-    write_tum(tmp_path / session.GROUND_TRUTH, ground_truth)
+    write_tum(tmp_path / session_layout.TRAJECTORY, estimate.take(np.array(tracked)))
+    write_tum(tmp_path / session_layout.GROUND_TRUTH, ground_truth)
     labels = label_session(tmp_path, monocular=False, config=config)
     assert (labels.status[:5] == LabelStatus.NOT_TRACKED.value).all()
     assert labels.status[450] == LabelStatus.NOT_TRACKED.value
     assert labels.labelled[15:300].all() and labels.labelled[313:450].all()
     np.testing.assert_allclose(labels.error_m[labels.labelled], 0.0, atol=1e-6)
 
-    write_tum(tmp_path / session.TRAJECTORY, estimate.take(np.zeros(0, int)))
+    write_tum(tmp_path / session_layout.TRAJECTORY, estimate.take(np.zeros(0, int)))
     assert not label_session(tmp_path, monocular=False, config=config).labelled.any()

@@ -6,9 +6,9 @@ import zlib
 import numpy as np
 import pytest
 
-from seesys.protocol import messages, rts_schema
-from seesys.protocol.messages import Estimate, FeatureFrame, MessageError, decode, encode
-from seesys.protocol.tracking_state import TrackingState
+from seesys.core import messages, rts_schema
+from seesys.core.messages import Estimate, FeatureFrame, MessageError, decode, encode
+from seesys.core.tracking_state import TrackingState
 
 
 def feature(psd=None):

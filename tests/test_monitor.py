@@ -12,18 +12,19 @@ import types
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from stream_fixtures import wait_until_subscribed
 
-from seesys.config import replace_fields
-from seesys.protocol import rts_schema
-from slam_monitor.frame import Frame, Intrinsics
+from seesys.core import rts_schema
+from seesys.core.camera import Intrinsics
+from seesys.core.messages import FeatureFrame
+from seesys.core.tracking_state import TrackingState
+from seesys.core.windows import assemble_windows
+from seesys.io.config import replace_fields
+from seesys.io.rts_log import MonitorLogError, read_feature_frames, read_psd_log, read_rts_csv, schema_metadata
+from slam_monitor.frame import Frame
 from slam_monitor.monitor import FeatureExtractor, MonitorInput, RtsMonitor
 from slam_monitor.monitor_config import load_monitor_config
-from slam_monitor.rts_log import MonitorLogError, read_feature_frames, read_psd_log, read_rts_csv, schema_metadata
 from slam_monitor.stream import FeaturePublisher, FeatureSubscriber
-from stream_fixtures import wait_until_subscribed
-from seesys.protocol.messages import FeatureFrame
-from seesys.protocol.tracking_state import TrackingState
-from seesys.protocol.windows import assemble_windows
 
 INTR = Intrinsics(640, 480, 500.0, 500.0, 320.0, 240.0)
 CONFIG = load_monitor_config()

@@ -15,16 +15,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from seesys.config import config_dir
-from seesys.protocol import rts_schema
+from seesys.core import rts_schema
+from seesys.core.windows import assemble_windows
+from seesys.io.config import config_dir
+from seesys.io.rts_log import read_feature_frames, read_psd_log, read_rts_csv
 from slam_monitor.device_worker import SessionOptions, run_device_session
 from slam_monitor.monitor import RtsMonitor
 from slam_monitor.monitor_config import load_monitor_config
 from slam_monitor.orbslam_settings import SlamMode
-from slam_monitor.rts_log import read_feature_frames, read_psd_log, read_rts_csv
 from slam_monitor.slam_features import relative_motion
 from slam_monitor.stream import FeaturePublisher, FeatureSubscriber
-from seesys.protocol.windows import assemble_windows
 
 pytestmark = pytest.mark.slam
 

@@ -2,7 +2,7 @@ import os
 
 import pytest
 
-from slam_monitor.frame import Intrinsics
+from seesys.core.camera import Intrinsics
 from slam_monitor.orbslam_settings import (
     REQUIRED_KEYS,
     SettingsError,

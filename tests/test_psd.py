@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slam_monitor.psd import (INLIER_LAYER, KEYPOINT_LAYER, MAP_POINT_LAYER, PsdGeometry, build_psd,
-                              inverse_depth_code)
+from seesys.core.psd import INLIER_LAYER, KEYPOINT_LAYER, MAP_POINT_LAYER, PsdGeometry, build_psd, inverse_depth_code
 
 
 @pytest.mark.parametrize("size, expected", [((640, 480), (96, 128, 3)), ((320, 240), (48, 64, 3)),

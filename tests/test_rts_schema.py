@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from seesys.protocol import rts_schema
+from seesys.core import rts_schema
 
 
 def test_channel_names_unique_and_unknown_names_named():

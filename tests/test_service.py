@@ -14,15 +14,23 @@ from urllib.parse import urlparse
 
 import numpy as np
 import pytest
+from service_fixtures import (  # noqa: F401
+    Client,
+    ServiceProcess,
+    ServiceSetup,
+    device_frames,
+    serve_in_lockstep,
+    tiny_model,
+    wait_for,
+)
 
 from estimator.service.config import load_service_config
 from estimator.service.keys import ClientKeys, make_key_pair
 from estimator.service.model import ServedModel
-from seesys.network import load_network_config
-from seesys.protocol import messages
-from seesys.protocol.windows import assemble_windows, load_window_config
-from service_fixtures import (Client, ServiceProcess, ServiceSetup, device_frames, serve_in_lockstep,  # noqa: F401
-                              tiny_model, wait_for)
+from seesys.core import messages
+from seesys.core.windows import assemble_windows
+from seesys.io.core_settings import load_window_config
+from seesys.io.network import load_network_config
 
 
 @pytest.fixture
@@ -230,7 +238,7 @@ def test_stale_windows_are_dropped_and_counted_never_served(setup_factory, tiny_
 
 
 def test_keys_refuses_to_overwrite(tmp_path):
-    from seesys.errors import SeesysError
+    from seesys.core.errors import SeesysError
 
     make_key_pair(tmp_path, "server")
     with pytest.raises(SeesysError, match="already exists"):

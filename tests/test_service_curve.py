@@ -10,14 +10,15 @@ import dataclasses
 import pandas as pd
 import pytest
 import zmq
+from service_fixtures import ServiceProcess, ServiceSetup, device_frames, tiny_model, wait_for  # noqa: F401
 
 from estimator.service.config import load_service_config
 from estimator.service.keys import make_key_pair
 from estimator.service.sandbox import private_configs
-from seesys.errors import ConfigError
-from seesys.network import ClientCurveConfig, load_network_config
-from service_fixtures import ServiceProcess, ServiceSetup, device_frames, tiny_model, wait_for  # noqa: F401
-from slam_monitor.estimates import ESTIMATES_CSV, EstimateObserver
+from seesys.core.errors import ConfigError
+from seesys.core.session_layout import ESTIMATES_CSV
+from seesys.io.network import ClientCurveConfig, load_network_config
+from slam_monitor.estimates import EstimateObserver
 from slam_monitor.stream import FeaturePublisher
 from study.estimates import ESTIMATES_CSV as STUDY_ESTIMATES_CSV
 from study.watch import StreamWatcher

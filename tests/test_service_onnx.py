@@ -10,12 +10,12 @@ import sys
 
 import onnxruntime as ort
 import pytest
+from service_fixtures import ServiceProcess, ServiceSetup, tiny_model  # noqa: F401
 
 from estimator.deepsee.onnx_model import CPU, CUDA, choose_providers
 from estimator.service.status import format_status
 from estimator.service.worker import batch_size
-from seesys.errors import ConfigError
-from service_fixtures import ServiceProcess, ServiceSetup, tiny_model  # noqa: F401
+from seesys.core.errors import ConfigError
 
 _LOAD_WITHOUT_TORCH = """
 import json, sys
@@ -25,8 +25,7 @@ from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.transforms import LabelTransform
 from estimator.service.model import ServedModel
 from estimator.service.worker import Worker
-from seesys.protocol.windows import load_window_config
-
+from seesys.io.core_settings import load_window_config
 path = Path(sys.argv[1])
 served = ServedModel.load(path, load_window_config())
 predictor = load_predictor(path, LabelTransform(load_estimator_config().label_transform.k), 8)

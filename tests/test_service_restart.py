@@ -11,18 +11,17 @@ import time
 import pandas as pd
 import psutil
 import pytest
-
-from seesys.protocol.windows import load_window_config
+from conftest import SAMPLE
 from service_fixtures import ServiceProcess, ServiceSetup, tiny_model, wait_for  # noqa: F401 (fixture)
-from slam_monitor import session
+
+from seesys.core import session_layout
+from seesys.core.session_layout import ESTIMATES_CSV
+from seesys.io.core_settings import load_window_config
+from seesys.io.rts_log import read_rts_csv
 from slam_monitor.device_worker import ObserverSpec, SessionOptions
-from slam_monitor.estimates import ESTIMATES_CSV
 from slam_monitor.monitor_commands import ESTIMATES_FACTORY, MONITOR_FACTORY
 from slam_monitor.orbslam_settings import SlamMode
-from slam_monitor.rts_log import read_rts_csv
 from slam_monitor.supervisor import run_supervised_session
-
-from conftest import SAMPLE
 
 pytestmark = pytest.mark.slam
 # Back and forth over the sample: continuous motion for ORB-SLAM3, long enough (20 s at 30 Hz; a device on a
@@ -96,7 +95,7 @@ def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, re
     assert "error" not in outcome, outcome.get("error")
     result = outcome["result"]
     assert result.frames == frames  # the device tracked to the end of its source
-    assert list(pd.read_csv(out / session.FRAMES_CSV).frame_index) == list(range(frames))
+    assert list(pd.read_csv(out / session_layout.FRAMES_CSV).frame_index) == list(range(frames))
     assert list(read_rts_csv(out).frame_index) == list(range(frames))
     log = rows(out)
     after = log[log.received_unix > ready_at]

@@ -3,7 +3,7 @@
 import numpy as np
 
 from estimator.service.simulate import send_schedule
-from seesys.protocol.windows import load_window_config
+from seesys.io.core_settings import load_window_config
 
 RATE_HZ = 30.0
 

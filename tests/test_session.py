@@ -6,10 +6,12 @@ import pytest
 from evo.tools import file_interface
 from scipy.spatial.transform import Rotation
 
+from seesys.core import session_layout
+from seesys.core.tracking_state import TrackingState
+from seesys.core.trajectory import Poses
+from seesys.io import session_files
 from slam_monitor import session
-from seesys.trajectory import Poses
 from slam_monitor.tracker import TrackOutput
-from seesys.protocol.tracking_state import TrackingState
 
 
 def output(index, state, pose_wc=None):
@@ -42,17 +44,17 @@ def test_rows_are_on_disk_as_soon_as_written(tmp_path):
     writer.write_frame(output(2, TrackingState.OK, pose(2)))
     writer.write_frame(output(3, TrackingState.LOST))
     # read back while the writer is still open, as after a crash
-    frames = pd.read_csv(folder / session.FRAMES_CSV)
+    frames = pd.read_csv(folder / session_layout.FRAMES_CSV)
     assert list(frames.columns) == ["frame_index", "timestamp", "state", "tracked_points", "track_ms"]
     assert list(frames.state) == ["NOT_INITIALIZED", "OK", "OK", "LOST"]
-    trajectory = file_interface.read_tum_trajectory_file(str(folder / session.TRAJECTORY))
+    trajectory = file_interface.read_tum_trajectory_file(str(folder / session_layout.TRAJECTORY))
     assert trajectory.num_poses == 2
     np.testing.assert_allclose(trajectory.poses_se3[1], pose(2), atol=1e-8)
-    manifest = session.read_manifest(folder)
+    manifest = session_files.read_manifest(folder)
     assert manifest["status"] == "running" and manifest["source"] == "tum:x"
     assert manifest["packages"]["pyorbslam3"] == "0.1.1" and "start_time" in manifest
     writer.finish("completed")
-    manifest = session.read_manifest(folder)
+    manifest = session_files.read_manifest(folder)
     assert (manifest["status"], manifest["frames"], manifest["frames_tracked"]) == ("completed", 4, 2)
 
 
@@ -61,22 +63,22 @@ def test_ground_truth_is_a_tum_file(tmp_path):
     writer = session.SessionWriter(folder, {})
     truth = Poses(np.array([1.0, 2.0]), np.array([[0, 0, 0], [1, 2, 3.0]]), np.array([[0, 0, 0, 1.0]] * 2))
     writer.write_ground_truth(truth)
-    trajectory = file_interface.read_tum_trajectory_file(str(folder / session.GROUND_TRUTH))
+    trajectory = file_interface.read_tum_trajectory_file(str(folder / session_layout.GROUND_TRUTH))
     np.testing.assert_allclose(trajectory.positions_xyz, truth.positions)
 
 
 def test_manifest_updates_replace_the_file_whole(tmp_path):
-    session.update_manifest(tmp_path, a=1)
-    session.update_manifest(tmp_path, b=[1, 2])
-    assert json.loads((tmp_path / session.MANIFEST).read_text()) == {"a": 1, "b": [1, 2]}
+    session_files.update_manifest(tmp_path, a=1)
+    session_files.update_manifest(tmp_path, b=[1, 2])
+    assert json.loads((tmp_path / session_layout.MANIFEST).read_text()) == {"a": 1, "b": [1, 2]}
     assert not list(tmp_path.glob("*.tmp"))
 
 
 def test_new_session_clears_old_device_files_only(tmp_path):
-    (tmp_path / session.FRAMES_CSV).write_text("old")
+    (tmp_path / session_layout.FRAMES_CSV).write_text("old")
     (tmp_path / "rts.csv").write_text("monitor's")
     session.prepare_session_folder(tmp_path)
-    assert not (tmp_path / session.FRAMES_CSV).exists() and (tmp_path / "rts.csv").exists()
+    assert not (tmp_path / session_layout.FRAMES_CSV).exists() and (tmp_path / "rts.csv").exists()
 
 
 def test_unwritable_folder_is_a_clear_error(tmp_path):

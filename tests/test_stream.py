@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import zmq
-
-from seesys.protocol import messages, rts_schema
-from seesys.protocol.messages import FeatureFrame
-from seesys.protocol.tracking_state import TrackingState
-from seesys.protocol.transport import LossCounter, TransportError, bound_endpoint, publisher
-from slam_monitor.stream import FeaturePublisher, FeatureSubscriber
 from stream_fixtures import wait_until_subscribed
+
+from seesys.core import messages, rts_schema
+from seesys.core.messages import FeatureFrame
+from seesys.core.tracking_state import TrackingState
+from seesys.io.transport import LossCounter, TransportError, bound_endpoint, publisher
+from slam_monitor.stream import FeaturePublisher, FeatureSubscriber
 
 
 def feature_frame(i: int, psd: bool, device: str = "dev-7", noisy_psd: bool = False, skipped: int = 0,

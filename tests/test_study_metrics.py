@@ -13,7 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from seesys.trajectory import Poses, read_tum
+from seesys.core.trajectory import Poses
+from seesys.io.trajectory_files import read_tum
 from study.config import load_study_config
 from study.metrics import completeness_from_frames, completeness_from_poses, tracking_metrics
 

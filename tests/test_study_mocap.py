@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from seesys.errors import SeesysError
-from seesys.trajectory import Poses, read_tum, write_tum
+from seesys.core.errors import SeesysError
+from seesys.core.trajectory import Poses
+from seesys.io.trajectory_files import read_tum, write_tum
 from study.config import load_study_config
 from study.mocap.calibrate import calibrate_session
 from study.mocap.clock import CalibrationError, estimate_clock_offset

@@ -21,11 +21,12 @@ import numpy as np
 import pandas as pd
 import psutil
 import pytest
+from polling import wait_for
 
 from advisory.config import load_advisory_config
-from polling import wait_for
-from advisory.sandbox import JACK_HOST_API, JackDummy, process_env, write_config_dir
-from seesys.trajectory import read_tum
+from advisory.sandbox import JACK_HOST_API, JackDummy, process_env
+from seesys.io.config import write_config_dir
+from seesys.io.trajectory_files import read_tum
 from study.estimates import read_estimate_log
 from study.metrics import read_frame_log
 from study.sessions import read_events, read_run

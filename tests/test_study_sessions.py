@@ -11,9 +11,9 @@ import time
 import pytest
 from rich.console import Console
 
-from seesys.children import RowCounter
-from seesys.errors import SeesysError
-from seesys.network import load_network_config
+from seesys.core.errors import SeesysError
+from seesys.io.children import RowCounter
+from seesys.io.network import load_network_config
 from study.config import load_study_config
 from study.mocap.logger import MOCAP_STATS
 from study.operator import OperatorInput

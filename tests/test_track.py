@@ -9,11 +9,12 @@ import pandas as pd
 import pytest
 from conftest import SAMPLE, run_seesys
 
-from slam_monitor import session
+from seesys.core import session_layout
+from seesys.core.tracking_state import TrackingState
+from seesys.io import session_files
 from slam_monitor.device_worker import SessionOptions, run_device_session
 from slam_monitor.orbslam_settings import SlamMode, load_slam_config
 from slam_monitor.pacing import FramePacer, ThreadDemand
-from seesys.protocol.tracking_state import TrackingState
 from slam_monitor.trajectory_metrics import absolute_trajectory_error, summarize_session
 
 
@@ -27,10 +28,10 @@ def test_rgbd_on_the_sample_tracks_every_frame_within_2_cm(tmp_path):
     assert summary.frames == 150
     assert summary.tracked_percent >= 99.0
     assert summary.ate.rmse_m < 0.02
-    manifest = session.read_manifest(out)
+    manifest = session_files.read_manifest(out)
     assert manifest["status"] == "completed" and manifest["frames_tracked"] == summary.frames_tracked
     assert manifest["config"]["slam"]["rgbd"]["th_depth"] == 20.0
-    assert (out / session.SETTINGS).read_text().count("Stereo.b: 0.08") == 1
+    assert (out / session_layout.SETTINGS).read_text().count("Stereo.b: 0.08") == 1
 
 
 def test_a_session_that_never_initialised_has_no_ate_instead_of_an_error(tmp_path):
@@ -57,7 +58,7 @@ def test_mono_on_the_sample_initialises_and_tracks_within_5_cm_after_sim3(tmp_pa
             break
     assert summary.tracked_percent >= 90.0
     assert summary.ate.alignment == "Sim(3)" and summary.ate.rmse_m < 0.05
-    frames = pd.read_csv(out / session.FRAMES_CSV)
+    frames = pd.read_csv(out / session_layout.FRAMES_CSV)
     assert frames.state.iloc[0] == TrackingState.NOT_INITIALIZED.name
 
 
@@ -89,7 +90,7 @@ def test_observers_see_every_frame_with_slam_internals(tmp_path):
     assert out.map_points.dtype == np.float32 and out.map_points.shape[1] == 3
     assert len(out.map_points) == pytest.approx(out.num_tracked_points, rel=0.05)
     assert out.track_ms > 0 and isinstance(out.map_changed, bool)
-    rows = pd.read_csv(tmp_path / "s" / session.FRAMES_CSV)
+    rows = pd.read_csv(tmp_path / "s" / session_layout.FRAMES_CSV)
     assert list(rows.tracked_points) == [o.num_tracked_points for _, o in observer.seen]
 
 
@@ -106,9 +107,9 @@ def test_an_observer_failing_to_close_still_closes_the_others_and_marks_the_sess
     with pytest.raises(RuntimeError, match="could not flush"):
         run_device_session(options, observers=[failing, later])
     assert (failing.closed, later.closed) == (1, 1)
-    manifest = session.read_manifest(tmp_path / "s")
+    manifest = session_files.read_manifest(tmp_path / "s")
     assert manifest["status"] == "failed" and "could not flush" in manifest["error"]
-    assert len(pd.read_csv(tmp_path / "s" / session.FRAMES_CSV)) == 3
+    assert len(pd.read_csv(tmp_path / "s" / session_layout.FRAMES_CSV)) == 3
 
 
 @pytest.mark.slam
@@ -117,10 +118,10 @@ def test_max_frames_and_explicit_settings_file(tmp_path):
     assert run_seesys("track", "--source", f"tum:{SAMPLE}", "--out", str(first), "--max-frames", "5").returncode == 0
     again = tmp_path / "again"
     result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--out", str(again), "--max-frames", "8",
-                        "--settings", str(first / session.SETTINGS))
+                        "--settings", str(first / session_layout.SETTINGS))
     assert result.returncode == 0, result.stderr
     assert "frames:  8" in result.stdout
-    assert session.read_manifest(again)["settings_file"] == str(first / session.SETTINGS)
+    assert session_files.read_manifest(again)["settings_file"] == str(first / session_layout.SETTINGS)
 
 
 def pacing(**changes):

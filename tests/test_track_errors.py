@@ -8,8 +8,9 @@ import pandas as pd
 import pytest
 from conftest import REPO, SAMPLE, run_seesys
 
-from slam_monitor import session
-from slam_monitor.frame import Intrinsics
+from seesys.core import session_layout
+from seesys.core.camera import Intrinsics
+from seesys.io import session_files
 from slam_monitor.orbslam_settings import SlamMode, build_settings, load_slam_config, write_settings
 
 
@@ -25,10 +26,10 @@ def assert_one_line_error(result, *fragments):
 
 
 def assert_failed_session(out, frames_logged, error_line):
-    manifest = session.read_manifest(out)
+    manifest = session_files.read_manifest(out)
     assert manifest["status"] == "failed"
     assert error_line.endswith(manifest["error"])
-    frames = pd.read_csv(out / session.FRAMES_CSV)
+    frames = pd.read_csv(out / session_layout.FRAMES_CSV)
     assert list(frames.frame_index) == list(range(frames_logged))
     assert manifest["frames"] == frames_logged
 

@@ -15,8 +15,9 @@ import pytest
 from conftest import REPO, SAMPLE
 from evo.tools import file_interface
 
-from seesys.errors import SeesysError
-from slam_monitor import session
+from seesys.core import session_layout
+from seesys.core.errors import SeesysError
+from seesys.io import session_files
 from slam_monitor.device_worker import ObserverSpec, SessionOptions
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.supervisor import WorkerCrash, frames_logged, run_supervised_session
@@ -76,10 +77,10 @@ def test_crash_is_a_clear_error_and_keeps_the_logged_frames(tmp_path, how, expec
     assert message.startswith(expected)
     assert 'after printing "Stereo.b required parameter does not exist, aborting..."' in message
     assert f"at frame 6; the session files up to frame 5 are kept in {out}" in message
-    frames = pd.read_csv(out / session.FRAMES_CSV)
+    frames = pd.read_csv(out / session_layout.FRAMES_CSV)
     assert list(frames.frame_index) == list(range(6))
-    assert file_interface.read_tum_trajectory_file(str(out / session.TRAJECTORY)).num_poses == 6
-    manifest = session.read_manifest(out)
+    assert file_interface.read_tum_trajectory_file(str(out / session_layout.TRAJECTORY)).num_poses == 6
+    manifest = session_files.read_manifest(out)
     assert (manifest["status"], manifest["error"], manifest["frames"]) == ("crashed", message, 6)
 
 
@@ -97,8 +98,8 @@ def test_a_hung_worker_is_killed_after_the_stall_timeout_and_keeps_the_logged_fr
     assert message.startswith("ORB-SLAM3 stopped responding (no frame for 3 s; killed)")
     assert 'after printing "LM: Active map reset, Done!!!"' in message
     assert f"at frame 6; the session files up to frame 5 are kept in {out}" in message
-    assert list(pd.read_csv(out / session.FRAMES_CSV).frame_index) == list(range(6))
-    manifest = session.read_manifest(out)
+    assert list(pd.read_csv(out / session_layout.FRAMES_CSV).frame_index) == list(range(6))
+    manifest = session_files.read_manifest(out)
     assert (manifest["status"], manifest["error"]) == ("crashed", message)
 
 
@@ -122,8 +123,8 @@ def test_crash_before_the_first_frame(tmp_path):
                              observers=(ObserverSpec("test_track_isolation:crash_at_start"),))
     with pytest.raises(WorkerCrash, match=r"^ORB-SLAM3 exited with status 255 .*before the first frame; see "):
         run_supervised_session(options)
-    assert session.read_manifest(out)["status"] == "crashed"
-    assert (out / session.FRAMES_CSV).read_text().splitlines() == [session.FRAMES_HEADER]
+    assert session_files.read_manifest(out)["status"] == "crashed"
+    assert (out / session_layout.FRAMES_CSV).read_text().splitlines() == [session_layout.FRAMES_HEADER]
 
 
 class Faulty:
@@ -145,9 +146,9 @@ def test_a_bug_in_the_worker_is_reported_in_one_line_and_the_session_marked_fail
     with pytest.raises(SeesysError, match=r"^internal error in the device worker: ZeroDivisionError: observer bug "
                                           r"\(traceback in .*orbslam3.log\)$"):
         run_supervised_session(options)
-    manifest = session.read_manifest(out)
+    manifest = session_files.read_manifest(out)
     assert (manifest["status"], manifest["error"], manifest["frames"]) == ("failed", "ZeroDivisionError: observer bug", 3)
-    assert "Traceback" in (out / session.SLAM_LOG).read_text()
+    assert "Traceback" in (out / session_layout.SLAM_LOG).read_text()
 
 
 def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
@@ -157,7 +158,7 @@ def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
     command = subprocess.Popen([sys.executable, "-m", "seesys", "track", "--source", f"tum:{SAMPLE}", "--mode",
                                 "rgbd", "--pace", "--out", str(out)], cwd=REPO, stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL)
-    frames_csv = out / session.FRAMES_CSV
+    frames_csv = out / session_layout.FRAMES_CSV
     workers = []
     try:
         deadline = time.monotonic() + 120

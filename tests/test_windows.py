@@ -7,11 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from seesys.protocol import rts_schema
-from seesys.protocol.messages import FeatureFrame
-from seesys.protocol.tracking_state import TrackingState
-from seesys.protocol.windows import load_window_config
-from seesys.protocol.windows import WindowConfig, assemble_windows
+from seesys.core import rts_schema
+from seesys.core.messages import FeatureFrame
+from seesys.core.tracking_state import TrackingState
+from seesys.core.windows import WindowConfig, assemble_windows
+from seesys.io.core_settings import load_window_config
 
 CFG = WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, end_stride=10, max_missing_rts=3)
 

@@ -25,19 +25,33 @@ import pandas as pd
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from estimator.dataset.config import DatasetConfig
-from estimator.dataset.store import (COMPLETED, CRASHED, FORMAT_KEY, FORMAT_VERSION, PARTIAL, RUNS_DIR, RunArrays,
-                                     RunInfo, read_run_info, record_crashed_run, run_folder, run_name, write_run)
-from estimator.labels import LabelConfig, LabelStatus, label_session
+from estimator.dataset.store import (
+    COMPLETED,
+    CRASHED,
+    FORMAT_KEY,
+    FORMAT_VERSION,
+    PARTIAL,
+    RUNS_DIR,
+    RunArrays,
+    RunInfo,
+    read_run_info,
+    record_crashed_run,
+    run_folder,
+    run_name,
+    write_run,
+)
 from estimator.synth.batch import expand_environments, expand_motions, render_batch
 from estimator.synth.config import SynthConfig
 from estimator.synth.sequence import SequenceSpec
-from seesys.errors import SeesysError
-from seesys.protocol import rts_schema
-from seesys.protocol.windows import WindowConfig, assemble_windows
-from slam_monitor import session
+from seesys.core import rts_schema, session_layout
+from seesys.core.errors import SeesysError
+from seesys.core.labels import LabelConfig, LabelStatus
+from seesys.core.windows import WindowConfig, assemble_windows
+from seesys.io import session_files
+from seesys.io.rts_log import read_feature_frames
+from seesys.io.session_labels import label_session
 from slam_monitor.device_worker import FrameTracked, ObserverSpec, SessionOptions, SessionStarted
 from slam_monitor.orbslam_settings import SlamMode
-from slam_monitor.rts_log import read_feature_frames
 from slam_monitor.supervisor import run_supervised_session
 
 SEQUENCES_DIR = "sequences"
@@ -112,7 +126,7 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
     ``labelled`` and at most ``max_missing_usable`` rows of its RTS window are missing or untracked.
     """
     labels = label_session(session_dir, mode is SlamMode.MONO, label_config).to_frame()
-    states = pd.read_csv(session_dir / session.FRAMES_CSV)
+    states = pd.read_csv(session_dir / session_layout.FRAMES_CSV)
     frames = pd.concat([states[["frame_index", "state"]].reset_index(drop=True),
                         labels.drop(columns="timestamp")], axis=1)
     frames.insert(1, "timestamp", labels.timestamp)
@@ -217,7 +231,7 @@ class DatasetBuilder:
         """Append a timed entry to ``build_log.jsonl``: the render phase as soon as it ends (so that an
         interrupted build keeps it), the SLAM runs at the end; each run's own timing is in its ``run.json``."""
         with open(self.root / BUILD_LOG, "a") as f:
-            f.write(json.dumps({"time": session.utc_now(), **entry}) + "\n")
+            f.write(json.dumps({"time": session_files.utc_now(), **entry}) + "\n")
 
     def _write_description(self, plan: BuildPlan) -> None:
         """``dataset.json``: what the samples are (channels, windows, label definition) and how they were built.
@@ -284,7 +298,7 @@ class DatasetBuilder:
     def _store_failed(self, crashed: RunInfo, session_dir: Path, mode: SlamMode, start: float) -> RunInfo:
         """A failed session: its logged frames as a ``partial`` run, or a ``crashed`` record when it logged none."""
         crashed = replace(crashed, slam_seconds=time.perf_counter() - start)
-        frames_csv = session_dir / session.FRAMES_CSV
+        frames_csv = session_dir / session_layout.FRAMES_CSV
         logged = pd.read_csv(frames_csv) if frames_csv.is_file() else pd.DataFrame()
         if logged.empty:
             record_crashed_run(self.root, crashed)

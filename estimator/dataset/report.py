@@ -3,7 +3,7 @@ label-spread targets for a batch of RGB-D runs (``[targets]`` of configs/dataset
 RTS window feature follows the error.
 
 - Label figures use every frame of every run (``frames.csv``): median, p90, p99, the shares above the advisory
-  thresholds, the share of frames tracked (:class:`estimator.labels.LabelSummary`), per mode, environment and
+  thresholds, the share of frames tracked (:class:`seesys.core.labels.LabelSummary`), per mode, environment and
   motion group.
 - Correlations use the model's samples (usable windows only): each RTS channel summarised over the 30-row
   window by its mean, minimum, maximum and standard deviation (NaN rows ignored), Spearman's ρ against the
@@ -23,8 +23,8 @@ from scipy.stats import spearmanr
 
 from estimator.dataset.config import ReportConfig, TargetConfig
 from estimator.dataset.store import DatasetError, DatasetReader
-from estimator.labels import LabelStatus, LabelSummary
-from seesys.protocol import rts_schema
+from seesys.core import rts_schema
+from seesys.core.labels import LabelStatus, LabelSummary
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (after choosing the file-only backend)

@@ -17,7 +17,7 @@ import cv2
 from estimator.dataset.config import SampleSequenceConfig
 from estimator.synth.config import SynthConfig
 from estimator.synth.sequence import SequenceSpec, render_sequence
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 from slam_monitor.orbslam_settings import load_slam_config
 
 RGB_LISTS = ("rgb.txt", "associations.txt")

@@ -24,7 +24,7 @@ import pandas as pd
 
 from estimator.dataset.config import SplitConfig
 from estimator.dataset.store import WITH_SAMPLES, list_runs
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 PARTS = ("train", "validation", "test")
 

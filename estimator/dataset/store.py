@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 RUNS_DIR = "runs"
 RUN_JSON = "run.json"

@@ -11,7 +11,7 @@ changes them consistently over the window's rows and matrices:
 
 The motion, mapping and timing-free channels, the inlier and map-point layers, and missing RTS rows (all zero after
 normalisation) are left as they are. The inputs are the model's own: RTS windows already normalised by
-:func:`seesys.protocol.rts_schema.normalise` (so a gain on a ``log1p`` channel is an offset of log(gain) / scale),
+:func:`seesys.core.rts_schema.normalise` (so a gain on a ``log1p`` channel is an offset of log(gain) / scale),
 PSD matrices uint8 (B, K, H, W, 3).
 """
 
@@ -22,8 +22,8 @@ import math
 import torch
 
 from estimator.deepsee.config import AugmentationConfig
-from seesys.protocol import rts_schema
-from slam_monitor.psd import KEYPOINT_LAYER
+from seesys.core import rts_schema
+from seesys.core.psd import KEYPOINT_LAYER
 
 COUNT_CHANNELS = ("matched_inliers", "outliers", "matches_before_po")
 

@@ -20,17 +20,22 @@ from dataclasses import asdict
 from pathlib import Path
 
 import torch
-
 from torch import nn
 
 from estimator.deepsee.baselines import LstmBaseline
-from estimator.deepsee.compatibility import (InputShape, ModelMismatch, check_compatible, compatibility,
-                                              compatibility_hash)
+from estimator.deepsee.compatibility import (
+    InputShape,
+    ModelMismatch,
+    check_compatible,
+    compatibility,
+    compatibility_hash,
+)
 from estimator.deepsee.config import FusionConfig, LstmConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
 from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant
 from estimator.deepsee.transforms import LabelTransform
-from seesys.protocol.windows import WindowConfig, load_window_config
+from seesys.core.windows import WindowConfig
+from seesys.io.core_settings import load_window_config
 
 FORMAT_VERSION = 1
 

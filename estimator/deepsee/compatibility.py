@@ -12,9 +12,9 @@ import json
 from dataclasses import dataclass
 
 from estimator.deepsee.transforms import LabelTransform
-from seesys.errors import SeesysError
-from seesys.protocol import rts_schema
-from seesys.protocol.windows import WindowConfig
+from seesys.core import rts_schema
+from seesys.core.errors import SeesysError
+from seesys.core.windows import WindowConfig
 
 # The fields of the window definition that decide what a window holds (end_stride only says how often one is formed,
 # max_missing_rts which windows are formed).

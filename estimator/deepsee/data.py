@@ -4,8 +4,8 @@ Every source gives the same thing per window: the RTS window (T, C), normalised 
 (K_L, H, W, 3) uint8 (scaled inside the model, so the served model takes what the device sends), the label in
 metres and the window's end frame and time. The dataset is read only through
 :class:`estimator.dataset.store.DatasetReader`; a session folder (``seesys track``/``monitor run`` with ground
-truth) is windowed with the protocol's :func:`seesys.protocol.windows.assemble_windows` and labelled with
-:func:`estimator.labels.label_session`, the same definitions the dataset builder uses.
+truth) is windowed with the protocol's :func:`seesys.core.windows.assemble_windows` and labelled with
+:func:`seesys.core.labels.label_session`, the same definitions the dataset builder uses.
 """
 
 from __future__ import annotations
@@ -22,12 +22,14 @@ from estimator.dataset.splits import Splits
 from estimator.dataset.store import DatasetReader
 from estimator.deepsee.compatibility import InputShape
 from estimator.deepsee.transforms import prepare_rts
-from estimator.labels import LabelStatus, label_session, load_label_config
-from seesys.errors import SeesysError
-from seesys.protocol import rts_schema
-from seesys.protocol.windows import WindowConfig, assemble_windows
-from slam_monitor import session
-from slam_monitor.rts_log import read_feature_frames
+from seesys.core import rts_schema, session_layout
+from seesys.core.errors import SeesysError
+from seesys.core.labels import LabelStatus
+from seesys.core.windows import WindowConfig, assemble_windows
+from seesys.io import session_files
+from seesys.io.core_settings import load_label_config
+from seesys.io.rts_log import read_feature_frames
+from seesys.io.session_labels import label_session
 
 PARTS = ("train", "validation", "test")
 
@@ -112,9 +114,9 @@ def limit(windows: Windows, count: int, seed: int) -> Windows:
 
 def session_mode(folder: Path) -> str:
     """The SLAM mode (rgbd or mono) of a session folder, from its ``session.json``."""
-    if not (folder / session.MANIFEST).is_file():
-        raise DataError(f"{folder} is not a session folder (no {session.MANIFEST})")
-    mode = session.read_manifest(folder).get("mode")
+    if not (folder / session_layout.MANIFEST).is_file():
+        raise DataError(f"{folder} is not a session folder (no {session_layout.MANIFEST})")
+    mode = session_files.read_manifest(folder).get("mode")
     if mode not in ("rgbd", "mono"):
         raise DataError(f"{folder}: session.json names no SLAM mode (rgbd or mono)")
     return mode
@@ -137,7 +139,7 @@ def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Wind
     error = np.full(len(rows), np.nan)
     if labelled and rows:
         labels = label_session(folder, mode == "mono", load_label_config()).to_frame()
-        frames = pd.read_csv(folder / session.FRAMES_CSV, usecols=["frame_index"])
+        frames = pd.read_csv(folder / session_layout.FRAMES_CSV, usecols=["frame_index"])
         labels["frame_index"] = frames.frame_index.to_numpy()
         by_frame = labels.set_index("frame_index")
         end = by_frame.reindex(meta.frame_index)
@@ -162,4 +164,3 @@ def concat(parts: list[Windows]) -> Windows:
     psd = np.concatenate([np.stack([p.psd_at(i) for i in range(len(p))]) for p in parts])
     return Windows(np.concatenate([p.rts for p in parts]), psd, np.concatenate([p.error_m for p in parts]),
                    pd.concat([p.meta for p in parts], ignore_index=True))
-

@@ -11,7 +11,7 @@ import pandas as pd
 
 from estimator.deepsee.data import DataError, session_windows
 from estimator.deepsee.predictors import Predictor
-from seesys.protocol.windows import WindowConfig
+from seesys.core.windows import WindowConfig
 
 
 def estimate_session(predictor: Predictor, session: Path, windows: WindowConfig, out: Path) -> pd.DataFrame:

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from advisory.config import AdvisoryConfig
+from estimator.dataset.splits import Splits
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import Windows, concat, session_windows, split_windows
 from estimator.deepsee.metrics import score
@@ -25,9 +25,9 @@ from estimator.deepsee.rows import ROWS
 from estimator.deepsee.run_folder import MODEL_PT
 from estimator.deepsee.stages import FOREST_PICKLE
 from estimator.deepsee.transforms import LabelTransform
-from estimator.dataset.splits import Splits
-from seesys.errors import SeesysError
-from seesys.protocol.windows import WindowConfig
+from seesys.core.equation2 import PulseSettings
+from seesys.core.errors import SeesysError
+from seesys.core.windows import WindowConfig
 
 TEST_TRAJECTORIES = "test trajectories"
 HELDOUT_ENVIRONMENTS = "held-out environments"
@@ -59,7 +59,7 @@ def _sets(test: Windows, heldout: list[str]) -> dict[str, Windows]:
 
 
 def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], sessions: list[Path],
-             config: EstimatorConfig, advisory: AdvisoryConfig, windows: WindowConfig,
+             config: EstimatorConfig, pulses: PulseSettings, windows: WindowConfig,
              device: torch.device) -> Evaluation:
     transform = LabelTransform(config.label_transform.k)
     other = concat([session_windows(s, windows, labelled=True) for s in sessions]) if sessions else None
@@ -78,7 +78,7 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
             for name, data in sets.items():
                 estimate = predictor.metres(data) if len(data) else np.zeros(0)
                 scores.append({"set": name, "row": row.name, "round": r,
-                               **asdict(score(data.meta, estimate, data.error_m, config.evaluation, advisory))})
+                               **asdict(score(data.meta, estimate, data.error_m, config.evaluation, pulses))})
                 predictions.append(pd.DataFrame({"set": name, "row": row.name, "round": r,
                                                  "run": data.meta.run.to_numpy(),
                                                  "frame_index": data.meta.frame_index.to_numpy(),

@@ -22,7 +22,7 @@ from torch import nn
 from estimator.deepsee.compatibility import compatibility, compatibility_hash
 from estimator.deepsee.onnx_model import COMPATIBILITY_KEY, HASH_KEY, OnnxModel
 from estimator.deepsee.transforms import LabelTransform
-from seesys.protocol.windows import WindowConfig
+from seesys.core.windows import WindowConfig
 
 PARITY_TOLERANCE = 1e-4
 

@@ -1,6 +1,6 @@
 """Stage (d) on a lab's own labelled sessions (``seesys estimator finetune``): any session folder with ground truth
 (a study session with motion capture, a TUM or EuRoC recording run through ``seesys monitor run``), labelled with
-:func:`estimator.labels.label_session`, the definition the dataset uses.
+:func:`seesys.core.labels.label_session`, the definition the dataset uses.
 
 Each session is split in time: its first part trains, its last ``validation_fraction`` decides early stopping and
 gives the before/after figures (windows of one session are strongly correlated, so a random split would let the
@@ -16,8 +16,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from advisory.config import AdvisoryConfig
-
 import numpy as np
 import torch
 
@@ -28,7 +26,8 @@ from estimator.deepsee.inference import predict
 from estimator.deepsee.metrics import CM_PER_M, Scores, score
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
-from seesys.protocol.windows import WindowConfig
+from seesys.core.equation2 import PulseSettings
+from seesys.core.windows import WindowConfig
 
 
 @dataclass(frozen=True)
@@ -51,14 +50,14 @@ def split_in_time(windows: Windows, validation_fraction: float) -> tuple[Windows
 
 def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config: EstimatorConfig,
              windows: WindowConfig, device: torch.device, progress, provenance: dict,
-             held_out: list[Path] = (), advisory: AdvisoryConfig | None = None) -> FinetuneResult:
+             held_out: list[Path] = (), pulses: PulseSettings | None = None) -> FinetuneResult:
     """Fine-tune ``base`` on ``sessions`` into ``out``; ``held_out`` sessions (scored with ``advisory``'s
     Equation 2) are only judged."""
     overlap = sorted({Path(s).resolve() for s in sessions} & {Path(s).resolve() for s in held_out})
     if overlap:
         raise DataError(f"sessions both fine-tuned on and held out: {', '.join(map(str, overlap))}")
-    if held_out and advisory is None:
-        raise ValueError("held-out sessions are scored with the advisory's Equation 2: pass advisory")
+    if held_out and pulses is None:
+        raise ValueError("held-out sessions are scored with the advisory's Equation 2: pass pulses")
     test = concat([session_windows(s, windows, labelled=True) for s in held_out]) if held_out else None
     parts = [split_in_time(session_windows(s, windows, labelled=True), config.finetune.validation_fraction)
              for s in sessions]
@@ -79,7 +78,7 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
         return CM_PER_M * float(np.sqrt(np.mean((estimate_m(val) - val.error_m) ** 2)))
 
     def judge() -> Scores | None:
-        return score(test.meta, estimate_m(test), test.error_m, config.evaluation, advisory) if test else None
+        return score(test.meta, estimate_m(test), test.error_m, config.evaluation, pulses) if test else None
 
     before, held_out_before = rmse_cm(), judge()
     run = RunFolder(run_dir, {"finetune": asdict(config.finetune),

@@ -4,7 +4,7 @@ correlation, and what the audio advisory would do with the estimates.
 Advisory figures: the windows of each run are grouped into consecutive 1/3 s bins (the advisory's moving-average
 window, ``[timing] window_s`` of configs/advisory.toml) by their end time; the estimates and the true errors of a
 bin are averaged, and each mean is turned into Equation 2's pulse count (0–3) with the advisory's own rule
-(:func:`advisory.pulses.error_pulses`). ``agreement`` is the share of bins where both counts are equal;
+(:meth:`seesys.core.equation2.PulseSettings.pulses`). ``agreement`` is the share of bins where both counts are equal;
 ``recall_large`` the share of bins whose true mean is at least ``large_error_m`` (12 mm: the top class) that the
 estimates also put there.
 """
@@ -17,9 +17,8 @@ import numpy as np
 import pandas as pd
 from scipy.stats import spearmanr
 
-from advisory.config import AdvisoryConfig
-from advisory.pulses import error_pulses, max_pulses
 from estimator.deepsee.config import EvaluationConfig
+from seesys.core.equation2 import PulseSettings
 
 CM_PER_M = 100.0
 
@@ -45,21 +44,21 @@ def advisory_bins(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray
     return table.groupby(["run", "bin"], sort=False)[["estimate", "truth"]].mean().reset_index()
 
 
-def pulse_classes(errors_m: np.ndarray, advisory: AdvisoryConfig) -> np.ndarray:
-    return np.array([error_pulses(float(e), advisory.equation2, advisory.timing.buffer_s) for e in errors_m], int)
+def pulse_classes(errors_m: np.ndarray, pulses: PulseSettings) -> np.ndarray:
+    return np.array([pulses.pulses(float(e)) for e in errors_m], int)
 
 
-def confusion(bins: pd.DataFrame, advisory: AdvisoryConfig) -> np.ndarray:
+def confusion(bins: pd.DataFrame, pulses: PulseSettings) -> np.ndarray:
     """(true class, estimated class) counts, classes 0 … Equation 2's maximum."""
-    n = max_pulses(advisory.equation2, advisory.timing.buffer_s) + 1
+    n = pulses.max_pulses + 1
     matrix = np.zeros((n, n), int)
-    np.add.at(matrix, (pulse_classes(bins.truth.to_numpy(), advisory),
-                       pulse_classes(bins.estimate.to_numpy(), advisory)), 1)
+    np.add.at(matrix, (pulse_classes(bins.truth.to_numpy(), pulses),
+                       pulse_classes(bins.estimate.to_numpy(), pulses)), 1)
     return matrix
 
 
 def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evaluation: EvaluationConfig,
-          advisory: AdvisoryConfig) -> Scores:
+          pulses: PulseSettings) -> Scores:
     estimate_m, true_m = np.asarray(estimate_m, float), np.asarray(true_m, float)
     if len(true_m) == 0:
         nan = float("nan")
@@ -68,8 +67,8 @@ def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evalua
     low, high = evaluation.paper_range_m
     in_range = (true_m >= low) & (true_m <= high)
     positive = true_m > 0
-    bins = advisory_bins(meta, estimate_m, true_m, advisory.timing.window_s)
-    matrix = confusion(bins, advisory)
+    bins = advisory_bins(meta, estimate_m, true_m, pulses.window_s)
+    matrix = confusion(bins, pulses)
     large = bins.truth >= evaluation.large_error_m
     return Scores(
         windows=len(true_m),

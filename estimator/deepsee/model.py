@@ -4,7 +4,7 @@ fusion, and an MLP head that outputs the transformed error ``log(1 + k · RPE)``
 
 Inputs of :meth:`DeepSEE.forward`:
 
-- ``rts``: (B, T, C) float32, the RTS window normalised by :func:`seesys.protocol.rts_schema.normalise`;
+- ``rts``: (B, T, C) float32, the RTS window normalised by :func:`seesys.core.rts_schema.normalise`;
 - ``psd``: (B, K_L, H, W, 3) uint8, the PSD matrices as stored (scaled to [0, 1] inside the model).
 
 Differences from the authors' model (docs/estimator.md): a smaller PSD encoder (patch 16 over the 96×128 matrix,

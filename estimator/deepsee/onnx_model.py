@@ -20,8 +20,9 @@ import onnxruntime as ort
 
 from estimator.deepsee.compatibility import InputShape, ModelMismatch, check_compatible
 from estimator.deepsee.transforms import LabelTransform
-from seesys.errors import ConfigError
-from seesys.protocol.windows import WindowConfig, load_window_config
+from seesys.core.errors import ConfigError
+from seesys.core.windows import WindowConfig
+from seesys.io.core_settings import load_window_config
 
 COMPATIBILITY_KEY = "seesys_compatibility"
 HASH_KEY = "seesys_compatibility_hash"
@@ -50,7 +51,7 @@ class OnnxModel:
     providers of ``providers`` (see the module's docstring).
 
     Raises :class:`ModelMismatch` for a missing file, a file that is not an ONNX model, one exported elsewhere
-    (no compatibility record) or one made for other inputs; :class:`~seesys.errors.ConfigError` for an unknown or
+    (no compatibility record) or one made for other inputs; :class:`~seesys.core.errors.ConfigError` for an unknown or
     unavailable ``providers`` setting.
     """
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
-
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,8 +18,9 @@ from estimator.deepsee.compatibility import InputShape, ModelMismatch, check_com
 from estimator.deepsee.data import DataError, Windows
 from estimator.deepsee.onnx_model import OnnxModel
 from estimator.deepsee.transforms import LabelTransform
-from seesys.protocol.rts_schema import NUM_CHANNELS
-from seesys.protocol.windows import WindowConfig, load_window_config
+from seesys.core.rts_schema import NUM_CHANNELS
+from seesys.core.windows import WindowConfig
+from seesys.io.core_settings import load_window_config
 
 if TYPE_CHECKING:
     import torch

@@ -15,12 +15,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from advisory.config import AdvisoryConfig  # noqa: E402
 from estimator.deepsee.config import EstimatorConfig  # noqa: E402
 from estimator.deepsee.evaluate import TEST_TRAJECTORIES, Evaluation, round_folder  # noqa: E402
 from estimator.deepsee.metrics import CM_PER_M, advisory_bins, confusion  # noqa: E402
 from estimator.deepsee.rows import DEEPSEE, LSTM, RANDOM_FOREST, ROWS  # noqa: E402
 from estimator.deepsee.run_folder import CONFIG_JSON, HARDWARE_JSON  # noqa: E402
+from seesys.core.equation2 import PulseSettings  # noqa: E402
 
 REPORT_MD = "estimator_report.md"
 SCORES_CSV = "scores.csv"
@@ -137,7 +137,7 @@ def _plot_confusion(matrix: np.ndarray, out: Path) -> Path:
     return out
 
 
-def write_report(evaluation: Evaluation, config: EstimatorConfig, advisory: AdvisoryConfig, out: Path,
+def write_report(evaluation: Evaluation, config: EstimatorConfig, pulses: PulseSettings, out: Path,
                  notes: list[str]) -> Path:
     """Write ``estimator_report.md``, the scores and predictions CSVs and the figures into ``out``."""
     out = Path(out)
@@ -164,7 +164,7 @@ def write_report(evaluation: Evaluation, config: EstimatorConfig, advisory: Advi
                    _plot_scatter(focus, [r for r in (focus_row, RANDOM_FOREST, LSTM) if r in set(focus.row)],
                                  out / SCATTER_PNG),
                    _plot_confusion(confusion(advisory_bins(main, main.estimate_m.to_numpy(), main.true_m.to_numpy(),
-                                                           advisory.timing.window_s), advisory), out / CONFUSION_PNG)]
+                                                           pulses.window_s), pulses), out / CONFUSION_PNG)]
         lines += [f"## Figures ({focus_row}, test trajectories, round {int(focus['round'].min())})", ""]
         lines += [f"![{p.stem}]({p.name})" for p in figures] + [""]
     path = out / REPORT_MD

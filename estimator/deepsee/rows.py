@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 DEEPSEE = "deepsee"
 RANDOM_FOREST = "random_forest"

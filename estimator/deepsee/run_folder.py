@@ -28,8 +28,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 import torch  # noqa: E402
 
-from seesys.errors import SeesysError  # noqa: E402
-from slam_monitor.session import utc_now  # noqa: E402
+from seesys.core.errors import SeesysError  # noqa: E402
+from seesys.io.session_files import utc_now  # noqa: E402
 
 CONFIG_JSON = "config.json"
 HARDWARE_JSON = "hardware.json"

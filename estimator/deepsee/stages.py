@@ -38,8 +38,8 @@ from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
 from estimator.deepsee.run_folder import MODEL_PT, RunFolder
 from estimator.deepsee.ssl import PsdReconstruction, ts2vec_loss
 from estimator.deepsee.transforms import LabelTransform
-from seesys.errors import SeesysError
-from seesys.protocol.windows import WindowConfig
+from seesys.core.errors import SeesysError
+from seesys.core.windows import WindowConfig
 
 TS2VEC_EPOCH = 100  # iterations per checkpointed TS2Vec epoch
 SSL_VALIDATION_WINDOWS = 512

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from estimator.dataset.splits import Splits
 from estimator.deepsee.data import split_windows
 from estimator.deepsee.evaluate import round_folder
 from estimator.deepsee.rows import DEEPSEE, training_order
 from estimator.deepsee.stages import ENCODERS_PT, TrainContext, train_row
-from estimator.dataset.splits import Splits
 
 
 def train_table(roots: list[Path], splits: Splits, round_index: int, rows: list[str], runs: Path,

@@ -6,7 +6,7 @@ with ``(exp(y) − 1) / k``. Estimates below zero on the transformed scale map t
 clipped to 0, the smallest error there is.
 
 Ablation masks (Table 3): a channel category of the RTS window (sensor input, tracking, mapping; the categories
-of :mod:`seesys.protocol.rts_schema`) or a layer of the PSD matrices (keypoint, inlier, map point) is set to zero,
+of :mod:`seesys.core.rts_schema`) or a layer of the PSD matrices (keypoint, inlier, map point) is set to zero,
 in training and in inference alike, so the model never sees it.
 """
 
@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seesys.protocol import rts_schema
-from slam_monitor import psd as psd_layers
+from seesys.core import psd as psd_layers
+from seesys.core import rts_schema
 
 RTS_CATEGORIES = ("sensor_input", "tracking", "mapping")
 PSD_LAYERS = {"keypoint": psd_layers.KEYPOINT_LAYER, "inlier": psd_layers.INLIER_LAYER,

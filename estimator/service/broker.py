@@ -5,7 +5,7 @@ Sockets (endpoints in ``configs/service.toml`` and ``network.toml``):
 - ingest, SUB, bound at ``ingest_endpoint`` of ``network.toml`` (devices connect their PUB) and connected to device streams that bind
   their own PUB; it subscribes to everything, so that nothing sent to it goes uncounted, and every message is
   checked here: larger than ``max_message_bytes`` (*oversized*), of another
-  protocol version (*wrong_version*) or anything :func:`seesys.protocol.messages.decode` refuses (*malformed*)
+  protocol version (*wrong_version*) or anything :func:`seesys.core.messages.decode` refuses (*malformed*)
   is counted and dropped;
 - backend, ROUTER, bound at ``worker_endpoint``: workers connect (DEALER) and say READY. A device is given to the
   worker with the fewest devices when its first frame arrives and stays there, so that one worker holds its windows
@@ -33,11 +33,11 @@ import zmq
 
 from estimator.service import envelope, keys
 from estimator.service.config import ServiceConfig
-from seesys.errors import SeesysError
-from seesys.network import NetworkConfig
-from seesys.protocol import messages
-from seesys.protocol.messages import FeatureFrame, MessageError
-from seesys.protocol.transport import LossCounter, bound_endpoint, open_socket
+from seesys.core import messages
+from seesys.core.errors import SeesysError
+from seesys.core.messages import FeatureFrame, MessageError
+from seesys.io.network import NetworkConfig
+from seesys.io.transport import LossCounter, bound_endpoint, open_socket
 
 # Messages handled from one socket before the broker looks at the others (keeps estimates flowing under a flood).
 _BURST = 256
@@ -139,7 +139,7 @@ class Broker:
         cfg = self.config
         server_options: dict = {}
         if cfg.curve.enabled:
-            from seesys.resources import resolve
+            from seesys.io.resources import resolve
 
             self._authenticator = keys.start_authenticator(self.ctx, resolve(cfg.curve.allowed_clients))
             server_options = keys.server_socket_options(resolve(cfg.curve.server_secret_key))
@@ -345,7 +345,7 @@ class Broker:
 
 def default_model(config: ServiceConfig, model: Path | None) -> Path:
     """``model`` or the configured one; a missing file is a :class:`ServiceError` saying how to make one."""
-    from seesys.resources import resolve
+    from seesys.io.resources import resolve
 
     path = Path(model) if model is not None else resolve(config.model)
     if not path.is_file():

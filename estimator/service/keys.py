@@ -1,6 +1,6 @@
 """CurveZMQ for the service: key pairs, the server's socket options, and the ZAP handler that lets in only the
 clients whose public keys are in an allow-list folder (a client's options: :class:`ClientKeys`, from
-:mod:`seesys.protocol.transport`, which every client uses).
+:mod:`seesys.io.transport`, which every client uses).
 
 Key files are ZeroMQ's certificate files (``NAME.key`` holds the public key, ``NAME.key_secret`` both), written by
 :func:`make_key_pair` (``seesys estimator keys``). The server's sockets use its secret key; every client (device,
@@ -17,7 +17,7 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
-from seesys.protocol.transport import ClientKeys, CurveKeyError, load_curve_key
+from seesys.io.transport import ClientKeys, CurveKeyError, load_curve_key
 
 __all__ = ["ClientKeys", "CurveKeyError", "make_key_pair", "server_socket_options", "start_authenticator"]
 

@@ -16,7 +16,7 @@ import numpy as np
 from estimator.deepsee.config import ModelConfig, load_estimator_config
 from estimator.deepsee.onnx_model import OnnxModel
 from estimator.deepsee.transforms import LabelTransform, prepare_rts
-from seesys.protocol.windows import WindowConfig, WindowSample
+from seesys.core.windows import WindowConfig, WindowSample
 
 
 def model_version(path: Path) -> str:
@@ -63,7 +63,7 @@ def export_untrained(path: Path, windows: WindowConfig, psd_size: tuple[int, int
 
     from estimator.deepsee.export import export_onnx
     from estimator.deepsee.model import DeepSEE, InputShape
-    from seesys.protocol import rts_schema
+    from seesys.core import rts_schema
 
     config = load_estimator_config()
     torch.manual_seed(seed)

@@ -10,10 +10,9 @@ import sys
 import time
 from pathlib import Path
 
-from advisory.sandbox import write_config_dir
 from estimator.service.broker import ServiceError
 from estimator.service.status import query_status
-from seesys.config import CONFIG_DIR_ENV
+from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 
 ENDPOINT_KEYS = {"ingest": "ingest_endpoint", "workers": "worker_endpoint", "status": "status_endpoint",
                  "estimates": "estimates_endpoint", "features": "features_endpoint"}

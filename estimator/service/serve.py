@@ -17,8 +17,8 @@ from estimator.service.broker import Broker
 from estimator.service.config import ServiceConfig
 from estimator.service.model import ServedModel
 from estimator.service.worker import worker_process_main
-from seesys.network import NetworkConfig
-from seesys.protocol.windows import WindowConfig
+from seesys.core.windows import WindowConfig
+from seesys.io.network import NetworkConfig
 
 # Seconds a stopping worker gets to finish its batch before it is killed.
 _WORKER_EXIT_S = 10.0

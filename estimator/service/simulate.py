@@ -22,10 +22,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import zmq
 
-from seesys.protocol import messages
-from seesys.protocol.messages import Estimate, FeatureFrame
-from seesys.protocol.transport import open_socket
-from seesys.protocol.windows import WindowConfig
+from seesys.core import messages
+from seesys.core.messages import Estimate, FeatureFrame
+from seesys.core.windows import WindowConfig
+from seesys.io.transport import open_socket
 
 
 @dataclass

@@ -6,7 +6,7 @@ import zmq
 
 from estimator.service import envelope
 from estimator.service.broker import ServiceError
-from seesys.protocol.transport import open_socket
+from seesys.io.transport import open_socket
 
 
 def query_status(endpoint: str, timeout_ms: int) -> dict:

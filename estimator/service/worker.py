@@ -1,7 +1,7 @@
 """A worker process: holds the windows of the devices the broker routes to it, runs the model, returns estimates.
 
 Loop. The worker reads every frame already waiting (at most ``max_batch × end_stride × 4`` per round, so a flood
-cannot starve the model), adds each to its device's :class:`~seesys.protocol.windows.WindowAssembler`, and keeps
+cannot starve the model), adds each to its device's :class:`~seesys.core.windows.WindowAssembler`, and keeps
 at most one ready window per device: a newer window of the same device supersedes an older one not yet served,
 which is dropped as stale. It then serves up to ``max_batch`` ready windows, freshest first, in one batched run;
 a window whose last frame reached the broker more than ``stale_after_ms`` ago is dropped and counted instead
@@ -42,11 +42,11 @@ import zmq
 from estimator.service import envelope
 from estimator.service.config import ServiceConfig
 from estimator.service.model import ServedModel
-from seesys.processes import die_with_parent
-from seesys.protocol import messages
-from seesys.protocol.messages import Estimate, FeatureFrame
-from seesys.protocol.transport import open_socket
-from seesys.protocol.windows import WindowAssembler, WindowConfig, WindowSample
+from seesys.core import messages
+from seesys.core.messages import Estimate, FeatureFrame
+from seesys.core.windows import WindowAssembler, WindowConfig, WindowSample
+from seesys.io.processes import die_with_parent
+from seesys.io.transport import open_socket
 
 # Inference times kept for the percentiles a heartbeat reports.
 _TIMING_SAMPLES = 512

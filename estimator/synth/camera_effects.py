@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from estimator.synth.renderer import RayGrid
-from slam_monitor.frame import Intrinsics
+from seesys.core.camera import Intrinsics
 
 
 def image_motion(depth: np.ndarray, grid: RayGrid, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:

@@ -7,10 +7,10 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys import resources
-from seesys.config import load_section
-from seesys.errors import ConfigError
-from slam_monitor.frame import Intrinsics
+from seesys.core.camera import Intrinsics
+from seesys.core.errors import ConfigError
+from seesys.io import resources
+from seesys.io.config import load_section
 
 
 @dataclass(frozen=True)

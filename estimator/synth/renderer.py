@@ -15,7 +15,7 @@ import numpy as np
 
 from estimator.synth.config import CameraConfig
 from estimator.synth.environments import Scene
-from slam_monitor.frame import Intrinsics
+from seesys.core.camera import Intrinsics
 
 
 @dataclass(frozen=True)
@@ -27,7 +27,6 @@ class RayGrid:
     x: np.ndarray
     y: np.ndarray
     norm2: np.ndarray  # |(x, y, 1)|², the squared length of each pixel's ray direction
-
 
     @classmethod
     def for_camera(cls, camera: CameraConfig) -> RayGrid:

@@ -33,10 +33,17 @@ from estimator.synth.config import CameraConfig, CameraModel, EnvironmentPreset,
 from estimator.synth.environments import Scene, build_scene
 from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter, shift_depth
 from estimator.synth.renderer import RayGrid, render
-from estimator.synth.trajectories import (MOTION_GROUPS, Trajectory, TrajectoryError, generate_motion, load_euroc,
-                                          load_tum, place_real)
-from seesys.errors import SeesysError
-from seesys.trajectory import tum_line
+from estimator.synth.trajectories import (
+    MOTION_GROUPS,
+    Trajectory,
+    TrajectoryError,
+    generate_motion,
+    load_euroc,
+    load_tum,
+    place_real,
+)
+from seesys.core.errors import SeesysError
+from seesys.core.trajectory import tum_line
 
 REAL_PREFIX = "real:"
 

@@ -3,7 +3,7 @@ motion in the three motion groups of the paper's Table 2.
 
 A :class:`Trajectory` holds T_world_camera (optical frame: x right, y down, z forward) at increasing
 timestamps and interpolates it (linear position, slerp rotation), so that a renderer can ask for the pose at any
-sub-frame time of an exposure. It is made from :class:`seesys.trajectory.Poses`, the pose container of files and
+sub-frame time of an exposure. It is made from :class:`seesys.core.trajectory.Poses`, the pose container of files and
 logs, and adds what only rendering needs: continuous time.
 """
 
@@ -16,7 +16,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from estimator.synth.config import MotionGroupConfig, TrajectoryConfig
-from seesys.trajectory import Poses, TrajectoryError, read_euroc_groundtruth, read_tum
+from seesys.core.trajectory import Poses, TrajectoryError
+from seesys.io.trajectory_files import read_euroc_groundtruth, read_tum
 
 MOTION_GROUPS = ("patrol", "aiming", "rapid")
 # Sampling rate of generated motion before it is interpolated to frame and exposure times.
@@ -57,12 +58,12 @@ def from_poses(poses: Poses) -> Trajectory:
 
 
 def load_tum(path: Path) -> Trajectory:
-    """A TUM trajectory file (:func:`seesys.trajectory.read_tum`)."""
+    """A TUM trajectory file (:func:`seesys.core.trajectory.read_tum`)."""
     return from_poses(read_tum(path))
 
 
 def load_euroc(path: Path) -> Trajectory:
-    """A EuRoC ground-truth CSV (:func:`seesys.trajectory.read_euroc_groundtruth`)."""
+    """A EuRoC ground-truth CSV (:func:`seesys.core.trajectory.read_euroc_groundtruth`)."""
     return from_poses(read_euroc_groundtruth(path))
 
 

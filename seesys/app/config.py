@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.config import load_section
-from seesys.errors import ConfigError
+from seesys.core.errors import ConfigError
+from seesys.io.config import load_section
 
 MODES = ("rgbd", "mono")
 

@@ -20,7 +20,7 @@ that no frame is tracked without an estimator or audio. The device is never rest
 or player that exits is reported in the view and in ``app_events.csv`` and restarted after ``restart_delay_s``,
 at most ``max_restarts`` times; the device goes on tracking and logging meanwhile, and estimates resume once the
 new estimator has filled a window. Ctrl-C or SIGTERM interrupts the device (it closes its files) and then stops
-the rest; every child also dies with the app if the app itself is killed (``seesys.processes``).
+the rest; every child also dies with the app if the app itself is killed (``seesys.io.processes``).
 
 Audio: the configured output device (``configs/advisory.toml`` ``[audio]``; the default one unless named). With
 none (no sound card), or with ``--wav``, the player plays into a private JACK dummy server that the app starts
@@ -39,18 +39,22 @@ from pathlib import Path
 
 from advisory.conditions import Condition
 from advisory.config import load_advisory_config
-from advisory.logs import ADVISORY_CSV, EVENTS_CSV, CsvLog
 from advisory.process import stop_on_signals
-from advisory.sandbox import JACK_HOST_API, JackDummy, write_config_dir
+from advisory.sandbox import JACK_HOST_API, JackDummy
 from advisory.supervisor import process_commands
+from estimator.service.config import load_service_config
 from seesys.app.config import AppConfig, load_app_config
+from seesys.app.records import PartStatus, RunRecord, RunState, StreamDrops
 from seesys.app.summary import write_summary
-from seesys.app.view import LiveView
-from seesys.children import LOGS, Child, CsvTail, RowCounter
-from seesys.config import CONFIG_DIR_ENV
-from seesys.errors import SeesysError
-from seesys.network import load_network_config
-from slam_monitor.session import utc_now
+from seesys.app.view import LiveView, ViewSetup
+from seesys.core.errors import SeesysError
+from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
+from seesys.io.children import LOGS, Child, CsvTail, RowCounter
+from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from seesys.io.logfiles import CsvLog
+from seesys.io.network import load_network_config
+from seesys.io.session_files import utc_now
+from slam_monitor.monitor_config import load_monitor_config
 from study.watch import StreamWatcher
 
 EVENT_COLUMNS = ("wall_time", "part", "event", "detail")
@@ -131,6 +135,7 @@ class App:
         self.jack: JackDummy | None = None
         self.audio = "none (silent condition)"
         self.view: LiveView | None = None
+        self.watcher: StreamWatcher | None = None  # the app's subscriber to the device's feature stream
         self.config_dir: Path | None = None  # the run's copy of the configs, once written
         self._player_up = False
 
@@ -173,6 +178,26 @@ class App:
         if self.view is not None:
             self.view.note(f"{part}: {event}" + (f" ({detail})" if detail else ""))
 
+    def _parts_now(self) -> dict[str, PartStatus]:
+        return {name: PartStatus(part.child.running, part.restart_at is not None, part.restarts, tuple(part.exits))
+                for name, part in self.parts.items()}
+
+    @staticmethod
+    def _drops(watcher: StreamWatcher) -> StreamDrops:
+        return StreamDrops(watcher.frames_skipped, watcher.losses.lost_in_transit, watcher.bad_messages)
+
+    def _record(self, watcher: StreamWatcher | None) -> RunRecord:
+        return RunRecord(self.folder, self.o.source, self.mode, self.pace, self.o.condition.value,
+                         "local" if self.o.local else self.o.estimator, self.audio, self.advisory.equation2,
+                         self.config_dir, self._parts_now(), self._drops(watcher) if watcher is not None else None,
+                         self.view.snapshot.estimator_dropped if self.view is not None else None)
+
+    def _view_setup(self) -> ViewSetup:
+        status_endpoint = load_service_config(self.config_dir).status_endpoint if self.o.local else None
+        return ViewSetup(self.folder, self.o.source, self.o.condition.value, self.cfg.view,
+                         load_monitor_config(self.config_dir).device_id, self.advisory.equation2.beta_m,
+                         None if self.o.local else self.o.estimator, status_endpoint)
+
     def _start(self, name: str, args: list[str]) -> None:
         child = Child.start(name, args, self.folder, self.env)
         part = self.parts.get(name)
@@ -212,7 +237,7 @@ class App:
                 late = [name for name, check in ready.items() if not check()]
                 raise SeesysError(f"{' and '.join(late)} not ready after {self.cfg.supervision.ready_timeout_s:g} s "
                                   f"(logs: {self.folder / LOGS})")
-            self.view.update()
+            self.view.update(RunState(self._parts_now(), self._drops(self.watcher)))
             if stop.wait(self.cfg.supervision.status_interval_s):
                 raise KeyboardInterrupt
 
@@ -292,7 +317,8 @@ class App:
             (self.folder / LOGS).mkdir(exist_ok=True)
             watcher.start()
             watcher.wait_ready(SUBSCRIBER_READY_S)
-            self.view = LiveView(self, watcher)
+            self.watcher = watcher
+            self.view = LiveView(self._view_setup())
             with self.view.shown():
                 self._start_children(stop)
                 device = self.parts["device"].child
@@ -307,7 +333,7 @@ class App:
                     for name in RESTARTABLE:
                         if name in self.parts:
                             self._supervise(self.parts[name])
-                    self.view.update()
+                    self.view.update(RunState(self._parts_now(), self._drops(watcher)))
                 else:
                     status = "interrupted"
                     self.event("app", "interrupted", "signal received")
@@ -325,6 +351,6 @@ class App:
                 self.jack.stop()
             self.event("app", "stopped", status)
             self.events.close()
-        summary = write_summary(self, status=status, error=error, started=started, ended=utc_now(), exits=exits,
-                                watcher=watcher)
+        summary = write_summary(self._record(watcher), self.cfg.output, status=status, error=error, started=started,
+                                ended=utc_now(), exits=exits)
         return RunResult(self.folder, status, summary)

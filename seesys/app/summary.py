@@ -6,7 +6,7 @@ was played, per part its restarts and exit statuses, frames and the fraction tra
 end-to-end latency percentiles, the advisory's buffers and pulses, the drops counted, and the files written.
 
 The plot (:func:`plot_session`) shows over the session's time the estimated error (from the device's
-``estimates.csv``), the true error when the source had a ground truth (``estimator.labels``: the same label the
+``estimates.csv``), the true error when the source had a ground truth (``seesys.core.labels``: the same label the
 model was trained on), Equation 2's thresholds alpha and beta, and below it the pulses of every buffer the advisory
 played. The advisory logs wall-clock times and the estimates frame times: the buffers played while estimates came
 are placed on the frame time line by interpolating between the estimates' arrival times and their frames' times.
@@ -15,22 +15,18 @@ are placed on the frame time line by interpolating between the estimates' arriva
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
-from advisory.config import AdvisoryConfig
-from advisory.logs import ADVISORY_CSV, PLAYBACK_CSV
-from seesys.errors import SeesysError
-from slam_monitor.estimates import ESTIMATES_CSV
-from slam_monitor.session import FRAMES_CSV, GROUND_TRUTH
-from study.logfiles import read_csv_log, write_json_atomically
-
-if TYPE_CHECKING:
-    from seesys.app.run import App
-    from study.watch import StreamWatcher
+from seesys.app.config import OutputConfig
+from seesys.app.records import RunRecord
+from seesys.core.equation2 import Equation2Config
+from seesys.core.errors import SeesysError
+from seesys.core.session_layout import ADVISORY_CSV, ESTIMATES_CSV, FRAMES_CSV, GROUND_TRUTH, PLAYBACK_CSV
+from seesys.io.logfiles import read_csv_log, write_json_atomically
 
 PERCENTILES = (50, 95, 99)
 
@@ -69,15 +65,15 @@ def session_figures(folder: Path) -> dict:
 
 def true_error(folder: Path, monocular: bool, config_dir: Path | None) -> pd.DataFrame | None:
     """The true per-frame error of a session with a ground truth (labelled frames only), or None."""
-    from estimator.labels import load_label_config, label_session
-
+    from seesys.io.core_settings import load_label_config
+    from seesys.io.session_labels import label_session
     if not (folder / GROUND_TRUTH).is_file():
         return None
     labels = label_session(folder, monocular, load_label_config(config_dir)).to_frame()
     return labels[labels.status == "labelled"]
 
 
-def plot_session(folder: Path, advisory: AdvisoryConfig, out: Path, monocular: bool = False,
+def plot_session(folder: Path, equation2: Equation2Config, out: Path, monocular: bool = False,
                  config_dir: Path | None = None) -> Path:
     """Write the session plot (see the module docstring) to ``out``; SeesysError when there is nothing to plot."""
     import matplotlib
@@ -97,7 +93,7 @@ def plot_session(folder: Path, advisory: AdvisoryConfig, out: Path, monocular: b
     if len(estimates):
         top.plot(estimates.timestamp - t0, estimates.error_m * 100, "o-", ms=3, color="tab:blue",
                  label="estimated error")
-    eq = advisory.equation2
+    eq = equation2
     for value, name in ((eq.alpha_m, "α"), (eq.beta_m, "β")):
         top.axhline(value * 100, color="tab:red", ls="--", lw=1)
         top.annotate(f"Equation 2 {name} = {value * 100:g} cm", (0, value * 100), textcoords="offset points",
@@ -121,27 +117,24 @@ def plot_session(folder: Path, advisory: AdvisoryConfig, out: Path, monocular: b
     return out
 
 
-def write_summary(app: App, *, status: str, error: str | None, started: str, ended: str,
-                  exits: dict[str, int | None], watcher: StreamWatcher | None) -> dict:
+def write_summary(run: RunRecord, out: OutputConfig, *, status: str, error: str | None, started: str, ended: str,
+                  exits: dict[str, int | None]) -> dict:
     """Write ``summary.json`` and the plot of a finished run; returns the summary. A plot that cannot be made is
     noted in the summary, never fatal: the logs are what matters."""
-    folder, out = app.folder, app.cfg.output
+    folder = run.folder
     summary = {"status": status, "error": error, "started": started, "ended": ended,
-               "source": app.o.source, "mode": app.mode, "paced": app.pace, "condition": app.o.condition.value,
-               "estimator": "local" if app.o.local else app.o.estimator, "audio": app.audio,
-               "parts": {name: {"restarts": part.restarts, "exits": part.exits, "final_exit": exits.get(name)}
-                         for name, part in app.parts.items()},
+               "source": run.source, "mode": run.mode, "paced": run.paced, "condition": run.condition,
+               "estimator": run.estimator, "audio": run.audio,
+               "parts": {name: {"restarts": part.restarts, "exits": list(part.exits), "final_exit": exits.get(name)}
+                         for name, part in run.parts.items()},
                **session_figures(folder)}
-    if watcher is not None:
-        summary["drops"] = {"skipped_by_device": watcher.frames_skipped,
-                            "lost_in_transit": watcher.losses.lost_in_transit, "bad_messages": watcher.bad_messages,
-                            # what a local estimator last reported dropping or rejecting (None: remote, or unknown)
-                            "estimator": app.view.snapshot.estimator_dropped if app.view is not None else None}
+    if run.drops is not None:
+        summary["drops"] = {**asdict(run.drops), "estimator": run.estimator_dropped}
     files = {"events": out.events, "logs": "logs"}
     if (folder / out.wav).exists():
         files["wav"] = out.wav
     try:
-        plot_session(folder, app.advisory, folder / out.plot, app.mode == "mono", app.config_dir)
+        plot_session(folder, run.equation2, folder / out.plot, run.mode == "mono", run.config_dir)
         files["plot"] = out.plot
     except (SeesysError, ValueError, KeyError) as e:
         summary["plot_error"] = str(e)

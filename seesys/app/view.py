@@ -21,7 +21,6 @@ from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from rich.console import Console, Group
@@ -30,15 +29,10 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
-from advisory.logs import ADVISORY_CSV
-from seesys.children import CsvTail, RowCounter, last_line
-from slam_monitor.estimates import ESTIMATES_CSV
-from slam_monitor.monitor_config import load_monitor_config
-from slam_monitor.session import FRAMES_CSV
-
-if TYPE_CHECKING:
-    from seesys.app.run import App
-    from study.watch import StreamWatcher
+from seesys.app.config import ViewConfig
+from seesys.app.records import RunState
+from seesys.core.session_layout import ADVISORY_CSV, ESTIMATES_CSV, FRAMES_CSV
+from seesys.io.children import CsvTail, RowCounter, last_line
 
 SPARK = "▁▂▃▄▅▆▇█"
 # The frame rate is measured over this many seconds of the frame log.
@@ -133,16 +127,30 @@ def panel(s: Snapshot, title: str) -> Panel:
     return Panel(Group(table, events), title=title, subtitle=f"{s.elapsed_s:.0f} s  Ctrl-C stops")
 
 
-class LiveView:
-    """Reads the session's logs into a :class:`Snapshot` and shows it; the app calls :meth:`update` from its loop."""
+@dataclass(frozen=True)
+class ViewSetup:
+    """What the view is told once, when the run starts."""
 
-    def __init__(self, app: App, watcher: StreamWatcher, console: Console | None = None):
-        self.app = app
-        self.watcher = watcher
+    folder: Path
+    source: str
+    condition: str
+    config: ViewConfig
+    device_id: str  # the device whose drops the local estimator reports
+    beta_m: float  # Equation 2's β: the sparkline's least top
+    remote_estimator: str | None  # HOST:PORT of a remote service; None: a local one, asked at status_endpoint
+    status_endpoint: str | None
+
+
+class LiveView:
+    """Reads the session's logs into a :class:`Snapshot` and shows it; the app calls :meth:`update` from its loop
+    with the state of its parts."""
+
+    def __init__(self, setup: ViewSetup, console: Console | None = None):
+        self.setup = setup
         self.console = console or Console()
-        self.cfg = app.cfg.view
-        folder = app.folder
-        self._title = f"seesys run  {app.o.source}  {app.o.condition.value}  → {folder}"
+        self.cfg = setup.config
+        folder = setup.folder
+        self._title = f"seesys run  {setup.source}  {setup.condition}  → {folder}"
         self._folder = folder
         self._frames = RowCounter(folder / FRAMES_CSV)
         self._rates: deque[tuple[float, int]] = deque()
@@ -157,50 +165,50 @@ class LiveView:
         self._last_plain = -math.inf
         self._last_status = -math.inf
         self._status: dict | None = None
-        self._device_id = load_monitor_config(app.config_dir).device_id
         self._live: Live | None = None
-        self._beta_m = app.advisory.equation2.beta_m
+        self._state = RunState()
 
     # -- the estimator's status (local estimator only) -----------------------------------------------------------
 
     def estimator_answers(self) -> bool:
         """Ask the local estimator for its status now; True when it answered."""
         from estimator.service.broker import ServiceError
-        from estimator.service.config import load_service_config
         from estimator.service.status import query_status
 
         self._last_status = time.monotonic()
-        endpoint = load_service_config(self.app.config_dir).status_endpoint
         try:
-            self._status = query_status(endpoint, self.cfg.status_timeout_ms)
+            self._status = query_status(self.setup.status_endpoint, self.cfg.status_timeout_ms)
         except ServiceError:
             self._status = None
         return self._status is not None
 
     def _estimator_state(self) -> tuple[str, int | None]:
-        if not self.app.o.local:
-            return f"remote {self.app.o.estimator}", None
-        part = self.app.parts.get("estimator")
+        if self.setup.remote_estimator is not None:
+            return f"remote {self.setup.remote_estimator}", None
+        part = self._state.parts.get("estimator")
         if part is None:
             return "starting", None
-        if part.restart_at is not None or not part.child.running:
+        if part.restarting or not part.running:
             return "DOWN (restarting)", None
         if time.monotonic() - self._last_status >= self.cfg.estimator_poll_s:
             self.estimator_answers()
         if self._status is None:
             return "starting (not answering yet)", None
-        device = self._status["devices"].get(self._device_id)
+        device = self._status["devices"].get(self.setup.device_id)
         dropped = sum(device["dropped"].values()) if device else 0
         return f"up, {self._status['model_version']}", dropped + sum(self._status["rejected"].values())
 
     # -- reading the logs ----------------------------------------------------------------------------------------
 
-    def collect(self) -> Snapshot:
+    def collect(self, state: RunState | None = None) -> Snapshot:
+        """The snapshot of now; ``state``: the app's parts and stream as they are now (the last given when None)."""
+        if state is not None:
+            self._state = state
         now_mono, now = time.monotonic(), time.time()
         s = Snapshot(elapsed_s=now_mono - self._started)
         s.frames = self._frames()
         row = last_line(self._folder / FRAMES_CSV).split(",")
-        s.state = row[2] if len(row) > 2 else ("waiting for the device" if "device" not in self.app.parts
+        s.state = row[2] if len(row) > 2 else ("waiting for the device" if "device" not in self._state.parts
                                                else "starting")
         self._rates.append((now_mono, s.frames))
         while len(self._rates) > 2 and now_mono - self._rates[0][0] > RATE_WINDOW_S:
@@ -220,17 +228,17 @@ class LiveView:
         while self._recent and now - self._recent[0][0] > self.cfg.sparkline_s:
             self._recent.popleft()
         values = [error for _, error in self._recent]
-        s.spark_top_m = max([self._beta_m, *values])
+        s.spark_top_m = max([self.setup.beta_m, *values])
         s.spark = sparkline(values, s.spark_top_m)
         if self._latencies:
             s.latency_ms = tuple(float(v) for v in np.percentile(list(self._latencies), [50, 95, 99]))
         for r in self._advisory.new_rows():
             self._pulses.append(int(r["played_pulses"]) if r["played_pulses"].isdigit() else 0)
         s.pulses = list(self._pulses)
-        s.skipped, s.lost, s.bad_messages = (self.watcher.frames_skipped, self.watcher.losses.lost_in_transit,
-                                             self.watcher.bad_messages)
+        drops = self._state.drops
+        s.skipped, s.lost, s.bad_messages = drops.skipped_by_device, drops.lost_in_transit, drops.bad_messages
         s.estimator, s.estimator_dropped = self._estimator_state()
-        s.restarts = {name: part.restarts for name, part in self.app.parts.items()}
+        s.restarts = {name: part.restarts for name, part in self._state.parts.items()}
         s.events = list(self._events)
         self.snapshot = s
         return s
@@ -244,8 +252,8 @@ class LiveView:
             self.snapshot.events = list(self._events)
             self._live.update(panel(self.snapshot, self._title))
 
-    def update(self) -> None:
-        snapshot = self.collect()
+    def update(self, state: RunState | None = None) -> None:
+        snapshot = self.collect(state)
         if self._live is not None:
             self._live.update(panel(snapshot, self._title))
         elif time.monotonic() - self._last_plain >= PLAIN_INTERVAL_S:
@@ -265,4 +273,3 @@ class LiveView:
                 yield self
             finally:
                 self._live = None
-

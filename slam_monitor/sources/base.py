@@ -14,9 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from seesys.errors import SeesysError
-from seesys.trajectory import Poses
-from slam_monitor.frame import Frame, Intrinsics
+from seesys.core.camera import Intrinsics
+from seesys.core.errors import SeesysError
+from seesys.core.trajectory import Poses
+from slam_monitor.frame import Frame
 
 
 class SourceError(SeesysError):

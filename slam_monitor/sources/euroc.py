@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from seesys.trajectory import Poses, read_euroc_groundtruth
-from slam_monitor.frame import Frame, Intrinsics
+from seesys.core.camera import Intrinsics
+from seesys.core.trajectory import Poses
+from seesys.io.trajectory_files import read_euroc_groundtruth
+from slam_monitor.frame import Frame
 from slam_monitor.sources.base import (
     FrameSource,
     SourceError,

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from slam_monitor.frame import Frame, Intrinsics
+from seesys.core.camera import Intrinsics
+from slam_monitor.frame import Frame
 from slam_monitor.sources.base import DepthLimits, FrameSource, SourceError, check_depth, require_file, to_gray
 from slam_monitor.sources.settings import RealSenseSettings, RecordingSettings
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.config import load_section
-from slam_monitor.frame import Intrinsics
+from seesys.core.camera import Intrinsics
+from seesys.io.config import load_section
 from slam_monitor.sources.base import DepthLimits, SourceError, read_yaml
 
 CALIBRATION_FILE = "calibration.yaml"

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from seesys.trajectory import Poses, read_tum
+from seesys.core.trajectory import Poses
+from seesys.io.trajectory_files import read_tum
 from slam_monitor.frame import Frame
 from slam_monitor.sources.base import (
     DepthLimits,

@@ -18,10 +18,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from seesys.errors import SeesysError
-from seesys.trajectory import Poses, read_tum, write_tum
+from seesys.core.errors import SeesysError
+from seesys.core.trajectory import Poses
+from seesys.io.logfiles import write_json_atomically
+from seesys.io.trajectory_files import read_tum, write_tum
 from study.config import CalibrationConfig
-from study.logfiles import write_json_atomically
 from study.mocap.clock import ClockOffset, estimate_clock_offset, shift
 from study.mocap.handeye import HandEye, calibrate_hand_eye, camera_ground_truth, to_matrix
 from study.mocap.importers import read_mocap

@@ -21,8 +21,8 @@ from scipy import optimize, signal
 from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Slerp
 
-from seesys.errors import SeesysError
-from seesys.trajectory import Poses
+from seesys.core.errors import SeesysError
+from seesys.core.trajectory import Poses
 from study.config import CalibrationConfig
 
 

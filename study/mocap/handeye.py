@@ -24,9 +24,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from seesys.trajectory import Poses
+from seesys.core.trajectory import Poses
 from study.config import CalibrationConfig
 from study.mocap.clock import CalibrationError, interpolate_poses
+
 
 @dataclass(frozen=True)
 class HandEye:

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from seesys.errors import SeesysError
-from seesys.trajectory import Poses, read_tum
+from seesys.core.errors import SeesysError
+from seesys.core.trajectory import Poses
+from seesys.io.trajectory_files import read_tum
 
 UNIT_SCALE_M = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
 ANGLE_SCALE_RAD = {"deg": np.pi / 180.0, "rad": 1.0}

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from seesys.errors import SeesysError
-from seesys.trajectory import TUM_HEADER, tum_line
+from seesys.core.errors import SeesysError
+from seesys.core.trajectory import TUM_HEADER, tum_line
+from seesys.io.logfiles import open_log, write_json_atomically
 from study.config import MocapConfig
-from study.logfiles import open_log, write_json_atomically
 from study.mocap.calibrate import MOCAP_LOG
 
 MOCAP_STATS = "mocap_stats.json"

@@ -26,15 +26,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from seesys.config import load_section
-from seesys.errors import SeesysError
-from seesys.protocol.tracking_state import TrackingState
-from seesys.trajectory import Poses, read_tum
+from seesys.core.errors import SeesysError
+from seesys.core.tracking_state import TrackingState
+from seesys.core.trajectory import Poses
 
 
 @dataclass(frozen=True)
@@ -43,10 +41,6 @@ class LabelConfig:
     association_max_dt_s: float
     mono_scale_window_frames: int
     min_alignment_frames: int
-
-
-def load_label_config(directory: Path | None = None) -> LabelConfig:
-    return load_section("labels", LabelConfig, directory)
 
 
 class LabelStatus(str, Enum):
@@ -177,36 +171,6 @@ def _pair_errors(estimate: Poses, ground_truth: Poses, starts: np.ndarray, ends:
                       all_pairs=True)
     rpe.process_data((gt, est))
     return np.asarray(rpe.error)[0::2]
-
-
-def label_session(folder: Path, monocular: bool, config: LabelConfig) -> FrameLabels:
-    """Labels of a device session folder (docs/device.md): ``frames.csv`` (every frame and its state),
-    ``trajectory.tum`` (poses of the tracked frames) and ``groundtruth.tum``.
-
-    A frame reported tracked but absent from ``trajectory.tum`` (no valid pose) counts as not tracked.
-    """
-    from slam_monitor import session
-
-    try:
-        frames = pd.read_csv(folder / session.FRAMES_CSV)
-    except (OSError, pd.errors.ParserError) as e:
-        raise LabelError(f"cannot read {folder / session.FRAMES_CSV}: {e}") from None
-    ground_truth = folder / session.GROUND_TRUTH
-    if not ground_truth.is_file():
-        raise LabelError(f"{folder} has no {session.GROUND_TRUTH}: the source had no ground truth")
-    poses = read_tum(folder / session.TRAJECTORY)
-    times = frames["timestamp"].to_numpy(float)
-    positions = np.zeros((len(times), 3))
-    quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1))
-    has_pose = np.zeros(len(times), bool)
-    if len(poses.timestamps):
-        row = np.clip(np.searchsorted(poses.timestamps, times), 0, len(poses.timestamps) - 1)
-        has_pose = np.isclose(poses.timestamps[row], times, atol=1e-6, rtol=0.0)
-        positions[has_pose] = poses.positions[row[has_pose]]
-        quaternions[has_pose] = poses.quaternions_xyzw[row[has_pose]]
-    states = np.where(has_pose, frames["state"].to_numpy(object), TrackingState.LOST.name)
-    estimate = Poses(times, positions, quaternions)
-    return label_frames(estimate, states, read_tum(ground_truth), monocular, config)
 
 
 @dataclass(frozen=True)

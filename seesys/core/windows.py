@@ -23,14 +23,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from seesys.config import load_section
-
-from seesys.protocol import rts_schema
-from seesys.protocol.messages import FeatureFrame
+from seesys.core import rts_schema
+from seesys.core.messages import FeatureFrame
 
 
 @dataclass(frozen=True)
@@ -63,11 +60,6 @@ class WindowConfig:
     def history(self) -> int:
         """How many frames before a window's end frame the window reaches back."""
         return max(self.rts_length - 1, (self.psd_samples - 1) * self.psd_stride)
-
-
-def load_window_config(directory: Path | None = None) -> WindowConfig:
-    """The model windows of ``configs/windows.toml``."""
-    return load_section("windows", WindowConfig, directory)
 
 
 @dataclass(frozen=True)

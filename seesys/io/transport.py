@@ -5,7 +5,7 @@ One function opens a socket, so every socket gets the same treatment:
 - **Options before bind/connect.** ZeroMQ fixes high-water marks per connection when the connection is made, so an
   option set after ``bind`` or ``connect`` silently does nothing for it; :func:`open_socket` sets them all first.
 - **LINGER 0**: closing never waits for unsent messages (a device that stops must stop; its own logs are on disk).
-- **Exact topics.** Subscriptions are prefix matches; the topics of :mod:`seesys.protocol.messages` end in a
+- **Exact topics.** Subscriptions are prefix matches; the topics of :mod:`seesys.core.messages` end in a
   terminator, so subscribing to ``messages.topic(kind, "dev-1")`` cannot also match ``dev-10``.
 - **Clear failures**: a bind or connect that fails (address in use, malformed endpoint) is a
   :class:`TransportError` naming the endpoint and what it was for.
@@ -26,8 +26,8 @@ from pathlib import Path
 import zmq
 import zmq.auth
 
-from seesys.errors import SeesysError
-from seesys.protocol.messages import FeatureFrame
+from seesys.core.errors import SeesysError
+from seesys.core.messages import FeatureFrame
 
 
 class TransportError(SeesysError):

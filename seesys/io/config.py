@@ -5,21 +5,23 @@ a dataclass for its section and calls :func:`load_section`; the loader checks th
 dataclass's keys, with values of the declared types, and raises :class:`ConfigError` naming the file and key
 otherwise. Nested dataclasses map to TOML tables.
 
-The folder is ``$SEESYS_CONFIG_DIR`` when set, else ``configs/`` of the SEESys home (:mod:`seesys.resources`).
+The folder is ``$SEESYS_CONFIG_DIR`` when set, else ``configs/`` of the SEESys home (:mod:`seesys.io.resources`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
+import re
 import tomllib
 import types
 import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
-from seesys import resources
-from seesys.errors import ConfigError
+from seesys.core.errors import ConfigError
+from seesys.io import resources
 
 T = TypeVar("T")
 
@@ -124,3 +126,23 @@ def replace_fields(obj: T, **changes: Any) -> T:
 def as_dict(obj: Any) -> dict[str, Any]:
     """The config as plain data, for ``session.json``."""
     return dataclasses.asdict(obj)
+
+
+def write_config_dir(destination: Path, overrides: dict[str, object]) -> Path:
+    """Copy ``configs/*.toml`` into ``destination`` with each ``key = value`` of ``overrides`` replaced.
+
+    Keys are found by name (keys are unique across the files' tables); an unknown key is an error, so a
+    renamed key cannot silently leave a test on the defaults.
+    """
+    destination.mkdir(parents=True, exist_ok=True)
+    left = dict(overrides)
+    for source in sorted(config_dir().glob("*.toml")):
+        text = source.read_text()
+        for key in list(left):
+            pattern = re.compile(rf"^{re.escape(key)} = .*$", re.MULTILINE)
+            if pattern.search(text):
+                text = pattern.sub(lambda _: f"{key} = {json.dumps(left.pop(key))}", text, count=1)
+        (destination / source.name).write_text(text)
+    if left:
+        raise KeyError(f"no such configuration key(s): {', '.join(left)}")
+    return destination

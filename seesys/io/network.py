@@ -6,8 +6,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.config import load_section
-from seesys.errors import ConfigError
+from seesys.core.errors import ConfigError
+from seesys.io.config import load_section
 
 
 @dataclass(frozen=True)
@@ -39,11 +39,11 @@ class NetworkConfig:
     def client_options(self, endpoint: str) -> Mapping[int, int | bytes]:
         """Socket options of a client connecting to ``endpoint``: this client's Curve keys where ``endpoint`` is the
         estimator service's (``ingest_endpoint``, ``estimates_endpoint``) and ``[curve]`` is set, else none.
-        Raises :class:`seesys.protocol.transport.CurveKeyError` when a key file cannot be read."""
+        Raises :class:`seesys.io.transport.CurveKeyError` when a key file cannot be read."""
         if not self.curve.enabled or endpoint not in (self.ingest_endpoint, self.estimates_endpoint):
             return {}
-        from seesys.protocol.transport import ClientKeys
-        from seesys.resources import resolve
+        from seesys.io.resources import resolve
+        from seesys.io.transport import ClientKeys
 
         return ClientKeys(resolve(self.curve.client_secret_key), resolve(self.curve.server_public_key)).socket_options()
 

@@ -10,15 +10,13 @@ which is why this container exists beside evo's: a session that never initialise
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 if TYPE_CHECKING:
     from evo.core.trajectory import PoseTrajectory3D
@@ -86,40 +84,6 @@ class Poses:
                    np.asarray(trajectory.orientations_quat_wxyz, dtype=float)[:, [1, 2, 3, 0]])
 
 
-def _read_table(path: Path, delimiter: str | None, min_columns: int, layout: str) -> np.ndarray:
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # numpy warns on a file of comments only
-            data = np.loadtxt(path, comments="#", delimiter=delimiter, ndmin=2)
-    except FileNotFoundError:
-        raise TrajectoryError(f"trajectory file not found: {path}") from None
-    except (OSError, ValueError) as e:
-        raise TrajectoryError(f"{path}: not a trajectory ({layout}): {e}") from None
-    if data.size and data.shape[1] < min_columns:
-        raise TrajectoryError(f"{path}: expected {min_columns} columns ({layout}), found {data.shape[1]}")
-    if data.size and not np.all(np.isfinite(data[:, :min_columns])):
-        raise TrajectoryError(f"{path}: holds non-finite numbers")
-    return data
-
-
-def read_tum(path: Path) -> Poses:
-    """The poses of a TUM file, in file order; an empty file (or one of comments only) gives no poses."""
-    data = _read_table(Path(path), None, 8, "t tx ty tz qx qy qz qw")
-    if data.size == 0:
-        return Poses.empty()
-    if data.shape[1] != 8:
-        raise TrajectoryError(f"{path}: expected 8 columns (t tx ty tz qx qy qz qw), found {data.shape[1]}")
-    return Poses(data[:, 0], data[:, 1:4], data[:, 4:8])
-
-
-def read_euroc_groundtruth(path: Path) -> Poses:
-    """A EuRoC ground-truth CSV, ``t[ns], px, py, pz, qw, qx, qy, qz, ...`` (further columns ignored)."""
-    data = _read_table(Path(path), ",", 8, "t[ns], px, py, pz, qw, qx, qy, qz")
-    if data.size == 0:
-        return Poses.empty()
-    return Poses(data[:, 0] * 1e-9, data[:, 1:4], data[:, [5, 6, 7, 4]])
-
-
 def tum_line(timestamp: float | str, position: np.ndarray, quaternion_xyzw: np.ndarray, decimals: int = 9) -> str:
     """One TUM line, with its newline: the timestamp to the microsecond (or as given, when a string) and the pose
     with ``decimals`` decimals."""
@@ -131,11 +95,3 @@ def tum_line(timestamp: float | str, position: np.ndarray, quaternion_xyzw: np.n
 def pose_tum_line(timestamp: float, pose: np.ndarray) -> str:
     """The TUM line of a 4×4 pose matrix T_world_camera."""
     return tum_line(timestamp, pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat())
-
-
-def write_tum(path: Path, poses: Poses) -> None:
-    """Write ``poses`` as a TUM file with a header comment."""
-    with Path(path).open("w") as out:
-        out.write(TUM_HEADER + "\n")
-        for t, p, q in zip(poses.timestamps, poses.positions, poses.quaternions_xyzw):
-            out.write(tum_line(t, p, q))

@@ -7,13 +7,17 @@ Readers therefore never see a half-written JSON file, and a log loses at most th
 
 from __future__ import annotations
 
+import csv
 import io
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, TextIO
 
 import pandas as pd
+
+from seesys.core.errors import SeesysError
 
 
 def write_text_atomically(path: Path, text: str) -> None:
@@ -52,3 +56,40 @@ def read_csv_log(path: Path, **read_csv_args: Any) -> pd.DataFrame:
     if not text.strip():
         raise pd.errors.EmptyDataError(f"{path} is empty")
     return pd.read_csv(io.StringIO(text), on_bad_lines="skip", **read_csv_args)
+
+
+class CsvLog:
+    """An appending CSV file with a header, flushed after every row."""
+
+    def __init__(self, path: Path, columns: tuple[str, ...]):
+        self.path = path
+        self.columns = columns
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                # Exclusive creation: of two processes starting together, only one writes the header. O_APPEND
+                # on both sides, so that their rows never overwrite each other.
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
+                new = True
+            except FileExistsError:
+                fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+                new = False
+            self._file = open(fd, "a", newline="", buffering=1)
+        except OSError as e:
+            raise SeesysError(f"cannot write the log {path}: {e}") from None
+        self._writer = csv.writer(self._file)
+        if new:
+            self._writer.writerow(columns)
+
+    def write(self, *values: object) -> None:
+        self._writer.writerow([_cell(v) for v in values])
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def _cell(v: object) -> object:
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(v)
+    return v

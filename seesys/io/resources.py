@@ -8,7 +8,7 @@ The SEESys home is the first of:
 3. ``<prefix>/share/seesys``, where ``pip install`` puts both folders from the wheel (``prefix`` being the
    virtual environment, the system or the user scheme, whichever the package was installed into).
 
-``$SEESYS_CONFIG_DIR`` still overrides the configuration folder alone (:func:`seesys.config.config_dir`).
+``$SEESYS_CONFIG_DIR`` still overrides the configuration folder alone (:func:`seesys.io.config.config_dir`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import os
 import sysconfig
 from pathlib import Path
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 HOME_ENV = "SEESYS_HOME"
 SHARE_SUBDIR = Path("share") / "seesys"
@@ -44,7 +44,7 @@ def home() -> Path:
         if not _is_home(folder):
             raise ResourceError(f"${HOME_ENV} is {folder}, which has no configs/ folder")
         return folder
-    candidates = [Path(__file__).resolve().parent.parent, *_installed_homes()]
+    candidates = [Path(__file__).resolve().parents[2], *_installed_homes()]
     for folder in candidates:
         if _is_home(folder):
             return folder

@@ -18,7 +18,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.processes import die_with_parent
+from seesys.io.processes import die_with_parent
 
 LOGS = "logs"
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seesys.errors import SeesysError
+from seesys.core.errors import SeesysError
 
 SCHEMA_VERSION = 1
 
@@ -86,6 +86,7 @@ CHANNELS: tuple[Channel, ...] = (
             "mean reprojection error of the matched map points in the current frame "
             "(pyorbslam3 does not expose local bundle adjustment residuals)", "log1p", 2.0),
 )
+
 
 def fingerprint(channels: tuple[Channel, ...]) -> int:
     """CRC-32 of the channels' names, categories, units, transforms and scales, in order."""

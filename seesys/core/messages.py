@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seesys.errors import SeesysError
-from seesys.protocol import rts_schema
-from seesys.protocol.tracking_state import TrackingState
+from seesys.core import rts_schema
+from seesys.core.errors import SeesysError
+from seesys.core.tracking_state import TrackingState
 
 PROTOCOL_VERSION = 2
 MAGIC = b"SEES"

@@ -2,12 +2,12 @@
 already written:
 
 - ``rts.csv``: ``frame_index, timestamp, tracking_state`` (state name) and one column per RTS channel, in
-  :mod:`seesys.protocol.rts_schema` order and units; ``nan`` where a channel has no value (e.g. motion on a frame
+  :mod:`seesys.core.rts_schema` order and units; ``nan`` where a channel has no value (e.g. motion on a frame
   without a pose). A plain CSV that pandas and R read as it is.
 - ``rts.json``: the schema ``rts.csv`` was written with (``rts_schema_version``, ``rts_schema_fingerprint``, the
   channels with their units). Readers refuse an ``rts.csv`` without it, or of another schema.
 - ``psd/psd_NNNNNN.bin``: the PSD matrices, in chunks of ``psd_chunk_records`` records. A record is
-  ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`seesys.protocol.messages.pack_psd` (the zlib'd
+  ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`seesys.core.messages.pack_psd` (the zlib'd
   matrix, the same bytes as on the wire). A record cut short by a crash at the end of the last chunk
   is ignored by the reader.
 """
@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seesys.errors import SeesysError
-from seesys.protocol import rts_schema
-from seesys.protocol.messages import FeatureFrame, MessageError, pack_psd, unpack_psd
-from seesys.protocol.tracking_state import TrackingState
+from seesys.core import rts_schema
+from seesys.core.errors import SeesysError
+from seesys.core.messages import FeatureFrame, MessageError, pack_psd, unpack_psd
+from seesys.core.tracking_state import TrackingState
 
 RTS_CSV = "rts.csv"
 RTS_JSON = "rts.json"
@@ -169,7 +169,7 @@ def read_rts_csv(session: Path) -> pd.DataFrame:
 
 def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]:
     """The session's monitor logs as :class:`FeatureFrame` records in frame order, PSD attached where logged
-    (for :func:`seesys.protocol.windows.assemble_windows`)."""
+    (for :func:`seesys.core.windows.assemble_windows`)."""
     psds = {r.frame_index: r.psd for r in read_psd_log(session)}
     table = read_rts_csv(session)
     rts = table[list(rts_schema.CHANNEL_NAMES)].to_numpy(dtype=np.float32)

@@ -11,9 +11,26 @@ thresholds behave as written: ``e = 0.004`` gives 1 pulse, ``0.0039999`` gives 0
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from decimal import ROUND_FLOOR, ROUND_HALF_EVEN, Decimal
 
-from advisory.config import Equation2Config, RotationConfig
+
+@dataclass(frozen=True)
+class Equation2Config:
+    alpha_m: float
+    beta_m: float
+    pulses_per_metre: float
+    pulse_s: float
+    interval_s: float
+    error_resolution_m: float
+
+
+@dataclass(frozen=True)
+class RotationConfig:
+    degrees_per_step: float
+    steps_below_first_pulse: int
+    speed_resolution_deg_s: float
+    max_frame_gap_s: float
 
 
 def _decimal(x: float) -> Decimal:
@@ -51,3 +68,21 @@ def rotation_pulses(speed_deg_s: float, rot: RotationConfig, eq: Equation2Config
     theta = _quantise(speed_deg_s, rot.speed_resolution_deg_s)
     steps = _floor(theta / _decimal(rot.degrees_per_step)) - rot.steps_below_first_pulse
     return min(max(steps, 0), max_pulses(eq, buffer_s))
+
+
+@dataclass(frozen=True)
+class PulseSettings:
+    """Equation 2 with the advisory timing its pulse counts depend on: ``buffer_s`` (how many pulses fit in one
+    buffer) and ``window_s`` (the moving mean the estimates are averaged over before Equation 2)."""
+
+    equation2: Equation2Config
+    buffer_s: float
+    window_s: float
+
+    @property
+    def max_pulses(self) -> int:
+        return max_pulses(self.equation2, self.buffer_s)
+
+    def pulses(self, error_m: float) -> int:
+        """Equation 2's pulse count for a (moving-mean) error estimate in metres."""
+        return error_pulses(error_m, self.equation2, self.buffer_s)

@@ -1,0 +1,53 @@
+"""The small records the app hands to its live view and its summary, so that neither needs the ``App`` itself."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from seesys.core.equation2 import Equation2Config
+
+
+@dataclass(frozen=True)
+class PartStatus:
+    """One supervised part (device, estimator, generator, player) at one moment."""
+
+    running: bool
+    restarting: bool = False  # exited, and a restart is pending
+    restarts: int = 0
+    exits: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class StreamDrops:
+    """What the app's own subscriber to the device's feature stream counted."""
+
+    skipped_by_device: int = 0  # frames the device's monitor could not keep up with
+    lost_in_transit: int = 0  # frames that never reached the app
+    bad_messages: int = 0
+
+
+@dataclass(frozen=True)
+class RunState:
+    """The supervised parts and the stream at one moment, as the app hands them to the live view."""
+
+    parts: dict[str, PartStatus] = field(default_factory=dict)
+    drops: StreamDrops = StreamDrops()
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """What ``summary.json`` and the plot say about a finished run, besides what the session's logs hold."""
+
+    folder: Path
+    source: str
+    mode: str
+    paced: bool
+    condition: str
+    estimator: str  # "local", or the remote service's HOST:PORT
+    audio: str
+    equation2: Equation2Config
+    config_dir: Path | None  # the run's copy of the configs, once written
+    parts: dict[str, PartStatus] = field(default_factory=dict)
+    drops: StreamDrops | None = None  # None: the stream was never watched
+    estimator_dropped: int | None = None  # what a local estimator last reported dropping (None: remote, unknown)

@@ -1,0 +1,81 @@
+"""The live view and the summary of `seesys run` work on small records (`ViewSetup`, `RunState`, `RunRecord`), not on
+the app: here they are given such records and a session folder whose logs were written as the parts write them."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from advisory.config import load_advisory_config
+from seesys.app.config import load_app_config
+from seesys.app.records import PartStatus, RunRecord, RunState, StreamDrops
+from seesys.app.summary import write_summary
+from seesys.app.view import LiveView, ViewSetup
+from seesys.core.session_layout import (ADVISORY_COLUMNS, ADVISORY_CSV, ESTIMATE_COLUMNS, ESTIMATES_CSV, FRAMES_CSV,
+                                        FRAMES_HEADER)
+from seesys.io.logfiles import CsvLog
+
+ERRORS_M = (0.003, 0.005, 0.009)
+PULSES = (0, 1, 2)
+
+
+@pytest.fixture
+def session(tmp_path: Path) -> Path:
+    """Ten frames (the last lost), three estimates and three advisory buffers, as the device and advisory log them."""
+    folder = tmp_path / "session"
+    folder.mkdir()
+    states = ["OK"] * 8 + ["OK_KLT", "LOST"]
+    (folder / FRAMES_CSV).write_text(FRAMES_HEADER + "\n" + "".join(
+        f"{i},{100 + i / 30:.6f},{state},{200 - i},12.5\n" for i, state in enumerate(states)))
+    estimates = CsvLog(folder / ESTIMATES_CSV, ESTIMATE_COLUMNS)
+    for k, error in enumerate(ERRORS_M):
+        row = {"frame_index": 3 * k, "timestamp": 100 + k / 10, "error_m": error, "model_version": "m",
+               "server_ms": 4.0, "received_unix": 1.0e9 + k, "tracking_ms": 10.0, "preprocess_ms": 3.0,
+               "transmit_inference_ms": 6.0, "end_to_end_ms": 10.0 + k, "capture_to_estimate_ms": 20.0}
+        estimates.write(*(row[c] for c in ESTIMATE_COLUMNS))
+    estimates.close()
+    advisory = CsvLog(folder / ADVISORY_CSV, ADVISORY_COLUMNS)
+    for k, pulses in enumerate(PULSES):
+        row = {"wall_time": 1.0e9 + k, "time_mono": float(k), "condition": "seesys", "status": "ok",
+               "trigger": "cadence", "input_value": ERRORS_M[k], "n_pulses": pulses, "played_pulses": pulses,
+               "buffer_id": k, "arrival_mono": float(k), "play_at_mono": float(k)}
+        advisory.write(*(row[c] for c in ADVISORY_COLUMNS))
+    advisory.close()
+    return folder
+
+
+def test_the_view_collects_a_snapshot_from_records_and_logs(session: Path):
+    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, "device-0", 0.012,
+                      remote_estimator="10.0.0.2:5556", status_endpoint=None)
+    view = LiveView(setup, Console(file=io.StringIO()))
+    state = RunState({"device": PartStatus(running=True), "generator": PartStatus(running=True, restarts=1)},
+                     StreamDrops(skipped_by_device=2, lost_in_transit=3, bad_messages=1))
+    s = view.collect(state)
+    assert (s.frames, s.state, s.estimates) == (10, "LOST", 3)
+    assert s.latest_error_m == ERRORS_M[-1]
+    assert s.pulses == list(PULSES)
+    assert (s.skipped, s.lost, s.bad_messages) == (2, 3, 1)
+    assert s.restarts == {"device": 0, "generator": 1}
+    assert s.estimator == "remote 10.0.0.2:5556" and s.estimator_dropped is None
+    assert s.latency_ms[0] == 11.0
+
+
+def test_the_summary_is_written_from_a_run_record(session: Path):
+    record = RunRecord(session, "tum:somewhere", "rgbd", True, "seesys", "local", "WAV only",
+                       load_advisory_config().equation2, None,
+                       {"device": PartStatus(running=False, exits=(0,)),
+                        "estimator": PartStatus(running=False, restarts=1, exits=(-9, 0))},
+                       StreamDrops(1, 2, 3), estimator_dropped=4)
+    output = load_app_config().output
+    summary = write_summary(record, output, status="completed", error=None, started="a", ended="b",
+                            exits={"device": 0, "estimator": 0})
+    assert json.loads((session / output.summary).read_text()) == summary
+    assert summary["frames"] == 10 and summary["estimates"] == 3 and summary["buffers"] == 3
+    assert summary["parts"]["estimator"] == {"restarts": 1, "exits": [-9, 0], "final_exit": 0}
+    assert summary["drops"] == {"skipped_by_device": 1, "lost_in_transit": 2, "bad_messages": 3, "estimator": 4}
+    assert summary["buffers_by_pulses"] == {"0": 1, "1": 1, "2": 1}
+    assert (session / output.plot).is_file()
