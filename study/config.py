@@ -25,6 +25,7 @@ class MetricsConfig:
     all_pairs: bool
     association_max_dt_s: float
     loss_gap_factor: float
+    stretch_gap_s: float
 
 
 @dataclass(frozen=True)

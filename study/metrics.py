@@ -1,20 +1,26 @@
 """Per-participant tracking metrics (paper §7.3): tracking error, tracking completeness, losses, time on task.
 
 - **Tracking error** is evo's relative pose error, translation part, over ``delta_frames`` frames, of the SLAM
-  trajectory against the motion-capture reference: the poses are associated by nearest timestamp within
-  ``association_max_dt_s`` (evo's ``associate_trajectories``), the estimate is aligned to the reference (SE(3)
-  for metric RGB-D SLAM, Sim(3) for monocular) and evo's ``main_rpe.rpe`` does the rest. This is evo's RPE over
-  the whole associated trajectory, not ``seesys/core/labels.py``'s per-frame label: a label must be one frame's
-  local error (pairs only inside a tracked stretch, a local monocular scale), while the study reports the error
-  of the participant's whole trajectory exactly as evo computes it, so that a lab can reproduce it with evo's
-  own command line (``evo_rpe tum REF EST --delta 10 --delta_unit f --pose_relation trans_part --align
-  [--correct_scale] --t_max_diff 0.01 [--all_pairs]``).
+  trajectory against the motion-capture reference, **per tracked stretch**: the trajectory is cut where tracking
+  was lost (a stretch is a maximal run of tracked frames of the session's frame log; without a frame log, of
+  poses less than ``stretch_gap_s`` apart), and in each stretch the poses are associated by nearest timestamp
+  within ``association_max_dt_s`` (evo's ``associate_trajectories``), the stretch is aligned to the reference on
+  its own (SE(3) for metric RGB-D SLAM, Sim(3) for monocular) and evo's ``main_rpe.rpe`` gives its pairs; the
+  pairs of all stretches are pooled. So no pair straddles a loss, and a participant who loses tracking and
+  continues in a new ORB-SLAM3 map (its own origin) is not charged for the reset itself, only for the error
+  within each map — as the per-frame label (``seesys/core/labels.py``) refuses pairs across stretches. Each stretch
+  is what evo's command line computes on that stretch's poses (``evo_rpe tum REF EST --delta 10 --delta_unit f
+  --pose_relation trans_part --align [--correct_scale] --t_max_diff 0.01 [--all_pairs]``); a trajectory without
+  a loss is one stretch, and its error is evo's on the whole trajectory.
 - **Completeness** is the share of camera frames tracked from the first tracked frame on (initialisation, which
   the operator confirms, is not the participant's doing). With a frame log (a session's ``frames.csv``) it is
   counted on the frames; from two TUM files alone it is the share of time from the first estimated pose to the
   end of the reference covered by estimated poses, a gap longer than ``loss_gap_factor`` median frame intervals
   counting as a loss.
-- **Losses**: the number and total duration of tracking losses after initialisation.
+- **Losses and map resets**, apart: the number and total duration of tracking losses after initialisation, and
+  how many of them ended in a new map (the frame log shows ``LOST`` or ``NOT_INITIALIZED`` during the loss:
+  ORB-SLAM3 starts a new map then; a loss with only ``RECENTLY_LOST`` frames relocalised in the same map).
+  Without a frame log the resets are unknown (None).
 - **Time on task**: from the first frame to the last (or between the operator's start and end events).
 """
 
@@ -50,6 +56,8 @@ class TrackingMetrics:
     completeness: float
     tracking_losses: int
     loss_duration_s: float
+    map_resets: int | None  # losses that ended in a new ORB-SLAM3 map (None: no frame log to tell)
+    stretches: int  # tracked stretches the error was computed on
     time_on_task_s: float
     alignment: str
     delta_frames: int
@@ -62,57 +70,117 @@ class TrackingMetrics:
 
 @dataclass(frozen=True)
 class RpeResult:
-    """evo's RPE: the per-pair errors (metres) and the timestamps of the pairs' end poses."""
+    """evo's RPE over the tracked stretches: the per-pair errors (metres), the timestamps of the pairs' end poses
+    and how many stretches had pairs."""
 
     errors_m: np.ndarray
     timestamps: np.ndarray
     alignment: str
+    stretches: int = 0
 
 
-def relative_pose_error(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig) -> RpeResult:
-    """evo's RPE (translation part, ``delta_frames``) of ``estimate`` against ``reference`` after association and
-    SE(3) / Sim(3) alignment; no pairs (empty arrays) when too few poses associate."""
+@dataclass(frozen=True)
+class Stretch:
+    """A maximal run of tracked frames, by time (inclusive), and whether it began in a new ORB-SLAM3 map (None:
+    unknown)."""
+
+    start_s: float
+    end_s: float
+    new_map: bool | None
+
+
+def stretches_from_frames(frames: pd.DataFrame) -> list[Stretch]:
+    """The tracked stretches of a session's frame log; a stretch after a loss that passed through ``LOST`` or
+    ``NOT_INITIALIZED`` began in a new map."""
+    times, states = _frame_states(frames)
+    tracked = np.array([s.tracked for s in states], bool)
+    stretches = []
+    previous_stop = None
+    for start, stop in tracked_stretches(tracked):
+        new_map = None if previous_stop is None else any(
+            s in (TrackingState.LOST, TrackingState.NOT_INITIALIZED) for s in states[previous_stop:start])
+        stretches.append(Stretch(float(times[start]), float(times[stop - 1]), new_map))
+        previous_stop = stop
+    return stretches
+
+
+def stretches_from_poses(estimate: Poses, cfg: MetricsConfig) -> list[Stretch]:
+    """Without a frame log: runs of estimated poses less than ``stretch_gap_s`` apart (new map unknown)."""
+    times = np.unique(estimate.timestamps)
+    if len(times) == 0:
+        return []
+    cuts = np.flatnonzero(np.diff(times) > cfg.stretch_gap_s) + 1
+    return [Stretch(float(run[0]), float(run[-1]), None) for run in np.split(times, cuts)]
+
+
+def relative_pose_error(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
+                        stretches: list[Stretch] | None = None) -> RpeResult:
+    """evo's RPE (translation part, ``delta_frames``) of ``estimate`` against ``reference``, each stretch (default:
+    :func:`stretches_from_poses`) associated and SE(3) / Sim(3)-aligned on its own, the pairs pooled; no pairs
+    (empty arrays) when too few poses associate."""
+    alignment = "Sim(3)" if monocular else "SE(3)"
+    if len(estimate) == 0 or len(reference) == 0:
+        return RpeResult(np.zeros(0), np.zeros(0), alignment)
+    est, ref = estimate.sorted_unique(), reference.sorted_unique()
+    errors, times = [], []
+    for stretch in stretches_from_poses(est, cfg) if stretches is None else stretches:
+        inside = (est.timestamps >= stretch.start_s) & (est.timestamps <= stretch.end_s)
+        pairs = _stretch_rpe(est.take(inside), ref, monocular, cfg)
+        if pairs is not None:
+            errors.append(pairs[0])
+            times.append(pairs[1])
+    if not errors:
+        return RpeResult(np.zeros(0), np.zeros(0), alignment)
+    return RpeResult(np.concatenate(errors), np.concatenate(times), alignment, len(errors))
+
+
+def _stretch_rpe(est: Poses, ref: Poses, monocular: bool, cfg: MetricsConfig) -> tuple[np.ndarray, np.ndarray] | None:
+    """evo's RPE errors and end timestamps of one stretch, or None when it has too few associated poses."""
     from evo.core import sync
     from evo.core.metrics import PoseRelation
     from evo.core.units import Unit
     from evo.main_rpe import rpe
 
-    alignment = "Sim(3)" if monocular else "SE(3)"
-    empty = RpeResult(np.zeros(0), np.zeros(0), alignment)
-    if len(estimate) == 0 or len(reference) == 0:
-        return empty
-    est, ref = estimate.sorted_unique(), reference.sorted_unique()
+    if len(est) == 0:
+        return None
     try:
         ref_evo, est_evo = sync.associate_trajectories(ref.to_evo(), est.to_evo(), max_diff=cfg.association_max_dt_s)
     except sync.SyncException:
-        return empty
+        return None
     # Alignment needs at least 3 poses and RPE at least one pair (i, i + delta).
     if est_evo.num_poses <= max(cfg.delta_frames, 2):
-        return empty
+        return None
     result = rpe(ref_evo, est_evo, PoseRelation.translation_part, delta=cfg.delta_frames, delta_unit=Unit.frames,
                  all_pairs=cfg.all_pairs, align=True, correct_scale=monocular)
-    return RpeResult(np.asarray(result.np_arrays["error_array"], float),
-                     np.asarray(result.np_arrays["timestamps"], float), alignment)
+    return (np.asarray(result.np_arrays["error_array"], float), np.asarray(result.np_arrays["timestamps"], float))
 
 
 @dataclass(frozen=True)
 class Completeness:
-    """``fraction`` of ``frames`` (camera frames from initialisation on) tracked; the losses among them."""
+    """``fraction`` of ``frames`` (camera frames from initialisation on) tracked; the losses among them and how
+    many of those ended in a new map (None: unknown)."""
 
     fraction: float
     frames: int
     losses: int
     loss_duration_s: float
     duration_s: float
+    map_resets: int | None = None
+
+
+def _frame_states(frames: pd.DataFrame) -> tuple[np.ndarray, list[TrackingState]]:
+    try:
+        return frames["timestamp"].to_numpy(float), [TrackingState[str(s)] for s in frames["state"]]
+    except KeyError as e:
+        raise MetricsError(f"frame log: unknown tracking state or missing column {e}") from None
 
 
 def completeness_from_frames(frames: pd.DataFrame) -> Completeness:
-    """Completeness, losses and duration from a session's frame log (``timestamp`` and ``state`` columns)."""
-    try:
-        times = frames["timestamp"].to_numpy(float)
-        tracked = np.array([TrackingState[str(s)].tracked for s in frames["state"]], bool)
-    except KeyError as e:
-        raise MetricsError(f"frame log: unknown tracking state or missing column {e}") from None
+    """Completeness, losses, map resets and duration from a session's frame log (``timestamp`` and ``state``
+    columns)."""
+    times, states = _frame_states(frames)
+    tracked = np.array([s.tracked for s in states], bool)
+    resets = sum(1 for s in stretches_from_frames(frames) if s.new_map)
     duration = float(times[-1] - times[0]) if len(times) > 1 else 0.0
     if not tracked.any():
         return Completeness(0.0, len(tracked), 0, 0.0, duration)
@@ -124,7 +192,7 @@ def completeness_from_frames(frames: pd.DataFrame) -> Completeness:
     if stretches[-1][1] < len(after):
         losses.append((stretches[-1][1], len(after) - 1))
     lost_s = float(sum(t[end] - t[start] for start, end in losses))
-    return Completeness(float(after.mean()), len(after), len(losses), lost_s, duration)
+    return Completeness(float(after.mean()), len(after), len(losses), lost_s, duration, resets)
 
 
 def completeness_from_poses(estimate: Poses, reference: Poses, cfg: MetricsConfig) -> Completeness:
@@ -141,13 +209,21 @@ def completeness_from_poses(estimate: Poses, reference: Poses, cfg: MetricsConfi
     return Completeness(fraction, int(round(span / step)), int(len(lost)), float(lost.sum()), float(end - times[0]))
 
 
+def measure(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
+            frames: pd.DataFrame | None = None) -> tuple[RpeResult, Completeness]:
+    """The error pairs and the completeness of one recording; with its frame log (``frames``) the stretches and
+    the completeness come from the tracking states, without it from the poses."""
+    if frames is not None and len(frames):
+        return (relative_pose_error(estimate, reference, monocular, cfg, stretches_from_frames(frames)),
+                completeness_from_frames(frames))
+    return relative_pose_error(estimate, reference, monocular, cfg), completeness_from_poses(estimate, reference, cfg)
+
+
 def tracking_metrics(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
                      frames: pd.DataFrame | None = None, time_on_task_s: float | None = None) -> TrackingMetrics:
     """All metrics of one trajectory; ``frames`` (a session's frame log) makes completeness exact, and
     ``time_on_task_s`` (from the operator's events) replaces the first-to-last-frame duration."""
-    rpe = relative_pose_error(estimate, reference, monocular, cfg)
-    done = completeness_from_frames(frames) if frames is not None and len(frames) else \
-        completeness_from_poses(estimate, reference, cfg)
+    rpe, done = measure(estimate, reference, monocular, cfg, frames)
     return combine([rpe], [done], cfg, rpe.alignment,
                    done.duration_s if time_on_task_s is None else time_on_task_s)
 
@@ -167,6 +243,8 @@ def combine(rpes: list[RpeResult], parts: list[Completeness], cfg: MetricsConfig
         pairs=int(errors.size),
         completeness=float(sum(p.fraction * p.frames for p in parts) / frames) if frames else nan,
         tracking_losses=sum(p.losses for p in parts), loss_duration_s=float(sum(p.loss_duration_s for p in parts)),
+        map_resets=None if any(p.map_resets is None for p in parts) else sum(p.map_resets for p in parts),
+        stretches=sum(r.stretches for r in rpes),
         time_on_task_s=float(time_on_task_s), alignment=alignment, delta_frames=cfg.delta_frames,
         all_pairs=cfg.all_pairs, association_max_dt_s=cfg.association_max_dt_s)
 
@@ -189,6 +267,7 @@ def format_metrics(m: TrackingMetrics) -> str:
         f"  mean {m.rpe_mean_m * 100:.3f} cm, RMSE {m.rpe_rmse_m * 100:.3f} cm, median {m.rpe_median_m * 100:.3f} cm, "
         f"max {m.rpe_max_m * 100:.3f} cm over {m.pairs} pairs",
         f"tracking completeness: {m.completeness * 100:.1f} % ({m.tracking_losses} losses, "
-        f"{m.loss_duration_s:.2f} s lost)",
+        f"{m.loss_duration_s:.2f} s lost; map resets {'unknown' if m.map_resets is None else m.map_resets})",
+        f"  the error is over {m.stretches} tracked stretch(es), each aligned on its own",
         f"time on task: {m.time_on_task_s:.1f} s",
     ])

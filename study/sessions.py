@@ -24,15 +24,7 @@ from seesys.core.trajectory import TrajectoryError
 from seesys.io.logfiles import read_csv_log
 from seesys.io.trajectory_files import read_tum
 from study.config import MetricsConfig
-from study.metrics import (
-    RpeResult,
-    TrackingMetrics,
-    combine,
-    completeness_from_frames,
-    completeness_from_poses,
-    read_frame_log,
-    relative_pose_error,
-)
+from study.metrics import RpeResult, TrackingMetrics, combine, measure, read_frame_log
 from study.protocol import Protocol, read_protocol
 
 RUN_JSON = "run.json"
@@ -138,10 +130,8 @@ def participant_metrics(attempts: list[Path],
         if estimate is None or reference is None:
             continue
         monocular = _monocular(attempt)
-        rpe = relative_pose_error(estimate, reference, monocular, cfg)
         frames = read_frame_log(attempt / "frames.csv") if (attempt / "frames.csv").exists() else None
-        part = completeness_from_frames(frames) if frames is not None and len(frames) else \
-            completeness_from_poses(estimate, reference, cfg)
+        rpe, part = measure(estimate, reference, monocular, cfg, frames)
         marked = time_on_task(read_events(attempt))
         rpes.append(rpe)
         parts.append(part)
@@ -163,7 +153,7 @@ class StudyData:
 
 
 METRIC_COLUMNS = ("rpe_mean_m", "rpe_rmse_m", "pairs", "completeness", "tracking_losses", "loss_duration_s",
-                  "time_on_task_s")
+                  "map_resets", "time_on_task_s")
 
 
 def collect_study(study: Path, cfg: MetricsConfig) -> StudyData:

@@ -96,3 +96,72 @@ def test_completeness_from_poses_finds_gaps():
     assert result.losses == 1
     assert result.loss_duration_s == pytest.approx(30 / 30.0)
     assert result.fraction == pytest.approx(170 / 200)
+
+
+def _loss_and_new_map(rng: np.random.Generator) -> tuple[Poses, Poses, pd.DataFrame, list[slice]]:
+    """20 s at 30 Hz: tracked 0–8 s in the first map, lost for 3 s (LOST: ORB-SLAM3 starts a new map), tracked again
+    11–20 s in a second map whose origin is elsewhere; 1 mm of noise on the estimate."""
+    from scipy.spatial.transform import Rotation
+
+    t = np.arange(600) / 30.0
+    truth = np.column_stack([np.cos(t / 3), np.sin(t / 3), 0.1 * t])
+    turning = Rotation.from_rotvec(np.column_stack([0.1 * np.sin(t), t / 5, np.zeros_like(t)]))
+    reference = Poses.from_rotations(t, truth, turning)
+    stretches = [slice(0, 240), slice(330, 600)]
+    maps = [Rotation.from_rotvec([0.0, 0.0, 0.3]), Rotation.from_rotvec([0.2, -0.5, 1.0])]
+    offsets = [np.array([0.5, -0.2, 0.0]), np.array([-3.0, 2.0, 1.0])]
+    times, positions, rotations = [], [], []
+    for part, world, offset in zip(stretches, maps, offsets):
+        times.append(t[part])
+        positions.append(world.apply(truth[part]) + offset + rng.normal(0, 0.001, (len(t[part]), 3)))
+        rotations.append((world * turning[part]).as_quat())
+    estimate = Poses(np.concatenate(times), np.concatenate(positions), np.concatenate(rotations))
+    states = np.full(600, "OK", dtype=object)
+    states[240:330] = "LOST"
+    frames = pd.DataFrame({"timestamp": t, "state": states})
+    return estimate, reference, frames, stretches
+
+
+def _evo_stretch_errors(estimate: Poses, reference: Poses, cfg) -> np.ndarray:
+    """evo alone on one stretch: evo's own trajectory type, association, alignment and RPE."""
+    from evo.core import sync
+    from evo.core.metrics import PoseRelation
+    from evo.core.trajectory import PoseTrajectory3D
+    from evo.core.units import Unit
+    from evo.main_rpe import rpe
+
+    def evo(p: Poses) -> PoseTrajectory3D:
+        return PoseTrajectory3D(positions_xyz=p.positions, orientations_quat_wxyz=p.quaternions_xyzw[:, [3, 0, 1, 2]],
+                                timestamps=p.timestamps)
+
+    ref, est = sync.associate_trajectories(evo(reference), evo(estimate), max_diff=cfg.association_max_dt_s)
+    return rpe(ref, est, PoseRelation.translation_part, delta=cfg.delta_frames, delta_unit=Unit.frames,
+               all_pairs=cfg.all_pairs, align=True, correct_scale=False).np_arrays["error_array"]
+
+
+@pytest.mark.parametrize("with_frame_log", [True, False])
+def test_a_loss_and_a_new_map_give_the_per_stretch_evo_rpe(with_frame_log):
+    cfg = load_study_config().metrics
+    estimate, reference, frames, stretches = _loss_and_new_map(np.random.default_rng(3))
+    result = tracking_metrics(estimate, reference, False, cfg, frames if with_frame_log else None)
+
+    first = len(range(*stretches[0].indices(600)))
+    parts = [estimate.take(slice(0, first)), estimate.take(slice(first, len(estimate)))]
+    expected = np.concatenate([_evo_stretch_errors(p, reference, cfg) for p in parts])
+    assert result.pairs == len(expected)
+    assert result.rpe_mean_m == pytest.approx(float(expected.mean()), rel=1e-9)
+    assert result.rpe_rmse_m == pytest.approx(float(np.sqrt(np.mean(expected ** 2))), rel=1e-9)
+    assert result.stretches == 2
+    # 1 mm of noise per pose: the error is that of each map, not of the reset between them.
+    assert result.rpe_max_m < 0.01
+    whole = _evo_stretch_errors(estimate, reference, cfg)  # one alignment over both maps, pairs across the loss
+    assert whole.max() > 1.0
+    assert result.tracking_losses == 1
+    assert result.map_resets == (1 if with_frame_log else None)
+
+
+def test_a_loss_relocalised_in_the_same_map_is_no_reset():
+    estimate, reference, frames, _ = _loss_and_new_map(np.random.default_rng(4))
+    frames.loc[frames.state == "LOST", "state"] = "RECENTLY_LOST"
+    result = completeness_from_frames(frames)
+    assert (result.losses, result.map_resets) == (1, 0)
