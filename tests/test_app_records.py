@@ -7,14 +7,17 @@ import io
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
+from conftest import run_seesys
 from rich.console import Console
 
 from advisory.config import load_advisory_config
 from seesys.app.config import load_app_config
 from seesys.app.records import PartStatus, RunRecord, RunState, StreamDrops
-from seesys.app.summary import write_summary
-from seesys.app.view import LiveView, ViewSetup
+from seesys.app.cli import final_line
+from seesys.app.summary import broken_at_gaps, write_summary
+from seesys.app.view import LiveView, Snapshot, ViewSetup, plain_line
 from seesys.core.session_layout import (ADVISORY_COLUMNS, ADVISORY_CSV, ESTIMATE_COLUMNS, ESTIMATES_CSV, FRAMES_CSV,
                                         FRAMES_HEADER)
 from seesys.io.logfiles import CsvLog
@@ -66,7 +69,7 @@ def test_the_view_collects_a_snapshot_from_records_and_logs(session: Path):
 
 def test_the_summary_is_written_from_a_run_record(session: Path):
     record = RunRecord(session, "tum:somewhere", "rgbd", True, "seesys", "local", "WAV only",
-                       load_advisory_config().equation2, None,
+                       load_advisory_config().equation2, 1.0, None,
                        {"device": PartStatus(running=False, exits=(0,)),
                         "estimator": PartStatus(running=False, restarts=1, exits=(-9, 0))},
                        StreamDrops(1, 2, 3), estimator_dropped=4)
@@ -75,7 +78,48 @@ def test_the_summary_is_written_from_a_run_record(session: Path):
                             exits={"device": 0, "estimator": 0})
     assert json.loads((session / output.summary).read_text()) == summary
     assert summary["frames"] == 10 and summary["estimates"] == 3 and summary["buffers"] == 3
+    assert summary["tracked_fraction"] == pytest.approx(0.9)  # OK_KLT is tracked too
     assert summary["parts"]["estimator"] == {"restarts": 1, "exits": [-9, 0], "final_exit": 0}
     assert summary["drops"] == {"skipped_by_device": 1, "lost_in_transit": 2, "bad_messages": 3, "estimator": 4}
     assert summary["buffers_by_pulses"] == {"0": 1, "1": 1, "2": 1}
     assert (session / output.plot).is_file()
+
+
+def test_the_final_line_and_the_view_print_no_nan_or_none(session: Path):
+    summary = {"frames": 10, "estimates": 0, "end_to_end_ms": {"p50": None, "p95": None, "p99": None},
+               "buffers": 3, "audio": "WAV only", "error": None}
+    line = final_line("completed", summary, session)
+    assert line.startswith("completed: 10 frames, no estimates, 3 advisory buffers") and "None" not in line
+    assert final_line("failed", {**summary, "error": "the estimator is gone"}, session) == (
+        f"seesys: error: the estimator is gone (session {session})")
+    assert "nan" not in plain_line(Snapshot()) and "– fps" in plain_line(Snapshot())
+
+
+def test_an_event_redraws_the_view_with_the_parts_as_they_are_now(session: Path):
+    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, "device-0", 0.012,
+                      remote_estimator="10.0.0.2:5556", status_endpoint=None)
+    view = LiveView(setup, Console(file=io.StringIO(), force_terminal=True, width=150))
+    restarting = RunState({"generator": PartStatus(running=False, restarting=True)})
+    with view.shown():
+        view.update(restarting)
+        view.note("generator: restarted", RunState({"generator": PartStatus(running=True, restarts=1)}))
+        assert view.snapshot.restarts == {"generator": 1}
+        view.stopping("stopping: the device closes its files")
+    screen = view.console.file.getvalue()  # the panel as it was left when the view closed
+    last = screen[screen.rindex("seesys run"):]
+    assert "stopping: the device closes its files" in last and "Ctrl-C stops" not in last
+    assert "generator restarted 1×" in last
+
+
+def test_the_estimate_line_breaks_where_estimates_stopped():
+    t, v = broken_at_gaps(np.array([0.0, 0.2, 0.4, 5.0, 5.2]), np.array([1.0, 2.0, 3.0, 4.0, 5.0]), 1.0)
+    assert np.isnan(t[3]) and np.isnan(v[3])
+    assert np.array_equal(t[~np.isnan(t)], [0.0, 0.2, 0.4, 5.0, 5.2])
+    assert len(broken_at_gaps(np.array([0.0, 0.5]), np.array([1.0, 1.0]), 1.0)[0]) == 2
+
+
+def test_a_bad_source_is_refused_before_anything_starts(tmp_path):
+    done = run_seesys("run", "--source", f"tum:{tmp_path / 'missing'}", "--local", "--condition", "none",
+                      "--out", str(tmp_path / "s"))
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "missing" in done.stderr, done.stderr
+    assert not (tmp_path / "s").exists()

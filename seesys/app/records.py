@@ -47,6 +47,7 @@ class RunRecord:
     estimator: str  # "local", or the remote service's HOST:PORT
     audio: str
     equation2: Equation2Config
+    stale_after_s: float  # the advisory's stale limit: estimates further apart than this are an outage
     config_dir: Path | None  # the run's copy of the configs, once written
     parts: dict[str, PartStatus] = field(default_factory=dict)
     drops: StreamDrops | None = None  # None: the stream was never watched
