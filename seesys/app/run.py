@@ -44,8 +44,9 @@ from advisory.sandbox import JACK_HOST_API, JackDummy
 from advisory.supervisor import process_commands
 from estimator.service.config import load_service_config
 from seesys.app.config import AppConfig, load_app_config
+from seesys.app.information import InformationClock
 from seesys.app.records import PartStatus, RunRecord, RunState, StreamDrops
-from seesys.app.summary import write_summary
+from seesys.app.summary import TRACKED_STATES, write_summary
 from seesys.app.view import LiveView, ViewSetup
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
@@ -54,6 +55,7 @@ from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
 from seesys.io.session_files import utc_now
+from seesys.io.transport import peer_answers
 from slam_monitor.monitor_config import load_monitor_config
 from slam_monitor.sources import load_camera_config, open_source, parse_source_spec
 from study.watch import StreamWatcher
@@ -151,6 +153,9 @@ class App:
         self.watcher: StreamWatcher | None = None  # the app's subscriber to the device's feature stream
         self.config_dir: Path | None = None  # the run's copy of the configs, once written
         self._player_up = False
+        self.information = InformationClock(self.advisory.timing.stale_after_s, self.cfg.supervision.first_estimate_s)
+        self._estimates_seen = 0
+        self._dropped_at_estimate: dict[str, int] = {}
 
     # -- set-up ---------------------------------------------------------------------------------------------------
 
@@ -205,7 +210,8 @@ class App:
                          "local" if self.o.local else self.o.estimator, self.audio, self.advisory.equation2,
                          self.advisory.timing.stale_after_s, self.config_dir, self._parts_now(),
                          self._drops(watcher) if watcher is not None else None,
-                         self.view.snapshot.estimator_dropped if self.view is not None else None)
+                         self.view.snapshot.estimator_dropped if self.view is not None else None,
+                         self.information.seconds_without, dict(self.information.by_reason))
 
     def _view_setup(self) -> ViewSetup:
         status_endpoint = load_service_config(self.config_dir).status_endpoint if self.o.local else None
@@ -262,7 +268,20 @@ class App:
                                                  for r in rows)
         return self._player_up
 
+    def _check_reachable(self) -> None:
+        """A remote estimator must answer within ``reach_timeout_s``; SeesysError otherwise."""
+        timeout = self.cfg.supervision.reach_timeout_s
+        network = load_network_config(self.config_dir)
+        if not peer_answers(self.estimates_endpoint, timeout, network.client_options(network.estimates_endpoint)):
+            raise SeesysError(f"the estimator at {self.o.estimator} cannot be reached: no ZeroMQ peer answered at "
+                              f"{self.estimates_endpoint} within {timeout:g} s (is `seesys estimator serve` running "
+                              f"there, its estimates_endpoint bound on an address this device reaches, and Curve "
+                              f"set alike on both?)")
+        self.event("estimator", "reachable", self.estimates_endpoint)
+
     def _start_children(self, stop) -> None:
+        if not self.o.local:
+            self._check_reachable()
         if self.o.local:
             self._start("estimator", self._estimator_args())
             self._wait_ready({"estimator": self.view.estimator_answers}, stop)
@@ -315,7 +334,42 @@ class App:
         return exits
 
     def _state_now(self) -> RunState:
-        return RunState(self._parts_now(), self._drops(self.watcher) if self.watcher is not None else StreamDrops())
+        drops = self._drops(self.watcher) if self.watcher is not None else StreamDrops()
+        lacking = self.information.lacking(time.monotonic())
+        return RunState(self._parts_now(), drops, self._why_no_information() if lacking else "")
+
+    def _why_no_information(self) -> str:
+        """Why no fresh estimate comes, as far as the app can tell: the estimator restarting, windows it refused
+        or dropped (every reason by name, counted since the last estimate), the device not tracking, or none
+        known (stale; a remote estimator's drops are not known here)."""
+        part = self.parts.get("estimator")
+        if part is not None and (part.restart_at is not None or not part.child.running):
+            return "estimator restarting"
+        dropped = self.view.snapshot.estimator_dropped if self.view is not None else None
+        if dropped:
+            grown = {r: n - self._dropped_at_estimate.get(r, 0) for r, n in dropped.items()
+                     if n > self._dropped_at_estimate.get(r, 0)}
+            if grown:
+                return "estimator dropped " + ", ".join(f"{r} {n}" for r, n in grown.items())
+        state = self.view.snapshot.state if self.view is not None else ""
+        if state and state not in TRACKED_STATES:
+            return f"tracking {state}"
+        if not self._estimates_seen:
+            return "no estimate yet" + ("" if self.o.local else f" from {self.o.estimator}")
+        return "estimates stale" + ("" if self.o.local else f" (remote {self.o.estimator})")
+
+    def _account_information(self) -> None:
+        """Advance the information clock with what the device logged and the app received since the last look."""
+        now = time.monotonic()
+        if self.view.snapshot.frames > 0:
+            self.information.first_frame(now)
+        if self.watcher.estimates > self._estimates_seen:
+            self.information.advance(now, self._why_no_information())
+            self.information.estimate(now)
+            self._estimates_seen = self.watcher.estimates
+            self._dropped_at_estimate = dict(self.view.snapshot.estimator_dropped or {})
+        else:
+            self.information.advance(now, self._why_no_information())
 
     def _supervise_until_stopped(self, stop) -> tuple[str, str | None]:
         """Start the children and supervise them until the device ends or a signal comes; (status, error)."""
@@ -326,11 +380,12 @@ class App:
                 code = device.process.returncode
                 self.event("device", "ended", f"status {code}")
                 if code == 0:
-                    return "completed", None
+                    return ("degraded" if self.information.seconds_without > 0 else "completed"), None
                 return "failed", f"the device exited with status {code}: {device.last_line()}"
             for name in RESTARTABLE:
                 if name in self.parts:
                     self._supervise(self.parts[name])
+            self._account_information()
             self.view.update(self._state_now())
         self.event("app", "interrupted", "signal received")
         return "interrupted", None

@@ -140,6 +140,9 @@ def write_summary(run: RunRecord, out: OutputConfig, *, status: str, error: str 
                "parts": {name: {"restarts": part.restarts, "exits": list(part.exits), "final_exit": exits.get(name)}
                          for name, part in run.parts.items()},
                **session_figures(folder)}
+    summary["information"] = {"seconds_without": round(run.seconds_without_information, 2),
+                              "by_reason": {reason: round(seconds, 2)
+                                            for reason, seconds in run.without_information_by_reason.items()}}
     if run.drops is not None:
         summary["drops"] = {**asdict(run.drops), "estimator": run.estimator_dropped}
     files = {"events": out.events, "logs": "logs"}

@@ -73,9 +73,10 @@ class Snapshot:
     skipped: int = 0  # frames the device's monitor could not keep up with
     lost: int = 0  # frames that never reached the app
     bad_messages: int = 0
-    estimator_dropped: int | None = None  # None: unknown (remote or not answering)
+    estimator_dropped: dict[str, int] | None = None  # by reason; None: unknown (remote or not answering)
     estimator: str = "–"
     restarts: dict[str, int] = field(default_factory=dict)
+    information: str = ""  # why there is no fresh estimate now ("" while there is one)
     spark: str = ""
     spark_top_m: float = math.nan
     events: list[str] = field(default_factory=list)
@@ -95,8 +96,19 @@ def _latency(s: Snapshot) -> str:
     return "–" if math.isnan(p50) else f"p50 {p50:.0f} / p95 {p95:.0f} / p99 {p99:.0f} ms"
 
 
+def dropped_text(dropped: dict[str, int] | None) -> str:
+    """What the estimator dropped or rejected, every reason by name ("?": unknown, "0": nothing)."""
+    if dropped is None:
+        return "?"
+    return ", ".join(f"{reason} {n}" for reason, n in dropped.items() if n) or "0"
+
+
+def _information(s: Snapshot) -> str:
+    return f"NONE: {s.information}" if s.information else "fresh estimates"
+
+
 def _drops(s: Snapshot) -> str:
-    estimator = "?" if s.estimator_dropped is None else str(s.estimator_dropped)
+    estimator = dropped_text(s.estimator_dropped)
     return f"skipped {s.skipped}, lost {s.lost}, bad {s.bad_messages}, estimator {estimator}"
 
 
@@ -110,7 +122,7 @@ def plain_line(s: Snapshot) -> str:
     age = "" if math.isnan(s.estimate_age_s) else f" ({s.estimate_age_s:.1f} s ago)"
     pulses = " ".join(map(str, s.pulses)) or "–"
     return (f"{s.elapsed_s:6.1f} s  frames {s.frames} {s.state} {_fps(s)} | estimate {_cm(s.latest_error_m)}"
-            f"{age} | pulses {pulses} | e2e {_latency(s)} | drops {_drops(s)} | estimator {s.estimator}, "
+            f"{age} | information {_information(s)} | pulses {pulses} | e2e {_latency(s)} | drops {_drops(s)} | estimator {s.estimator}, "
             f"{_restarts(s)}")
 
 
@@ -122,6 +134,7 @@ def panel(s: Snapshot, title: str, footer: str = RUNNING_FOOTER) -> Panel:
     age = "" if math.isnan(s.estimate_age_s) else f"  ({s.estimate_age_s:.1f} s ago)"
     rows = [("tracking", f"{s.state}  {s.frames} frames  {_fps(s)}"),
             ("estimate", f"{_cm(s.latest_error_m)}{age}  {s.estimates} received"),
+            ("information", _information(s)),
             ("pulses", " ".join(map(str, s.pulses)) or "–"),
             ("end to end", _latency(s)),
             ("drops", _drops(s)),
@@ -189,7 +202,7 @@ class LiveView:
             self._status = None
         return self._status is not None
 
-    def _estimator_state(self) -> tuple[str, int | None]:
+    def _estimator_state(self) -> tuple[str, dict[str, int] | None]:
         if self.setup.remote_estimator is not None:
             return f"remote {self.setup.remote_estimator}", None
         part = self._state.parts.get("estimator")
@@ -202,8 +215,10 @@ class LiveView:
         if self._status is None:
             return "starting (not answering yet)", None
         device = self._status["devices"].get(self.setup.device_id)
-        dropped = sum(device["dropped"].values()) if device else 0
-        return f"up, {self._status['model_version']}", dropped + sum(self._status["rejected"].values())
+        dropped = dict(device["dropped"]) if device else {}
+        for reason, n in self._status["rejected"].items():  # messages the broker rejected, by their own reasons
+            dropped[f"rejected {reason}"] = n
+        return f"up, {self._status['model_version']}", dropped
 
     # -- reading the logs ----------------------------------------------------------------------------------------
 
@@ -246,6 +261,7 @@ class LiveView:
         s.skipped, s.lost, s.bad_messages = drops.skipped_by_device, drops.lost_in_transit, drops.bad_messages
         s.estimator, s.estimator_dropped = self._estimator_state()
         s.restarts = {name: part.restarts for name, part in self._state.parts.items()}
+        s.information = self._state.information
         s.events = list(self._events)
         self.snapshot = s
         return s
