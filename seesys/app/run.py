@@ -343,8 +343,9 @@ class App:
         or dropped (every reason by name, counted since the last estimate), the device not tracking, or none
         known (stale; a remote estimator's drops are not known here)."""
         part = self.parts.get("estimator")
-        if part is not None and (part.restart_at is not None or not part.child.running):
-            return "estimator restarting"
+        if part is not None and (part.restart_at is not None or not part.child.running
+                                 or (part.restarts and self.view.snapshot.estimator.startswith("starting"))):
+            return "estimator restarting"  # exited, or restarted and loading its model
         dropped = self.view.snapshot.estimator_dropped if self.view is not None else None
         if dropped:
             grown = {r: n - self._dropped_at_estimate.get(r, 0) for r, n in dropped.items()
