@@ -37,6 +37,16 @@ class AudioConfig:
 
 
 @dataclass(frozen=True)
+class NoInformationConfig:
+    no_information_cue: bool
+    cue_every_s: float
+    cue_tone_hz: float
+    cue_level: float
+    cue_tone_s: float
+    cue_gap_s: float
+
+
+@dataclass(frozen=True)
 class HandoffConfig:
     endpoint: str
     poll_ms: int
@@ -62,13 +72,14 @@ class AdvisoryConfig:
     rotation: RotationConfig
     timing: TimingConfig
     audio: AudioConfig
+    no_information: NoInformationConfig
     handoff: HandoffConfig
     replay: ReplayConfig
     supervisor: SupervisorConfig
 
 
 def _check(cfg: AdvisoryConfig, where: str) -> None:
-    eq, tm, au = cfg.equation2, cfg.timing, cfg.audio
+    eq, tm, au, ni = cfg.equation2, cfg.timing, cfg.audio, cfg.no_information
     problems = []
     if not 0 < eq.alpha_m < eq.beta_m:
         problems.append(f"equation2 needs 0 < alpha_m < beta_m (got {eq.alpha_m}, {eq.beta_m})")
@@ -80,12 +91,18 @@ def _check(cfg: AdvisoryConfig, where: str) -> None:
                 "max_frame_gap_s": cfg.rotation.max_frame_gap_s, "window_s": tm.window_s,
                 "cadence_hz": tm.cadence_hz, "stale_after_s": tm.stale_after_s, "sample_rate": au.sample_rate,
                 "tone_hz": au.tone_hz, "channels": au.channels, "blocksize": au.blocksize,
-                "schedule_latency_s": au.schedule_latency_s, "stall_after_s": au.stall_after_s}
+                "schedule_latency_s": au.schedule_latency_s, "stall_after_s": au.stall_after_s,
+                "cue_every_s": ni.cue_every_s, "cue_tone_hz": ni.cue_tone_hz, "cue_tone_s": ni.cue_tone_s,
+                "cue_gap_s": ni.cue_gap_s}
     problems += [f"{name} must be positive (got {value})" for name, value in positive.items() if value <= 0]
     if tm.buffer_s > tm.cadence_s + 1e-9:
         problems.append(f"buffer_s ({tm.buffer_s}) must not exceed the cadence period ({tm.cadence_s:.4f} s)")
     if not 0 < au.level <= 1:
         problems.append(f"level must be in (0, 1] (got {au.level})")
+    if not 0 < ni.cue_level <= 1:
+        problems.append(f"cue_level must be in (0, 1] (got {ni.cue_level})")
+    if 2 * ni.cue_tone_s + ni.cue_gap_s > tm.buffer_s:
+        problems.append(f"the cue (two tones of cue_tone_s and cue_gap_s between) must fit in buffer_s ({tm.buffer_s})")
     if problems:
         raise ConfigError(f"{where}: " + "; ".join(problems))
 

@@ -20,8 +20,8 @@ from advisory.conditions import Condition, ConditionInput, condition_input
 from advisory.config import AdvisoryConfig
 from advisory.handoff import AudioBuffer, encode_buffer
 from advisory.logs import EventLog
-from advisory.scheduler import Decision, PulseScheduler
-from advisory.synth import synthesise
+from advisory.scheduler import CUE, NO_INFORMATION, TICK, Decision, PulseScheduler
+from advisory.synth import synthesise, synthesise_cue
 from seesys.core.messages import MessageError, decode
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
 from seesys.io.logfiles import CsvLog
@@ -53,6 +53,8 @@ class Generator:
         self._buffers: dict[int, np.ndarray] = {}
         self._next_id = 0
         self._bad_messages = 0
+        self._cue = synthesise_cue(cfg.no_information, cfg.audio.sample_rate, cfg.timing.buffer_s)
+        self._last_cue = -math.inf
         self._events.event("started", f"condition={condition.value} input={self._input.endpoint} "
                                       f"handoff={cfg.handoff.endpoint}")
 
@@ -61,13 +63,23 @@ class Generator:
             self._buffers[n] = synthesise(n, self._cfg.equation2, self._cfg.audio, self._cfg.timing.buffer_s)
         return self._buffers[n]
 
+    def _cue_due(self, d: Decision) -> bool:
+        """Whether this buffer carries the "no information" cue: a tick without information, in an audible
+        condition with the cue on, ``cue_every_s`` after the last cue."""
+        cue = self._cfg.no_information
+        return (d.status == NO_INFORMATION and d.trigger == TICK and self._condition.audible
+                and cue.no_information_cue and d.time - self._last_cue >= cue.cue_every_s - 1e-9)
+
     def _emit(self, d: Decision) -> None:
         played = d.n_pulses if self._condition.audible else 0
-        buf = AudioBuffer(self._next_id, d.trigger, d.n_pulses, played, self._cfg.audio.sample_rate, d.time,
-                          d.time + self._cfg.audio.schedule_latency_s, d.arrival, self._samples(played))
+        trigger, samples = d.trigger, self._samples(played)
+        if self._cue_due(d):
+            trigger, samples, self._last_cue = CUE, self._cue, d.time
+        buf = AudioBuffer(self._next_id, trigger, d.n_pulses, played, self._cfg.audio.sample_rate, d.time,
+                          d.time + self._cfg.audio.schedule_latency_s, d.arrival, samples)
         self._next_id += 1
         self._pub.send(encode_buffer(buf))
-        self._log.write(time.time(), d.time, self._condition.value, d.status, d.trigger, d.value, d.n_pulses,
+        self._log.write(time.time(), d.time, self._condition.value, d.status, trigger, d.value, d.n_pulses,
                         played, buf.buffer_id, d.arrival, buf.play_at)
 
     def _note_status(self) -> None:

@@ -20,7 +20,7 @@ from seesys.core.errors import SeesysError
 
 MAGIC = b"SADV"
 VERSION = 1
-_TRIGGERS = ("tick", "change")
+_TRIGGERS = ("tick", "change", "cue")
 _HEAD = struct.Struct("<4sBBBBIQdddI")
 
 

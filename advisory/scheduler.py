@@ -12,8 +12,10 @@ code.
   cadence restarts from there, so the listener hears a change within the audio latency instead of up to a
   whole period later. A change back to the N that the previous change replaced, within one period, is left to the
   next tick: a mean hovering at a threshold then does not restart the pulse train on every estimate.
-- *Stale*: no sample for longer than ``stale_after_s`` → N = 0 (silence) and status ``stale``; the first new sample
-  makes the status ``live`` again. Before any sample the status is ``waiting``.
+- *No information*: no sample for longer than ``stale_after_s`` (since the newest sample, or since the start when
+  none came) → N = 0 and status ``no_information``, for which the generator plays its "no information" cue
+  instead of Equation 2's silence (which means "error below α"); the first new sample makes the status ``live``
+  again. Before any sample, within ``stale_after_s`` of the start, the status is ``waiting``.
 """
 
 from __future__ import annotations
@@ -25,9 +27,11 @@ from dataclasses import dataclass
 
 WAITING = "waiting"
 LIVE = "live"
-STALE = "stale"
+NO_INFORMATION = "no_information"
 TICK = "tick"
 CHANGE = "change"
+# A tick whose buffer carries the generator's "no information" cue (advisory.generator).
+CUE = "cue"
 
 
 @dataclass(frozen=True)
@@ -36,7 +40,7 @@ class Decision:
 
     time: float  # the moment the buffer stands for: the tick time, or the arrival of the changing sample
     trigger: str  # TICK or CHANGE
-    status: str  # LIVE, STALE or WAITING
+    status: str  # LIVE, NO_INFORMATION or WAITING
     value: float  # the moving average the rule was applied to; NaN when there is no live input
     n_pulses: int
     arrival: float  # arrival time of the newest sample taken into account; NaN when none
@@ -56,6 +60,7 @@ class PulseScheduler:
         self._n_before_change: int | None = None
         self._last_change = -math.inf
         self.next_tick = start
+        self._start = start
         self.status = WAITING
 
     def _prune(self, t: float) -> None:
@@ -78,7 +83,8 @@ class PulseScheduler:
     def _decide(self, t: float, trigger: str) -> Decision:
         value, arrival = self._average(t)
         if math.isnan(value):
-            status, n = (STALE if self._samples else WAITING), 0
+            waited = self._samples or t - self._start > self._stale_after
+            status, n = (NO_INFORMATION if waited else WAITING), 0
         else:
             status, n = LIVE, self._rule(value)
         self.status = status

@@ -11,7 +11,7 @@ from seesys.core.errors import SeesysError
 
 def analyze_command(args: argparse.Namespace) -> int:
     from analysis.config import load_analysis_config
-    from analysis.report import REPORT_HTML, REPORT_MD, analyse_csv, analyse_study
+    from analysis.report import REPORT_HTML, REPORT_MD, analyse_csv, analyse_study, fmt
     from study.config import load_study_config
 
     cfg = load_analysis_config()
@@ -28,7 +28,7 @@ def analyze_command(args: argparse.Namespace) -> int:
             raise SeesysError("give a study folder or --table CSV")
     for c in result.comparisons:
         print(f"{c.variable.title}: " + ", ".join(
-            f"{r.condition} {r.mean:.{c.variable.decimals}f} ± {r.sd:.{c.variable.decimals}f} (n={r.n})"
+            f"{r.condition} {fmt(r.mean, c.variable.decimals)} ± {fmt(r.sd, c.variable.decimals)} (n={r.n})"
             for r in c.descriptives.itertuples()))
         if c.recommended_test:
             t = c.tests[c.tests.test == c.recommended_test].iloc[0]

@@ -41,7 +41,8 @@ class AnalysisResult:
     table: pd.DataFrame
 
 
-def _fmt(value: float, decimals: int) -> str:
+def fmt(value: float, decimals: int) -> str:
+    """``value`` with ``decimals`` decimals, or "–" when there is none (None, NaN: an SD of one participant)."""
     return "–" if value is None or not math.isfinite(value) else f"{value:.{decimals}f}"
 
 
@@ -64,8 +65,8 @@ def table5(comparisons: list[Comparison], conditions: list[str], cfg: AnalysisCo
         for condition in conditions:
             r = d.loc[condition]
             row[cfg.condition_labels.get(condition, condition)] = (
-                f"{_fmt(r['mean'], v.decimals)} ± {_fmt(r['sd'], v.decimals)} "
-                f"[{_fmt(r['ci_low'], v.decimals)}, {_fmt(r['ci_high'], v.decimals)}] (n = {int(r['n'])})")
+                f"{fmt(r['mean'], v.decimals)} ± {fmt(r['sd'], v.decimals)} "
+                f"[{fmt(r['ci_low'], v.decimals)}, {fmt(r['ci_high'], v.decimals)}] (n = {int(r['n'])})")
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -96,26 +97,26 @@ def _section(c: Comparison, cfg: AnalysisConfig, figures: dict[str, Path], out: 
         lines.append(f"- power: {c.power_note}")
     lines.append("")
     if not c.assumptions.empty:
-        a = c.assumptions.assign(statistic=c.assumptions.statistic.map(lambda x: _fmt(x, 3)),
+        a = c.assumptions.assign(statistic=c.assumptions.statistic.map(lambda x: fmt(x, 3)),
                                  p=c.assumptions.p.map(_p),
                                  passed=[("yes" if ok else "no") if math.isfinite(p) else "not checked (n < 3)"
                                          for ok, p in zip(c.assumptions.passed, c.assumptions.p)])
         lines += ["**Assumption checks**", "", a.to_markdown(index=False), ""]
     if not c.tests.empty:
         t = c.tests.copy()
-        t["result"] = [f"{r.statistic}({_fmt(r.df1, 2)}{'' if not math.isfinite(r.df2) else ', ' + _fmt(r.df2, 2)}) "
-                       f"= {_fmt(r.value, 3)}, {_p_clause(r.p)}" for r in t.itertuples()]
-        t["effect size"] = [f"{r.effect} = {_fmt(r.effect_value, 3)}" +
-                            (f" [{_fmt(r.effect_ci_low, 3)}, {_fmt(r.effect_ci_high, 3)}]"
+        t["result"] = [f"{r.statistic}({fmt(r.df1, 2)}{'' if not math.isfinite(r.df2) else ', ' + fmt(r.df2, 2)}) "
+                       f"= {fmt(r.value, 3)}, {_p_clause(r.p)}" for r in t.itertuples()]
+        t["effect size"] = [f"{r.effect} = {fmt(r.effect_value, 3)}" +
+                            (f" [{fmt(r.effect_ci_low, 3)}, {fmt(r.effect_ci_high, 3)}]"
                              if math.isfinite(r.effect_ci_low) else "") if r.effect else ""
                             for r in t.itertuples()]
         t["read"] = ["**yes**" if r.test == c.recommended_test else "" for r in t.itertuples()]
         lines += ["**Tests**", "", t[["test", "result", "effect size", "read"]].to_markdown(index=False), ""]
     if not c.posthoc.empty:
         ph = c.posthoc.copy()
-        ph["difference"] = ph.mean_diff.map(lambda x: _fmt(x, v.decimals + 1))
+        ph["difference"] = ph.mean_diff.map(lambda x: fmt(x, v.decimals + 1))
         ph["p (adjusted)"] = ph.p_adj.map(_p)
-        ph["Hedges' g [CI]"] = [f"{_fmt(r.hedges_g, 2)} [{_fmt(r.g_ci_low, 2)}, {_fmt(r.g_ci_high, 2)}]"
+        ph["Hedges' g [CI]"] = [f"{fmt(r.hedges_g, 2)} [{fmt(r.g_ci_low, 2)}, {fmt(r.g_ci_high, 2)}]"
                                 for r in ph.itertuples()]
         ph["read"] = ["**yes**" if m == c.recommended_posthoc else "" for m in ph.method]
         lines += [f"**Post hoc** (difference = a − b, {v.unit or 'units'})", "",
@@ -170,14 +171,15 @@ def write_report(markdown: str, out: Path, title: str) -> None:
 def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: MetricsConfig) -> AnalysisResult:
     """The whole analysis of a study folder (see the module docstring)."""
     out = Path(out or Path(study) / "analysis")
-    figures_dir = out / "figures"
-    figures_dir.mkdir(parents=True, exist_ok=True)
     data = collect_study(study, metrics)
     table = data.participants
     if not cfg.include_incomplete:
         table = table[table.status == DONE]
     if table[[v.column for v in cfg.variables if v.column in table]].dropna(how="all").empty:
         raise SeesysError(f"{study}: no participant has a trajectory with ground truth yet (`seesys study status`)")
+    # Only once there is something to analyse: an error above leaves no empty analysis folder behind.
+    figures_dir = out / "figures"
+    figures_dir.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "participants.csv", index=False)
     data.pairs.to_csv(out / "rpe_pairs.csv", index=False)
     conditions = data.protocol.conditions

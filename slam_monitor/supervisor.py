@@ -63,9 +63,17 @@ def _redirect_console(log_path: Path) -> None:
     os.close(fd)
 
 
+def _interrupt_once(signum: int, frame: object) -> None:
+    # The first SIGINT interrupts the session; later ones (the supervisor forwards the one it got, which a
+    # terminal's Ctrl-C may also have sent here) must not cut short the closing of its files.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
 def worker_main(options: SessionOptions, events: multiprocessing.Queue, parent_pid: int) -> None:
     """Child-process entry point: run the session, reporting progress and the outcome on ``events``."""
     die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, _interrupt_once)
     try:
         options.out_dir.mkdir(parents=True, exist_ok=True)
         _redirect_console(options.out_dir / session_layout.SLAM_LOG)
@@ -160,7 +168,11 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
                 progress(event)
         child.join()
     except KeyboardInterrupt:
-        child.join()  # the child got the same SIGINT and records the interruption itself
+        # A SIGINT sent to this process alone (a supervisor such as `seesys run` stopping it) does not reach the
+        # child: pass it on, and the child records the interruption and closes its files.
+        if child.is_alive():
+            os.kill(child.pid, signal.SIGINT)
+        child.join()
         raise
     finally:
         events.close()

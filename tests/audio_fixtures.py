@@ -225,3 +225,21 @@ def make_sandbox():
         sandbox.stop_all()
         sandbox.print_diagnostics()  # captured: pytest shows it only when the test failed
         shutil.rmtree(sandbox.root, ignore_errors=True)
+
+
+def sound_stretches(samples: np.ndarray, rate: int, threshold: float, smooth_s: float = 0.005) -> list[tuple[int, int]]:
+    """(start, length) in samples of each stretch where the signal's envelope (the largest |x| within ``smooth_s``)
+    exceeds ``threshold``: a 1 ms pulse is a stretch of about ``smooth_s``, a cue tone one of its own length."""
+    width = max(1, int(round(smooth_s * rate)))
+    loud = np.abs(np.asarray(samples, dtype=np.float32)) > threshold
+    envelope = np.convolve(loud.astype(np.int32), np.ones(width, dtype=np.int32), mode="same") > 0
+    edges = np.diff(np.concatenate(([0], envelope.astype(np.int8), [0])))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return list(zip(starts.tolist(), (ends - starts).tolist()))
+
+
+def cue_tones(samples: np.ndarray, rate: int, cue) -> list[int]:
+    """Start samples of the "no information" cue's tones heard in ``samples`` (stretches at least half a cue tone
+    long: a pulse is far shorter)."""
+    return [start for start, length in sound_stretches(samples, rate, cue.cue_level / 10)
+            if length >= cue.cue_tone_s * rate / 2]

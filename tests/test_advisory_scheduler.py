@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
-from audio_fixtures import PUBLISH_HZ, pulse_onsets, pulses_per_buffer, rotation_frame, run_lengths
+from audio_fixtures import PUBLISH_HZ, cue_tones, pulse_onsets, pulses_per_buffer, rotation_frame, run_lengths
 
 from advisory.conditions import Condition, pulse_rule
 from advisory.config import load_advisory_config
@@ -16,7 +16,8 @@ from advisory.estimate_log import read_estimate_log
 from advisory.handoff import AudioBuffer, HandoffError, decode_buffer, encode_buffer
 from advisory.render import render_estimates
 from advisory.rotation import RotationSpeed
-from advisory.scheduler import CHANGE, LIVE, STALE, TICK, WAITING, PulseScheduler
+from advisory.scheduler import CHANGE, LIVE, NO_INFORMATION, TICK, WAITING, PulseScheduler
+from advisory.synth import synthesise, synthesise_cue
 from advisory.wav import read_wav
 from seesys.core.errors import SeesysError
 from seesys.core.messages import FeatureFrame
@@ -37,7 +38,8 @@ def test_ticks_every_third_of_a_second_on_schedule_even_when_woken_late():
     for k in range(6):
         d = s.tick(s.next_tick + 0.004)  # the caller wakes 4 ms late
         times.append(d.time)
-        assert d.trigger == TICK and d.status == WAITING and d.n_pulses == 0 and math.isnan(d.value)
+        waiting = WAITING if d.time <= CFG.timing.stale_after_s else NO_INFORMATION  # no input since the start
+        assert d.trigger == TICK and d.status == waiting and d.n_pulses == 0 and math.isnan(d.value)
     assert np.allclose(np.diff(times), PERIOD)
 
 
@@ -92,12 +94,31 @@ def test_flip_back_within_a_period_waits_for_the_tick():
     assert d.trigger == TICK and d.n_pulses == 0
 
 
+def test_no_input_since_the_start_is_no_information_after_the_stale_limit():
+    s = scheduler()
+    assert s.tick(CFG.timing.stale_after_s).status == WAITING
+    d = s.tick(CFG.timing.stale_after_s + PERIOD)
+    assert d.status == NO_INFORMATION and d.n_pulses == 0
+
+
+def test_the_no_information_cue_is_two_soft_tones_unlike_a_pulse():
+    cue, rate = CFG.no_information, CFG.audio.sample_rate
+    samples = synthesise_cue(cue, rate, CFG.timing.buffer_s)
+    starts = cue_tones(samples, rate, cue)
+    assert len(starts) == 2 and starts[1] - starts[0] == pytest.approx((cue.cue_tone_s + cue.cue_gap_s) * rate,
+                                                                      abs=0.02 * rate)
+    pulses = synthesise(3, CFG.equation2, CFG.audio, CFG.timing.buffer_s)
+    assert cue_tones(pulses, rate, cue) == []  # pulses are clicks, never taken for the cue
+    assert samples[0] == 0 and np.abs(samples).max() <= cue.cue_level  # faded in, never louder than its level
+    assert np.abs(samples).max() < CFG.audio.level
+
+
 def test_slow_input_holds_the_newest_value_until_it_is_stale_then_recovers():
     s = scheduler()
     s.add(0.0, 0.010)
     assert s.tick(0.5).n_pulses == 2 and s.status == LIVE  # window empty: the newest sample stands in
     d = s.tick(1.2)
-    assert d.status == STALE and d.n_pulses == 0 and s.status == STALE
+    assert d.status == NO_INFORMATION and d.n_pulses == 0 and s.status == NO_INFORMATION
     d = s.add(2.0, 0.010)
     assert s.status == LIVE and d is not None and d.n_pulses == 2 and d.trigger == CHANGE
 

@@ -105,3 +105,25 @@ def test_report_and_figures(study):
     assert set(pairs.condition) == set(NOISE_M)
     for name in ("descriptives.csv", "assumptions.csv", "tests.csv", "posthoc.csv"):
         assert len(pd.read_csv(out / name)) > 0
+
+
+def test_a_study_without_data_leaves_no_analysis_folder(tmp_path):
+    from analysis.config import load_analysis_config
+    from analysis.report import analyse_study
+    from seesys.core.errors import SeesysError
+
+    root = tmp_path / "s"
+    write_protocol(root, make_protocol(load_study_config().protocol, participants_per_condition=1))
+    with pytest.raises(SeesysError, match="no participant has a trajectory"):
+        analyse_study(root, None, load_analysis_config(), load_study_config().metrics)
+    assert not (root / "analysis").exists()
+
+
+def test_one_participant_per_condition_prints_no_nan(tmp_path):
+    table = tmp_path / "participants.csv"
+    pd.DataFrame({"participant": ["p1", "p2"], "condition": ["none", "seesys"], "rpe_mean_m": [0.02, 0.01]}).to_csv(
+        table, index=False)
+    done = subprocess.run([sys.executable, "-m", "seesys", "analyze", "--table", str(table), "--out",
+                           str(tmp_path / "out")], capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "none 2.00 ± – (n=1)" in done.stdout and "nan" not in done.stdout, done.stdout

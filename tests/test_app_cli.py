@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import json
+import os
+
+import pandas as pd
 import pytest
 from conftest import SAMPLE, run_seesys
 
 from seesys.app.config import load_app_config
 from seesys.app.run import estimates_endpoint
 from seesys.core.errors import ConfigError, SeesysError
-from seesys.io.config import write_config_dir
+from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 
 
 def test_estimator_address_is_host_and_port():
@@ -43,3 +47,21 @@ def test_app_config_is_checked(tmp_path):
     configs = write_config_dir(tmp_path / "configs", {"mode": "stereo", "max_restarts": -1})
     with pytest.raises(ConfigError, match="device.mode must be one of rgbd, mono .*max_restarts must not be negative"):
         load_app_config(configs)
+
+
+def test_an_unreachable_estimator_fails_the_run_at_start(tmp_path):
+    configs = write_config_dir(tmp_path / "configs", {"reach_timeout_s": 2.0})
+    out = tmp_path / "s"
+    done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--estimator", "127.0.0.1:1", "--condition", "none",
+                      "--out", str(out), env={**os.environ, CONFIG_DIR_ENV: str(configs)})
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"seesys: error: the estimator at 127.0.0.1:1 cannot be reached: no ZeroMQ peer answered at "
+        f"tcp://127.0.0.1:1 within 2 s (is `seesys estimator serve` running there, its estimates_endpoint bound on "
+        f"an address this device reaches, and Curve set alike on both?) (session {out})"]
+    events = pd.read_csv(out / "app_events.csv")
+    assert "device" not in set(events.part)  # nothing was tracked
+    started, failed = (events[events.event == e].wall_time.iloc[0] for e in ("started", "failed"))
+    assert failed - started >= 2.0  # it waited the configured time, and gave up
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and "cannot be reached" in summary["error"]

@@ -3,9 +3,31 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from advisory.conditions import Condition
+
+
+# A degraded run ended as its source did, but with seconds in which the advisory knew nothing.
+EXIT_STATUS = {"completed": 0, "degraded": 3, "interrupted": 130}
+
+
+def final_line(status: str, summary: dict, folder: Path) -> str:
+    """The one line ``seesys run`` ends with: the outcome, frames, estimates and their latency (when there were
+    any), buffers, audio and the session folder; a failed run's line is its error."""
+    if status == "failed":
+        return f"seesys: error: {summary['error']} (session {folder})"
+    latency = summary["end_to_end_ms"]
+    estimates = (f"{summary['estimates']} estimates (end to end p50 {latency['p50']:.0f} / p95 {latency['p95']:.0f} "
+                 f"ms)" if latency["p50"] is not None else "no estimates")
+    information = summary["information"]
+    without = ""
+    if information["seconds_without"] > 0:
+        reasons = ", ".join(f"{reason} {seconds:.1f} s" for reason, seconds in information["by_reason"].items())
+        without = f" ({information['seconds_without']:.1f} s without information: {reasons})"
+    return (f"{status}{without}: {summary['frames']} frames, {estimates}, {summary['buffers']} advisory buffers; "
+            f"audio {summary['audio']}; session {folder}")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -15,12 +37,9 @@ def _run(args: argparse.Namespace) -> int:
                          estimator=args.estimator, model=args.model, wav=args.wav, mode=args.mode, pace=args.pace,
                          max_frames=args.max_frames)
     result = App(options).run()
-    s = result.summary
-    latency = s["end_to_end_ms"]
-    print(f"{result.status}: {s['frames']} frames, {s['estimates']} estimates (end to end p50 {latency['p50']} / "
-          f"p95 {latency['p95']} ms), {s['buffers']} advisory buffers; audio {s['audio']}; "
-          f"session {result.folder}" + (f"\nerror: {s['error']}" if s["error"] else ""))
-    return {"completed": 0, "interrupted": 130}.get(result.status, 1)
+    print(final_line(result.status, result.summary, result.folder),
+          file=sys.stderr if result.status == "failed" else sys.stdout)
+    return EXIT_STATUS.get(result.status, 1)
 
 
 def _positive(text: str) -> int:

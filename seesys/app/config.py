@@ -20,6 +20,8 @@ class DeviceConfig:
 @dataclass(frozen=True)
 class SupervisionConfig:
     ready_timeout_s: float
+    reach_timeout_s: float
+    first_estimate_s: float
     restart_delay_s: float
     max_restarts: int
     stop_timeout_s: float
@@ -59,7 +61,8 @@ def load_app_config(directory: Path | None = None) -> AppConfig:
     problems = []
     if cfg.device.mode not in MODES:
         problems.append(f"device.mode must be one of {', '.join(MODES)} (got {cfg.device.mode!r})")
-    positive = {"ready_timeout_s": s.ready_timeout_s, "stop_timeout_s": s.stop_timeout_s,
+    positive = {"ready_timeout_s": s.ready_timeout_s, "reach_timeout_s": s.reach_timeout_s,
+                "first_estimate_s": s.first_estimate_s, "stop_timeout_s": s.stop_timeout_s,
                 "status_interval_s": s.status_interval_s, "sparkline_s": v.sparkline_s,
                 "latency_window": v.latency_window, "buffers_shown": v.buffers_shown,
                 "estimator_poll_s": v.estimator_poll_s, "status_timeout_ms": v.status_timeout_ms}

@@ -33,6 +33,7 @@ class RunState:
 
     parts: dict[str, PartStatus] = field(default_factory=dict)
     drops: StreamDrops = StreamDrops()
+    information: str = ""  # why no fresh estimate has come for too long ("" while they come)
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,11 @@ class RunRecord:
     estimator: str  # "local", or the remote service's HOST:PORT
     audio: str
     equation2: Equation2Config
+    stale_after_s: float  # the advisory's stale limit: estimates further apart than this are an outage
     config_dir: Path | None  # the run's copy of the configs, once written
     parts: dict[str, PartStatus] = field(default_factory=dict)
     drops: StreamDrops | None = None  # None: the stream was never watched
-    estimator_dropped: int | None = None  # what a local estimator last reported dropping (None: remote, unknown)
+    estimator_dropped: dict[str, int] | None = None  # what a local estimator last reported dropping, by reason
+    # (None: remote, unknown)
+    seconds_without_information: float = 0.0  # the device ran, no fresh estimate (seesys.app.information)
+    without_information_by_reason: dict[str, float] = field(default_factory=dict)

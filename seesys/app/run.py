@@ -44,8 +44,9 @@ from advisory.sandbox import JACK_HOST_API, JackDummy
 from advisory.supervisor import process_commands
 from estimator.service.config import load_service_config
 from seesys.app.config import AppConfig, load_app_config
+from seesys.app.information import InformationClock
 from seesys.app.records import PartStatus, RunRecord, RunState, StreamDrops
-from seesys.app.summary import write_summary
+from seesys.app.summary import TRACKED_STATES, write_summary
 from seesys.app.view import LiveView, ViewSetup
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
@@ -54,7 +55,9 @@ from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
 from seesys.io.session_files import utc_now
+from seesys.io.transport import peer_answers
 from slam_monitor.monitor_config import load_monitor_config
+from slam_monitor.sources import load_camera_config, open_source, parse_source_spec
 from study.watch import StreamWatcher
 
 EVENT_COLUMNS = ("wall_time", "part", "event", "detail")
@@ -99,6 +102,17 @@ def estimates_endpoint(host_port: str) -> str:
     return f"tcp://{host}:{port}"
 
 
+def check_source(source: str, mode: str) -> None:
+    """Open and close the frame source once, so that a bad ``--source`` (unknown kind, missing folder, no depth
+    in RGB-D mode) is a SourceError before any part starts. A live camera is only parsed here: the device opens it,
+    and holding it twice is what a camera refuses."""
+    spec = parse_source_spec(source)
+    if spec.kind == "realsense":
+        return
+    with open_source(spec, load_camera_config(), with_depth=mode == "rgbd"):
+        pass
+
+
 def _new_folder(out: Path) -> Path:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise SeesysError(f"{out} exists and is not an empty folder: give a new folder for the session")
@@ -130,6 +144,7 @@ class App:
         self.advisory = load_advisory_config()
         self.mode = options.mode or self.cfg.device.mode
         self.pace = self.cfg.device.pace if options.pace is None else options.pace
+        check_source(options.source, self.mode)
         self.folder = _new_folder(options.out)
         self.parts: dict[str, _Part] = {}
         self.jack: JackDummy | None = None
@@ -138,6 +153,9 @@ class App:
         self.watcher: StreamWatcher | None = None  # the app's subscriber to the device's feature stream
         self.config_dir: Path | None = None  # the run's copy of the configs, once written
         self._player_up = False
+        self.information = InformationClock(self.advisory.timing.stale_after_s, self.cfg.supervision.first_estimate_s)
+        self._estimates_seen = 0
+        self._dropped_at_estimate: dict[str, int] = {}
 
     # -- set-up ---------------------------------------------------------------------------------------------------
 
@@ -174,9 +192,10 @@ class App:
         return env
 
     def event(self, part: str, event: str, detail: str = "") -> None:
+        """Log an app event and show it, with the parts' state as it is now (a restart shows as done at once)."""
         self.events.write(time.time(), part, event, detail)
         if self.view is not None:
-            self.view.note(f"{part}: {event}" + (f" ({detail})" if detail else ""))
+            self.view.note(f"{part}: {event}" + (f" ({detail})" if detail else ""), self._state_now())
 
     def _parts_now(self) -> dict[str, PartStatus]:
         return {name: PartStatus(part.child.running, part.restart_at is not None, part.restarts, tuple(part.exits))
@@ -189,8 +208,10 @@ class App:
     def _record(self, watcher: StreamWatcher | None) -> RunRecord:
         return RunRecord(self.folder, self.o.source, self.mode, self.pace, self.o.condition.value,
                          "local" if self.o.local else self.o.estimator, self.audio, self.advisory.equation2,
-                         self.config_dir, self._parts_now(), self._drops(watcher) if watcher is not None else None,
-                         self.view.snapshot.estimator_dropped if self.view is not None else None)
+                         self.advisory.timing.stale_after_s, self.config_dir, self._parts_now(),
+                         self._drops(watcher) if watcher is not None else None,
+                         self.view.snapshot.estimator_dropped if self.view is not None else None,
+                         self.information.seconds_without, dict(self.information.by_reason))
 
     def _view_setup(self) -> ViewSetup:
         status_endpoint = load_service_config(self.config_dir).status_endpoint if self.o.local else None
@@ -237,7 +258,7 @@ class App:
                 late = [name for name, check in ready.items() if not check()]
                 raise SeesysError(f"{' and '.join(late)} not ready after {self.cfg.supervision.ready_timeout_s:g} s "
                                   f"(logs: {self.folder / LOGS})")
-            self.view.update(RunState(self._parts_now(), self._drops(self.watcher)))
+            self.view.update(self._state_now())
             if stop.wait(self.cfg.supervision.status_interval_s):
                 raise KeyboardInterrupt
 
@@ -247,7 +268,20 @@ class App:
                                                  for r in rows)
         return self._player_up
 
+    def _check_reachable(self) -> None:
+        """A remote estimator must answer within ``reach_timeout_s``; SeesysError otherwise."""
+        timeout = self.cfg.supervision.reach_timeout_s
+        network = load_network_config(self.config_dir)
+        if not peer_answers(self.estimates_endpoint, timeout, network.client_options(network.estimates_endpoint)):
+            raise SeesysError(f"the estimator at {self.o.estimator} cannot be reached: no ZeroMQ peer answered at "
+                              f"{self.estimates_endpoint} within {timeout:g} s (is `seesys estimator serve` running "
+                              f"there, its estimates_endpoint bound on an address this device reaches, and Curve "
+                              f"set alike on both?)")
+        self.event("estimator", "reachable", self.estimates_endpoint)
+
     def _start_children(self, stop) -> None:
+        if not self.o.local:
+            self._check_reachable()
         if self.o.local:
             self._start("estimator", self._estimator_args())
             self._wait_ready({"estimator": self.view.estimator_answers}, stop)
@@ -299,6 +333,76 @@ class App:
                 exits[name] = part.child.stop(timeout)
         return exits
 
+    def _state_now(self) -> RunState:
+        drops = self._drops(self.watcher) if self.watcher is not None else StreamDrops()
+        lacking = self.information.lacking(time.monotonic())
+        return RunState(self._parts_now(), drops, self._why_no_information() if lacking else "")
+
+    def _why_no_information(self) -> str:
+        """Why no fresh estimate comes, as far as the app can tell: the estimator restarting, windows it refused
+        or dropped (every reason by name, counted since the last estimate), the device not tracking, or none
+        known (stale; a remote estimator's drops are not known here)."""
+        part = self.parts.get("estimator")
+        if part is not None and (part.restart_at is not None or not part.child.running
+                                 or (part.restarts and self.view.snapshot.estimator.startswith("starting"))):
+            return "estimator restarting"  # exited, or restarted and loading its model
+        dropped = self.view.snapshot.estimator_dropped if self.view is not None else None
+        if dropped:
+            grown = {r: n - self._dropped_at_estimate.get(r, 0) for r, n in dropped.items()
+                     if n > self._dropped_at_estimate.get(r, 0)}
+            if grown:
+                return "estimator dropped " + ", ".join(f"{r} {n}" for r, n in grown.items())
+        state = self.view.snapshot.state if self.view is not None else ""
+        if state and state not in TRACKED_STATES:
+            return f"tracking {state}"
+        if not self._estimates_seen:
+            return "no estimate yet" + ("" if self.o.local else f" from {self.o.estimator}")
+        return "estimates stale" + ("" if self.o.local else f" (remote {self.o.estimator})")
+
+    def _account_information(self) -> None:
+        """Advance the information clock with what the device logged and the app received since the last look."""
+        now = time.monotonic()
+        if self.view.snapshot.frames > 0:
+            self.information.first_frame(now)
+        if self.watcher.estimates > self._estimates_seen:
+            self.information.advance(now, self._why_no_information())
+            self.information.estimate(now)
+            self._estimates_seen = self.watcher.estimates
+            self._dropped_at_estimate = dict(self.view.snapshot.estimator_dropped or {})
+        else:
+            self.information.advance(now, self._why_no_information())
+
+    def _supervise_until_stopped(self, stop) -> tuple[str, str | None]:
+        """Start the children and supervise them until the device ends or a signal comes; (status, error)."""
+        self._start_children(stop)
+        device = self.parts["device"].child
+        while not stop.wait(self.cfg.supervision.status_interval_s):
+            if not device.running:
+                code = device.process.returncode
+                self.event("device", "ended", f"status {code}")
+                if code == 0:
+                    return ("degraded" if self.information.seconds_without > 0 else "completed"), None
+                return "failed", f"the device exited with status {code}: {device.last_line()}"
+            for name in RESTARTABLE:
+                if name in self.parts:
+                    self._supervise(self.parts[name])
+            self._account_information()
+            self.view.update(self._state_now())
+        self.event("app", "interrupted", "signal received")
+        return "interrupted", None
+
+    def _stop(self) -> dict[str, int | None]:
+        """Stop every child (once), the watcher and the audio server; the view says so while it waits."""
+        if self._exits is None:
+            if self.view is not None:
+                self.view.stopping("stopping: the device closes its files, then the other parts stop")
+            self._exits = self._stop_children()
+            if self.watcher is not None:
+                self.watcher.stop()
+            if self.jack is not None:
+                self.jack.stop()
+        return self._exits
+
     def run(self) -> RunResult:
         """Run until the device ends, a signal stops it, or a part fails beyond restarting; then stop every child,
         write the summary and return it. SeesysError when the app cannot start."""
@@ -306,7 +410,7 @@ class App:
         started = utc_now()
         stop = stop_on_signals()
         status, error = "completed", None
-        watcher: StreamWatcher | None = None
+        self._exits: dict[str, int | None] | None = None
         try:
             self.env = self._configure()
             self.event("app", "started", f"source {self.o.source}, condition {self.o.condition.value}, "
@@ -316,27 +420,14 @@ class App:
             watcher = StreamWatcher(network, self.folder / LOGS)
             (self.folder / LOGS).mkdir(exist_ok=True)
             watcher.start()
-            watcher.wait_ready(SUBSCRIBER_READY_S)
             self.watcher = watcher
+            watcher.wait_ready(SUBSCRIBER_READY_S)
             self.view = LiveView(self._view_setup())
             with self.view.shown():
-                self._start_children(stop)
-                device = self.parts["device"].child
-                while not stop.wait(self.cfg.supervision.status_interval_s):
-                    if not device.running:
-                        code = device.process.returncode
-                        status = "completed" if code == 0 else "failed"
-                        if code != 0:
-                            error = f"the device exited with status {code}: {device.last_line()}"
-                        self.event("device", "ended", f"status {code}")
-                        break
-                    for name in RESTARTABLE:
-                        if name in self.parts:
-                            self._supervise(self.parts[name])
-                    self.view.update(RunState(self._parts_now(), self._drops(watcher)))
-                else:
-                    status = "interrupted"
-                    self.event("app", "interrupted", "signal received")
+                try:
+                    status, error = self._supervise_until_stopped(stop)
+                finally:  # inside the view: it shows the stop until every part has ended
+                    self._stop()
         except KeyboardInterrupt:
             status = "interrupted"
             self.event("app", "interrupted", "signal received while starting")
@@ -344,13 +435,9 @@ class App:
             status, error = "failed", str(e)
             self.event("app", "failed", error)
         finally:
-            exits = self._stop_children()
-            if watcher is not None:
-                watcher.stop()
-            if self.jack is not None:
-                self.jack.stop()
+            exits = self._stop()
             self.event("app", "stopped", status)
             self.events.close()
-        summary = write_summary(self._record(watcher), self.cfg.output, status=status, error=error, started=started,
-                                ended=utc_now(), exits=exits)
+        summary = write_summary(self._record(self.watcher), self.cfg.output, status=status, error=error,
+                                started=started, ended=utc_now(), exits=exits)
         return RunResult(self.folder, status, summary)

@@ -26,9 +26,12 @@ from seesys.app.records import RunRecord
 from seesys.core.equation2 import Equation2Config
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, ESTIMATES_CSV, FRAMES_CSV, GROUND_TRUTH, PLAYBACK_CSV
+from seesys.core.tracking_state import TrackingState
 from seesys.io.logfiles import read_csv_log, write_json_atomically
 
 PERCENTILES = (50, 95, 99)
+# The names frames.csv gives the states in which a frame has a pose SLAM considers good (OK and OK_KLT).
+TRACKED_STATES = tuple(state.name for state in TrackingState if state.tracked)
 
 
 def _table(path: Path) -> pd.DataFrame:
@@ -50,7 +53,7 @@ def session_figures(folder: Path) -> dict:
     """Frames, estimates, latency and advisory figures of a session folder's logs."""
     frames, estimates = _table(folder / FRAMES_CSV), _table(folder / ESTIMATES_CSV)
     advisory, playback = _table(folder / ADVISORY_CSV), _table(folder / PLAYBACK_CSV)
-    tracked = float((frames["state"] == "OK").mean()) if len(frames) else None
+    tracked = float(frames["state"].isin(TRACKED_STATES).mean()) if len(frames) else None
     figures = {"frames": len(frames), "tracked_fraction": tracked,
                "estimates": len(estimates),
                "end_to_end_ms": _percentiles(estimates.get("end_to_end_ms", pd.Series(dtype=float))),
@@ -73,9 +76,18 @@ def true_error(folder: Path, monocular: bool, config_dir: Path | None) -> pd.Dat
     return labels[labels.status == "labelled"]
 
 
+def broken_at_gaps(t: np.ndarray, values: np.ndarray, gap_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """``t`` and ``values`` (in time order) with a NaN point inserted where consecutive times are more than
+    ``gap_s`` apart, so that a line plot breaks there instead of bridging a time without data."""
+    t, values = np.asarray(t, dtype=float), np.asarray(values, dtype=float)
+    after = np.flatnonzero(np.diff(t) > gap_s) + 1
+    return np.insert(t, after, np.nan), np.insert(values, after, np.nan)
+
+
 def plot_session(folder: Path, equation2: Equation2Config, out: Path, monocular: bool = False,
-                 config_dir: Path | None = None) -> Path:
-    """Write the session plot (see the module docstring) to ``out``; SeesysError when there is nothing to plot."""
+                 config_dir: Path | None = None, gap_s: float = math.inf) -> Path:
+    """Write the session plot (see the module docstring) to ``out``, the estimate line broken where estimates are
+    more than ``gap_s`` apart (an estimator outage); SeesysError when there is nothing to plot."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -91,8 +103,8 @@ def plot_session(folder: Path, equation2: Equation2Config, out: Path, monocular:
     if truth is not None and len(truth):
         top.plot(truth.timestamp - t0, truth.error_m * 100, color="0.4", lw=1, label="true error")
     if len(estimates):
-        top.plot(estimates.timestamp - t0, estimates.error_m * 100, "o-", ms=3, color="tab:blue",
-                 label="estimated error")
+        t, error_m = broken_at_gaps(estimates.timestamp - t0, estimates.error_m, gap_s)
+        top.plot(t, error_m * 100, "o-", ms=3, color="tab:blue", label="estimated error")
     eq = equation2
     for value, name in ((eq.alpha_m, "α"), (eq.beta_m, "β")):
         top.axhline(value * 100, color="tab:red", ls="--", lw=1)
@@ -128,13 +140,17 @@ def write_summary(run: RunRecord, out: OutputConfig, *, status: str, error: str 
                "parts": {name: {"restarts": part.restarts, "exits": list(part.exits), "final_exit": exits.get(name)}
                          for name, part in run.parts.items()},
                **session_figures(folder)}
+    summary["information"] = {"seconds_without": round(run.seconds_without_information, 2),
+                              "by_reason": {reason: round(seconds, 2)
+                                            for reason, seconds in run.without_information_by_reason.items()}}
     if run.drops is not None:
         summary["drops"] = {**asdict(run.drops), "estimator": run.estimator_dropped}
     files = {"events": out.events, "logs": "logs"}
     if (folder / out.wav).exists():
         files["wav"] = out.wav
     try:
-        plot_session(folder, run.equation2, folder / out.plot, run.mode == "mono", run.config_dir)
+        plot_session(folder, run.equation2, folder / out.plot, run.mode == "mono", run.config_dir,
+                     run.stale_after_s)
         files["plot"] = out.plot
     except (SeesysError, ValueError, KeyError) as e:
         summary["plot_error"] = str(e)

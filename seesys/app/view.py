@@ -39,6 +39,7 @@ SPARK = "▁▂▃▄▅▆▇█"
 RATE_WINDOW_S = 2.0
 PLAIN_INTERVAL_S = 1.0
 EVENTS_SHOWN = 3
+RUNNING_FOOTER = "Ctrl-C stops"
 
 
 def sparkline(values: list[float], top: float) -> str:
@@ -72,9 +73,10 @@ class Snapshot:
     skipped: int = 0  # frames the device's monitor could not keep up with
     lost: int = 0  # frames that never reached the app
     bad_messages: int = 0
-    estimator_dropped: int | None = None  # None: unknown (remote or not answering)
+    estimator_dropped: dict[str, int] | None = None  # by reason; None: unknown (remote or not answering)
     estimator: str = "–"
     restarts: dict[str, int] = field(default_factory=dict)
+    information: str = ""  # why there is no fresh estimate now ("" while there is one)
     spark: str = ""
     spark_top_m: float = math.nan
     events: list[str] = field(default_factory=list)
@@ -84,13 +86,29 @@ def _cm(error_m: float) -> str:
     return "–" if math.isnan(error_m) else f"{error_m * 100:.2f} cm"
 
 
+def _fps(s: Snapshot) -> str:
+    # No rate yet (fewer than two looks at the frame log): a dash, never "nan".
+    return "– fps" if math.isnan(s.fps) else f"{s.fps:.1f} fps"
+
+
 def _latency(s: Snapshot) -> str:
     p50, p95, p99 = s.latency_ms
     return "–" if math.isnan(p50) else f"p50 {p50:.0f} / p95 {p95:.0f} / p99 {p99:.0f} ms"
 
 
+def dropped_text(dropped: dict[str, int] | None) -> str:
+    """What the estimator dropped or rejected, every reason by name ("?": unknown, "0": nothing)."""
+    if dropped is None:
+        return "?"
+    return ", ".join(f"{reason} {n}" for reason, n in dropped.items() if n) or "0"
+
+
+def _information(s: Snapshot) -> str:
+    return f"NONE: {s.information}" if s.information else "fresh estimates"
+
+
 def _drops(s: Snapshot) -> str:
-    estimator = "?" if s.estimator_dropped is None else str(s.estimator_dropped)
+    estimator = dropped_text(s.estimator_dropped)
     return f"skipped {s.skipped}, lost {s.lost}, bad {s.bad_messages}, estimator {estimator}"
 
 
@@ -103,19 +121,20 @@ def plain_line(s: Snapshot) -> str:
     """The view as one line (stdout not a terminal)."""
     age = "" if math.isnan(s.estimate_age_s) else f" ({s.estimate_age_s:.1f} s ago)"
     pulses = " ".join(map(str, s.pulses)) or "–"
-    return (f"{s.elapsed_s:6.1f} s  frames {s.frames} {s.state} {s.fps:.1f} fps | estimate {_cm(s.latest_error_m)}"
-            f"{age} | pulses {pulses} | e2e {_latency(s)} | drops {_drops(s)} | estimator {s.estimator}, "
+    return (f"{s.elapsed_s:6.1f} s  frames {s.frames} {s.state} {_fps(s)} | estimate {_cm(s.latest_error_m)}"
+            f"{age} | information {_information(s)} | pulses {pulses} | e2e {_latency(s)} | drops {_drops(s)} | estimator {s.estimator}, "
             f"{_restarts(s)}")
 
 
-def panel(s: Snapshot, title: str) -> Panel:
-    """The view as a rich panel (stdout a terminal)."""
+def panel(s: Snapshot, title: str, footer: str = RUNNING_FOOTER) -> Panel:
+    """The view as a rich panel (stdout a terminal); ``footer`` after the elapsed time says how the run ends."""
     table = Table.grid(padding=(0, 2))
     table.add_column(style="bold")
     table.add_column()
     age = "" if math.isnan(s.estimate_age_s) else f"  ({s.estimate_age_s:.1f} s ago)"
-    rows = [("tracking", f"{s.state}  {s.frames} frames  {s.fps:.1f} fps"),
+    rows = [("tracking", f"{s.state}  {s.frames} frames  {_fps(s)}"),
             ("estimate", f"{_cm(s.latest_error_m)}{age}  {s.estimates} received"),
+            ("information", _information(s)),
             ("pulses", " ".join(map(str, s.pulses)) or "–"),
             ("end to end", _latency(s)),
             ("drops", _drops(s)),
@@ -124,7 +143,7 @@ def panel(s: Snapshot, title: str) -> Panel:
     for name, value in rows:
         table.add_row(name, value)
     events = Text("\n".join(s.events), style="yellow") if s.events else Text("")
-    return Panel(Group(table, events), title=title, subtitle=f"{s.elapsed_s:.0f} s  Ctrl-C stops")
+    return Panel(Group(table, events), title=title, subtitle=f"{s.elapsed_s:.0f} s  {footer}")
 
 
 @dataclass(frozen=True)
@@ -167,6 +186,7 @@ class LiveView:
         self._status: dict | None = None
         self._live: Live | None = None
         self._state = RunState()
+        self._footer = RUNNING_FOOTER
 
     # -- the estimator's status (local estimator only) -----------------------------------------------------------
 
@@ -182,7 +202,7 @@ class LiveView:
             self._status = None
         return self._status is not None
 
-    def _estimator_state(self) -> tuple[str, int | None]:
+    def _estimator_state(self) -> tuple[str, dict[str, int] | None]:
         if self.setup.remote_estimator is not None:
             return f"remote {self.setup.remote_estimator}", None
         part = self._state.parts.get("estimator")
@@ -195,8 +215,10 @@ class LiveView:
         if self._status is None:
             return "starting (not answering yet)", None
         device = self._status["devices"].get(self.setup.device_id)
-        dropped = sum(device["dropped"].values()) if device else 0
-        return f"up, {self._status['model_version']}", dropped + sum(self._status["rejected"].values())
+        dropped = dict(device["dropped"]) if device else {}
+        for reason, n in self._status["rejected"].items():  # messages the broker rejected, by their own reasons
+            dropped[f"rejected {reason}"] = n
+        return f"up, {self._status['model_version']}", dropped
 
     # -- reading the logs ----------------------------------------------------------------------------------------
 
@@ -239,26 +261,40 @@ class LiveView:
         s.skipped, s.lost, s.bad_messages = drops.skipped_by_device, drops.lost_in_transit, drops.bad_messages
         s.estimator, s.estimator_dropped = self._estimator_state()
         s.restarts = {name: part.restarts for name, part in self._state.parts.items()}
+        s.information = self._state.information
         s.events = list(self._events)
         self.snapshot = s
         return s
 
-    def note(self, text: str) -> None:
-        """An app event: kept for the panel, printed at once in plain mode."""
+    def note(self, text: str, state: RunState | None = None) -> None:
+        """An app event: kept for the panel, printed at once in plain mode; ``state``, the parts as they are now,
+        redraws the panel with them (an event saying "restarted" beside a state still saying "restarting" would
+        contradict it)."""
         self._events.append(f"{time.strftime('%H:%M:%S')} {text}")
         if self._live is None:
             self.console.print(f"[{time.strftime('%H:%M:%S')}] {text}", markup=False, highlight=False)
         else:  # at once: the run may end before the next update
+            if state is not None:
+                self.collect(state)
             self.snapshot.events = list(self._events)
-            self._live.update(panel(self.snapshot, self._title))
+            self._live.update(panel(self.snapshot, self._title, self._footer))
 
     def update(self, state: RunState | None = None) -> None:
         snapshot = self.collect(state)
         if self._live is not None:
-            self._live.update(panel(snapshot, self._title))
+            self._live.update(panel(snapshot, self._title, self._footer))
         elif time.monotonic() - self._last_plain >= PLAIN_INTERVAL_S:
             self._last_plain = time.monotonic()
             self.console.print(plain_line(snapshot), markup=False, highlight=False, soft_wrap=True)
+
+    def stopping(self, what: str) -> None:
+        """The run is stopping (``what``: why and what it waits for): the panel's footer says so instead of how to
+        stop it, and a plain view prints it."""
+        self._footer = what
+        if self._live is not None:
+            self._live.update(panel(self.snapshot, self._title, self._footer))
+        else:
+            self.console.print(what, markup=False, highlight=False)
 
     @contextlib.contextmanager
     def shown(self) -> Iterator[LiveView]:
@@ -266,7 +302,7 @@ class LiveView:
         if not self.console.is_terminal:
             yield self
             return
-        with Live(panel(self.collect(), self._title), console=self.console, refresh_per_second=4,
+        with Live(panel(self.collect(), self._title, self._footer), console=self.console, refresh_per_second=4,
                   transient=False) as live:
             self._live = live
             try:

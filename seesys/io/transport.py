@@ -163,3 +163,30 @@ class LossCounter:
     @property
     def lost_in_transit(self) -> int:
         return sum(d.lost_in_transit for d in self.devices.values())
+
+
+def peer_answers(endpoint: str, timeout_s: float, options: Mapping[int, int | bytes] | None = None) -> bool:
+    """True when a ZeroMQ peer at ``endpoint`` completes a handshake within ``timeout_s`` (a SUB socket with
+    ``options``, Curve keys included, connects and a socket monitor reports the handshake); False when nothing
+    answers (connection refused, no route, a listener that is not ZeroMQ, Curve keys it refuses).
+
+    A PUB endpoint sends nothing until there is something to publish, so its first message cannot tell that it is
+    there; the handshake can."""
+    from zmq.utils.monitor import recv_monitor_message
+
+    ctx = zmq.Context.instance()
+    sock = ctx.socket(zmq.SUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    for option, value in (options or {}).items():
+        sock.setsockopt(option, value)
+    monitor = sock.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED)
+    try:
+        sock.connect(endpoint)
+        return bool(monitor.poll(int(timeout_s * 1000))) and \
+            recv_monitor_message(monitor)["event"] == zmq.EVENT_HANDSHAKE_SUCCEEDED
+    except zmq.ZMQError as e:
+        raise TransportError(f"cannot connect to {endpoint}: {e}") from None
+    finally:
+        sock.disable_monitor()
+        monitor.close()
+        sock.close()

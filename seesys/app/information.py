@@ -1,0 +1,50 @@
+"""How long a run went without information: the seconds in which the device ran but no fresh estimate had come.
+
+Silence in the advisory means "error below α"; a run in which the estimates stopped must say that they did. The
+clock starts at the device's first logged frame. Until the first estimate it allows ``first_estimate_s`` (ORB-SLAM3
+initialises and the estimator fills a window), after each estimate ``stale_after_s`` (the advisory's stale limit);
+time beyond that counts as without information, under the reason the app gives for it at that moment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class InformationClock:
+    """Seconds without information, in total and per reason; times are the caller's monotonic seconds."""
+
+    stale_after_s: float
+    first_estimate_s: float
+    seconds_without: float = 0.0
+    by_reason: dict[str, float] = field(default_factory=dict)
+    _since: float | None = None  # the first frame, then the newest estimate
+    _estimated: bool = False
+    _checked: float | None = None
+
+    def first_frame(self, t: float) -> None:
+        if self._since is None:
+            self._since = self._checked = t
+
+    def estimate(self, t: float) -> None:
+        """A fresh estimate arrived at ``t`` (account the time up to it first with :meth:`advance`)."""
+        self._since = self._checked = t
+        self._estimated = True
+
+    def lacking(self, t: float) -> bool:
+        """True when at ``t`` the device runs and the newest estimate (or the first frame) is too old."""
+        if self._since is None:
+            return False
+        return t > self._since + (self.stale_after_s if self._estimated else self.first_estimate_s)
+
+    def advance(self, t: float, reason: str) -> bool:
+        """Count the time up to ``t`` that was without information under ``reason``; returns :meth:`lacking`."""
+        if not self.lacking(t):
+            return False
+        since = self._since + (self.stale_after_s if self._estimated else self.first_estimate_s)
+        seconds = t - max(self._checked, since)
+        self.seconds_without += seconds
+        self.by_reason[reason] = self.by_reason.get(reason, 0.0) + seconds
+        self._checked = t
+        return True
