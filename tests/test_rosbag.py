@@ -108,3 +108,55 @@ def test_a_bag_tracks_every_frame_and_labels_like_its_tum_folder(sample_bag, tmp
     assert list(from_bag.status) == list(from_tum.status)
     assert from_bag.error_m.to_numpy() == pytest.approx(from_tum.error_m.to_numpy(), abs=1e-9, nan_ok=True)
     assert len(read_tum(out / session_layout.GROUND_TRUTH)) == 150
+
+
+def write_session(folder, frames=20):
+    """A small session folder in the device's formats: 20 frames, the first 3 not tracked, estimates every 5th."""
+    folder.mkdir()
+    times = 1000.0 + np.arange(frames) / 30
+    states = ["NOT_INITIALIZED"] * 3 + ["OK"] * (frames - 3)
+    pd.DataFrame({"frame_index": range(frames), "timestamp": times, "state": states, "tracked_points": 100,
+                  "track_ms": 10.0}).to_csv(folder / session_layout.FRAMES_CSV, index=False)
+    tum = "".join(f"{t:.6f} {0.01 * i} 0.5 {-0.02 * i} 0 0 0.6 0.8\n" for i, t in enumerate(times) if i >= 3)
+    (folder / session_layout.TRAJECTORY).write_text("# timestamp tx ty tz qx qy qz qw\n" + tum)
+    (folder / session_layout.GROUND_TRUTH).write_text(tum)
+    ends = list(range(5, frames, 5))
+    estimates = {column: 0.0 for column in session_layout.ESTIMATE_COLUMNS}
+    estimates.update(frame_index=ends, timestamp=times[ends], error_m=[0.004 * (k + 1) for k in range(len(ends))],
+                     model_version="deepsee-test")
+    pd.DataFrame(estimates).to_csv(folder / session_layout.ESTIMATES_CSV, index=False)
+    return times
+
+
+def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    times = write_session(tmp_path / "s")
+    out = tmp_path / "exported"
+    result = run_seesys("session", "export-bag", str(tmp_path / "s"), "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    with AnyReader([out]) as reader:
+        types = {topic: info.msgtype for topic, info in reader.topics.items()}
+        read = {}
+        for connection, ns, raw in reader.messages():
+            read.setdefault(connection.topic, []).append((ns, reader.deserialize(raw, connection.msgtype)))
+    assert types == {"/seesys/pose": "geometry_msgs/msg/PoseStamped", "/seesys/path": "nav_msgs/msg/Path",
+                     "/seesys/ground_truth": "geometry_msgs/msg/PoseStamped",
+                     "/seesys/tracking_state": "std_msgs/msg/String", "/seesys/pose_error": "std_msgs/msg/Float64"}
+    poses = read["/seesys/pose"]
+    assert len(poses) == 17 and poses[0][0] == round(times[3] * 1e9)
+    first = poses[1][1]
+    assert first.header.frame_id == "world"
+    assert (first.pose.position.x, first.pose.position.z, first.pose.orientation.w) == pytest.approx((0.04, -0.08, 0.8))
+    assert first.header.stamp.sec + first.header.stamp.nanosec * 1e-9 == pytest.approx(times[4], abs=1e-6)
+    assert [m.data for _, m in read["/seesys/tracking_state"]] == ["NOT_INITIALIZED"] * 3 + ["OK"] * 17
+    assert len(read["/seesys/path"]) == 1 and len(read["/seesys/path"][0][1].poses) == 17
+    assert [m.data for _, m in read["/seesys/pose_error"]] == pytest.approx([0.004, 0.008, 0.012])
+    assert [ns for ns, _ in read["/seesys/pose_error"]] == [round(times[i] * 1e9) for i in (5, 10, 15)]
+    again = run_seesys("session", "export-bag", str(tmp_path / "s"), "--out", str(out))
+    assert again.returncode == 2 and "exists already" in again.stderr
+
+
+def test_export_bag_of_a_folder_that_is_no_session_is_an_error(tmp_path):
+    result = run_seesys("session", "export-bag", str(tmp_path), "--out", str(tmp_path / "b"))
+    assert result.returncode == 2 and "not a session folder: no frames.csv" in result.stderr
