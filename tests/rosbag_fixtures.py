@@ -35,9 +35,10 @@ def _ns(t: float) -> int:
 
 
 def write_sample_bag(folder: Path, out: Path, ros1: bool, image_topic: str | None = "/camera/color/image_raw",
-                     with_depth: bool = True, with_truth: bool = True) -> Path:
+                     with_depth: bool = True, with_truth: bool = True, tf_children: tuple[str, ...] = ("camera",)) -> Path:
     """Write the TUM folder ``folder`` as a ROS 1 ``.bag`` (``ros1``) or a ROS 2 bag folder at ``out``
-    (``image_topic`` None: without colour images)."""
+    (``image_topic`` None: without colour images; ``tf_children``: the ROS 1 bag's /tf frames, all at the camera's
+    pose)."""
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
@@ -100,12 +101,12 @@ def write_sample_bag(folder: Path, out: Path, ros1: bool, image_topic: str | Non
             for t, p, q in zip(poses.timestamps, poses.positions, poses.quaternions_xyzw):
                 header = _header(store, t, "world", ros1)
                 if ros1:
-                    transform = types["geometry_msgs/msg/TransformStamped"](
-                        header=header, child_frame_id="camera",
+                    message = types[truth_type](transforms=[types["geometry_msgs/msg/TransformStamped"](
+                        header=header, child_frame_id=child,
                         transform=types["geometry_msgs/msg/Transform"](
                             translation=types["geometry_msgs/msg/Vector3"](x=p[0], y=p[1], z=p[2]),
                             rotation=types["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])))
-                    message = types[truth_type](transforms=[transform])
+                        for child in tf_children])
                 else:
                     message = types[truth_type](header=header, pose=types["geometry_msgs/msg/Pose"](
                         position=types["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),

@@ -1,5 +1,6 @@
 """ROS bags as a frame source: ROS 1 and ROS 2 bags written with rosbags from the embedded sample."""
 
+import dataclasses
 import itertools
 import shutil
 
@@ -24,6 +25,12 @@ BAGS = {"ros2": ("bag2", False), "ros1": ("sample.bag", True)}
 def sample_bag(request, tmp_path_factory):
     name, ros1 = BAGS[request.param]
     return write_sample_bag(SAMPLE, tmp_path_factory.mktemp(request.param) / name, ros1=ros1)
+
+
+def with_rosbag(**changes):
+    """configs/camera.toml with some [rosbag] keys changed."""
+    config = load_camera_config()
+    return dataclasses.replace(config, rosbag=dataclasses.replace(config.rosbag, **changes))
 
 
 def open_spec(text, with_depth=True, config=None):
@@ -66,9 +73,7 @@ def test_a_bag_without_an_image_topic_is_a_one_line_error_naming_its_topics(tmp_
 
 def test_topics_named_in_the_configuration_are_checked(tmp_path, small_tum):
     bag = write_sample_bag(small_tum, tmp_path / "bag.bag", ros1=True, image_topic="/left/image")
-    config = load_camera_config()
-    named = config.__class__(**{**config.__dict__, "rosbag": config.rosbag.__class__(
-        **{**config.rosbag.__dict__, "image_topic": "/cam0/image_raw"})})
+    named = with_rosbag(image_topic="/cam0/image_raw")
     with pytest.raises(SourceError, match=r"image topic /cam0/image_raw is not in the bag \(it has: .*/left/image"):
         open_spec(f"rosbag:{bag}", config=named)
     with open_spec(f"rosbag:{bag}") as source:
@@ -160,3 +165,14 @@ def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
 def test_export_bag_of_a_folder_that_is_no_session_is_an_error(tmp_path):
     result = run_seesys("session", "export-bag", str(tmp_path), "--out", str(tmp_path / "b"))
     assert result.returncode == 2 and "not a session folder: no frames.csv" in result.stderr
+
+
+def test_tf_ground_truth_with_several_child_frames_needs_the_camera_frame_named(tmp_path, small_tum):
+    bag = write_sample_bag(small_tum, tmp_path / "tf.bag", ros1=True, tf_children=("base_link", "camera"))
+    with open_spec(f"rosbag:{bag}", with_depth=False) as source:
+        assert source.topics.ground_truth == "/tf"
+        with pytest.raises(SourceError, match=r"several frames \(base_link, camera\).*ground_truth_child_frame"):
+            source.ground_truth()
+    named = with_rosbag(ground_truth_child_frame="camera")
+    with open_spec(f"rosbag:{bag}", with_depth=False, config=named) as source, open_spec(f"tum:{small_tum}") as tum:
+        assert np.allclose(source.ground_truth().positions, tum.ground_truth().positions)

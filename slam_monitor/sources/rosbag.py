@@ -245,6 +245,12 @@ class RosbagSource(FrameSource):
         topic_type = self._reader.topics[topic].msgtype
         rows = [row for _, message in _messages(self._reader, [topic])
                 for row in _ground_truth_pose(topic_type, message, self._settings.ground_truth_child_frame)]
+        if topic_type == TF and not self._settings.ground_truth_child_frame:
+            children = sorted({t.child_frame_id for _, message in _messages(self._reader, [topic])
+                               for t in message.transforms})
+            if len(children) > 1:
+                raise SourceError(f"{topic} holds transforms to several frames ({', '.join(children)}): name the "
+                                  "camera's in configs/camera.toml [rosbag] ground_truth_child_frame")
         if not rows:
             return None
         times, positions, quaternions = zip(*rows)
