@@ -1,14 +1,15 @@
 """``seesys`` subcommands of the device part: tracking and vocabulary (``tracking_commands``) and the RTS
-monitor (``monitor_commands``)."""
+monitor (``monitor_commands``), and session export (``session_commands``)."""
 
 from __future__ import annotations
 
 import argparse
 
-from slam_monitor import monitor_commands, tracking_commands
+from slam_monitor import monitor_commands, session_commands, tracking_commands
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the device commands to the ``seesys`` command line."""
     tracking_commands.register(subparsers)
     monitor_commands.register(subparsers)
+    session_commands.register(subparsers)

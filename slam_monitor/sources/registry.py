@@ -58,6 +58,12 @@ def _rsbag(spec: SourceSpec, config: CameraConfig, with_depth: bool) -> FrameSou
                                     with_depth)
 
 
+def _rosbag(spec: SourceSpec, config: CameraConfig, with_depth: bool) -> FrameSource:
+    from slam_monitor.sources.rosbag import RosbagSource
+
+    return RosbagSource(Path(spec.path), config.rosbag, config.files, config.depth_check, with_depth)
+
+
 Opener = Callable[[SourceSpec, CameraConfig, bool], FrameSource]
 
 # kind -> (opener, whether it can deliver depth, what PATH means)
@@ -68,6 +74,7 @@ SOURCE_KINDS: dict[str, tuple[Opener, bool, str]] = {
     "video": (_video, False, "video file (intrinsics from calibration.yaml beside it)"),
     "realsense": (_realsense, True, "live RealSense camera; PATH is empty or a serial number"),
     "rsbag": (_rsbag, True, "RealSense recording (.bag or .db3)"),
+    "rosbag": (_rosbag, True, "ROS 1 .bag, or ROS 2 bag folder / .db3 / .mcap (topics: configs/camera.toml [rosbag])"),
 }
 
 

@@ -37,11 +37,23 @@ class RecordingSettings:
 
 
 @dataclass(frozen=True)
+class RosbagSettings:
+    """Topics of a ROS bag source; an empty name means found by message type (docs/device.md)."""
+
+    image_topic: str
+    depth_topic: str
+    camera_info_topic: str
+    ground_truth_topic: str
+    ground_truth_child_frame: str
+
+
+@dataclass(frozen=True)
 class CameraConfig:
     files: FileSourceDefaults
     depth_check: DepthLimits
     realsense: RealSenseSettings
     recording: RecordingSettings
+    rosbag: RosbagSettings
 
 
 def load_camera_config(directory: Path | None = None) -> CameraConfig:
