@@ -35,6 +35,8 @@ class StreamWatcher(threading.Thread):
         self._stopping = threading.Event()
         self._ready = threading.Event()
         self.estimates = 0
+        self.tracked_frames = 0  # feature frames with a tracked pose (the rotation rule's input)
+        self.last_frame_mono: float | None = None  # time.monotonic() when the newest feature frame arrived
         self.latest_error_m = math.nan
         self.bad_messages = 0
         self.frames_skipped = 0
@@ -77,6 +79,8 @@ class StreamWatcher(threading.Thread):
                         self.latest_error_m = message.error_m
                     elif isinstance(message, FeatureFrame):
                         self.losses.observe(message)
+                        self.tracked_frames += message.state.tracked
+                        self.last_frame_mono = time.monotonic()
                         self.frames_skipped = message.frames_skipped
         except Exception as e:  # noqa: BLE001 - reported on the status line and in run.json, the session goes on
             self.error = f"{type(e).__name__}: {e}"

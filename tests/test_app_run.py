@@ -281,7 +281,10 @@ def test_the_wav_plays_equation_2_of_the_logged_estimates_buffer_by_buffer(run):
                                                        suffixes=("", "_generated"))
     assert (playback.n_pulses == playback.n_pulses_generated).all()
     samples, rate = read_wav(out / "advisory.wav")
-    whole = pulses_per_buffer(samples, rate, playback.stream_sample, playback.played_pulses, eq)
+    # Until the first estimate (ORB-SLAM3 initialising, the first window filling) the advisory knows nothing and
+    # plays its "no information" cue in some buffers, which hold that cue instead of pulses.
+    whole = pulses_per_buffer(samples, rate, playback.stream_sample, playback.played_pulses, eq,
+                              cues=playback.trigger == "cue")
     assert sum(whole) > 0
 
 

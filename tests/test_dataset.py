@@ -270,7 +270,9 @@ def test_a_run_that_crashes_part_way_keeps_the_frames_logged_before(tiny, tmp_pa
     # The monitor logs a frame just after tracking it: the crash may take the last one or two with it.
     monitored = int(np.load(run_folder(copy, run.run) / RTS_FRAMES_NPY).max())
     assert crash_at - 3 <= monitored < crash_at
-    assert len(samples) == run.samples > 0 and list(samples.index.frame_index) == [f for f in whole if f <= monitored]
+    # It writes a frame's RTS row before its PSD: a crash between the two leaves that frame without a window.
+    expected = [f for f in whole if f <= monitored]
+    assert len(samples) == run.samples > 0 and list(samples.index.frame_index) in (expected, expected[:-1])
     assert run.run in set(run_table([copy]).run)
     again = _builder(copy).build(_plan(ENVIRONMENTS))
     assert again.runs_done == [] and again.runs_skipped == 3

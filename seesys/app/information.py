@@ -1,9 +1,11 @@
-"""How long a run went without information: the seconds in which the device ran but no fresh estimate had come.
+"""How long a run went without information: the seconds in which the device ran but no fresh input of the
+condition's advisory had come (estimates for Equation 2, tracked frames for the rotation rule).
 
 Silence in the advisory means "error below α"; a run in which the estimates stopped must say that they did. The
-clock starts at the device's first logged frame. Until the first estimate it allows ``first_estimate_s`` (ORB-SLAM3
-initialises and the estimator fills a window), after each estimate ``stale_after_s`` (the advisory's stale limit);
-time beyond that counts as without information, under the reason the app gives for it at that moment.
+clock starts at the device's first logged frame. Until the first input it allows ``first_estimate_s`` (ORB-SLAM3
+initialises and the estimator fills a window), after each input ``stale_after_s`` (the advisory's stale limit);
+time beyond that counts as without information, under the reason the app gives for it at that moment. The caller
+reports an input with :meth:`InformationClock.estimate`.
 """
 
 from __future__ import annotations

@@ -154,7 +154,7 @@ class App:
         self.config_dir: Path | None = None  # the run's copy of the configs, once written
         self._player_up = False
         self.information = InformationClock(self.advisory.timing.stale_after_s, self.cfg.supervision.first_estimate_s)
-        self._estimates_seen = 0
+        self._inputs_seen = 0  # of the condition's input: estimates, or tracked frames for the rotation rule
         self._dropped_at_estimate: dict[str, int] = {}
 
     # -- set-up ---------------------------------------------------------------------------------------------------
@@ -355,19 +355,33 @@ class App:
         state = self.view.snapshot.state if self.view is not None else ""
         if state and state not in TRACKED_STATES:
             return f"tracking {state}"
-        if not self._estimates_seen:
+        if self.o.condition is Condition.ROTATION:
+            return "no tracked frames from the device"
+        if not self._inputs_seen:
             return "no estimate yet" + ("" if self.o.local else f" from {self.o.estimator}")
         return "estimates stale" + ("" if self.o.local else f" (remote {self.o.estimator})")
+
+    def _inputs_now(self) -> int:
+        """How many inputs of the kind the condition's advisory plays from have arrived: the device's tracked feature
+        frames for the rotation rule (its angular speed), the estimates otherwise (``none`` logs what Equation 2
+        would have played)."""
+        return self.watcher.tracked_frames if self.o.condition is Condition.ROTATION else self.watcher.estimates
 
     def _account_information(self) -> None:
         """Advance the information clock with what the device logged and the app received since the last look."""
         now = time.monotonic()
         if self.view.snapshot.frames > 0:
             self.information.first_frame(now)
-        if self.watcher.estimates > self._estimates_seen:
+        # Only while the device delivers frames: the time after its newest one (it ended, and the app notices at its
+        # next look) is not time in which the person moved without information.
+        newest_frame = self.watcher.last_frame_mono
+        if newest_frame is not None:
+            now = min(now, newest_frame)
+        inputs = self._inputs_now()
+        if inputs > self._inputs_seen:
             self.information.advance(now, self._why_no_information())
             self.information.estimate(now)
-            self._estimates_seen = self.watcher.estimates
+            self._inputs_seen = inputs
             self._dropped_at_estimate = dict(self.view.snapshot.estimator_dropped or {})
         else:
             self.information.advance(now, self._why_no_information())
