@@ -247,3 +247,30 @@ def test_a_failed_start_is_no_attempt_and_no_sound_card_means_a_jack_dummy(no_so
     assert read_events(aside).kind.tolist()[-1] == "stop"
     assert "JACK Audio Connection Kit" in (aside / "configs" / "advisory.toml").read_text()
     assert next_attempt_folder(phase).name == "attempt-1"
+
+
+def test_a_device_that_ignores_sigint_is_terminated_after_the_timeout(tmp_path):
+    """What keeps `q` from hanging on a device that does not end (a live camera that never stops delivering):
+    SIGINT, then, after the timeout, SIGTERM."""
+    import subprocess
+    import sys
+
+    from seesys.io.children import Child
+
+    code = ("import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); print('ready', flush=True); "
+            "time.sleep(600)")
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    assert process.stdout.readline().strip() == "ready"
+    device = Child("device", process, tmp_path / "device.log")
+    assert device.interrupt(0.5) == -15 and not device.running  # SIGTERM ended it
+
+
+def test_a_collapsed_replay_log_is_refused_before_anything_starts(within, tmp_path):
+    study, protocol = within
+    log = tmp_path / "est.csv"
+    log.write_text("timestamp,error_m\n" + "1.3050311e+09,0.01\n" * 10)
+    with pytest.raises(SeesysError, match="lost their precision"):
+        Session(RunOptions(study, protocol.participants[0].id, "task", replay_estimates=log), load_study_config(),
+                OperatorInput(io.StringIO("")), Console(file=io.StringIO()))
+    assert not list(study.rglob("attempt-*"))
