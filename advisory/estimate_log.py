@@ -1,4 +1,5 @@
-"""Estimate logs (CSV with columns ``timestamp,error_m``), the input of ``render`` and ``replay``."""
+"""Estimate logs (CSV with columns ``timestamp,error_m`` and optionally ``frame_index``), the input of ``render``
+and ``replay``."""
 
 from __future__ import annotations
 
@@ -11,16 +12,36 @@ import pandas as pd
 from seesys.core.errors import SeesysError
 
 COLUMNS = ("timestamp", "error_m")
+FRAME_INDEX = "frame_index"
 
 
 @dataclass(frozen=True)
 class EstimateLog:
     timestamps: np.ndarray  # seconds, non-decreasing
     errors_m: np.ndarray
+    frame_indices: np.ndarray | None = None  # the logged frame index of each estimate (None: the log has none)
+
+    def frame_index(self, row: int) -> int:
+        """The frame index of row ``row``: the logged one, or the row number in a log without frame indices."""
+        return int(self.frame_indices[row]) if self.frame_indices is not None else row
+
+
+def _collapsed(path: Path, timestamps: np.ndarray) -> str | None:
+    """Why the timestamps cannot be a session's times (most rows share a time with the row before), or None.
+
+    A log whose timestamps lost their digits (epoch times written with 9 significant digits keep only 10 s steps)
+    would put all its estimates at a few instants: the pulses pile up there instead of following the session."""
+    repeats = int(np.count_nonzero(np.diff(timestamps) == 0))
+    if repeats * 2 <= timestamps.size:
+        return None
+    distinct = np.unique(timestamps).size
+    return (f"{path}: {timestamps.size} estimates at only {distinct} distinct time(s): its timestamps have lost "
+            f"their precision (write them in full, e.g. again with `seesys estimator estimate`)")
 
 
 def read_estimate_log(path: Path) -> EstimateLog:
-    """Read and validate an estimate log; a problem raises a SeesysError naming the file and the row."""
+    """Read and validate an estimate log; a problem raises a SeesysError naming the file and the row, and so do
+    timestamps that collapsed onto a few values."""
     try:
         table = pd.read_csv(path)
     except FileNotFoundError:
@@ -44,4 +65,16 @@ def read_estimate_log(path: Path) -> EstimateLog:
     backwards = np.flatnonzero(np.diff(values["timestamp"]) < 0)
     if backwards.size:
         raise SeesysError(f"{path}: row {int(backwards[0]) + 3}: timestamps go backwards")
-    return EstimateLog(values["timestamp"], values["error_m"])
+    collapsed = _collapsed(path, values["timestamp"])
+    if collapsed:
+        raise SeesysError(collapsed)
+    frames = None
+    if FRAME_INDEX in table.columns:
+        numbers = pd.to_numeric(table[FRAME_INDEX], errors="coerce").to_numpy(dtype=np.float64)
+        bad = np.flatnonzero(~np.isfinite(numbers) | (numbers < 0) | (numbers != np.round(numbers)))
+        if bad.size:
+            row = int(bad[0])
+            raise SeesysError(f"{path}: row {row + 2}: {FRAME_INDEX} {table[FRAME_INDEX].iloc[row]!r} is not a "
+                              f"frame index (a non-negative integer)")
+        frames = numbers.astype(np.int64)
+    return EstimateLog(values["timestamp"], values["error_m"], frames)

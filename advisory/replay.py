@@ -34,6 +34,7 @@ def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkCon
                      sent_log: Path | None = None) -> int:
     """Publish every estimate at ``first send + (timestamp − first timestamp)``; returns how many were sent.
 
+    Each estimate carries the log's frame index (the row number in a log without a ``frame_index`` column).
     No estimate is sent before its time. One that falls behind (a busy machine) is sent at once and the ones
     after it keep the original schedule, so the replay does not drift. With ``sent_log``, each estimate's
     ``frame_index``, ``timestamp`` and ``sent_mono`` (CLOCK_MONOTONIC just before the send) is written to that
@@ -53,10 +54,11 @@ def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkCon
                 sent_mono = _wait_until(start + (float(timestamp) - first))
                 if index == 0:
                     start = sent_mono  # the schedule runs from the first send, however late that was
-                pub.send_multipart(encode(Estimate(replay.replay_device_id, index, float(timestamp),
+                frame_index = log.frame_index(index)
+                pub.send_multipart(encode(Estimate(replay.replay_device_id, frame_index, float(timestamp),
                                                    float(error_m), replay.replay_model_version)))
                 if sent is not None:
-                    sent.write(index, float(timestamp), sent_mono)
+                    sent.write(frame_index, float(timestamp), sent_mono)
                 progress.advance(task)
         return int(log.timestamps.size)
     finally:

@@ -10,7 +10,7 @@ from rich.table import Table
 
 from study.config import load_study_config
 from study.protocol import make_protocol, read_protocol, write_protocol
-from study.sessions import attempt_folders, phase_status
+from study.sessions import DONE_STATUSES, attempt_folders, phase_status
 
 
 def new_command(args: argparse.Namespace) -> int:
@@ -35,7 +35,7 @@ def run_command(args: argparse.Namespace) -> int:
     result = Session(options, load_study_config(), OperatorInput(), console).run()
     print(f"{result.attempt}: {result.status}, {result.frames} frames, {result.estimates} estimates, "
           f"{result.events} events")
-    return 0 if result.status == "completed" else 1
+    return 0 if result.status in DONE_STATUSES else 130 if result.status == "interrupted" else 1
 
 
 def status_command(args: argparse.Namespace) -> int:
@@ -75,7 +75,8 @@ def register(commands: argparse._SubParsersAction) -> None:
                             description="Starts the device (seesys monitor run --stream), the advisory in the "
                                         "participant's condition, the mocap logger and optionally an estimate "
                                         "replay; logs estimates and the operator's events (keys i, o, n, q) into "
-                                        "a new attempt folder of the participant.")
+                                        "a new attempt folder of the participant. q ends the task and stops the "
+                                        "session (stopped, exit 0); Ctrl-C interrupts it (interrupted, exit 130).")
     p.add_argument("study", type=Path, metavar="DIR")
     p.add_argument("--participant", required=True, metavar="ID")
     p.add_argument("--phase", required=True, metavar="PHASE", help="a phase of the protocol (training, task)")

@@ -58,6 +58,7 @@ class RunnerConfig:
     record_mocap: bool
     status_interval_s: float
     ready_timeout_s: float
+    device_interrupt_timeout_s: float
     stop_timeout_s: float
     calibrate_at_end: bool
 

@@ -22,6 +22,9 @@
   ORB-SLAM3 starts a new map then; a loss with only ``RECENTLY_LOST`` frames relocalised in the same map).
   Without a frame log the resets are unknown (None).
 - **Time on task**: from the first frame to the last (or between the operator's start and end events).
+
+Every metric is over the task's span: when the operator ended the task (``q`` in ``seesys study run``) before the
+device stopped, the frames logged after that end are left out (:func:`task_span`).
 """
 
 from __future__ import annotations
@@ -209,10 +212,23 @@ def completeness_from_poses(estimate: Poses, reference: Poses, cfg: MetricsConfi
     return Completeness(fraction, int(round(span / step)), int(len(lost)), float(lost.sum()), float(end - times[0]))
 
 
+def task_span(estimate: Poses, frames: pd.DataFrame | None,
+              end_s: float) -> tuple[Poses, pd.DataFrame | None]:
+    """The poses and frames of a recording up to the end of the task (``end_s``, the timestamp of its last frame:
+    frames after the operator ended the task are kept in the session but are not the participant's task)."""
+    estimate = estimate.take(estimate.timestamps <= end_s)
+    if frames is not None:
+        frames = frames[frames["timestamp"].to_numpy(float) <= end_s]
+    return estimate, frames
+
+
 def measure(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
-            frames: pd.DataFrame | None = None) -> tuple[RpeResult, Completeness]:
-    """The error pairs and the completeness of one recording; with its frame log (``frames``) the stretches and
-    the completeness come from the tracking states, without it from the poses."""
+            frames: pd.DataFrame | None = None, task_end_s: float | None = None) -> tuple[RpeResult, Completeness]:
+    """The error pairs and the completeness of one recording, over the task's span only when it ended at
+    ``task_end_s`` (:func:`task_span`); with its frame log (``frames``) the stretches and the completeness come from
+    the tracking states, without it from the poses."""
+    if task_end_s is not None:
+        estimate, frames = task_span(estimate, frames, task_end_s)
     if frames is not None and len(frames):
         return (relative_pose_error(estimate, reference, monocular, cfg, stretches_from_frames(frames)),
                 completeness_from_frames(frames))

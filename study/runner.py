@@ -11,11 +11,20 @@ Each run writes a new attempt folder (``study.sessions``) and, as child processe
 
 In the runner itself, a thread logs every estimate it receives (``study.watch``), another reads the operator's
 event keys (``study.operator``) into ``events.csv``, and a status line shows the tracking state, the latest
-estimate, the advisory's pulses, the mocap rate and the frames the device could not publish. The session ends
-when the device's source ends or the operator presses ``q`` (the device is interrupted and keeps its files);
-the other children are then stopped. ``run.json`` says ``running`` (with the runner's pid) until then and the
-outcome after; every log is appended line by line and flushed, so a runner killed at any moment leaves files
-that parse (its children die with it). Without a ground truth from the source, the mocap is calibrated into
+estimate, the advisory's pulses, the mocap rate and the frames the device could not publish. Every child runs with
+the attempt's copy of the configs (``configs/``); in an audible condition on a machine without a sound card the
+advisory plays into a JACK dummy server the runner starts, as ``seesys run`` does (``advisory.output``).
+
+The session ends when the device's source ends (``completed``), when the operator presses ``q`` (``stopped``: the
+task ended then; ``run.json`` ``task_end`` and an event ``task_end`` give the time and the last frame logged by
+then, and the frames the device logs after it stay in the session, outside the task's metrics), or on Ctrl-C or
+SIGTERM (``interrupted``). The device then gets SIGINT: it ends its source, closes its files and says so in
+``session.json`` (``interrupted``), normally within a second; one that has not exited after
+``device_interrupt_timeout_s`` is terminated. The other children are stopped after it. ``run.json`` says
+``running`` (with the runner's pid) until then and the outcome after; every log is appended line by line and
+flushed, so a runner killed at any moment leaves files that parse (its children die with it). A run that fails
+before the device logged a frame (a part that does not start, no audio, no camera) is no attempt: its folder is
+renamed ``failed-start-<UTC time>``. Without a ground truth from the source, the mocap is calibrated into
 ``groundtruth.tum`` at the end (``study.mocap.calibrate``).
 """
 
@@ -27,6 +36,7 @@ import math
 import os
 import queue
 import signal
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,9 +45,15 @@ from rich.console import Console
 from rich.live import Live
 from rich.text import Text
 
+from advisory.conditions import Condition
+from advisory.config import load_advisory_config
+from advisory.estimate_log import read_estimate_log
+from advisory.output import AudioOutput, open_audio_output
+from advisory.process import stop_on_signals
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
 from seesys.io.children import Child, RowCounter, last_line
+from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.logfiles import CsvLog, write_json_atomically
 from seesys.io.network import load_network_config
 from seesys.io.session_files import utc_now
@@ -46,10 +62,21 @@ from study.mocap.calibrate import CALIBRATION_JSON, GROUND_TRUTH, MOCAP_LOG, cal
 from study.mocap.logger import CLOCKS, MOCAP_STATS
 from study.operator import KEYS_HELP, OperatorEvent, OperatorInput
 from study.protocol import Protocol, ProtocolError, read_protocol
-from study.sessions import DONE, EVENTS_CSV, RUN_JSON, attempt_folders, next_attempt_folder, phase_status, read_run
+from study.sessions import (
+    DONE,
+    DONE_STATUSES,
+    EVENTS_CSV,
+    RUN_JSON,
+    attempt_folders,
+    next_attempt_folder,
+    phase_status,
+    read_run,
+    set_aside_failed_start,
+)
 from study.watch import StreamWatcher
 
 EVENT_COLUMNS = ("time", "kind", "detail")
+CONFIGS = "configs"
 # How long the runner waits for its subscriber sockets before starting the publishers.
 SUBSCRIBER_READY_S = 5.0
 
@@ -118,7 +145,11 @@ class Session:
                               f"are kept, marked superseded)")
         self.source = options.source or cfg.runner.source
         self.mode = options.mode or cfg.runner.mode
+        if options.replay_estimates is not None:
+            read_estimate_log(options.replay_estimates)  # a bad log is refused before anything starts
         self.children: dict[str, Child] = {}
+        self.output: AudioOutput | None = None
+        self.env: dict[str, str] | None = None
         self.frames = self.advisory_rows = lambda: 0
         self.objects = 0
         self.events_logged = 0
@@ -154,14 +185,15 @@ class Session:
                     f"  N {self.pulses}  mocap {mocap}  drop {watcher.frames_skipped}+"
                     f"{watcher.losses.lost_in_transit}  obj {self.objects}")
 
-    def _start_children(self) -> None:
+    def _start(self, name: str, args: list[str]) -> None:
+        self.children[name] = Child.start(name, args, self.attempt, self.env)
+
+    def _start_children(self, stop: threading.Event) -> None:
         """The advisory and the mocap logger first; the device once both are running, so that the participant
-        never starts without audio or ground truth."""
+        never starts without audio or ground truth. KeyboardInterrupt when a signal comes meanwhile."""
         if self.record_mocap:
-            self.children["mocap"] = Child.start("mocap", ["study", "mocap", "log", "--out", str(self.attempt)],
-                                                 self.attempt)
-        self.children["advisory"] = Child.start("advisory", ["advisory", "run", "--condition", self.condition,
-                                                             "--out", str(self.attempt)], self.attempt)
+            self._start("mocap", ["study", "mocap", "log", "--out", str(self.attempt)])
+        self._start("advisory", ["advisory", "run", "--condition", self.condition, "--out", str(self.attempt)])
         ready = {"advisory": lambda: self.advisory_rows() > 0,
                  "mocap": lambda: (self.attempt / MOCAP_STATS).exists()}
         deadline = time.monotonic() + self.cfg.runner.ready_timeout_s
@@ -174,7 +206,8 @@ class Session:
                 late = [name for name in self.children if not ready[name]()]
                 raise SeesysError(f"{' and '.join(late)} not running after {self.cfg.runner.ready_timeout_s:g} s "
                                   f"(logs: {self.attempt / 'logs'})")
-            time.sleep(self.cfg.runner.status_interval_s)
+            if stop.wait(self.cfg.runner.status_interval_s):
+                raise KeyboardInterrupt
         device = ["monitor", "run", "--source", self.source, "--mode", self.mode, "--out", str(self.attempt),
                   "--stream"]
         if self.o.max_frames:
@@ -182,7 +215,7 @@ class Session:
         if self.o.pace is not None:
             # a recording standing in for the participant's camera plays in real time, as the camera would
             device.append("--real-time" if self.o.pace else "--no-pace")
-        self.children["device"] = Child.start("device", device, self.attempt)
+        self._start("device", device)
 
     def _handle(self, event: OperatorEvent) -> bool:
         """Act on an operator event (the input thread has logged it); False when it ends the session."""
@@ -190,7 +223,70 @@ class Session:
             self.objects = int(event.detail)
         return event.kind != "end"
 
+    def _task_end(self, event: OperatorEvent) -> dict:
+        """The end of the task (``q``): when the operator pressed it and the last frame the device had logged by
+        then (None: none yet). Frames the device logs after it are kept, outside the task."""
+        row = last_line(self.attempt / "frames.csv").split(",")
+        try:
+            frame, timestamp = int(row[0]), float(row[1])
+        except (IndexError, ValueError):
+            frame = timestamp = None
+        return {"time": event.time, "frame_index": frame, "timestamp": timestamp}
+
+    def _audio(self, events: CsvLog) -> None:
+        """The run's configs (``configs/``, what every child runs with) and environment; in an audible condition
+        the sound goes to the output device or, without one, to a JACK dummy server started here, as ``seesys
+        run`` does (``advisory.output``)."""
+        overrides: dict[str, object] = {}
+        if Condition(self.condition).audible:
+            self.output = open_audio_output(load_advisory_config().audio)
+            overrides = self.output.overrides
+            if self.output.unavailable is not None:
+                self.console.print(f"no audio output ({self.output.unavailable}): the advisory plays into a "
+                                   f"{self.output.description}", markup=False, highlight=False)
+            self._event(events, "audio", self.output.description)
+            self._run_json(audio=self.output.description)
+        config_dir = write_config_dir(self.attempt / CONFIGS, overrides)
+        self.env = {**os.environ, CONFIG_DIR_ENV: str(config_dir), **(self.output.env() if self.output else {})}
+
+    def _wait_for_the_device(self, stop: threading.Event, watcher: StreamWatcher, events: CsvLog) -> str | None:
+        """Until the device ends (None), the operator ends the task (``stopped``) or a signal comes
+        (``interrupted``)."""
+        # The status line is drawn on a terminal only; a script or test gets the summary at the end.
+        if self.console.is_terminal:
+            self.console.print(f"{self.attempt}: {KEYS_HELP}")
+        with (Live(self._status_line(watcher), console=self.console, transient=True, refresh_per_second=4)
+              if self.console.is_terminal else contextlib.nullcontext()) as live:
+            while self.children["device"].running:
+                if stop.is_set():
+                    return "interrupted"
+                try:
+                    event = self.operator.events.get(timeout=self.cfg.runner.status_interval_s)
+                    if not self._handle(event):
+                        task_end = self._task_end(event)
+                        self._run_json(task_end=task_end)
+                        self._event(events, "task_end", f"frame {task_end['frame_index']}", event.time)
+                        return "stopped"
+                except queue.Empty:
+                    pass
+                if self.o.replay_estimates and "replay" not in self.children and self.frames() > 0:
+                    self._start("replay", ["advisory", "replay", "--estimates", str(self.o.replay_estimates)])
+                if live is not None:
+                    live.update(self._status_line(watcher))
+        return None
+
     def run(self) -> RunResult:
+        # Ctrl-C and SIGTERM set `stop`, from here to the end: the device is interrupted and closes its files, then
+        # the rest stops, and a second signal cannot cut that short.
+        handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+        stop = stop_on_signals()
+        try:
+            return self._run(stop)
+        finally:
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+
+    def _run(self, stop: threading.Event) -> RunResult:
         if self.o.restart:
             _supersede(self.phase_folder)
         self.attempt = next_attempt_folder(self.phase_folder)
@@ -206,57 +302,48 @@ class Session:
         watcher.start()
         watcher.wait_ready(SUBSCRIBER_READY_S)
         self._event(events, "start", self.attempt.name)
-        ended_by_operator = interrupted = False
-        device_rc: int | None = None
+        ended: str | None = None
         self.operator.record = lambda e: self._event(events, e.kind, e.detail, e.time)
         self.operator.start()
         start_error: str | None = None
         try:
-            self._start_children()
+            self._audio(events)
+            self._start_children(stop)
             self._event(events, "device", "started")
-            # The status line is drawn on a terminal only; a script or test gets the summary at the end.
-            if self.console.is_terminal:
-                self.console.print(f"{self.attempt}: {KEYS_HELP}")
-            with (Live(self._status_line(watcher), console=self.console, transient=True, refresh_per_second=4)
-                  if self.console.is_terminal else contextlib.nullcontext()) as live:
-                while self.children["device"].running:
-                    try:
-                        event = self.operator.events.get(timeout=self.cfg.runner.status_interval_s)
-                        if not self._handle(event):
-                            ended_by_operator = True
-                            self.children["device"].signal(signal.SIGINT)
-                            break
-                    except queue.Empty:
-                        pass
-                    if self.o.replay_estimates and "replay" not in self.children and \
-                            self.frames() > 0:
-                        self.children["replay"] = Child.start(
-                            "replay", ["advisory", "replay", "--estimates", str(self.o.replay_estimates)],
-                            self.attempt)
-                    if live is not None:
-                        live.update(self._status_line(watcher))
-        except KeyboardInterrupt:  # Ctrl-C: the device keeps its files, the attempt is marked interrupted
-            interrupted = True
-            if "device" in self.children:
-                self.children["device"].signal(signal.SIGINT)
+            ended = self._wait_for_the_device(stop, watcher, events)
+        except KeyboardInterrupt:  # a signal while starting
+            ended = "interrupted"
         except SeesysError as e:
             start_error = str(e)
+        if ended == "interrupted":
+            self._event(events, "interrupted", "signal received")
         try:
-            device_rc = self.children["device"].process.wait() if "device" in self.children else None
+            device_rc = (self.children["device"].interrupt(self.cfg.runner.device_interrupt_timeout_s)
+                         if "device" in self.children else None)
         finally:
             self.operator.restore_terminal()
             exits = {name: child.stop(self.cfg.runner.stop_timeout_s) for name, child in self.children.items()}
             watcher.stop()
-        status = ("interrupted" if interrupted else "failed" if start_error else
-                  "completed" if device_rc == 0 or ended_by_operator else "failed")
+            if self.output is not None:
+                self.output.stop()
+        status = ended or ("failed" if start_error else "completed" if device_rc == 0 else "failed")
         self.operator.record = None  # events typed from now on belong to no session
         self._event(events, "stop", status)
         events.close()
         details = {"status": status, "ended": utc_now(), "exit_codes": exits,
                    "frames": self.frames(), "estimates": watcher.estimates,
                    "bad_messages": watcher.bad_messages, "watcher_error": watcher.error,
-                   "device_error": None if status == "completed" or "device" not in self.children
+                   "device_error": None if status in (*DONE_STATUSES, "interrupted") or "device" not in self.children
                    else self.children["device"].last_line(), "start_error": start_error}
+        if status == "failed" and details["frames"] == 0:
+            # Nothing was recorded: no attempt of the participant's. The folder is set aside, unnumbered.
+            failed = self.attempt
+            self.attempt = set_aside_failed_start(failed)
+            message = (start_error or f"the device failed before its first frame: {details['device_error']}")
+            message = message.replace(str(failed), str(self.attempt))
+            details.update(failed_start=True, start_error=message, calibration="not calibrated")
+            self._run_json(**details)
+            raise SeesysError(f"{message} (a failed start, not counted as an attempt; its logs: {self.attempt})")
         details["calibration"] = self._calibrate()
         self._run_json(**details)
         if start_error:

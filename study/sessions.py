@@ -4,16 +4,22 @@ Every ``seesys study run`` writes one attempt folder (``attempt-<n>``, never reu
 (``frames.csv``, ``trajectory.tum``, ``session.json``, ...), ``groundtruth.tum``, the study's logs and
 ``run.json`` (participant, phase, condition, status, start and end). An attempt whose ``run.json`` still says
 ``running`` after its process is gone was killed: it is ``incomplete`` and its data count like any other. A
-restart marks the earlier attempts of the phase ``superseded``: they stay on disk but leave the metrics.
+restart marks the earlier attempts of the phase ``superseded``: they stay on disk but leave the metrics. A phase is
+done when an attempt ``completed`` (the source ended) or was ``stopped`` (the operator ended the task); one that was
+``interrupted`` (Ctrl-C) is not. A run that failed before its device recorded a frame is no attempt: its folder is
+renamed ``failed-start-<UTC time>`` (kept for its logs, never numbered).
 
-A participant's metrics pool the non-superseded attempts of the analysed phase (``study.metrics.combine``).
+A participant's metrics pool the non-superseded attempts of the analysed phase (``study.metrics.combine``), each
+over its task only: frames logged after the operator ended the task (``run.json`` ``task_end``) are left out.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +38,9 @@ EVENTS_CSV = "events.csv"
 EVENTS_HEADER = "time,kind,detail"
 ATTEMPT = re.compile(r"attempt-(\d+)$")
 DONE, INCOMPLETE, PENDING = "done", "incomplete", "pending"
+# An attempt with one of these statuses did the phase: the source ended, or the operator ended the task (``q``).
+DONE_STATUSES = ("completed", "stopped")
+FAILED_START = "failed-start-"
 
 
 def attempt_folders(phase_folder: Path) -> list[Path]:
@@ -49,6 +58,19 @@ def next_attempt_folder(phase_folder: Path) -> Path:
     folder = phase_folder / f"attempt-{number}"
     folder.mkdir(parents=True)
     return folder
+
+
+def set_aside_failed_start(attempt: Path) -> Path:
+    """Rename the folder of a run that failed before its device recorded anything to ``failed-start-<UTC time>``:
+    kept for its logs, and neither an attempt nor a number of one."""
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    target = attempt.with_name(FAILED_START + stamp)
+    n = 1
+    while target.exists():
+        n += 1
+        target = attempt.with_name(f"{FAILED_START}{stamp}-{n}")
+    attempt.rename(target)
+    return target
 
 
 def _alive(pid: object) -> bool:
@@ -78,7 +100,7 @@ def used_attempts(phase_folder: Path) -> list[Path]:
 
 def phase_status(phase_folder: Path) -> str:
     runs = [read_run(a) for a in used_attempts(phase_folder)]
-    if any(r.get("status") == "completed" for r in runs):
+    if any(r.get("status") in DONE_STATUSES for r in runs):
         return DONE
     return INCOMPLETE if runs else PENDING
 
@@ -98,6 +120,16 @@ def time_on_task(events: pd.DataFrame) -> float | None:
     if start.empty or objects.empty or objects.max() <= start.min():
         return None
     return float(objects.max() - start.min())
+
+
+def task_end_s(attempt: Path) -> float | None:
+    """The timestamp of the last frame of the task when the operator ended it (``run.json`` ``task_end``; -inf when
+    no frame was logged by then), None when the task ran to the device's end."""
+    end = read_run(attempt).get("task_end")
+    if not isinstance(end, dict):
+        return None
+    timestamp = end.get("timestamp")
+    return -math.inf if timestamp is None else float(timestamp)
 
 
 @dataclass(frozen=True)
@@ -131,7 +163,7 @@ def participant_metrics(attempts: list[Path],
             continue
         monocular = _monocular(attempt)
         frames = read_frame_log(attempt / "frames.csv") if (attempt / "frames.csv").exists() else None
-        rpe, part = measure(estimate, reference, monocular, cfg, frames)
+        rpe, part = measure(estimate, reference, monocular, cfg, frames, task_end_s(attempt))
         marked = time_on_task(read_events(attempt))
         rpes.append(rpe)
         parts.append(part)

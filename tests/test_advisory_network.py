@@ -18,14 +18,8 @@ def live_rows(sandbox) -> pd.DataFrame:
     return sandbox.advisory().query("status == 'live'")
 
 
-def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make_sandbox):
-    sandbox = make_sandbox(None)
-    t = np.arange(0, 2, 1 / 30)
-    errors = np.where(t < 1, 0.006, 0.02)
-    log, sent_log = sandbox.root / "estimates.csv", sandbox.root / "sent.csv"
-    pd.DataFrame({"timestamp": t + 50.0, "error_m": errors}).to_csv(log, index=False)
-    sandbox.generator("none")  # silent: needs no audio device
-    wait_started(sandbox, "generator")
+def replay_and_receive(sandbox, log, sent_log) -> tuple[list[Estimate], str]:
+    """Run ``seesys advisory replay`` on ``log`` to its end; the estimates a subscriber received, and its output."""
     ctx = zmq.Context()
     sub = subscriber(ctx, sandbox.estimates_endpoint, "test estimates", [ESTIMATE_TOPIC])
     received: list[Estimate] = []
@@ -38,6 +32,18 @@ def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make
     sub.close()
     ctx.term()
     assert replay.returncode == 0, err
+    return received, out
+
+
+def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make_sandbox):
+    sandbox = make_sandbox(None)
+    t = np.arange(0, 2, 1 / 30)
+    errors = np.where(t < 1, 0.006, 0.02)
+    log, sent_log = sandbox.root / "estimates.csv", sandbox.root / "sent.csv"
+    pd.DataFrame({"timestamp": t + 50.0, "error_m": errors}).to_csv(log, index=False)
+    sandbox.generator("none")  # silent: needs no audio device
+    wait_started(sandbox, "generator")
+    received, out = replay_and_receive(sandbox, log, sent_log)
     assert f"published {t.size} estimates" in out
     # All arrived, in order, as they were in the log.
     assert [m.frame_index for m in received] == list(range(t.size))
@@ -117,3 +123,14 @@ def test_run_none_starts_only_the_generator_and_needs_no_audio_device(make_sandb
     assert run.wait(15) == 0
     processes = set(sandbox.events().process.str.split("[").str[0])
     assert processes == {"supervisor", "generator"}
+
+
+def test_replay_sends_the_logged_frame_index(make_sandbox):
+    sandbox = make_sandbox(None)
+    t = np.arange(0, 0.5, 1 / 30)
+    frames = 40 + 3 * np.arange(t.size)  # a device's estimates: every third frame, from frame 40
+    log, sent_log = sandbox.root / "estimates.csv", sandbox.root / "sent.csv"
+    pd.DataFrame({"frame_index": frames, "timestamp": t + 50.0, "error_m": 0.006}).to_csv(log, index=False)
+    received, _ = replay_and_receive(sandbox, log, sent_log)
+    assert [m.frame_index for m in received] == frames.tolist()
+    assert pd.read_csv(sent_log).frame_index.tolist() == frames.tolist()

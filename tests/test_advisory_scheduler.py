@@ -219,3 +219,24 @@ def test_handoff_buffer_round_trip_and_rejects_garbage():
     for bad in (body[:10], b"XXXX" + body[4:], body[:-4]):
         with pytest.raises(HandoffError):
             decode_buffer(bad)
+
+
+def test_an_estimate_log_whose_timestamps_collapsed_is_refused_in_one_line(tmp_path):
+    """Epoch times written with 9 significant digits: 24 estimates of 0.8 s fall on 1 or 2 distinct times. Rendered,
+    every pulse would sound at 0 s; render (and replay, which reads the log the same way) refuse it instead."""
+    times = 1305031102.175 + np.arange(24) / 30
+    path = tmp_path / "collapsed.csv"
+    path.write_text("frame_index,timestamp,error_m\n" + "".join(f"{k},{t:.9g},0.02\n" for k, t in enumerate(times)))
+    with pytest.raises(SeesysError, match=r"24 estimates at only [12] distinct time"):
+        read_estimate_log(path)
+    for command in ("render", "replay"):
+        args = ["--out", str(tmp_path / "x.wav")] if command == "render" else []
+        result = subprocess.run([sys.executable, "-m", "seesys", "advisory", command, "--estimates", str(path),
+                                 *args], capture_output=True, text=True, timeout=120)
+        assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
+        assert "lost their precision" in result.stderr
+    # Two rows at one time (a duplicate) are no collapse; the frame index column is read when there is one.
+    path.write_text("frame_index,timestamp,error_m\n7,1.5,0.01\n9,1.5,0.02\n12,2.0,0.0\n")
+    log = read_estimate_log(path)
+    assert log.frame_indices.tolist() == [7, 9, 12] and log.frame_index(2) == 12
+    assert read_estimate_log(steps_log(tmp_path)).frame_index(5) == 5  # no column: the row number

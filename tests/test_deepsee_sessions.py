@@ -59,14 +59,16 @@ def single_thread():
         yield
 
 
-def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float = 1.0) -> Path:
-    """A labelled RGB-D session folder whose errors follow a hidden per-segment difficulty (module docstring)."""
+def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float = 1.0, t0: float = 0.0) -> Path:
+    """A labelled RGB-D session folder whose errors follow a hidden per-segment difficulty (module docstring); its
+    times start at ``t0`` (an epoch time, as a RealSense or TUM recording has)."""
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True, exist_ok=True)
-    t = np.arange(frames) / FPS
+    elapsed = np.arange(frames) / FPS
+    t = t0 + elapsed
     difficulty = np.repeat(rng.uniform(0, 1, frames // SEGMENT + 1), SEGMENT)[:frames]
-    gt_pos = np.column_stack([0.3 * np.sin(0.5 * t), 0.1 * t, 0.2 * np.cos(0.4 * t)])
-    gt_rot = Rotation.from_euler("y", 0.3 * t[:, None])
+    gt_pos = np.column_stack([0.3 * np.sin(0.5 * elapsed), 0.1 * elapsed, 0.2 * np.cos(0.4 * elapsed)])
+    gt_rot = Rotation.from_euler("y", 0.3 * elapsed[:, None])
     sigma = noise_scale * (0.0005 + 0.006 * difficulty)
     est_pos = gt_pos + rng.normal(size=(frames, 3)) * sigma[:, None]
     quats = gt_rot.as_quat()

@@ -15,7 +15,7 @@ from test_deepsee_sessions import single_thread, tiny_config, tiny_dataset, trai
 
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, save_model
 from estimator.deepsee.data import read_splits, split_windows
-from estimator.deepsee.inference import predict
+from estimator.deepsee.inference import batch_tensors, predict
 from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant, row
 from estimator.deepsee.run_folder import CONFIG_JSON, LOSS_PNG, METRICS_CSV, MODEL_PT, RunFolder
@@ -166,3 +166,56 @@ def test_ablation_masks_hide_what_they_drop(tiny_dataset):
     torch.testing.assert_close(model(changed_rts, changed_psd), base)
     changed_rts[..., rts_schema.index_of("contrast")] += 1.0
     assert not torch.allclose(model(changed_rts, changed_psd), base)
+
+
+def _random_windows(seed: int, count: int):
+    from estimator.deepsee.data import Windows
+    from seesys.core import rts_schema
+    from test_deepsee_sessions import PSD_SHAPE
+
+    rng = np.random.default_rng(seed)
+    windows = load_window_config()
+    rts = rng.normal(size=(count, windows.rts_length, rts_schema.NUM_CHANNELS)).astype(np.float32)
+    psd = rng.integers(0, 256, size=(count, windows.psd_samples, *PSD_SHAPE, 3), dtype=np.uint8)
+    meta = pd.DataFrame({"run": f"r{seed}", "frame_index": np.arange(count), "timestamp": np.arange(count) / 30})
+    return Windows(rts, psd, np.full(count, 0.01), meta)
+
+
+def test_the_encoder_cache_is_reused_only_for_the_same_encoders_and_windows(tmp_path):
+    """Stage (c)'s cache of the frozen encoders' outputs: the same windows and encoders read it back without encoding
+    again; other windows of the same count, or encoders trained again, are encoded afresh."""
+    from estimator.deepsee.stages import _cached_encodings
+
+    first, other = _random_windows(1, 40), _random_windows(2, 40)
+    with Progress(disable=True) as progress:
+        ctx = _context(progress)
+        model = DeepSEE(ctx.config.model, first.input_shape())
+        run = RunFolder(tmp_path / "run", {"test": "cache"}, torch.device("cpu"))
+        calls = []
+        encode = model.encode
+        model.encode = lambda *a: calls.append(1) or encode(*a)
+
+        def fresh(windows):
+            with torch.no_grad():
+                model.eval()
+                r, p = encode(*batch_tensors(windows, np.arange(len(windows)), torch.device("cpu"), True))
+                model.train()
+            return r.numpy().astype(np.float16), p.numpy().astype(np.float16)
+
+        r1 = np.array(_cached_encodings(run, model, first, "train", ctx)[0])
+        encoded = len(calls)
+        assert encoded > 0
+        again = _cached_encodings(run, model, first, "train", ctx)
+        assert len(calls) == encoded  # read back, not encoded again
+        np.testing.assert_array_equal(again[0], r1)
+        r2, p2 = map(np.array, _cached_encodings(run, model, other, "train", ctx))
+        assert len(calls) > encoded
+        np.testing.assert_allclose(r2, fresh(other)[0], atol=1e-3)
+        np.testing.assert_allclose(p2, fresh(other)[1], atol=1e-3)
+        assert not np.allclose(np.asarray(r2, np.float32), np.asarray(r1, np.float32))
+        with torch.no_grad():  # the encoders trained again (e.g. another pretrained run folder)
+            for parameter in model.rts_encoder.parameters():
+                parameter.add_(0.05)
+        r3, _ = _cached_encodings(run, model, other, "train", ctx)
+        np.testing.assert_allclose(r3, fresh(other)[0], atol=1e-3)
+        assert not np.allclose(np.asarray(r3, np.float32), np.asarray(r2, np.float32))

@@ -173,3 +173,40 @@ def test_cli_trains_a_row_into_a_run_folder_and_resumes(tiny_dataset, tmp_path, 
     assert "holds a run with a different schedule" in capsys.readouterr().err
     metrics = pd.read_csv(tmp_path / "run" / "metrics.csv")
     assert set(metrics.stage) == {"lstm"} and list(metrics.epoch) == list(range(tiny_config().schedules.reduced.lstm.epochs + 1))
+
+
+class _ConstantPredictor:
+    """A stand-in model: the same estimate for every window (the estimate log's format is under test, not a model)."""
+
+    def metres(self, windows) -> np.ndarray:
+        return np.full(len(windows), 0.02)
+
+
+def test_a_session_with_epoch_timestamps_renders_its_pulses_across_its_whole_duration(tmp_path):
+    """Epoch times (a RealSense or TUM recording) keep their milliseconds in the estimate log, so the advisory's
+    pulses follow the session instead of piling up at its start."""
+    from advisory.config import load_advisory_config
+    from advisory.render import render_estimates
+    from estimator.deepsee.estimate import estimate_session
+    from test_deepsee_sessions import FPS
+
+    session = write_session(tmp_path / "epoch", seed=7, frames=240, t0=1305031102.175)
+    out = tmp_path / "estimates.csv"
+    table = estimate_session(_ConstantPredictor(), session, load_window_config(), out)
+    text = out.read_text().splitlines()
+    assert text[0] == "frame_index,timestamp,error_m"
+    first = text[1].split(",")
+    assert first[0].isdigit() and "e" not in first[1]  # an integer frame index, a timestamp in full
+    log = read_estimate_log(out)
+    np.testing.assert_array_equal(log.timestamps, table.timestamp.to_numpy())
+    np.testing.assert_array_equal(log.frame_indices, table.frame_index.to_numpy())
+    assert np.unique(log.timestamps).size == len(table) > 100
+    assert np.allclose(np.diff(log.timestamps), 1 / FPS, atol=2e-6)
+    cfg = load_advisory_config()
+    rendering = render_estimates(log, cfg)
+    duration = log.timestamps[-1] - log.timestamps[0]
+    assert rendering.samples.size / cfg.audio.sample_rate >= duration
+    pulsing = [d.time for d in rendering.decisions if d.n_pulses > 0]
+    # A 2 cm estimate sounds on every buffer, from the first estimate to the last.
+    assert pulsing[0] <= cfg.timing.cadence_s and pulsing[-1] >= duration - cfg.timing.cadence_s
+    assert len(pulsing) >= duration / cfg.timing.cadence_s - 1

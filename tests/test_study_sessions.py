@@ -6,20 +6,38 @@ from __future__ import annotations
 import io
 import json
 import os
+import shutil
+import socket
+import tempfile
 import time
+from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
+from conftest import SAMPLE
 from rich.console import Console
 
 from seesys.core.errors import SeesysError
+from seesys.core.trajectory import Poses
 from seesys.io.children import RowCounter
 from seesys.io.network import load_network_config
+from seesys.io.trajectory_files import write_tum
 from study.config import load_study_config
 from study.mocap.logger import MOCAP_STATS
 from study.operator import OperatorInput
 from study.protocol import make_protocol, write_protocol
 from study.runner import RunOptions, Session, choose_condition
-from study.sessions import INCOMPLETE, next_attempt_folder, phase_status, read_run
+from study.metrics import read_frame_log
+from study.sessions import (
+    INCOMPLETE,
+    attempt_folders,
+    next_attempt_folder,
+    participant_metrics,
+    phase_status,
+    read_events,
+    read_run,
+)
 from study.watch import StreamWatcher
 
 
@@ -127,3 +145,132 @@ def test_end_of_session_calibration_writes_the_ground_truth(within, tmp_path):
     outcome = session._calibrate()
     assert outcome.startswith("failed: a trajectory does not rotate") and "seesys study calibrate" in outcome
     assert not (session.attempt / "groundtruth.tum").exists()
+
+
+def test_a_stopped_attempt_did_the_phase_and_an_interrupted_one_did_not(tmp_path):
+    phase = tmp_path / "task"
+    (next_attempt_folder(phase) / "run.json").write_text(json.dumps({"status": "interrupted"}))
+    assert phase_status(phase) == INCOMPLETE
+    (next_attempt_folder(phase) / "run.json").write_text(json.dumps({"status": "stopped"}))
+    assert phase_status(phase) == "done"
+
+
+def _recorded_attempt(folder, task_end_frame: int | None, frames: int = 240):
+    """An attempt whose trajectory follows the ground truth until frame 120, then jitters by centimetres and loses
+    tracking from frame 180: what a device logs after the operator ended the task, the camera put down."""
+    rng = np.random.default_rng(3)
+    folder.mkdir(parents=True)
+    t = 1000.0 + np.arange(frames) / 30
+    truth = np.column_stack([0.2 * np.sin(np.arange(frames) / 40), 0.001 * np.arange(frames), np.zeros(frames)])
+    quats = np.tile([0.0, 0.0, 0.0, 1.0], (frames, 1))
+    states = np.array(["OK"] * frames, dtype=object)
+    states[180:] = "LOST"
+    estimate = truth + rng.normal(scale=0.0005, size=truth.shape)
+    estimate[120:] += rng.normal(scale=0.03, size=(frames - 120, 3))
+    tracked = states == "OK"
+    write_tum(folder / "groundtruth.tum", Poses(t, truth, quats))
+    write_tum(folder / "trajectory.tum", Poses(t[tracked], estimate[tracked], quats[tracked]))
+    pd.DataFrame({"frame_index": np.arange(frames), "timestamp": t, "state": states, "tracked_points": 300,
+                  "track_ms": 20.0}).to_csv(folder / "frames.csv", index=False)
+    run = {"status": "completed"}
+    if task_end_frame is not None:
+        run = {"status": "stopped", "task_end": {"time": 0.0, "frame_index": task_end_frame,
+                                                 "timestamp": float(t[task_end_frame])}}
+    (folder / "run.json").write_text(json.dumps(run))
+    return folder, t
+
+
+def test_the_metrics_use_the_task_span_only(tmp_path):
+    """Frames logged after the operator ended the task (run.json's task_end) stay in the session but leave its
+    metrics: the same as if the device had stopped at the task's end."""
+    cfg = load_study_config().metrics
+    stopped, t = _recorded_attempt(tmp_path / "stopped", task_end_frame=119)
+    ran_on, _ = _recorded_attempt(tmp_path / "ran_on", task_end_frame=None)
+    metrics, per_attempt = participant_metrics([stopped], cfg)
+    assert metrics.completeness == 1.0 and metrics.tracking_losses == 0
+    assert metrics.rpe_max_m < 0.005 and per_attempt[0].rpe.timestamps.max() <= t[119]
+    assert metrics.time_on_task_s == pytest.approx(t[119] - t[0])
+    whole, _ = participant_metrics([ran_on], cfg)
+    assert whole.completeness < 0.9 and whole.rpe_max_m > 0.02  # what the frames after the end would have added
+    frames = read_frame_log(stopped / "frames.csv")
+    assert len(frames) == 240  # the frames after the end are kept in the session
+    (stopped / "run.json").write_text(json.dumps({"status": "stopped", "task_end": {"time": 0.0, "frame_index": None,
+                                                                                      "timestamp": None}}))
+    nothing, _ = participant_metrics([stopped], cfg)
+    assert nothing.pairs == 0  # ended before the device logged a frame: no frame was in the task
+
+
+@pytest.fixture
+def no_sound_card(monkeypatch):
+    """Configs with private ipc endpoints, an output device no machine has and the mocap at a closed port: an
+    audible condition must fall back to a JACK dummy server, and the mocap logger fails while starting."""
+    from advisory.sandbox import JackDummy
+    from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+
+    if not JackDummy.available():
+        pytest.skip("jackd is not installed (apt package jackd2)")
+    root = Path(tempfile.mkdtemp(prefix="snc", dir="/tmp"))  # ipc paths are at most 107 bytes
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        closed_port = s.getsockname()[1]
+    configs = write_config_dir(root / "configs", {
+        "endpoint": f"ipc://{root}/handoff", "estimates_endpoint": f"ipc://{root}/estimates",
+        "features_endpoint": f"ipc://{root}/features", "output_device": "no-such-sound-card",
+        "backend": "vicon", "hostname": "127.0.0.1", "port": closed_port, "connect_timeout_s": 2.0})
+    monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
+    yield root
+    shutil.rmtree(root, ignore_errors=True)
+
+
+def test_a_failed_start_is_no_attempt_and_no_sound_card_means_a_jack_dummy(no_sound_card):
+    """`study run` in the seesys condition on a machine without the configured sound card starts the JACK dummy
+    server `seesys run` starts; a start that fails (here the mocap logger) leaves its folder set aside, unnumbered,
+    and the next run is attempt-1."""
+    protocol = make_protocol(load_study_config().protocol, participants_per_condition=1)
+    study = no_sound_card / "study"
+    write_protocol(study, protocol)
+    person = next(p for p in protocol.participants if p.conditions == ["seesys"])
+    console = io.StringIO()
+    session = Session(RunOptions(study, person.id, "task", source=f"tum:{SAMPLE}", record_mocap=True),
+                      load_study_config(), OperatorInput(io.StringIO("")), Console(file=console))
+    with pytest.raises(SeesysError) as e:
+        session.run()
+    message = str(e.value)
+    assert "mocap" in message and "failed start, not counted as an attempt" in message and "\n" not in message
+    phase = session.phase_folder
+    assert attempt_folders(phase) == [] and phase_status(phase) == "pending"
+    (aside,) = [p for p in phase.iterdir()]
+    assert aside.name.startswith("failed-start-") and str(aside) in message
+    run = json.loads((aside / "run.json").read_text())
+    assert run["status"] == "failed" and run["failed_start"] is True and str(aside / "logs") in run["start_error"]
+    assert run["audio"].startswith("JACK dummy server") and "no audio output" in console.getvalue()
+    assert read_events(aside).kind.tolist()[-1] == "stop"
+    assert "JACK Audio Connection Kit" in (aside / "configs" / "advisory.toml").read_text()
+    assert next_attempt_folder(phase).name == "attempt-1"
+
+
+def test_a_device_that_ignores_sigint_is_terminated_after_the_timeout(tmp_path):
+    """What keeps `q` from hanging on a device that does not end (a live camera that never stops delivering):
+    SIGINT, then, after the timeout, SIGTERM."""
+    import subprocess
+    import sys
+
+    from seesys.io.children import Child
+
+    code = ("import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); print('ready', flush=True); "
+            "time.sleep(600)")
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    assert process.stdout.readline().strip() == "ready"
+    device = Child("device", process, tmp_path / "device.log")
+    assert device.interrupt(0.5) == -15 and not device.running  # SIGTERM ended it
+
+
+def test_a_collapsed_replay_log_is_refused_before_anything_starts(within, tmp_path):
+    study, protocol = within
+    log = tmp_path / "est.csv"
+    log.write_text("timestamp,error_m\n" + "1.3050311e+09,0.01\n" * 10)
+    with pytest.raises(SeesysError, match="lost their precision"):
+        Session(RunOptions(study, protocol.participants[0].id, "task", replay_estimates=log), load_study_config(),
+                OperatorInput(io.StringIO("")), Console(file=io.StringIO()))
+    assert not list(study.rglob("attempt-*"))

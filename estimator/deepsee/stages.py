@@ -5,7 +5,8 @@ DeepSEE (paper §5.4, here on the training runs of a cross-validation round):
 (a) PSD masked reconstruction (:mod:`estimator.deepsee.ssl`), early stopping on the validation runs' loss;
 (b) TS2Vec on the RTS encoder, in epochs of :data:`TS2VEC_EPOCH` iterations;
 (c) supervised, both encoders frozen: their outputs for the training and validation windows are computed once
-    and cached in the run folder (``state/cache_*.npy``), and only the fusion and the head are trained;
+    and cached in the run folder (``state/cache_*.npy``, reused only for the same encoders and windows), and only
+    the fusion and the head are trained;
 (d) supervised fine-tuning of the whole model on the training runs (the paper's real-data stage; on a lab's real
     sessions, ``seesys estimator finetune``).
 
@@ -16,7 +17,10 @@ folder as ``pretrained`` starts from them and trains (c) and (d) on the ablation
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import os
 import pickle
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -134,15 +138,45 @@ def _load_encoders(model: DeepSEE, path: Path) -> None:
         model.psd_encoder.load_state_dict(state["psd_encoder"])
 
 
+def _encodings_key(model: DeepSEE, windows: Windows) -> str:
+    """What the cached encodings were computed from: the encoders (architecture and weights) and every window's
+    content (RTS, PSD when the model reads it, and which run and frame it is). Two sets of windows of the same
+    count, or encoders trained again, give another key."""
+    digest = hashlib.sha256()
+    for module in model.encoder_modules():
+        digest.update(repr(module).encode())
+        for name, tensor in module.state_dict().items():
+            digest.update(name.encode())
+            digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    digest.update(repr((windows.rts.shape, windows.rts.dtype)).encode())
+    digest.update(np.ascontiguousarray(windows.rts).tobytes())
+    digest.update(windows.meta.to_csv(index=False).encode())
+    if model.psd_encoder is not None:
+        for i in range(len(windows)):
+            digest.update(np.ascontiguousarray(windows.psd_at(i)).tobytes())
+    return digest.hexdigest()
+
+
 @torch.no_grad()
 def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: str,
                       ctx: TrainContext) -> tuple[np.ndarray, np.ndarray | None]:
-    """The frozen encoders' tokens of every window (float16 on disk; computed once per run folder)."""
+    """The frozen encoders' tokens of every window (float16 on disk), computed once per run folder for the same
+    encoders and windows: ``state/cache_<part>.json`` holds the key of what the arrays were computed from
+    (:func:`_encodings_key`), and any other key computes them again."""
     paths = (run.state / f"cache_{part}_rts.npy", run.state / f"cache_{part}_psd.npy")
-    if paths[0].exists() and (paths[1].exists() or model.psd_encoder is None):
-        r = np.load(paths[0], mmap_mode="r")
-        if len(r) == len(windows):
-            return r, (np.load(paths[1], mmap_mode="r") if model.psd_encoder is not None else None)
+    key_path = run.state / f"cache_{part}.json"
+    key = _encodings_key(model, windows)
+
+    def cached() -> tuple[np.ndarray, np.ndarray | None]:
+        return (np.load(paths[0], mmap_mode="r"),
+                np.load(paths[1], mmap_mode="r") if model.psd_encoder is not None else None)
+
+    try:
+        if json.loads(key_path.read_text())["key"] == key:
+            return cached()
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    key_path.unlink(missing_ok=True)  # the arrays are rewritten below: no key may vouch for them meanwhile
     model.eval()
     rs, ps = [], []
     batch = ctx.config.evaluation.batch_size
@@ -153,10 +187,13 @@ def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: st
         if p is not None:
             ps.append(p.cpu().numpy().astype(np.float16))
     model.train()
-    np.save(paths[0], np.concatenate(rs))
-    if ps:
-        np.save(paths[1], np.concatenate(ps))
-    return _cached_encodings(run, model, windows, part, ctx)
+    for path, arrays in zip(paths, (rs, ps)):
+        if arrays:  # a new file, not the old one rewritten: arrays mapped from the old one keep their content
+            temporary = path.with_name(path.stem + ".tmp.npy")
+            np.save(temporary, np.concatenate(arrays))
+            os.replace(temporary, path)
+    key_path.write_text(json.dumps({"key": key, "windows": len(windows)}) + "\n")
+    return cached()
 
 
 def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedule: StageSchedule,

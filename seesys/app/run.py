@@ -24,7 +24,7 @@ the rest; every child also dies with the app if the app itself is killed (``sees
 
 Audio: the configured output device (``configs/advisory.toml`` ``[audio]``; the default one unless named). With
 none (no sound card), or with ``--wav``, the player plays into a private JACK dummy server that the app starts
-(``advisory.sandbox``), paced in real time like a sound card, and the WAV is the only output; without ``jackd``
+(``advisory.output``), paced in real time like a sound card, and the WAV is the only output; without ``jackd``
 installed that is an error.
 """
 
@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +39,7 @@ from pathlib import Path
 from advisory.conditions import Condition
 from advisory.config import load_advisory_config
 from advisory.process import stop_on_signals
-from advisory.sandbox import JACK_HOST_API, JackDummy
+from advisory.output import AudioOutput, open_audio_output
 from advisory.supervisor import process_commands
 from estimator.service.config import load_service_config
 from seesys.app.config import AppConfig, load_app_config
@@ -147,7 +146,7 @@ class App:
         check_source(options.source, self.mode)
         self.folder = _new_folder(options.out)
         self.parts: dict[str, _Part] = {}
-        self.jack: JackDummy | None = None
+        self.output: AudioOutput | None = None  # where the player's audio goes (audible conditions)
         self.audio = "none (silent condition)"
         self.view: LiveView | None = None
         self.watcher: StreamWatcher | None = None  # the app's subscriber to the device's feature stream
@@ -163,22 +162,11 @@ class App:
         """Where the audio goes: the output device, or a JACK dummy server and the WAV (see the module doc)."""
         if not self.o.condition.audible:
             return {}
-        if not self.o.wav:
-            from advisory.audio_device import AudioDeviceError, check_output_device
-
-            try:
-                device = check_output_device(self.advisory.audio)
-                self.audio = f"output device {device.name!r} ({device.host_api})"
-                return {}
-            except AudioDeviceError as e:
-                self.event("app", "no audio output", f"{e}; playing into a WAV instead")
-        if not JackDummy.available():
-            raise SeesysError("no sound card, and jackd is not installed to write the audio to a WAV instead "
-                              "(apt package jackd2), or run with --condition none")
-        self.jack = JackDummy(self.advisory.audio.sample_rate, self.advisory.audio.blocksize)
-        self.jack.start()
-        self.audio = f"WAV only (JACK dummy server {self.jack.name}, no sound card used)"
-        return {"host_api": JACK_HOST_API, "output_device": ""}
+        self.output = open_audio_output(self.advisory.audio, dummy=self.o.wav)
+        if self.output.unavailable is not None:
+            self.event("app", "no audio output", f"{self.output.unavailable}; playing into a WAV instead")
+        self.audio = self.output.description if self.output.jack is None else f"WAV only ({self.output.description})"
+        return self.output.overrides
 
     def _configure(self) -> dict[str, str]:
         """The run's config folder and the children's environment."""
@@ -187,8 +175,8 @@ class App:
             overrides["estimates_endpoint"] = self.estimates_endpoint
         self.config_dir = write_config_dir(self.folder / CONFIGS, overrides)
         env = {**os.environ, CONFIG_DIR_ENV: str(self.config_dir)}
-        if self.jack is not None:
-            env.update(self.jack.env())
+        if self.output is not None:
+            env.update(self.output.env())
         return env
 
     def event(self, part: str, event: str, detail: str = "") -> None:
@@ -323,11 +311,7 @@ class App:
         device = self.parts.get("device")
         if device is not None:
             # SIGINT: the device ends its source, flushes and closes its files, and prints its summary.
-            device.child.signal(signal.SIGINT)
-            try:
-                exits["device"] = device.child.process.wait(timeout)
-            except subprocess.TimeoutExpired:
-                exits["device"] = device.child.stop(timeout)
+            exits["device"] = device.child.interrupt(timeout)
         for name, part in self.parts.items():
             if name != "device":
                 exits[name] = part.child.stop(timeout)
@@ -413,8 +397,8 @@ class App:
             self._exits = self._stop_children()
             if self.watcher is not None:
                 self.watcher.stop()
-            if self.jack is not None:
-                self.jack.stop()
+            if self.output is not None:
+                self.output.stop()
         return self._exits
 
     def run(self) -> RunResult:

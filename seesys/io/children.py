@@ -68,6 +68,15 @@ class Child:
                 pass
             return self.process.wait()
 
+    def interrupt(self, timeout_s: float) -> int:
+        """SIGINT (a device ends its source and closes its files), and :meth:`stop` if it has not exited after
+        ``timeout_s``; returns the exit status."""
+        self.signal(signal.SIGINT)
+        try:
+            return self.process.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            return self.stop(timeout_s)
+
     def last_line(self) -> str:
         try:
             lines = self.log.read_text(errors="replace").strip().splitlines()
