@@ -56,10 +56,12 @@ def _build(args: argparse.Namespace) -> int:
     plan = plan_from_config(config, synth, template, args.envs, args.motions,
                             args.seeds, args.modes, args.trials,
                             args.processes)
-    builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
     if args.ray is None:
+        builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
         result = builder.build(plan)
     else:
+        # Absolute: a task on another node does not run in this folder.
+        builder = DatasetBuilder(args.out.absolute(), config, synth, load_label_config(), load_window_config())
         with ray_executor(args.ray or None) as executor:
             result = builder.build(plan, executor)
     stored = [r for r in result.runs_done if r.status in WITH_SAMPLES]

@@ -23,6 +23,8 @@ from polling import wait_for
 SOCKET_PATH_MAX = 107
 SESSION_AND_SOCKET = 64  # "/session_2026-11-25_08-27-14_639978_92400/sockets/plasma_store" and a margin
 RAY_ENV = ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_ADDRESS")
+# One token for the test process: Ray's driver keeps the first token it read, and a later instance must accept it.
+TOKEN = secrets.token_hex(16)
 
 
 def _short_folder(tmp_path_factory) -> tuple[Path, bool]:
@@ -33,14 +35,19 @@ def _short_folder(tmp_path_factory) -> tuple[Path, bool]:
     return Path(tempfile.mkdtemp(prefix="ray", dir="/tmp")), True
 
 
-def _ray_processes(before: set[int]) -> list[psutil.Process]:
-    """This process's descendants started since ``before`` by Ray (its servers and workers; not, say,
-    multiprocessing's resource tracker, which a local build beside starts) that are still running."""
+def _is_ray(process: psutil.Process, ray_dir: str) -> bool:
+    """Ray's servers (``gcs_server``, ``raylet``, its Python services under the ray package) and workers
+    (``ray::...``); not, say, multiprocessing's resource tracker, which a local build in the test starts."""
+    command = " ".join(process.cmdline())
+    return process.name() in ("gcs_server", "raylet") or command.startswith("ray::") or ray_dir in command
+
+
+def _ray_processes(before: set[int], ray_dir: str) -> list[psutil.Process]:
+    """This process's descendants started by Ray since ``before`` that are still running."""
     alive = []
     for child in psutil.Process().children(recursive=True):
         try:
-            if (child.pid not in before and child.status() != psutil.STATUS_ZOMBIE
-                    and "ray" in " ".join(child.cmdline())):
+            if child.pid not in before and child.status() != psutil.STATUS_ZOMBIE and _is_ray(child, ray_dir):
                 alive.append(child)
         except psutil.NoSuchProcess:
             continue
@@ -58,16 +65,17 @@ def local_ray(tmp_path_factory):
         os.environ.pop(name, None)
     # With no RAY_AUTH_MODE a new local instance turns token authentication on (for this process and its children,
     # through the environment) and uses this token rather than writing one into ~/.ray.
-    os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(16)
+    os.environ["RAY_AUTH_TOKEN"] = TOKEN
     before = {p.pid for p in psutil.Process().children(recursive=True)}
-    ray.init(num_cpus=2, num_gpus=0, include_dashboard=False, log_to_driver=False, _temp_dir=str(folder),
-             _node_ip_address="127.0.0.1", object_store_memory=200 * 1024 * 1024, logging_level=logging.WARNING)
     try:
+        ray.init(num_cpus=2, num_gpus=0, include_dashboard=False, log_to_driver=False, _temp_dir=str(folder),
+                 _node_ip_address="127.0.0.1", object_store_memory=200 * 1024 * 1024, logging_level=logging.WARNING)
         yield ray
     finally:
         ray.shutdown()
-        wait_for(lambda: not _ray_processes(before), 120,
-                 lambda: f"Ray's processes to end: {[p.cmdline()[:3] for p in _ray_processes(before)]}")
+        ray_dir = str(Path(ray.__file__).parent)
+        wait_for(lambda: not _ray_processes(before, ray_dir), 120,
+                 lambda: f"Ray's processes to end: {[p.cmdline()[:3] for p in _ray_processes(before, ray_dir)]}")
         for name, value in saved.items():
             if value is None:
                 os.environ.pop(name, None)

@@ -62,7 +62,9 @@ def table_jobs(roots: list[Path], splits: Splits, rounds: list[int], rows: list[
                spec: TrainSpec) -> list[Job]:
     """``rows`` × ``rounds`` as jobs, in training order per round. A row on cuda reserves a GPU (the random
     forest, which never uses one, does not); an ablation that starts from DeepSEE's encoders comes after its
-    round's DeepSEE job when DeepSEE is among ``rows``."""
+    round's DeepSEE job when DeepSEE is among ``rows``. Paths are made absolute here: a task on another node does not
+    run in this folder."""
+    roots, runs = [Path(r).absolute() for r in roots], Path(runs).absolute()
     jobs = []
     for round_index in rounds:
         order = training_order(rows)
