@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import pytest
+import torch
 from conftest import REPO, run_seesys
 from ray_fixtures import local_ray  # noqa: F401 (a pytest fixture)
 
@@ -143,6 +144,9 @@ def test_table_jobs_reserve_a_gpu_on_cuda_and_ablations_wait_for_deepsee():
     assert jobs[job_name(1, "wo_ssl")].after == () and jobs[job_name(0, "lstm")].after == ()
     cpu_only = table_jobs([], None, [0], ["wo_psd", "lstm"], REPO, TrainSpec(None, "reduced", None, "cpu", 1, {}))
     assert [(j.gpus, j.after) for j in cpu_only] == [(0, ()), (0, ())]  # no DeepSEE job to wait for
+    if not torch.cuda.is_available():  # a node whose torch has no CUDA says so in one line, before any work
+        with pytest.raises(SeesysError, match=r"^--device cuda: no CUDA device for the task on .* \(this torch is "):
+            LocalExecutor().run([jobs[job_name(0, "lstm")]], RecordingProgress())
 
 
 def _closed_port() -> int:

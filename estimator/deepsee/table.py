@@ -10,6 +10,7 @@ each row × round is a Ray task that reads its round's windows itself and trains
 
 from __future__ import annotations
 
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from estimator.deepsee.evaluate import round_folder
 from estimator.deepsee.rows import DEEPSEE, RANDOM_FOREST, Row, row, training_order
 from estimator.deepsee.stages import ENCODERS_PT, TrainContext, train_row
 from estimator.jobs import Job, JobEnv
+from seesys.core.errors import SeesysError
 from seesys.core.windows import WindowConfig
 
 
@@ -82,6 +84,9 @@ def row_job(roots: list[Path], splits: Splits, round_index: int, row_name: str, 
     """One row × round (a job of :func:`table_jobs`): its round's windows, then :func:`train_table_row`."""
     import torch
 
+    if spec.device == "cuda" and not torch.cuda.is_available():
+        raise SeesysError(f"--device cuda: no CUDA device for the task on {socket.gethostname()} (this torch is "
+                          f"{torch.__version__})")
     torch.set_num_threads(spec.threads)
     ctx = TrainContext(spec.config, spec.schedule_name, spec.windows, torch.device(spec.device), env.progress,
                        {**spec.provenance, "round": round_index})
