@@ -14,6 +14,7 @@ from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
 from estimator.dataset.sample import make_sample
 from estimator.dataset.splits import write_splits
 from estimator.dataset.store import WITH_SAMPLES
+from estimator.jobs import add_ray_argument, ray_executor
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec
 from seesys.core import session_layout
@@ -55,8 +56,14 @@ def _build(args: argparse.Namespace) -> int:
     plan = plan_from_config(config, synth, template, args.envs, args.motions,
                             args.seeds, args.modes, args.trials,
                             args.processes)
-    builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
-    result = builder.build(plan)
+    if args.ray is None:
+        builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
+        result = builder.build(plan)
+    else:
+        # Absolute: a task on another node does not run in this folder.
+        builder = DatasetBuilder(args.out.absolute(), config, synth, load_label_config(), load_window_config())
+        with ray_executor(args.ray or None) as executor:
+            result = builder.build(plan, executor)
     stored = [r for r in result.runs_done if r.status in WITH_SAMPLES]
     render_rate = result.rendered_frames / result.render_seconds if result.rendered_frames else 0.0
     print(f"{result.sequences} sequences ({result.rendered_frames} frames rendered in {result.render_seconds:.0f} s, "
@@ -141,6 +148,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--processes", type=int, help="render processes (default: configs/synth.toml)")
     p.add_argument("--distortion", action="store_true", help="render with the configured lens distortion")
     p.add_argument("--no-keep-sessions", action="store_true", help="delete each device session folder once stored")
+    add_ray_argument(p, "each render and SLAM run")
     p.set_defaults(func=_build)
 
     p = sub.add_parser("report", help="label distribution against the targets, feature-vs-error correlations")

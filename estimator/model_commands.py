@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from estimator.deepsee.rows import ROW_NAMES, row
+from estimator.jobs import add_ray_argument
 from seesys.core.errors import SeesysError
 from seesys.io import resources
 
@@ -67,10 +68,33 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train_table_on_ray(args: argparse.Namespace) -> int:
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.data import read_splits
+    from estimator.deepsee.loop import progress_bar
+    from estimator.deepsee.table import TrainSpec, table_jobs
+    from estimator.jobs import load_ray_settings, ray_executor
+    from seesys.io.core_settings import load_window_config
+
+    if args.threads is not None and args.threads < 1:
+        raise SeesysError("--threads must be at least 1")
+    threads = args.threads or load_ray_settings().train_cpus
+    spec = TrainSpec(load_estimator_config(), args.schedule, load_window_config(), args.device, threads,
+                     _provenance(args))
+    jobs = table_jobs(args.data, read_splits(args.splits), args.rounds, args.rows, args.runs, spec)
+    with ray_executor(args.ray or None) as executor, progress_bar() as progress:
+        executor.run(jobs, progress)
+    for r in args.rounds:
+        print(f"round {r}: {len(jobs) // len(args.rounds)} rows trained under {args.runs} (on Ray)")
+    return 0
+
+
 def _train_table(args: argparse.Namespace) -> int:
     from estimator.deepsee.data import read_splits
     from estimator.deepsee.table import train_table
 
+    if args.ray is not None:
+        return _train_table_on_ray(args)
     splits = read_splits(args.splits)
     for r in args.rounds:
         ctx = _context(args, {"round": r})
@@ -204,6 +228,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--rows", type=_rows, default=list(ROW_NAMES), help="comma-separated rows, or all (default)")
     p.add_argument("--runs", type=Path, required=True, help="folder for round_<r>/<row>/ run folders")
     _training_arguments(p)
+    add_ray_argument(p, "each row × round (reserving --threads CPUs, default train_cpus of configs/ray.toml, and a "
+                        "GPU with --device cuda)")
     p.set_defaults(func=_train_table)
 
     p = sub.add_parser("evaluate", help="Table 3 report of the trained rows (Markdown, CSV, PNG)")

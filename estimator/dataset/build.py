@@ -1,9 +1,12 @@
 """Build the labelled dataset: render, then play every sequence through ORB-SLAM3 + the RTS monitor, label, store.
 
-Order matters: every sequence is rendered first (:func:`estimator.synth.batch.render_batch`), and only then are
-the SLAM runs made, one at a time, each in its own child process (:func:`run_supervised_session`), at camera
-pace. Rendering while SLAM runs would take the CPU from ORB-SLAM3's threads and change the errors being
-measured (monocular ORB-SLAM3 tracked 21 % of an easy sequence with two renders running beside it).
+Order matters: every sequence is rendered first (one job per sequence, :func:`estimator.synth.batch.plan_batch`),
+and only then are the SLAM runs made, one job per run, each in its own child process
+(:func:`run_supervised_session`), at camera pace. Rendering while SLAM runs would take the CPU from ORB-SLAM3's
+threads and change the errors being measured (monocular ORB-SLAM3 tracked 21 % of an easy sequence with two
+renders running beside it). Here the jobs run one at a time; with ``--ray`` (:mod:`estimator.jobs`) each is a Ray
+task reserving its CPUs (a render its processes, a run ``slam_cpus`` of configs/ray.toml), the same jobs with the
+same skip rules and writes.
 
 Each (sequence, mode, trial) becomes one run of the store (:mod:`estimator.dataset.store`); a finished run is
 never redone, so an interrupted build continues where it stopped. When ORB-SLAM3 crashes or hangs part-way
@@ -14,6 +17,7 @@ input, a crash at start) is recorded with its error and skipped.
 
 from __future__ import annotations
 
+import copy
 import json
 import shutil
 import time
@@ -40,7 +44,8 @@ from estimator.dataset.store import (
     run_name,
     write_run,
 )
-from estimator.synth.batch import expand_environments, expand_motions, render_batch
+from estimator.jobs import Job, JobEnv, LocalExecutor, RayExecutor, load_ray_settings
+from estimator.synth.batch import expand_environments, expand_motions, plan_batch, render_into
 from estimator.synth.config import SynthConfig
 from estimator.synth.sequence import SequenceSpec
 from seesys.core import rts_schema, session_layout
@@ -63,6 +68,7 @@ MONITOR_OBSERVER = "slam_monitor.monitor:create_observer"
 # What a sample is: a later build into the same folder must agree on all of these.
 DEFINITION_KEYS = ("rts_channels", "rts_schema_version", "windows", "labels", "samples", "pace",
                    "wait_for_mapping_modes")
+PROGRESS_COLUMNS = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
 
 
 @dataclass(frozen=True)
@@ -183,42 +189,50 @@ class DatasetBuilder:
             raise SeesysError(f"configs/dataset.toml window_end_stride: {e}") from None
         self.config_dir = config_dir
 
-    def build(self, plan: BuildPlan) -> BuildResult:
+    def build(self, plan: BuildPlan, executor: LocalExecutor | RayExecutor | None = None) -> BuildResult:
+        """Render, then run; ``executor`` runs the render and SLAM jobs (default: here, one after the other; a
+        :class:`~estimator.jobs.RayExecutor` runs them as Ray tasks). Either way the jobs and what they skip and
+        write are the same."""
+        executor = executor or LocalExecutor()
         self.root.mkdir(parents=True, exist_ok=True)
         self._write_description(plan)
-        batch = render_batch(plan.template, plan.environments, plan.motions, plan.seeds, self.synth,
-                             self.root / SEQUENCES_DIR, plan.render_processes)
-        self._log({"phase": "render", "render_processes": plan.render_processes or self.synth.processes,
-                   "rendered_frames": batch.frames, "render_seconds": batch.seconds})
-        for sequence in batch.rendered:
-            self._drop_runs_of(sequence.name)
-        sequences = sorted(batch.rendered + batch.skipped)
+        processes = plan.render_processes or self.synth.processes
+        renders, rendered_before = plan_batch(plan.template, plan.environments, plan.motions, plan.seeds, self.synth,
+                                              self.root / SEQUENCES_DIR)
+        render_jobs = [Job(folder.name, render_job, (spec, self.synth, folder, processes), cpus=processes)
+                       for spec, folder in renders]
+        start = time.perf_counter()
+        with Progress(*PROGRESS_COLUMNS, disable=not render_jobs) as progress:
+            renders_task = progress.add_task("renders", total=len(render_jobs))
+            frames = sum(executor.run(render_jobs, progress, lambda job, _: progress.advance(renders_task),
+                                      self.config_dir))
+        render_seconds = time.perf_counter() - start
+        self._log({"phase": "render", "render_processes": processes, "rendered_frames": frames,
+                   "render_seconds": render_seconds})
+        for _, folder in renders:
+            self._drop_runs_of(folder.name)
+        sequences = sorted([folder for _, folder in renders] + rendered_before)
         jobs = [(seq, mode, trial) for seq in sequences for mode in plan.modes for trial in range(plan.trials)]
         todo = [job for job in jobs if read_run_info(run_folder(self.root, run_name(job[0].name, job[1].value,
                                                                                      job[2]))) is None]
-        done: list[RunInfo] = []
+        slam_cpus = load_ray_settings(self.config_dir).slam_cpus if isinstance(executor, RayExecutor) else 1
+        slam_jobs = [Job(run_name(seq.name, mode.value, trial), slam_job, (self, seq, mode, trial), cpus=slam_cpus)
+                     for seq, mode, trial in todo]
         start = time.perf_counter()
-        columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-        with Progress(*columns) as progress:
+        with Progress(*PROGRESS_COLUMNS) as progress:
             runs_task = progress.add_task("SLAM runs", total=len(todo))
-            frames_task = progress.add_task("frames", total=None)
-            for sequence, mode, trial in todo:
-                name = run_name(sequence.name, mode.value, trial)
-                progress.update(frames_task, description=name, completed=0, total=None)
-
-                def on_event(event, task=frames_task):
-                    if isinstance(event, SessionStarted):
-                        progress.update(task, total=event.frame_count)
-                    elif isinstance(event, FrameTracked):
-                        progress.update(task, completed=event.frame_index + 1)
-
-                done.append(self._run(sequence, mode, trial, on_event))
-                progress.advance(runs_task)
-        result = BuildResult(len(sequences), batch.frames, batch.seconds, done, len(jobs) - len(todo),
+            done = executor.run(slam_jobs, progress, lambda job, _: progress.advance(runs_task), self.config_dir)
+        result = BuildResult(len(sequences), frames, render_seconds, done, len(jobs) - len(todo),
                              time.perf_counter() - start)
         self._log({"phase": "runs", "runs": len(result.runs_done), "crashed": len(result.crashed),
                    "slam_frames": sum(r.frames for r in result.runs_done), "slam_seconds": result.slam_seconds})
         return result
+
+    def with_config_dir(self, config_dir: Path | None) -> DatasetBuilder:
+        """The same builder, its device sessions reading their settings from ``config_dir``."""
+        builder = copy.copy(self)
+        builder.config_dir = config_dir
+        return builder
 
     def _drop_runs_of(self, sequence: str) -> None:
         """Delete the stored runs and sessions of ``sequence``: it was just (re-)rendered, so any run of it already
@@ -308,3 +322,26 @@ class DatasetBuilder:
         partial = replace(crashed, status=PARTIAL, frames=len(arrays.frames), frames_tracked=tracked,
                           samples=len(arrays.samples), seconds=time.perf_counter() - start)
         return self._store(partial, arrays, session_dir)
+
+
+def render_job(spec: SequenceSpec, synth: SynthConfig, folder: Path, processes: int, env: JobEnv) -> int:
+    """One sequence of the build's batch (a job of :meth:`DatasetBuilder.build`); returns its frame count."""
+    return render_into(spec, synth, folder, processes, progress=env.progress)
+
+
+def slam_job(builder: DatasetBuilder, sequence: Path, mode: SlamMode, trial: int, env: JobEnv) -> RunInfo:
+    """One (sequence, mode, trial) run: SLAM, label, store (a job of :meth:`DatasetBuilder.build`), its frames on
+    a bar of their own."""
+    progress = env.progress
+    task = progress.add_task(run_name(sequence.name, mode.value, trial), total=None)
+
+    def on_event(event) -> None:
+        if isinstance(event, SessionStarted):
+            progress.update(task, total=event.frame_count)
+        elif isinstance(event, FrameTracked):
+            progress.update(task, completed=event.frame_index + 1)
+
+    try:
+        return builder.with_config_dir(env.config_dir)._run(sequence, mode, trial, on_event)
+    finally:
+        progress.remove_task(task)

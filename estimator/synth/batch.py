@@ -77,15 +77,11 @@ def _rendered_with_current_preset(folder: Path, environment: str, config: SynthC
     return recorded == preset_record(preset, config.camera_model(preset.camera_model))
 
 
-def render_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
-                 config: SynthConfig, root: Path, processes: int | None = None) -> BatchResult:
-    """Render environments × motions × seeds under ``root`` (``template`` gives length, size, lens, blur).
-
-    Each sequence gets its own seed (:func:`sequence_seed`), so that two environments rendered with the same
-    batch seed still get different trajectories.
-    """
-    rendered, skipped, frames = [], [], 0
-    start = time.perf_counter()
+def plan_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
+               config: SynthConfig, root: Path) -> tuple[list[tuple[SequenceSpec, Path]], list[Path]]:
+    """What a batch renders under ``root``: (spec, folder) of every sequence to render, in batch order, and the
+    folders already rendered with the current preset (skipped)."""
+    todo, skipped = [], []
     for seed in seeds:
         for env in environments:
             for motion in motions:
@@ -94,8 +90,27 @@ def render_batch(template: SequenceSpec, environments: list[str], motions: list[
                 folder = root / sequence_folder_name(replace(spec, seed=seed))
                 if _rendered_with_current_preset(folder, env, config):
                     skipped.append(folder)
-                    continue
-                shutil.rmtree(folder, ignore_errors=True)  # unfinished, or rendered with an older preset
-                frames += len(render_sequence(spec, config, folder, processes))
-                rendered.append(folder)
-    return BatchResult(rendered, skipped, frames, time.perf_counter() - start)
+                else:
+                    todo.append((spec, folder))
+    return todo, skipped
+
+
+def render_into(spec: SequenceSpec, config: SynthConfig, folder: Path, processes: int | None = None,
+                progress=None) -> int:
+    """Render one sequence of a batch into ``folder`` (whatever an unfinished or outdated render left there is
+    removed first); returns its frame count."""
+    shutil.rmtree(folder, ignore_errors=True)  # unfinished, or rendered with an older preset
+    return len(render_sequence(spec, config, folder, processes, progress=progress))
+
+
+def render_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
+                 config: SynthConfig, root: Path, processes: int | None = None) -> BatchResult:
+    """Render environments × motions × seeds under ``root`` (``template`` gives length, size, lens, blur).
+
+    Each sequence gets its own seed (:func:`sequence_seed`), so that two environments rendered with the same
+    batch seed still get different trajectories.
+    """
+    start = time.perf_counter()
+    todo, skipped = plan_batch(template, environments, motions, seeds, config, root)
+    frames = sum(render_into(spec, config, folder, processes) for spec, folder in todo)
+    return BatchResult([folder for _, folder in todo], skipped, frames, time.perf_counter() - start)

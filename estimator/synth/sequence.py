@@ -16,6 +16,7 @@ sequences first and runs SLAM afterwards.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import multiprocessing
@@ -235,15 +236,19 @@ def frame_stamp(t: float) -> str:
 
 
 def render_sequence(spec: SequenceSpec, config: SynthConfig, out: Path, processes: int | None = None,
-                    show_progress: bool = True) -> list[FrameRecord]:
-    """Render ``spec`` into the TUM folder ``out`` with ``processes`` worker processes (configured default)."""
+                    show_progress: bool = True, progress: Progress | None = None) -> list[FrameRecord]:
+    """Render ``spec`` into the TUM folder ``out`` with ``processes`` worker processes (configured default).
+
+    The frames show on a bar of their own, or, given ``progress``, on a bar of that display, removed at the end."""
     plan = plan_sequence(spec, config)
     (out / "rgb").mkdir(parents=True, exist_ok=True)
     (out / "depth").mkdir(parents=True, exist_ok=True)
     count = len(plan.frame_times)
     workers = processes or config.processes
     records: list[FrameRecord] = []
-    with Progress(disable=not (show_progress and sys.stderr.isatty()), transient=True) as progress:
+    own = Progress(disable=not (show_progress and sys.stderr.isatty()), transient=True)
+    with own if progress is None else contextlib.nullcontext():
+        progress = own if progress is None else progress
         task = progress.add_task(f"render {spec.environment}/{plan.trajectory_name}", total=count)
         if workers <= 1:
             _Worker.setup(spec, config, out)
@@ -258,6 +263,7 @@ def render_sequence(spec: SequenceSpec, config: SynthConfig, out: Path, processe
                 for record in pool.map(_Worker.render_frame, range(count), chunksize=4):
                     records.append(record)
                     progress.advance(task)
+        progress.remove_task(task)
     write_sequence_files(plan, config, out, records)
     return records
 
