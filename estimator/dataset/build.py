@@ -118,13 +118,13 @@ def _sequence_metadata(folder: Path) -> dict:
 
 
 def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, windows: WindowConfig) -> RunArrays:
-    """Samples of one finished session: every window whose end frame is tracked and whose PSD samples were logged,
-    however many of its RTS rows are missing, with the label of its end frame.
+    """Samples of one finished session: every model window (:func:`seesys.core.windows.assemble_windows`, at most
+    ``windows.max_missing_rts`` RTS rows missing or untracked: the rule the service serves by, so that a model is
+    trained on the windows it is served), with the label of its end frame.
 
     The monitor's RTS rows and PSD matrices are kept once each; a sample is the rows of its window
     (:mod:`estimator.dataset.store`). A sample is ``usable`` (part of the regression target) when its end frame is
-    ``labelled`` and at most ``windows.max_missing_rts`` rows of its RTS window are missing or untracked: the rule
-    the service serves by, so that a model is trained on the windows it is served.
+    ``labelled`` (and, as every stored window, within the missing-row rule).
     """
     labels = label_session(session_dir, mode is SlamMode.MONO, label_config).to_frame()
     states = pd.read_csv(session_dir / session_layout.FRAMES_CSV)
@@ -137,8 +137,7 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
     rts_row = {f.frame_index: k for k, f in enumerate(logged)}
     psd_row = {f.frame_index: k for k, f in enumerate(with_psd)}
     rts_rows, psd_rows, rows = [], [], []
-    every_window = replace(windows, max_missing_rts=windows.rts_length - 1)
-    for window in assemble_windows(logged, every_window):
+    for window in assemble_windows(logged, windows):
         label = frames.iloc[row_of_frame[window.frame_index]]
         usable = label.status == LabelStatus.LABELLED.value and window.missing_rts <= windows.max_missing_rts
         rows.append((len(rows), window.frame_index, window.timestamp, label.error_m, label.status, label.scale,
