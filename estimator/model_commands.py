@@ -170,8 +170,8 @@ def _export(args: argparse.Namespace) -> int:
     from seesys.io.core_settings import load_window_config
     transform = LabelTransform(load_estimator_config().label_transform.k)
     windows = load_window_config()
-    model, _ = load_model(args.model, transform, windows)
-    path = export_onnx(model, args.out, windows, transform)
+    model, payload = load_model(args.model, transform, windows)
+    path = export_onnx(model, args.out, windows, transform, payload["compatibility"])
     difference = parity(model, OnnxModel(path, transform, windows))
     if difference > PARITY_TOLERANCE:
         raise SeesysError(f"{path}: ONNX Runtime differs from PyTorch by {difference:.2e} (> {PARITY_TOLERANCE:g})")

@@ -15,6 +15,12 @@ folder in ``$SEESYS_CONFIG_DIR``, or ``config_dir``). Messages are decoded by :m
 service's own codec, so a client speaks whatever protocol version this SEESys speaks; a message it cannot decode
 (another version, garbage) is counted in :attr:`EstimateClient.rejected` and skipped.
 
+**Which estimates.** Every estimate names the device id and the stream session of the frames it was made from (a
+random number the device draws when it starts, :mod:`seesys.core.messages`). With ``stream_session`` given, the
+client takes only that stream's estimates (counting others in :attr:`EstimateClient.foreign`); without, it takes
+every estimate of the device id, and :attr:`EstimateRecord.stream_session` says which stream each came from, so
+that an application matches an estimate to its frame by device, stream session and frame index.
+
 **Reconnection.** The subscription is a ZeroMQ SUB socket connected to the service's estimate endpoint; ZeroMQ
 reconnects it by itself when the service restarts or the network comes back (every ``reconnect_ivl`` ms, the
 ZeroMQ default of 100 ms), and estimates resume when the restarted service has filled a new window (about a second
@@ -46,7 +52,8 @@ class EstimateRecord:
     count for it (0 below alpha, up to the maximum, 3 with the paper's values, at or above beta), of this single
     estimate (the audio advisory applies Equation 2 to a 0.33 s moving mean instead); ``frame_index`` and
     ``timestamp``: the device's frame it estimates (the device's clock); ``model_version``: the model that made it;
-    ``server_ms``: its time in the service; ``received``: :func:`time.monotonic` when it arrived here.
+    ``server_ms``: its time in the service; ``received``: :func:`time.monotonic` when it arrived here;
+    ``stream_session``: the device's stream session the estimated frame belongs to.
     """
 
     device_id: str
@@ -57,6 +64,7 @@ class EstimateRecord:
     model_version: str
     server_ms: float
     received: float
+    stream_session: int = 0
 
     @property
     def age_s(self) -> float:
@@ -74,12 +82,14 @@ class EstimateClient:
     """
 
     def __init__(self, device_id: str, endpoint: str | None = None, config_dir: Path | None = None,
-                 pulses: PulseSettings | None = None):
+                 pulses: PulseSettings | None = None, stream_session: int | None = None):
         network = load_network_config(config_dir)
         self.endpoint = endpoint or network.estimates_endpoint
         self.device_id = device_id
+        self.stream_session = stream_session
         self.pulses = pulses or load_pulse_settings(config_dir)
         self.rejected = 0
+        self.foreign = 0  # estimates of the device id from another stream session than ``stream_session``
         self._ctx = zmq.Context()
         self._sub = subscriber(self._ctx, self.endpoint, "estimates", [messages.topic(messages.ESTIMATE_TOPIC, device_id)],
                                options=network.client_options(self.endpoint))
@@ -96,14 +106,17 @@ class EstimateClient:
             except MessageError:
                 self.rejected += 1
                 continue
-            if isinstance(message, Estimate):
+            if not isinstance(message, Estimate):
+                self.rejected += 1
+            elif self.stream_session is not None and message.stream_session != self.stream_session:
+                self.foreign += 1
+            else:
                 return self._record(message)
-            self.rejected += 1
 
     def _record(self, estimate: Estimate) -> EstimateRecord:
         return EstimateRecord(estimate.device_id, estimate.frame_index, estimate.timestamp, estimate.error_m,
                               self.pulses.pulses(estimate.error_m), estimate.model_version, estimate.server_ms,
-                              time.monotonic())
+                              time.monotonic(), estimate.stream_session)
 
     def __iter__(self) -> Iterator[EstimateRecord]:
         while True:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import itertools
+import secrets
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -85,7 +86,10 @@ class SessionOptions:
 
 @dataclass(frozen=True)
 class SessionContext:
-    """What an observer factory gets: the options and what the worker resolved for this session."""
+    """What an observer factory gets: the options and what the worker resolved for this session.
+
+    ``stream_session`` is drawn at random for every session: the feature stream carries it in every frame and the
+    estimator service binds the device id to it (:mod:`seesys.core.messages`)."""
 
     options: SessionOptions
     out_dir: Path
@@ -94,6 +98,7 @@ class SessionContext:
     fps: float
     slam_config: SlamConfig
     camera_config: CameraConfig
+    stream_session: int = 0
 
 
 @dataclass(frozen=True)
@@ -118,6 +123,11 @@ class SessionResult:
 
 ProgressEvent = SessionStarted | FrameTracked
 ProgressCallback = Callable[[ProgressEvent], None]
+
+
+def new_stream_session() -> int:
+    """A random, non-zero 64-bit stream session."""
+    return secrets.randbits(64) or 1
 
 
 def build_observer(spec: ObserverSpec, context: SessionContext) -> FrameObserver:
@@ -200,7 +210,7 @@ def run_device_session(
             tracker = Tracker(vocabulary, settings, options.mode, source.intrinsics)
             try:
                 context = SessionContext(options, writer.folder, options.mode, source.intrinsics, source.fps,
-                                         slam_config, camera_config)
+                                         slam_config, camera_config, new_stream_session())
                 active = list(observers) + [build_observer(s, context) for s in options.observers]
                 pace = options.pace if options.pace is not None else slam_config.pacing.paces(options.mode)
                 pacing = slam_config.pacing

@@ -15,6 +15,11 @@ preprocess_ms`` (tracked → sent: the monitor's features, PSD and encoding; it 
 to end) and ``capture_to_estimate_ms`` (tracking included). A time not observed is empty (for example the first
 frames, before the local subscriber is connected). Rows are flushed as they come.
 
+Only this device's estimates are logged: those of its device id *and* its stream session (the session's random
+number, carried in its frames and in every estimate made from them); an estimate of another stream session with
+the same id (another device given the same id, or an earlier run of this one) is counted in ``foreign`` and
+skipped.
+
 Nothing here can stop tracking: the receiving thread only reads sockets and writes the log; sockets reconnect by
 themselves after the estimator restarts, and the estimates simply resume.
 """
@@ -36,7 +41,7 @@ from seesys.core.messages import Estimate, FeatureFrame, MessageError
 from seesys.core.session_layout import ESTIMATE_COLUMNS, ESTIMATES_CSV
 from seesys.io.network import load_network_config
 from seesys.io.transport import open_socket
-from slam_monitor.monitor_config import load_monitor_config
+from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
 
 # Frames whose moments are remembered while their estimate may still come (10 s at 30 Hz).
 _REMEMBERED = 300
@@ -69,9 +74,11 @@ class EstimateObserver:
     """Device-worker observer logging this device's estimates and their latency into ``estimates.csv``."""
 
     def __init__(self, out_dir: Path, device_id: str, features_endpoint: str, estimates_endpoint: str,
-                 socket_options: dict | None = None):
+                 socket_options: dict | None = None, stream_session: int = 0):
         self.device_id = device_id
+        self.stream_session = stream_session
         self.received = 0
+        self.foreign = 0
         self._tracked = _Moments()
         self._sent = _Moments()
         self._ctx = zmq.Context()
@@ -103,7 +110,9 @@ class EstimateObserver:
                 except MessageError:
                     continue  # not ours to judge: the estimator counts what it rejects
                 now = time.perf_counter()
-                if isinstance(message, FeatureFrame):
+                if message.stream_session != self.stream_session:
+                    self.foreign += isinstance(message, Estimate)
+                elif isinstance(message, FeatureFrame):
                     self._sent.put(message.frame_index, (now,))
                 elif isinstance(message, Estimate):
                     self._log(message, now)
@@ -131,12 +140,12 @@ class EstimateObserver:
 def create_observer(context: Any, device_id: str | None = None) -> EstimateObserver:
     """Observer factory for :class:`slam_monitor.device_worker.ObserverSpec`: endpoints and Curve keys of
     network.toml (estimates encrypted when its ``[curve]`` is set), device id of monitor.toml unless given (use the
-    monitor's)."""
+    monitor's; ``auto`` resolves as the monitor's does), the session's stream session."""
     config_dir = context.options.config_dir
     network = load_network_config(config_dir)
-    return EstimateObserver(context.out_dir, device_id or load_monitor_config(config_dir).device_id,
-                            network.features_endpoint, network.estimates_endpoint,
-                            network.client_options(network.estimates_endpoint))
+    device_id = resolve_device_id(device_id or load_monitor_config(config_dir).device_id, context.options.source)
+    return EstimateObserver(context.out_dir, device_id, network.features_endpoint, network.estimates_endpoint,
+                            network.client_options(network.estimates_endpoint), context.stream_session)
 
 
 def summary_line(out_dir: Path) -> str:

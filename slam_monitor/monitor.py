@@ -29,16 +29,18 @@ from typing import Any
 import numpy as np
 
 from seesys.core import rts_schema
+from seesys.core.device_settings import DeviceSettings
 from seesys.core.messages import FeatureFrame
 from seesys.core.psd import PsdGeometry, build_psd
 from seesys.core.tracking_state import TrackingState
 from seesys.io.config import replace_fields
+from seesys.io.core_settings import load_device_settings
 from seesys.io.network import load_network_config
 from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from slam_monitor.frame import Frame
 from slam_monitor.image_features import image_features, keypoint_responses
 from slam_monitor.local_map import LocalMap
-from slam_monitor.monitor_config import MonitorConfig, load_monitor_config
+from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
 from slam_monitor.slam_features import RelativeMotion, SlamFeatures, project, relative_motion, slam_features, to_camera
 from slam_monitor.stream import FeaturePublisher
 
@@ -64,11 +66,13 @@ class MonitorInput:
 class FeatureExtractor:
     """Single-threaded core of the monitor: one :class:`MonitorInput` in, one :class:`FeatureFrame` out.
 
-    Holds the monitor's local map, so inputs must come in frame order.
+    Holds the monitor's local map, so inputs must come in frame order. Every frame carries ``stream_session`` and
+    ``settings`` (the device's settings a model depends on; see :mod:`seesys.core.device_settings`).
     """
 
-    def __init__(self, config: MonitorConfig):
+    def __init__(self, config: MonitorConfig, stream_session: int = 0, settings: DeviceSettings | None = None):
         self.config = config
+        self.stream_session, self.settings = stream_session, settings
         lm = config.local_map
         self.local_map = LocalMap(lm.voxel, lm.max_age_frames, lm.max_points)
         self._geometry: PsdGeometry | None = None
@@ -105,7 +109,8 @@ class FeatureExtractor:
 
         psd = self._psd(item, slam) if cfg.windows.is_psd_frame(index) else None
         rts = np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32)
-        return FeatureFrame(cfg.device_id, index, frame.timestamp, item.state, rts, psd, item.frames_skipped)
+        return FeatureFrame(cfg.device_id, index, frame.timestamp, item.state, rts, psd, item.frames_skipped,
+                            stream_session=self.stream_session, settings=self.settings)
 
     def _psd(self, item: MonitorInput, slam: SlamFeatures | None) -> np.ndarray:
         intr, cfg = item.frame.intrinsics, self.config
@@ -168,13 +173,14 @@ class RtsMonitor:
     """Device-worker observer: ``on_frame`` from the tracking loop, ``close`` at the end of the session."""
 
     def __init__(self, config: MonitorConfig, session_dir: Path | None = None,
-                 publisher: FeaturePublisher | None = None):
+                 publisher: FeaturePublisher | None = None, stream_session: int = 0,
+                 settings: DeviceSettings | None = None):
         self.config = config
         self.session_dir = session_dir
         self.publisher = publisher
         self.stats = MonitorStats()
-        self._extractor = FeatureExtractor(config)
-        self._rts_log = RtsCsvWriter(session_dir / RTS_CSV) if session_dir is not None else None
+        self._extractor = FeatureExtractor(config, stream_session, settings)
+        self._rts_log = RtsCsvWriter(session_dir / RTS_CSV, settings) if session_dir is not None else None
         self._psd_log = (PsdLogWriter(session_dir / PSD_DIR, config.log.psd_chunk_records)
                          if session_dir is not None else None)
         self._queue: queue.Queue = queue.Queue(maxsize=config.queue_size)
@@ -270,17 +276,19 @@ def create_observer(context: Any, stream: bool = False, device_id: str | None = 
     """Observer factory for :class:`slam_monitor.device_worker.ObserverSpec`: a monitor logging into the
     session folder and, when ``stream`` is true, publishing on ``features_endpoint`` of network.toml (and to the
     estimator service's ``ingest_endpoint``, encrypted, when its ``[curve]`` is set).
-    ``device_id`` replaces the one of monitor.toml; ``end_stride`` the windows' end stride of windows.toml (the
-    dataset builder computes the PSD on every frame, ``end_stride = 1``; a stride that does not divide
-    ``psd_stride`` raises ``ValueError``)."""
+    ``device_id`` replaces the one of monitor.toml (``auto`` there: :func:`resolve_device_id` of the source);
+    ``end_stride`` the windows' end stride of windows.toml (the dataset builder computes the PSD on every frame,
+    ``end_stride = 1``; a stride that does not divide ``psd_stride`` raises ``ValueError``). Frames carry the
+    session's stream session and the device's settings (mode, frame rate, ORB features, PSD)."""
     config_dir = context.options.config_dir
     config = load_monitor_config(config_dir)
-    if device_id is not None:
-        config = replace_fields(config, device_id=device_id)
+    config = replace_fields(config, device_id=resolve_device_id(device_id or config.device_id,
+                                                                 context.options.source))
     if end_stride is not None:
         config = replace_fields(config, windows=replace_fields(config.windows, end_stride=end_stride))
     publisher = None
     if stream:
         network = load_network_config(config_dir)
         publisher = FeaturePublisher.for_network(network)
-    return RtsMonitor(config, context.out_dir, publisher)
+    settings = load_device_settings(context.mode.value, context.fps, config_dir)
+    return RtsMonitor(config, context.out_dir, publisher, context.stream_session, settings)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -34,6 +35,23 @@ class LocalMapConfig:
 @dataclass(frozen=True)
 class LogConfig:
     psd_chunk_records: int
+
+
+#: The ``device_id`` setting that derives the id from the host and the source (:func:`resolve_device_id`).
+AUTO_DEVICE_ID = "auto"
+
+
+def resolve_device_id(configured: str, source: str, host: str | None = None) -> str:
+    """The device id of a device reading ``source`` (``KIND:PATH``): ``configured`` itself, or, where it is empty
+    or ``auto``, ``HOST:KIND:NAME``, NAME being the last part of the path (a camera's serial number, a
+    recording's folder or file name; ``default`` for ``realsense:`` without a serial). Two devices on two hosts, or
+    two cameras on one host, get two ids; the same device gets the same id each time it starts."""
+    if configured and configured != AUTO_DEVICE_ID:
+        return configured
+    kind, _, path = source.partition(":")
+    name = Path(path.rstrip("/")).name or path or "default"
+    device_id = f"{host or socket.gethostname()}:{kind}:{name}"
+    return device_id.encode("utf-8")[:255].decode("utf-8", "ignore")
 
 
 @dataclass(frozen=True)

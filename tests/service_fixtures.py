@@ -3,11 +3,13 @@ ipc:// sockets, synthetic devices, and ``seesys estimator serve`` run as a real 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +21,8 @@ from seesys.core import messages, rts_schema
 from seesys.core.errors import SeesysError
 from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
-from seesys.io.core_settings import load_window_config
+from seesys.core.windows import assemble_windows
+from seesys.io.core_settings import load_device_settings, load_window_config
 
 # Long enough for a worker to start (spawn, import ONNX Runtime, load the model) on a loaded 2-core machine.
 START_TIMEOUT_S = 240
@@ -60,6 +63,28 @@ class ServiceSetup:
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
+@pytest.fixture
+def setup_factory():
+    """``make(**service)``: a :class:`ServiceSetup` with those service.toml values, cleaned up after the test."""
+    made = []
+
+    def make(**service) -> ServiceSetup:
+        made.append(ServiceSetup(**service))
+        return made[-1]
+    yield make
+    for setup in made:
+        setup.cleanup()
+
+
+def expected_errors(model_path: Path, frames: list[FeatureFrame]) -> dict[int, float]:
+    """What the model gives for the stream's windows, computed here, one window at a time."""
+    from estimator.service.model import ServedModel
+
+    windows = load_window_config()
+    model = ServedModel.load(model_path, windows)
+    return {w.frame_index: float(model.estimate([w])[0]) for w in assemble_windows(frames, windows)}
+
+
 class ServiceProcess:
     """``seesys estimator serve`` in a subprocess; :meth:`wait_ready` returns once its status endpoint answers."""
 
@@ -97,18 +122,33 @@ class ServiceProcess:
             self.process.wait()
 
 
-def device_frames(device_id: str, count: int, seed: int = 0) -> list[FeatureFrame]:
-    """A synthetic tracked device stream: RTS rows of plausible magnitude, a sparse PSD on every window end."""
+@contextlib.contextmanager
+def running_service(setup: ServiceSetup, model: Path, *args: str) -> Iterator[ServiceProcess]:
+    """``seesys estimator serve`` started and ready; killed on the way out if it still runs."""
+    service = ServiceProcess(setup, model, *args)
+    try:
+        service.wait_ready()
+        yield service
+    finally:
+        service.kill()
+
+
+def device_frames(device_id: str, count: int, seed: int = 0, stream_session: int = 0,
+                  psd_shape: tuple[int, int, int] = PSD_SHAPE, settings=None) -> list[FeatureFrame]:
+    """A synthetic tracked device stream: RTS rows of plausible magnitude, a sparse PSD on every window end; the
+    configured device settings (RGB-D at 30 Hz) unless ``settings`` are given."""
     rng = np.random.default_rng(seed)
     windows = load_window_config()
+    settings = settings or load_device_settings("rgbd", 30.0)
     frames = []
     for i in range(count):
         psd = None
         if windows.is_psd_frame(i):
-            cells = rng.random(PSD_SHAPE)
-            psd = np.where(cells < 0.05, rng.integers(1, 256, PSD_SHAPE), 0).astype(np.uint8)
+            cells = rng.random(psd_shape)
+            psd = np.where(cells < 0.05, rng.integers(1, 256, psd_shape), 0).astype(np.uint8)
         rts = np.abs(rng.normal(1.0, 0.5, rts_schema.NUM_CHANNELS)).astype(np.float32)
-        frames.append(FeatureFrame(device_id, i, 10.0 + i / 30.0, TrackingState.OK, rts, psd))
+        frames.append(FeatureFrame(device_id, i, 10.0 + i / 30.0, TrackingState.OK, rts, psd,
+                                   stream_session=stream_session, settings=settings))
     return frames
 
 
@@ -141,7 +181,8 @@ class Client:
 def serve_in_lockstep(client: Client, frames: list[FeatureFrame], timeout_s: float = 120) -> list:
     """Send ``frames``; after each window end, wait for its estimate before going on (no stale windows, no
     sleeps). PUB–SUB connections are made asynchronously, so the first window end is re-sent (the service
-    ignores a repeated frame index) until its estimate shows that both connections are up."""
+    ignores a repeated frame index) until its estimate shows that both connections are up. Only estimates of the
+    frames' stream session count."""
     windows = load_window_config()
     estimates = []
     first = True
@@ -152,7 +193,8 @@ def serve_in_lockstep(client: Client, frames: list[FeatureFrame], timeout_s: flo
         deadline = time.monotonic() + timeout_s
         while True:
             estimate = client.receive(200)
-            if estimate is not None and estimate.frame_index == frame.frame_index:
+            if (estimate is not None and estimate.frame_index == frame.frame_index
+                    and estimate.stream_session == frame.stream_session):
                 estimates.append(estimate)
                 break
             assert time.monotonic() < deadline, f"no estimate for frame {frame.frame_index}"

@@ -31,16 +31,18 @@ def test_the_client_yields_typed_records_with_equation2_classes_and_skips_what_i
     pub = ctx.socket(zmq.PUB)
     pub.bind(endpoint)
     try:
-        with EstimateClient(DEVICE, endpoint=endpoint) as client:
+        with EstimateClient(DEVICE, endpoint=endpoint, stream_session=5) as client:
             # a PUB drops what it sends before the subscription arrives: send until the first record comes through
-            wait_for(lambda: pub.send_multipart(messages.encode(Estimate(DEVICE, 1, 10.0, 0.001, "m1", 2.0)))
+            wait_for(lambda: pub.send_multipart(messages.encode(Estimate(DEVICE, 1, 10.0, 0.001, "m1", 2.0, 5)))
                      or client.receive(0.05), what="the first estimate")
             pub.send_multipart([messages.topic(messages.ESTIMATE_TOPIC, DEVICE), b"garbage"])
-            pub.send_multipart(messages.encode(Estimate("other-device", 5, 10.1, 0.5, "m1", 2.0)))
-            pub.send_multipart(messages.encode(Estimate(DEVICE, 7, 10.2, 0.009, "m1", 3.5)))
+            pub.send_multipart(messages.encode(Estimate("other-device", 5, 10.1, 0.5, "m1", 2.0, 5)))
+            pub.send_multipart(messages.encode(Estimate(DEVICE, 6, 10.1, 0.5, "m1", 2.0, 6)))  # another stream session
+            pub.send_multipart(messages.encode(Estimate(DEVICE, 7, 10.2, 0.009, "m1", 3.5, 5)))
             record = client.receive(60)
             assert (record.device_id, record.frame_index, record.timestamp, record.error_m) == (DEVICE, 7, 10.2, 0.009)
             assert (record.error_class, record.model_version, record.server_ms) == (2, "m1", 3.5)  # 250/m * 9 mm
+            assert record.stream_session == 5 and client.foreign == 1
             assert 0 <= record.age_s < 60 and client.rejected == 1
             assert client.receive(0.05) is None
     finally:

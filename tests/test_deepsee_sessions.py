@@ -125,7 +125,7 @@ def build_tiny_dataset(base: Path) -> TinyDataset:
     for k, (trajectory, group, environment) in enumerate(RUNS):
         name = f"{environment}__{trajectory}__s0__rgbd__t0"
         folder = write_session(sessions / name, seed=k)
-        arrays = label_run(folder, SlamMode.RGBD, load_label_config(), windows, 0)
+        arrays = label_run(folder, SlamMode.RGBD, load_label_config(), windows)
         info = RunInfo(name, f"{environment}__{trajectory}__s0", environment, group, trajectory, "rgbd", 0,
                        COMPLETED, frames=240, frames_tracked=240, samples=len(arrays.samples))
         write_run(root, info, arrays)

@@ -65,7 +65,7 @@ def test_malformed_messages_raise_message_error(mangle, message):
 
 def test_wrong_channel_count_and_bad_values_are_rejected():
     topic, body = encode(feature())
-    head = 4 + 1 + 1 + 1 + len(b"dev-1") + 16 + 2 + 4 + 4
+    head = 4 + 1 + 1 + 1 + len(b"dev-1") + 8 + 16 + 2 + 4 + 4
     wrong = body[:head] + struct.pack("<bH", 2, 3) + body[head + 3:]
     with pytest.raises(MessageError, match="channels"):
         decode([topic, wrong])
@@ -99,12 +99,27 @@ def test_frames_of_another_rts_schema_are_refused_by_name():
         12, rts_schema.SCHEMA_VERSION, rts_schema.FINGERPRINT)
 
 
-def test_a_message_of_protocol_version_1_is_refused():
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_message_of_an_earlier_protocol_version_is_refused(version):
+    """Version 2 had no stream session and no device settings: refused by name, never misread."""
     topic, body = encode(feature())
-    old = body[:4] + bytes([1]) + body[5:]
-    with pytest.raises(MessageError, match=f"protocol version 1 is not supported .this end speaks "
+    old = body[:4] + bytes([version]) + body[5:]
+    with pytest.raises(MessageError, match=f"protocol version {version} is not supported .this end speaks "
                                            f"{messages.PROTOCOL_VERSION}"):
         decode([topic, old])
+
+
+def test_stream_session_and_device_settings_travel_with_every_frame_and_estimate():
+    from seesys.core.device_settings import DeviceSettings
+
+    settings = DeviceSettings.of("mono", 29.97, 1200, 10, 2, 0.3)
+    assert settings.fps == 30  # whole frames per second
+    frame = dataclasses.replace(feature(np.ones((4, 4, 3), np.uint8)), stream_session=2**64 - 5, settings=settings)
+    out = decode(encode(frame))
+    assert (out.stream_session, out.settings) == (2**64 - 5, settings)
+    assert decode(encode(feature())).settings is None  # a frame may state none (the service refuses it)
+    estimate = decode(encode(Estimate("dev-1", 7, 12.25, 0.0061, "m", 3.5, stream_session=99)))
+    assert (estimate.stream_session, estimate.frame_index) == (99, 7)
 
 
 def test_topics_are_exact_and_device_ids_are_checked():

@@ -187,3 +187,15 @@ def test_a_failure_in_the_monitor_thread_stops_the_monitor_not_the_session(tmp_p
     assert "Traceback" in stats.error_traceback
     assert read_rts_csv(tmp_path)["frame_index"].tolist() == [0, 1, 2]
     assert json.loads((tmp_path / "monitor_stats.json").read_text())["error"] == stats.error
+
+
+def test_the_default_device_id_is_unique_per_host_and_camera_and_stable():
+    from slam_monitor.monitor_config import resolve_device_id
+
+    assert load_monitor_config().device_id == "auto"
+    assert resolve_device_id("auto", "realsense:123456789012", host="lab-pc") == "lab-pc:realsense:123456789012"
+    assert resolve_device_id("", "realsense:", host="lab-pc") == "lab-pc:realsense:default"
+    assert resolve_device_id("auto", "tum:/data/rooms/office/", host="pi") == "pi:tum:office"
+    assert resolve_device_id("auto", "tum:data/sample") == resolve_device_id("auto", "tum:data/sample")
+    assert resolve_device_id("auto", "tum:a", host="one") != resolve_device_id("auto", "tum:a", host="two")
+    assert resolve_device_id("phone-1", "realsense:", host="lab-pc") == "phone-1"  # an id given is kept

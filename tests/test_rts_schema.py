@@ -49,3 +49,15 @@ def test_normalise_applies_transform_and_scale_and_zeroes_nan():
     assert out[0, rts_schema.index_of("rel_yaw")] == 0.0
     with pytest.raises(ValueError, match="channels"):
         rts_schema.normalise(np.zeros((2, 3)))
+
+
+def test_values_replaced_by_zero_are_counted_per_row():
+    rows = np.ones((2, 3, rts_schema.NUM_CHANNELS))
+    rows[0, 1, rts_schema.index_of("rel_yaw")] = np.nan
+    rows[0, 1, rts_schema.index_of("avg_mp_depth")] = np.inf
+    rows[1, 2, rts_schema.index_of("var_mp_depth")] = -np.inf  # log1p(max(-inf, 0)) = 0: a value, not replaced
+    rows[1, 0, rts_schema.index_of("contrast")] = -np.inf
+    out, replaced = rts_schema.normalise_counted(rows)
+    assert replaced.tolist() == [[0, 2, 0], [1, 0, 0]]
+    assert np.isfinite(out).all()
+    np.testing.assert_array_equal(out, rts_schema.normalise(rows))

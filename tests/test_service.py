@@ -17,9 +17,10 @@ import pytest
 from service_fixtures import (  # noqa: F401
     Client,
     ServiceProcess,
-    ServiceSetup,
     device_frames,
+    expected_errors,
     serve_in_lockstep,
+    setup_factory,
     tiny_model,
     wait_for,
 )
@@ -28,28 +29,8 @@ from estimator.service.config import load_service_config
 from estimator.service.keys import ClientKeys, make_key_pair
 from estimator.service.model import ServedModel
 from seesys.core import messages
-from seesys.core.windows import assemble_windows
 from seesys.io.core_settings import load_window_config
 from seesys.io.network import load_network_config
-
-
-@pytest.fixture
-def setup_factory():
-    made = []
-
-    def make(**service) -> ServiceSetup:
-        made.append(ServiceSetup(**service))
-        return made[-1]
-    yield make
-    for setup in made:
-        setup.cleanup()
-
-
-def expected_errors(model_path, frames) -> dict[int, float]:
-    """What the model gives for the stream's windows, computed here, one window at a time."""
-    windows = load_window_config()
-    model = ServedModel.load(model_path, windows)
-    return {w.frame_index: float(model.estimate([w])[0]) for w in assemble_windows(frames, windows)}
 
 
 def bad_messages(count: int, max_bytes: int) -> tuple[list[list[bytes]], dict[str, int]]:

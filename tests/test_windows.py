@@ -10,7 +10,7 @@ import pytest
 from seesys.core import rts_schema
 from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
-from seesys.core.windows import WindowConfig, assemble_windows
+from seesys.core.windows import MISSING_PSD, MISSING_RTS, WindowAssembler, WindowConfig, assemble_windows
 from seesys.io.core_settings import load_window_config
 
 CFG = WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, end_stride=10, max_missing_rts=3)
@@ -61,6 +61,29 @@ def test_too_many_missing_rows_or_a_missing_psd_gives_no_window():
     assert [s.frame_index for s in assemble_windows(frames, CFG)] == [30, 40, 50]
     frames = [frame(i) for i in range(0, 61) if i != 20]
     assert [s.frame_index for s in assemble_windows(frames, CFG)] == [60]
+
+
+def test_a_window_end_refused_once_its_history_arrived_is_named():
+    """A receiver counts such windows by reason; the windows before the first full history are not refusals."""
+    def reasons(frames):
+        assembler, out = WindowAssembler(CFG), {}
+        for f in frames:
+            if assembler.add(f) is None and assembler.refused is not None:
+                out[f.frame_index] = assembler.refused
+        return out
+    assert reasons(frame(i) for i in range(0, 61)) == {}
+    assert reasons(frame(i) for i in range(0, 61) if not 52 <= i <= 55) == {60: MISSING_RTS}
+    assert reasons(frame(i) for i in range(0, 61) if i != 20) == {30: MISSING_PSD, 40: MISSING_PSD, 50: MISSING_PSD}
+    assert reasons(frame(i) for i in range(100, 161)) == {}  # a stream that starts at frame 100
+
+
+def test_the_window_rule_is_the_one_setting_of_serving_and_training():
+    """max_missing_rts of windows.toml decides the windows the service serves and the samples a model trains on
+    (the dataset has no rule of its own); the shipped model was trained with no missing row."""
+    from estimator.dataset.config import DatasetConfig
+
+    assert load_window_config().max_missing_rts == 0
+    assert "samples" not in {f.name for f in dataclasses.fields(DatasetConfig)}
 
 
 def test_rejects_inconsistent_config():

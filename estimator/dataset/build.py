@@ -66,7 +66,7 @@ BUILD_LOG = "build_log.jsonl"
 SEQUENCE_METADATA = "metadata.json"
 MONITOR_OBSERVER = "slam_monitor.monitor:create_observer"
 # What a sample is: a later build into the same folder must agree on all of these.
-DEFINITION_KEYS = ("rts_channels", "rts_schema_version", "windows", "labels", "samples", "pace",
+DEFINITION_KEYS = ("rts_channels", "rts_schema_version", "windows", "labels", "pace",
                    "wait_for_mapping_modes")
 PROGRESS_COLUMNS = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
 
@@ -123,13 +123,14 @@ def _sequence_metadata(folder: Path) -> dict:
         raise SeesysError(f"rendered sequence {folder} has no readable {SEQUENCE_METADATA}: {e}") from None
 
 
-def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, windows: WindowConfig,
-              max_missing_usable: int) -> RunArrays:
-    """Samples of one finished session: every complete model window, with the label of its end frame.
+def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, windows: WindowConfig) -> RunArrays:
+    """Samples of one finished session: every model window (:func:`seesys.core.windows.assemble_windows`, at most
+    ``windows.max_missing_rts`` RTS rows missing or untracked: the rule the service serves by, so that a model is
+    trained on the windows it is served), with the label of its end frame.
 
     The monitor's RTS rows and PSD matrices are kept once each; a sample is the rows of its window
     (:mod:`estimator.dataset.store`). A sample is ``usable`` (part of the regression target) when its end frame is
-    ``labelled`` and at most ``max_missing_usable`` rows of its RTS window are missing or untracked.
+    ``labelled`` (and, as every stored window, within the missing-row rule).
     """
     labels = label_session(session_dir, mode is SlamMode.MONO, label_config).to_frame()
     states = pd.read_csv(session_dir / session_layout.FRAMES_CSV)
@@ -144,7 +145,7 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
     rts_rows, psd_rows, rows = [], [], []
     for window in assemble_windows(logged, windows):
         label = frames.iloc[row_of_frame[window.frame_index]]
-        usable = label.status == LabelStatus.LABELLED.value and window.missing_rts <= max_missing_usable
+        usable = label.status == LabelStatus.LABELLED.value and window.missing_rts <= windows.max_missing_rts
         rows.append((len(rows), window.frame_index, window.timestamp, label.error_m, label.status, label.scale,
                      window.missing_rts, usable))
         rts_rows.append([rts_row.get(int(i), -1) for i in window.rts_frame_indices])
@@ -258,7 +259,6 @@ class DatasetBuilder:
             "rts_schema_version": rts_schema.SCHEMA_VERSION,
             "windows": asdict(self.windows),
             "labels": asdict(self.label_config),
-            "samples": asdict(self.config.samples),
             "pace": self.config.pace,
             "wait_for_mapping_modes": list(self.config.wait_for_mapping_modes),
             "plan": {"template": asdict(plan.template), "environments": plan.environments, "motions": plan.motions,
@@ -298,7 +298,7 @@ class DatasetBuilder:
         except SeesysError as e:
             return self._store_failed(replace(info, status=CRASHED, error=str(e)), session_dir, mode, start)
         slam_seconds = time.perf_counter() - start
-        arrays = label_run(session_dir, mode, self.label_config, self.windows, self.config.samples.max_missing_rts_usable)
+        arrays = label_run(session_dir, mode, self.label_config, self.windows)
         info = replace(info, frames=result.frames, frames_tracked=result.frames_tracked, samples=len(arrays.samples),
                        slam_seconds=slam_seconds, seconds=time.perf_counter() - start)
         return self._store(info, arrays, session_dir)
@@ -317,7 +317,7 @@ class DatasetBuilder:
         if logged.empty:
             record_crashed_run(self.root, crashed)
             return crashed
-        arrays = label_run(session_dir, mode, self.label_config, self.windows, self.config.samples.max_missing_rts_usable)
+        arrays = label_run(session_dir, mode, self.label_config, self.windows)
         tracked = int((arrays.frames.status != LabelStatus.NOT_TRACKED.value).sum())
         partial = replace(crashed, status=PARTIAL, frames=len(arrays.frames), frames_tracked=tracked,
                           samples=len(arrays.samples), seconds=time.perf_counter() - start)

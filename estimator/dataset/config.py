@@ -11,11 +11,6 @@ from slam_monitor.orbslam_settings import SlamMode
 
 
 @dataclass(frozen=True)
-class SampleConfig:
-    max_missing_rts_usable: int
-
-
-@dataclass(frozen=True)
 class ReportConfig:
     thresholds_m: tuple[float, ...]
     histogram_range_m: tuple[float, float]
@@ -62,7 +57,6 @@ class DatasetConfig:
     wait_for_mapping_modes: tuple[str, ...]
     keep_sessions: bool
     window_end_stride: int
-    samples: SampleConfig
     report: ReportConfig
     targets: TargetConfig
     splits: SplitConfig

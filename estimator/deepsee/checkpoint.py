@@ -4,9 +4,13 @@ A checkpoint (``torch.save`` of a dict) holds:
 
 - ``format``: :data:`FORMAT_VERSION` of this layout;
 - ``compatibility``: the RTS schema (version and fingerprint, channel names), the window definition (T, K_L,
-  tau: what a window contains; not how often one is formed) and the label transform, and ``compatibility_hash``,
-  the SHA-256 of that record. A model is served only where all three match: a model trained on another RTS
-  schema or window reads different numbers and its estimates would be meaningless, silently;
+  tau and the missing-row rule ``max_missing_rts``: what a window contains and which windows a model sees; not how
+  often one is formed), the label transform, the label's Δ and the device settings the training data was made with
+  (SLAM modes, frame rate, ORB feature count, PSD cell size, expansion and ``near_depth``;
+  :mod:`estimator.deepsee.compatibility`), and ``compatibility_hash``, the SHA-256 of that record. A model is
+  loaded only where every field matches this installation, and the service serves a device only where its own
+  settings match: a model trained on other inputs reads different numbers and its estimates would be
+  meaningless, silently;
 - ``model``: the kind (``deepsee`` or the ``lstm`` baseline) and what rebuilds the network (configuration, input
   shape, variant); ``state_dict``: the weights;
 - ``training``: how it was made (command, data, schedule, round, metrics), for the record.

@@ -1,6 +1,13 @@
 """What a model takes and what its inputs and output mean, without PyTorch: the window shape, the compatibility
 record stored with every model file (checkpoint, ONNX metadata, random-forest pickle) and its check.
 
+The record holds the RTS schema (version, fingerprint, channel names), the windows (T, K_L, tau and the missing-row
+rule ``max_missing_rts``), the label transform, the label's Δ (``delta_frames``) and the device settings the
+training data was made with (:func:`seesys.core.device_settings.model_settings_record`: SLAM modes, frame rate,
+ORB feature count, PSD cell size, expansion and ``near_depth``). Loading a model compares every field but the
+SLAM modes and the frame rate with this installation's configs and names each one that differs; those two are a
+device's own and the service checks them on every device's frames.
+
 Kept free of PyTorch so that serving an exported ONNX model (a service worker, ``load_predictor`` of an ``.onnx``
 file) never imports it: importing torch costs seconds of start-up and hundreds of megabytes per process.
 """
@@ -10,19 +17,25 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
+from pathlib import Path
 
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.core.errors import SeesysError
 from seesys.core.windows import WindowConfig
+from seesys.io.core_settings import load_label_config, load_model_device_record
 
-# The fields of the window definition that decide what a window holds (end_stride only says how often one is formed,
-# max_missing_rts which windows are formed).
-WINDOW_FIELDS = ("rts_length", "psd_samples", "psd_stride")
+# The fields of the window definition that decide what a window holds and which windows a model sees (end_stride
+# only says how often one is formed).
+WINDOW_FIELDS = ("rts_length", "psd_samples", "psd_stride", "max_missing_rts")
+# The device settings every device of an installation shares (its configs); the SLAM mode and the frame rate are a
+# device's own and are checked on its frames (seesys.core.device_settings).
+INSTALLATION_DEVICE_FIELDS = ("orb_features", "psd_patch_px", "psd_expansion", "near_depth")
 
 
 class ModelMismatch(SeesysError):
-    """A model file was made for other inputs (RTS schema, windows, label transform) or is not a model file."""
+    """A model file was made for other inputs (RTS schema, windows, label, device settings) or is not a model
+    file."""
 
 
 @dataclass(frozen=True)
@@ -36,31 +49,64 @@ class InputShape:
     psd_width: int
 
 
-def compatibility(windows: WindowConfig, transform: LabelTransform) -> dict:
-    """What a model's inputs and output mean, as plain data."""
+@dataclass(frozen=True)
+class ModelSetup:
+    """What a model depends on beyond its windows and label transform: the label's Δ (``delta_frames`` of
+    labels.toml) and the device settings (:func:`seesys.core.device_settings.model_settings_record`)."""
+
+    delta_frames: int
+    device: dict
+
+    @classmethod
+    def configured(cls, directory: Path | None = None) -> ModelSetup:
+        """This installation's: labels.toml, monitor.toml, slam.toml, dataset.toml and synth.toml."""
+        return cls(load_label_config(directory).delta_frames, load_model_device_record(directory))
+
+
+def compatibility(windows: WindowConfig, transform: LabelTransform, setup: ModelSetup | None = None) -> dict:
+    """What a model's inputs and output mean, as plain data (``setup``: this installation's by default)."""
+    setup = setup or ModelSetup.configured()
     return {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_fingerprint": rts_schema.FINGERPRINT,
             "rts_channels": list(rts_schema.CHANNEL_NAMES),
             "windows": {name: getattr(windows, name) for name in WINDOW_FIELDS},
-            "label_transform": transform.describe()}
+            "label_transform": transform.describe(), "label": {"delta_frames": setup.delta_frames},
+            "device": dict(setup.device)}
 
 
 def compatibility_hash(record: dict) -> str:
     return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()
 
 
-def check_compatible(record: dict, source: str, windows: WindowConfig, transform: LabelTransform) -> None:
-    """Raise :class:`ModelMismatch` naming every difference between ``record`` and this installation."""
-    here = compatibility(windows, transform)
-    if compatibility_hash(record) == compatibility_hash(here):
-        return
-    differences = []
+def _show(value: object) -> str:
+    return "-" if value is None else json.dumps(value, sort_keys=True)
+
+
+def differences(record: dict, here: dict) -> list[str]:
+    """Every field of a model's ``record`` that differs from ``here`` (both :func:`compatibility` records), as
+    ``"name: model VALUE, here VALUE"``; the device's SLAM modes and frame rate are left to the frames."""
+    out = []
     if (record.get("rts_schema_version"), record.get("rts_fingerprint")) != (here["rts_schema_version"],
                                                                               here["rts_fingerprint"]):
-        differences.append(f"RTS schema v{record.get('rts_schema_version')} (here v{here['rts_schema_version']}, "
-                           f"channels {'same' if record.get('rts_channels') == here['rts_channels'] else 'differ'})")
-    if record.get("windows") != here["windows"]:
-        differences.append(f"windows {record.get('windows')} (here {here['windows']})")
+        out.append(f"RTS schema: model v{record.get('rts_schema_version')}, here v{here['rts_schema_version']} "
+                   f"(channels {'same' if record.get('rts_channels') == here['rts_channels'] else 'differ'})")
     if record.get("label_transform") != here["label_transform"]:
-        differences.append(f"label transform {record.get('label_transform')} (here {here['label_transform']})")
-    raise ModelMismatch(f"{source} was trained for other inputs: {'; '.join(differences) or 'a different record'}. "
-                        f"It cannot be used here; retrain it or fine-tune a model made for this configuration")
+        out.append(f"label transform: model {_show(record.get('label_transform'))}, here "
+                   f"{_show(here['label_transform'])}")
+    checked = ([("windows", name) for name in WINDOW_FIELDS] + [("label", "delta_frames")]
+               + [("device", name) for name in INSTALLATION_DEVICE_FIELDS])
+    for part, name in checked:
+        model_value = (record.get(part) or {}).get(name)
+        here_value = here[part][name]
+        if model_value != here_value:
+            out.append(f"{part}.{name}: model {_show(model_value)}, here {_show(here_value)}")
+    return out
+
+
+def check_compatible(record: dict, source: str, windows: WindowConfig, transform: LabelTransform,
+                     setup: ModelSetup | None = None) -> None:
+    """Raise :class:`ModelMismatch` naming every field in which ``record`` differs from this installation (its
+    windows, label transform and ``setup``, this installation's configs by default)."""
+    found = differences(record, compatibility(windows, transform, setup))
+    if found:
+        raise ModelMismatch(f"{source} was made for other inputs: {'; '.join(found)}. It cannot be used here; "
+                            f"retrain it, or fine-tune a model made for this configuration")

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator.dataset.config import load_dataset_config
 from estimator.dataset.splits import Splits
 from estimator.dataset.store import DatasetReader
 from estimator.deepsee.compatibility import InputShape
@@ -143,7 +142,7 @@ def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Wind
         labels["frame_index"] = frames.frame_index.to_numpy()
         by_frame = labels.set_index("frame_index")
         end = by_frame.reindex(meta.frame_index)
-        max_missing = load_dataset_config().samples.max_missing_rts_usable
+        max_missing = windows.max_missing_rts
         usable = ((end.status == LabelStatus.LABELLED.value).to_numpy()
                   & (meta.missing_rts <= max_missing).to_numpy())
         error = end.error_m.to_numpy(np.float64)

@@ -3,7 +3,8 @@ ONNX Runtime session that serves it, without PyTorch, is :class:`estimator.deeps
 
 The exported graph takes ``rts`` (B, T, C) float32 (normalised) and ``psd`` (B, K_L, H, W, 3) uint8 and returns
 ``y`` (B,), the transformed error; the batch size is dynamic. The checkpoint's compatibility record and hash
-(:mod:`estimator.deepsee.checkpoint`) are stored in the ONNX metadata. Weights are never written to a side file:
+(:mod:`estimator.deepsee.checkpoint`: windows, label, RTS schema and the device settings the model was trained with)
+are stored in the ONNX metadata. Weights are never written to a side file:
 a copied ``.onnx`` with a stale ``.onnx.data`` beside it once served other weights silently.
 """
 
@@ -36,8 +37,10 @@ def example_inputs(shape, batch: int, seed: int = 0) -> tuple[torch.Tensor, torc
     return rts, psd
 
 
-def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: LabelTransform) -> Path:
-    """Write ``model`` (a DeepSEE) as one self-contained ONNX file with its compatibility record."""
+def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: LabelTransform,
+                record: dict | None = None) -> Path:
+    """Write ``model`` (a DeepSEE) as one self-contained ONNX file with its compatibility record: ``record`` (a
+    checkpoint's, which loading it has checked against this installation), or this installation's."""
     model = model.eval().cpu()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -47,7 +50,7 @@ def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: 
                                     input_names=["rts", "psd"], output_names=["y"],
                                     dynamic_shapes=({0: batch}, {0: batch}), optimize=True)
     proto = program.model_proto
-    record = compatibility(windows, transform)
+    record = record if record is not None else compatibility(windows, transform)
     for key, value in ((COMPATIBILITY_KEY, json.dumps(record, sort_keys=True)), (HASH_KEY, compatibility_hash(record))):
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value

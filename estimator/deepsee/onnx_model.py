@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from estimator.deepsee.compatibility import InputShape, ModelMismatch, check_compatible
+from estimator.deepsee.compatibility import InputShape, ModelMismatch, ModelSetup, check_compatible
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
@@ -51,12 +51,13 @@ class OnnxModel:
     providers of ``providers`` (see the module's docstring).
 
     Raises :class:`ModelMismatch` for a missing file, a file that is not an ONNX model, one exported elsewhere
-    (no compatibility record) or one made for other inputs; :class:`~seesys.core.errors.ConfigError` for an unknown or
+    (no compatibility record) or one made for other inputs (windows, label, device settings of ``setup``: this
+    installation's configs by default); :class:`~seesys.core.errors.ConfigError` for an unknown or
     unavailable ``providers`` setting.
     """
 
     def __init__(self, path: Path, transform: LabelTransform, windows: WindowConfig | None = None, threads: int = 1,
-                 providers: str = "cpu"):
+                 providers: str = "cpu", setup: ModelSetup | None = None):
         path = Path(path)
         chosen = choose_providers(providers)
         try:
@@ -77,7 +78,9 @@ class OnnxModel:
         meta = session.get_modelmeta().custom_metadata_map
         if COMPATIBILITY_KEY not in meta:
             raise ModelMismatch(f"{path} carries no SEESys compatibility record: not exported by seesys estimator")
-        check_compatible(json.loads(meta[COMPATIBILITY_KEY]), str(path), windows or load_window_config(), transform)
+        #: The model's compatibility record (:mod:`estimator.deepsee.compatibility`).
+        self.record: dict = json.loads(meta[COMPATIBILITY_KEY])
+        check_compatible(self.record, str(path), windows or load_window_config(), transform, setup)
         self.session = session
         self.provider: str = session.get_providers()[0]
         rts, psd = (i.shape[1:] for i in session.get_inputs())

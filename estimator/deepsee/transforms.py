@@ -62,3 +62,9 @@ def psd_layer_mask(drop_layers: tuple[str, ...] = ()) -> np.ndarray:
 def prepare_rts(raw: np.ndarray) -> np.ndarray:
     """Raw RTS windows (..., T, C), NaN where missing, as the model's float32 input (schema normalisation)."""
     return rts_schema.normalise(raw)
+
+
+def prepare_rts_counted(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`prepare_rts`, and per window (shape ``raw.shape[:-2]``) how many values were not finite and became 0."""
+    rts, replaced = rts_schema.normalise_counted(raw)
+    return rts, replaced.sum(axis=-1)

@@ -16,12 +16,24 @@ Sockets (endpoints in ``configs/service.toml`` and ``network.toml``):
   while a device moves between workers);
 - status, REP, bound at ``status_endpoint``: ``seesys estimator status`` asks, the broker answers in JSON.
 
+Device ids. A device id belongs to the stream that used it first: its stream session (a random number the device
+draws when it starts and carries in every frame) and, with Curve on, its public key (the ZAP handler's User-Id of
+the connection). Frames with the same id from another stream session or key are refused, logged once per stream
+and counted as ``id_in_use`` under that id; the first device's windows and estimates are untouched. A stream whose
+device has sent nothing for ``id_takeover_after_s`` loses the id to the next stream that uses it (a device that
+restarted), which is logged and counted in ``takeovers``.
+
+Status. Every drop is counted per device by name: the broker's own (``queue_full``, ``no_worker``,
+``out_of_order``, ``id_in_use``) and every reason the workers report (``settings_mismatch``,
+``shape_mismatch``, ``missing_rts``, ``missing_psd``, ``stale``: :data:`estimator.service.worker.DROP_REASONS`).
+
 With ``[curve]`` set the ingest and estimates sockets are CurveZMQ servers and a ZAP handler admits only the
 clients in the allow-list.
 """
 
 from __future__ import annotations
 
+import sys
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
@@ -33,6 +45,7 @@ import zmq
 
 from estimator.service import envelope, keys
 from estimator.service.config import ServiceConfig
+from estimator.service.worker import DROP_REASONS
 from seesys.core import messages
 from seesys.core.errors import SeesysError
 from seesys.core.messages import FeatureFrame, MessageError
@@ -61,6 +74,12 @@ class DeviceState:
     queue_full: int = 0
     no_worker: int = 0
     out_of_order: int = 0
+    id_in_use: int = 0
+    takeovers: int = 0
+    stream_session: int = 0  # of the stream the id is bound to
+    key: str = ""  # its Curve public key (Z85), "" without Curve
+    last_frame: float = 0.0  # monotonic time of the bound stream's last frame
+    refused_streams: set = field(default_factory=set)  # (stream session, key) refused and logged
     last_published: int = -1
     latency_ms: deque = field(default_factory=deque)
     frame_times: deque = field(default_factory=deque)
@@ -191,15 +210,45 @@ class Broker:
 
     # ----------------------------------------------------------------------------------------------- devices
     def _from_devices(self) -> None:
+        curve = self.config.curve.enabled
         for _ in range(_BURST):
             try:
-                parts = self._ingest.recv_multipart(zmq.NOBLOCK, copy=True)
+                frames = self._ingest.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 return
-            self._ingest_one(parts)
+            key = (frames[0].get("User-Id") or "") if curve else ""
+            self._ingest_one([f.bytes for f in frames], key)
 
-    def _ingest_one(self, parts: list[bytes]) -> None:
-        stamp = time.time()
+    def _log(self, text: str) -> None:
+        print(f"estimator broker: {text}", file=sys.stderr, flush=True)
+
+    def _admit(self, frame: FeatureFrame, key: str, device: DeviceState, now: float) -> bool:
+        """Whether ``frame`` belongs to the stream its device id is bound to (binding a new id, or handing an id
+        whose stream went silent for ``id_takeover_after_s`` to this one)."""
+        stream = (frame.stream_session, key)
+        if device.frames == 0 or stream == (device.stream_session, device.key):
+            device.stream_session, device.key = stream
+            return True
+        silent_s = now - device.last_frame
+        if silent_s > self.config.id_takeover_after_s:
+            self._log(f"device {frame.device_id!r}: stream session {frame.stream_session:x}{_key_text(key)} takes "
+                      f"the id over from stream session {device.stream_session:x}{_key_text(device.key)}, silent "
+                      f"for {silent_s:.1f} s")
+            device.stream_session, device.key = stream
+            device.takeovers += 1
+            device.last_published = -1
+            device.refused_streams.discard(stream)
+            return True
+        device.id_in_use += 1
+        if stream not in device.refused_streams:
+            device.refused_streams.add(stream)
+            self._log(f"device {frame.device_id!r}: frames of stream session {frame.stream_session:x}"
+                      f"{_key_text(key)} refused: the id is in use by stream session {device.stream_session:x}"
+                      f"{_key_text(device.key)} (give each device its own device_id in monitor.toml)")
+        return False
+
+    def _ingest_one(self, parts: list[bytes], key: str = "") -> None:
+        token = time.monotonic()
         if sum(len(p) for p in parts) > self.config.max_message_bytes:
             self.rejected["oversized"] += 1
             return
@@ -217,13 +266,16 @@ class Broker:
         device = self.devices.get(frame.device_id)
         if device is None:
             device = self.devices[frame.device_id] = DeviceState(latency_ms=deque(maxlen=self.config.latency_window))
+        if not self._admit(frame, key, device, token):
+            return
         previous = self.losses.devices.get(frame.device_id)
         if previous is not None and frame.frame_index <= previous.last_index:
             device.last_published = -1  # the device restarted: its frame indices begin again
         self.losses.observe(frame)
         device.frames += 1
-        device.frame_times.append(time.monotonic())
-        self._forward(frame.device_id, device, stamp, parts)
+        device.last_frame = token
+        device.frame_times.append(token)
+        self._forward(frame.device_id, device, token, parts)
 
     def _assign(self, device_id: str, device: DeviceState) -> WorkerState | None:
         worker = self.workers.get(device.worker) if device.worker is not None else None
@@ -235,14 +287,14 @@ class Broker:
             device.worker = worker.identity
         return worker
 
-    def _forward(self, device_id: str, device: DeviceState, stamp: float, parts: list[bytes]) -> None:
+    def _forward(self, device_id: str, device: DeviceState, token: float, parts: list[bytes]) -> None:
         worker = self._assign(device_id, device)
         if worker is None:
             device.no_worker += 1
             return
+        forward = envelope.pack_forward(token, (time.monotonic() - token) * 1000.0)
         try:
-            self._backend.send_multipart([worker.identity, envelope.FRAME, envelope.pack_stamp(stamp), *parts],
-                                         zmq.NOBLOCK)
+            self._backend.send_multipart([worker.identity, envelope.FRAME, forward, *parts], zmq.NOBLOCK)
         except zmq.Again:
             device.queue_full += 1
             return
@@ -281,21 +333,22 @@ class Broker:
             worker.report = data
 
     def _publish(self, identity: bytes, parts: list[bytes]) -> None:
-        now = time.time()
+        now = time.monotonic()
         for k in range(0, len(parts) - 2, 3):
             topic, body, meta = parts[k:k + 3]
             device_id = topic[len(messages.ESTIMATE_TOPIC):-len(messages.TOPIC_END)].decode("utf-8")
             device = self.devices.get(device_id)
-            stamp, frame_index = envelope.unpack_meta(meta)
-            if device is None or device.worker != identity or frame_index <= device.last_published:
+            token, frame_index, stream_session = envelope.unpack_meta(meta)
+            if (device is None or device.worker != identity or frame_index <= device.last_published
+                    or stream_session != device.stream_session):
                 if device is not None:
                     device.out_of_order += 1
                 continue
             self._estimates.send_multipart([topic, body])
             device.last_published = frame_index
             device.estimates += 1
-            device.latency_ms.append((now - stamp) * 1000.0)
-            device.estimate_times.append(time.monotonic())
+            device.latency_ms.append((now - token) * 1000.0)
+            device.estimate_times.append(now)
 
     def _remove_worker(self, identity: bytes) -> None:
         worker = self.workers.pop(identity, None)
@@ -313,21 +366,32 @@ class Broker:
     def status(self) -> dict:
         """Devices, workers, rates, queue depths, drops and latency percentiles, as plain data."""
         now, window = time.monotonic(), self.config.rate_window_s
-        stale: dict[str, int] = {}
+        reported: dict[str, dict[str, int]] = {reason: {} for reason in DROP_REASONS}
+        nonfinite: dict[str, int] = {}
+        refused: dict[str, str] = {}
         for w in self.workers.values():
-            for device_id, n in w.report.get("stale", {}).items():
-                stale[device_id] = stale.get(device_id, 0) + n
+            for reason, by_device in w.report.get("dropped", {}).items():
+                counts = reported.setdefault(reason, {})
+                for device_id, n in by_device.items():
+                    counts[device_id] = counts.get(device_id, 0) + n
+            for device_id, n in w.report.get("nonfinite", {}).items():
+                nonfinite[device_id] = nonfinite.get(device_id, 0) + n
+            refused.update(w.report.get("settings_refused", {}))
         devices = {}
         for device_id, d in sorted(self.devices.items()):
-            loss = self.losses.devices[device_id]
+            loss = self.losses.devices.get(device_id)
             worker = self.workers.get(d.worker) if d.worker is not None else None
             devices[device_id] = {
                 "worker": worker.name if worker else None, "frames": d.frames,
+                "stream_session": f"{d.stream_session:x}", "takeovers": d.takeovers,
                 "frames_per_s": _rate(d.frame_times, now, window), "estimates": d.estimates,
                 "estimates_per_s": _rate(d.estimate_times, now, window),
-                "lost_in_transit": loss.lost_in_transit, "skipped_by_device": loss.skipped_by_device,
-                "dropped": {"stale": stale.get(device_id, 0), "queue_full": d.queue_full,
-                            "no_worker": d.no_worker, "out_of_order": d.out_of_order},
+                "lost_in_transit": loss.lost_in_transit if loss else 0,
+                "skipped_by_device": loss.skipped_by_device if loss else 0,
+                "dropped": {**{reason: counts.get(device_id, 0) for reason, counts in reported.items()},
+                            "queue_full": d.queue_full, "no_worker": d.no_worker, "out_of_order": d.out_of_order,
+                            "id_in_use": d.id_in_use},
+                "nonfinite": nonfinite.get(device_id, 0), "settings_refused": refused.get(device_id),
                 "server_ms": _percentiles(d.latency_ms)}
         workers = [{"name": w.name, "pid": w.pid, "provider": w.provider, "devices": sorted(w.devices),
                     "queue_depth": max(0, w.forwarded - w.report.get("frames", 0)) + w.report.get("pending", 0),
@@ -341,6 +405,10 @@ class Broker:
                 "refused_workers": self.refused_workers, "workers": workers, "devices": devices,
                 "estimates_per_s": sum(v["estimates_per_s"] for v in devices.values()),
                 "server_ms": _percentiles(all_latency)}
+
+
+def _key_text(key: str) -> str:
+    return f" (key {key[:8]}…)" if key else ""
 
 
 def default_model(config: ServiceConfig, model: Path | None) -> Path:

@@ -44,6 +44,7 @@ class ServiceConfig:
     worker_start_timeout_s: float
     latency_window: int
     rate_window_s: float
+    id_takeover_after_s: float
     curve: CurveConfig
 
     def __post_init__(self) -> None:

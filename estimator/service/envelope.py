@@ -1,9 +1,15 @@
 """The broker ↔ worker messages (DEALER ↔ ROUTER), internal to the service.
 
-Broker → worker: ``[b"F", stamp, topic, body]`` a feature frame (``stamp``: f64 wall-clock second at which the
-broker received it; the body already validated) and ``[b"Q"]`` stop. Worker → broker: ``[b"R", json]`` ready
-(name, pid, model version), ``[b"S", json]`` statistics (every heartbeat) and ``[b"E", (topic, body, meta)…]``
-estimates, ``meta`` = f64 stamp of the window's last frame + i64 its frame index.
+Broker → worker: ``[b"F", forward, topic, body]`` a feature frame (the body already validated; ``forward`` =
+f64 token + f64 age in ms: the token is the broker's monotonic second at which it received the frame, which the
+worker only hands back, and the age is how long the frame had been at the broker when it was forwarded) and
+``[b"Q"]`` stop. Worker → broker: ``[b"R", json]`` ready (name, pid, model version), ``[b"S", json]`` statistics
+(every heartbeat) and ``[b"E", (topic, body, meta)…]`` estimates, ``meta`` = f64 token of the window's last frame
++ i64 its frame index + u64 its stream session.
+
+No clock is compared across processes: the worker measures a window's age on its own clock from the moment it
+received the last frame, plus the age the broker reported; the broker measures latency on its own clock from the
+token it gave. Broker and workers may run on machines whose clocks differ.
 """
 
 from __future__ import annotations
@@ -16,23 +22,23 @@ STOP = b"Q"
 READY = b"R"
 STATS = b"S"
 ESTIMATES = b"E"
-_STAMP = struct.Struct("<d")
-_META = struct.Struct("<dq")
+_FORWARD = struct.Struct("<dd")
+_META = struct.Struct("<dqQ")
 
 
-def pack_stamp(stamp: float) -> bytes:
-    return _STAMP.pack(stamp)
+def pack_forward(token: float, age_ms: float) -> bytes:
+    return _FORWARD.pack(token, age_ms)
 
 
-def unpack_stamp(data: bytes) -> float:
-    return _STAMP.unpack(data)[0]
+def unpack_forward(data: bytes) -> tuple[float, float]:
+    return _FORWARD.unpack(data)
 
 
-def pack_meta(stamp: float, frame_index: int) -> bytes:
-    return _META.pack(stamp, frame_index)
+def pack_meta(token: float, frame_index: int, stream_session: int) -> bytes:
+    return _META.pack(token, frame_index, stream_session)
 
 
-def unpack_meta(data: bytes) -> tuple[float, int]:
+def unpack_meta(data: bytes) -> tuple[float, int, int]:
     return _META.unpack(data)
 
 

@@ -1,6 +1,7 @@
-"""The model a worker serves: an exported ONNX model (checked against this installation's RTS schema, windows and
-label transform when loaded), its version string, the window shape it accepts and the ONNX Runtime execution
-provider that runs it; and the untrained stand-in served until a trained model ships.
+"""The model a worker serves: an exported ONNX model (checked against this installation's RTS schema, windows,
+label and device settings when loaded), its version string, the window shape it accepts, the device settings it
+was made for (every device's frames are checked against them) and the ONNX Runtime execution provider that runs
+it; and the untrained stand-in served until a trained model ships.
 
 Serving imports neither PyTorch nor the ``onnx`` package (:mod:`estimator.deepsee.onnx_model`): a worker starts in
 well under a second plus the model's load. Only :func:`export_untrained` needs PyTorch."""
@@ -13,9 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator.deepsee.compatibility import ModelSetup
 from estimator.deepsee.config import ModelConfig, load_estimator_config
 from estimator.deepsee.onnx_model import OnnxModel
-from estimator.deepsee.transforms import LabelTransform, prepare_rts
+from estimator.deepsee.transforms import LabelTransform, prepare_rts_counted
+from seesys.core.device_settings import DeviceSettings, settings_differences
 from seesys.core.windows import WindowConfig, WindowSample
 
 
@@ -32,26 +35,41 @@ class ServedModel:
     version: str
     psd_shape: tuple[int, int, int, int]  # (K_L, H, W, 3) of one window
     provider: str  # the ONNX Runtime execution provider that runs it, e.g. CPUExecutionProvider
+    device_record: dict  # the device settings it was made for (record["device"])
     _model: object
     _transform: LabelTransform
 
     @classmethod
-    def load(cls, path: Path, windows: WindowConfig, threads: int = 1, providers: str = "auto") -> ServedModel:
+    def load(cls, path: Path, windows: WindowConfig, threads: int = 1, providers: str = "auto",
+             setup: ModelSetup | None = None) -> ServedModel:
         """Load ``path`` on ``threads`` intra-op threads and the execution providers of ``providers`` (``auto``,
         ``cpu`` or ``cuda``: see :mod:`estimator.deepsee.onnx_model`); raises ``ModelMismatch`` for a model made
-        for other inputs or a file that is not one, ``ConfigError`` for a provider setting that cannot be met."""
+        for other inputs (naming each field that differs from ``windows`` and ``setup``, this installation's
+        configs by default) or a file that is not one, ``ConfigError`` for a provider setting that cannot be
+        met."""
         transform = LabelTransform(load_estimator_config().label_transform.k)
-        model = OnnxModel(Path(path), transform, windows, threads, providers)
+        model = OnnxModel(Path(path), transform, windows, threads, providers, setup)
         psd_input = model.session.get_inputs()[1].shape
-        return cls(model_version(path), tuple(int(d) for d in psd_input[1:]), model.provider, model, transform)
+        return cls(model_version(path), tuple(int(d) for d in psd_input[1:]), model.provider,
+                   dict(model.record.get("device", {})), model, transform)
 
     def accepts(self, sample: WindowSample) -> bool:
         return sample.psd.shape == self.psd_shape
 
+    def settings_differences(self, settings: DeviceSettings | None) -> list[str]:
+        """How a device's stated settings differ from the model's (empty: served)."""
+        if settings is None:
+            return ["the device states no settings"]
+        return settings_differences(self.device_record, settings)
+
     def estimate(self, samples: list[WindowSample]) -> np.ndarray:
-        rts = prepare_rts(np.stack([s.rts for s in samples]))
+        return self.estimate_counted(samples)[0]
+
+    def estimate_counted(self, samples: list[WindowSample]) -> tuple[np.ndarray, np.ndarray]:
+        """The errors of ``samples`` and, per sample, how many RTS values were not finite and became 0."""
+        rts, replaced = prepare_rts_counted(np.stack([s.rts for s in samples]))
         psd = np.stack([s.psd for s in samples])
-        return self._transform.inverse(self._model(rts, psd))
+        return self._transform.inverse(self._model(rts, psd)), replaced
 
 
 def export_untrained(path: Path, windows: WindowConfig, psd_size: tuple[int, int], seed: int,

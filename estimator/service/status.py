@@ -47,10 +47,22 @@ def format_status(status: dict) -> str:
         lines.append(f"{w['name']:<24}{w['pid']:>8}{_provider(w['provider']):>10}{len(w['devices']):>9}{w['queue_depth']:>7}"
                      f"{w['estimates'] or 0:>11}{_ms(w['batch_ms_p50']):>11}{_ms(w['batch_ms_p99']):>11}{mean:>12}")
     lines += ["", f"{'device':<20}{'worker':<16}{'frames/s':>9}{'est/s':>7}{'estimates':>10}{'lost':>6}"
-                  f"{'stale':>6}{'q-full':>7}{'no-wkr':>7}{'p50 ms':>8}{'p99 ms':>8}"]
+                  f"{'p50 ms':>8}{'p99 ms':>8}  dropped (by reason)"]
+    notes = []
     for name, d in status["devices"].items():
-        drops = d["dropped"]
         lines.append(f"{name:<20}{d['worker'] or '-':<16}{d['frames_per_s']:>9.1f}{d['estimates_per_s']:>7.1f}"
-                     f"{d['estimates']:>10}{d['lost_in_transit']:>6}{drops['stale']:>6}{drops['queue_full']:>7}"
-                     f"{drops['no_worker']:>7}{_ms(d['server_ms']['p50']):>8}{_ms(d['server_ms']['p99']):>8}")
-    return "\n".join(lines)
+                     f"{d['estimates']:>10}{d['lost_in_transit']:>6}{_ms(d['server_ms']['p50']):>8}"
+                     f"{_ms(d['server_ms']['p99']):>8}  {dropped_text(d['dropped'])}")
+        if d.get("settings_refused"):
+            notes.append(f"{name}: frames refused, settings differ from the model's: {d['settings_refused']}")
+        if d.get("nonfinite"):
+            notes.append(f"{name}: {d['nonfinite']} RTS values not finite (NaN, inf), given to the model as 0")
+        if d.get("takeovers"):
+            notes.append(f"{name}: id taken over {d['takeovers']} time(s) by a restarted device (stream session now "
+                         f"{d['stream_session']})")
+    return "\n".join(lines + ([""] + notes if notes else []))
+
+
+def dropped_text(dropped: dict[str, int]) -> str:
+    """Every non-zero drop reason by name, ``-`` for none."""
+    return ", ".join(f"{reason} {n}" for reason, n in dropped.items() if n) or "-"

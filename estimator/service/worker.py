@@ -5,8 +5,17 @@ cannot starve the model), adds each to its device's :class:`~seesys.core.windows
 at most one ready window per device: a newer window of the same device supersedes an older one not yet served,
 which is dropped as stale. It then serves up to ``max_batch`` ready windows, freshest first, in one batched run;
 a window whose last frame reached the broker more than ``stale_after_ms`` ago is dropped and counted instead
-(an estimate that late would mislead the advisory more than no estimate). Every ``heartbeat_ms`` it reports its
-counters to the broker.
+(an estimate that late would mislead the advisory more than no estimate). That age is measured on one clock, the
+worker's own monotonic clock, from the moment the worker received the frame, plus the age the broker reported when
+it forwarded it: no wall clock of another machine is compared with this one's. Every ``heartbeat_ms`` it reports
+its counters to the broker.
+
+Drops, counted per device by reason and reported with every heartbeat: ``settings_mismatch`` (a frame whose
+device settings differ from the model's, or that states none: refused, and the difference logged once per stream
+session), ``shape_mismatch`` (a window whose PSD is of another shape than the model's: a camera of another
+resolution), ``missing_rts`` and ``missing_psd`` (a window end whose history arrived but with more than
+``max_missing_rts`` rows missing or untracked, or a PSD sample missing) and ``stale``. Non-finite RTS values
+(NaN, ±inf) the model sees as 0 are counted per device too (``nonfinite``).
 
 Order. Below capacity the queue is short and the order hardly matters. Overloaded, oldest first would serve every
 window just before its deadline, one at a time (the oldest leaves no room for a batch), while the fresher ones
@@ -20,7 +29,8 @@ throughput there and holds back its first estimates. The worker therefore keeps 
 takes the largest batch whose oldest window still finishes within ``stale_after_ms`` (:func:`batch_size`); on a
 GPU, where a batch costs little more than one window, batches stay large.
 
-Frame indices that go backwards mean the device restarted: its windows start afresh. SIGINT and SIGTERM end the
+A new stream session of a device, or frame indices that go backwards, mean the device restarted: its windows start
+afresh. SIGINT and SIGTERM end the
 loop after the current batch; so does a stop message from the broker.
 """
 
@@ -32,7 +42,7 @@ import socket
 import sys
 import time
 from collections import defaultdict, deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,7 +54,7 @@ from estimator.service.config import ServiceConfig
 from estimator.service.model import ServedModel
 from seesys.core import messages
 from seesys.core.messages import Estimate, FeatureFrame
-from seesys.core.windows import WindowAssembler, WindowConfig, WindowSample
+from seesys.core.windows import MISSING_PSD, MISSING_RTS, WindowAssembler, WindowConfig, WindowSample
 from seesys.io.processes import die_with_parent
 from seesys.io.transport import open_socket
 
@@ -52,6 +62,8 @@ from seesys.io.transport import open_socket
 _TIMING_SAMPLES = 512
 # Weight of the newest batch in the running cost per window (a few batches settle it; a slower machine shows soon).
 _COST_WEIGHT = 0.2
+#: Every reason a worker drops a frame or a window for, as the broker's status names it.
+DROP_REASONS = ("settings_mismatch", "shape_mismatch", MISSING_RTS, MISSING_PSD, "stale")
 
 
 def batch_size(ages_ms: Sequence[float], max_batch: int, window_ms: float, stale_after_ms: float) -> int:
@@ -74,9 +86,11 @@ class WorkerCounters:
     estimates: int = 0
     batches: int = 0
     undelivered: int = 0
-    stale: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    shape_mismatch: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    dropped: dict[str, dict[str, int]] = field(
+        default_factory=lambda: {reason: defaultdict(int) for reason in DROP_REASONS})
+    nonfinite: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     restarts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    settings_refused: dict[str, str] = field(default_factory=dict)  # device → why its frames are refused
     batch_ms: deque = field(default_factory=lambda: deque(maxlen=_TIMING_SAMPLES))
     batch_sizes: deque = field(default_factory=lambda: deque(maxlen=_TIMING_SAMPLES))
 
@@ -84,7 +98,9 @@ class WorkerCounters:
         ms = np.asarray(self.batch_ms, dtype=float)
         return {"frames": self.frames, "windows": self.windows, "estimates": self.estimates,
                 "batches": self.batches, "undelivered": self.undelivered, "pending": pending,
-                "stale": dict(self.stale), "shape_mismatch": dict(self.shape_mismatch), "restarts": dict(self.restarts),
+                "dropped": {reason: dict(by_device) for reason, by_device in self.dropped.items()},
+                "nonfinite": dict(self.nonfinite), "restarts": dict(self.restarts),
+                "settings_refused": dict(self.settings_refused),
                 "batch_ms_p50": float(np.percentile(ms, 50)) if ms.size else None,
                 "batch_ms_p99": float(np.percentile(ms, 99)) if ms.size else None,
                 "batch_size_mean": float(np.mean(self.batch_sizes)) if self.batch_sizes else None}
@@ -93,19 +109,24 @@ class WorkerCounters:
 @dataclass
 class _Ready:
     sample: WindowSample
-    stamp: float
+    token: float  # the broker's, handed back with the estimate
+    received: float  # on the worker's clock: when its last frame reached the broker
+    stream_session: int
 
 
 class Worker:
     """One worker's state and loop; :meth:`run` returns when told to stop."""
 
     def __init__(self, broker_endpoint: str, model: ServedModel, windows: WindowConfig, config: ServiceConfig,
-                 name: str | None = None):
+                 name: str | None = None, clock: Callable[[], float] = time.monotonic):
         self.model, self.windows, self.config = model, windows, config
         self.name = name or f"{socket.gethostname()}:{os.getpid()}"
         self.counters = WorkerCounters()
+        self._clock = clock  # seconds; only ever compared with itself
         self._assemblers: dict[str, WindowAssembler] = {}
         self._last_index: dict[str, int] = {}
+        self._session: dict[str, int] = {}
+        self._checked: dict[str, tuple[int, object, list[str]]] = {}  # device → (session, settings, differences)
         self._ready: dict[str, _Ready] = {}
         self._stopping = False
         self._ctx = zmq.Context()
@@ -159,50 +180,75 @@ class Worker:
                 self._stopping = True
                 return
             if parts[0] == envelope.FRAME:
-                self._add(envelope.unpack_stamp(parts[1]), parts[2:])
+                token, age_ms = envelope.unpack_forward(parts[1])
+                self._add(token, self._clock() - age_ms / 1000.0, parts[2:])
 
-    def _add(self, stamp: float, frames: list[bytes]) -> None:
+    def _settings_refused(self, frame: FeatureFrame) -> bool:
+        """True (and logged once per stream session) when the frame's device settings differ from the model's."""
+        device = frame.device_id
+        checked = self._checked.get(device)
+        if checked is None or checked[:2] != (frame.stream_session, frame.settings):
+            differences = self.model.settings_differences(frame.settings)
+            if differences:
+                why = "; ".join(differences)
+                print(f"estimator worker {self.name}: device {device!r} (stream session {frame.stream_session:x}): "
+                      f"frames refused, its settings differ from the model's: {why}", file=sys.stderr, flush=True)
+            checked = self._checked[device] = (frame.stream_session, frame.settings, differences)
+        if checked[2]:
+            self.counters.settings_refused[device] = "; ".join(checked[2])
+            self.counters.dropped["settings_mismatch"][device] += 1
+            return True
+        self.counters.settings_refused.pop(device, None)
+        return False
+
+    def _add(self, token: float, received: float, frames: list[bytes]) -> None:
         frame = messages.decode(frames)  # validated by the broker already
         assert isinstance(frame, FeatureFrame)
         self.counters.frames += 1
         device = frame.device_id
-        if frame.frame_index <= self._last_index.get(device, -1):
-            # A device that restarted counts its frames from 0 again: rows of its last session must not fill
-            # the new session's windows.
+        if self._settings_refused(frame):
+            return
+        if (frame.stream_session != self._session.get(device, frame.stream_session)
+                or frame.frame_index <= self._last_index.get(device, -1)):
+            # A device that restarted (a new stream session, or its frames counted from 0 again): rows of its last
+            # session must not fill the new session's windows.
             self._assemblers.pop(device, None)
             self._ready.pop(device, None)
             self.counters.restarts[device] += 1
+        self._session[device] = frame.stream_session
         self._last_index[device] = frame.frame_index
         assembler = self._assemblers.get(device)
         if assembler is None:
             assembler = self._assemblers[device] = WindowAssembler(self.windows)
         sample = assembler.add(frame)
         if sample is None:
+            if assembler.refused is not None:
+                self.counters.dropped[assembler.refused][device] += 1
             return
         self.counters.windows += 1
         if not self.model.accepts(sample):
-            self.counters.shape_mismatch[device] += 1
+            self.counters.dropped["shape_mismatch"][device] += 1
             return
         if device in self._ready:
-            self.counters.stale[device] += 1  # superseded before it was served
-        self._ready[device] = _Ready(sample, stamp)
+            self.counters.dropped["stale"][device] += 1  # superseded before it was served
+        self._ready[device] = _Ready(sample, token, received, frame.stream_session)
 
     def _serve_batch(self) -> None:
-        now = time.time()
+        now = self._clock()
         limit = self.config.stale_after_ms / 1000.0
         for device, ready in list(self._ready.items()):
-            if now - ready.stamp > limit:
+            if now - ready.received > limit:
                 del self._ready[device]
-                self.counters.stale[device] += 1
-        waiting = sorted(self._ready.values(), key=lambda r: r.stamp, reverse=True)  # freshest first
+                self.counters.dropped["stale"][device] += 1
+        waiting = sorted(self._ready.values(), key=lambda r: r.received, reverse=True)  # freshest first
         if not waiting:
             return
-        ages_ms = [(now - r.stamp) * 1000.0 for r in waiting]
+        ages_ms = [(now - r.received) * 1000.0 for r in waiting]
         batch = waiting[:batch_size(ages_ms, self.config.max_batch, self._window_ms, self.config.stale_after_ms)]
         for ready in batch:
             del self._ready[ready.sample.device_id]
         start = time.perf_counter()
-        errors = self.model.estimate([r.sample for r in batch])
+        errors, replaced = self.model.estimate_counted([r.sample for r in batch])
         elapsed_ms = (time.perf_counter() - start) * 1000.0
         per_window = elapsed_ms / len(batch)
         self._window_ms = per_window if not self._window_ms else (
@@ -211,12 +257,14 @@ class Worker:
         self.counters.batch_sizes.append(len(batch))
         self.counters.batches += 1
         parts = [envelope.ESTIMATES]
-        sent = time.time()
-        for ready, error_m in zip(batch, errors):
+        sent = self._clock()
+        for ready, error_m, nonfinite in zip(batch, errors, replaced):
             s = ready.sample
+            if nonfinite:
+                self.counters.nonfinite[s.device_id] += int(nonfinite)
             estimate = Estimate(s.device_id, s.frame_index, s.timestamp, float(error_m), self.model.version,
-                                (sent - ready.stamp) * 1000.0)
-            parts += [*messages.encode(estimate), envelope.pack_meta(ready.stamp, s.frame_index)]
+                                (sent - ready.received) * 1000.0, ready.stream_session)
+            parts += [*messages.encode(estimate), envelope.pack_meta(ready.token, s.frame_index, ready.stream_session)]
         self.counters.estimates += len(batch)
         self._send(parts)
 

@@ -55,7 +55,7 @@ from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
 from seesys.io.session_files import utc_now
 from seesys.io.transport import peer_answers
-from slam_monitor.monitor_config import load_monitor_config
+from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
 from slam_monitor.sources import load_camera_config, open_source, parse_source_spec
 from study.watch import StreamWatcher
 
@@ -204,7 +204,8 @@ class App:
     def _view_setup(self) -> ViewSetup:
         status_endpoint = load_service_config(self.config_dir).status_endpoint if self.o.local else None
         return ViewSetup(self.folder, self.o.source, self.o.condition.value, self.cfg.view,
-                         load_monitor_config(self.config_dir).device_id, self.advisory.equation2.beta_m,
+                         resolve_device_id(load_monitor_config(self.config_dir).device_id, self.o.source),
+                         self.advisory.equation2.beta_m,
                          None if self.o.local else self.o.estimator, status_endpoint)
 
     def _start(self, name: str, args: list[str]) -> None:

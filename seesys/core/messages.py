@@ -6,15 +6,22 @@ prefix matches, and the terminator keeps a subscription to ``dev-1`` from also m
 subscription to the bare kind prefix still receives every device. Device ids are 1–255 bytes of UTF-8 without
 NUL. The body is little-endian binary:
 
-``magic "SEES" | u8 protocol version | u8 kind | u8 len + device id (utf-8) | i64 frame index | f64 timestamp``
-followed by the kind's payload:
+``magic "SEES" | u8 protocol version | u8 kind | u8 len + device id (utf-8) | u64 stream session |
+i64 frame index | f64 timestamp`` followed by the kind's payload:
 
 - :class:`FeatureFrame`: ``u16 RTS schema version | u32 RTS schema fingerprint | u32 frames skipped |
-  i8 tracking state | u16 C + C × f32 RTS row | u8 has_psd`` and, when has_psd, the PSD as :func:`pack_psd`
-  writes it (``u16 H | u16 W | u16 L | u32 n + n bytes``). "Frames skipped" is the device's running count of
-  frames it tracked but did not publish (its monitor fell behind): a receiver that sees a gap in frame indices
-  can tell those from frames lost on the way.
+  i8 tracking state | u16 C + C × f32 RTS row | u8 has_settings`` and, when has_settings, the device's settings
+  (:class:`~seesys.core.device_settings.DeviceSettings`: ``u8 SLAM mode | u16 fps | u16 ORB features |
+  u16 PSD patch px | u16 PSD expansion | f64 near depth``), then ``u8 has_psd`` and, when has_psd, the PSD as
+  :func:`pack_psd` writes it (``u16 H | u16 W | u16 L | u32 n + n bytes``). "Frames skipped" is the device's
+  running count of frames it tracked but did not publish (its monitor fell behind): a receiver that sees a gap in
+  frame indices can tell those from frames lost on the way.
 - :class:`Estimate`: ``f64 error (m) | f64 server time (ms) | u8 len + model version (utf-8)``.
+
+The *stream session* is a random number a device draws when it starts streaming and carries in every frame: the
+service binds a device id to the stream session that used it first (ZeroMQ tells a subscriber nothing of its
+peers), and every estimate carries the stream session of the frames it was made from, so that a device takes only
+estimates of its own frames (same device id, same stream session, same frame index).
 
 :func:`decode` validates everything (magic, protocol version, kind, RTS schema, lengths, channel count, shape,
 finiteness) and raises :class:`MessageError` naming the problem; a receiver counts and drops such messages, it
@@ -31,10 +38,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from seesys.core import rts_schema
+from seesys.core.device_settings import SLAM_MODES, DeviceSettings
 from seesys.core.errors import SeesysError
 from seesys.core.tracking_state import TrackingState
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 MAGIC = b"SEES"
 #: Topic prefixes of the two kinds; subscribe to one alone to receive every device's messages of that kind.
 FEATURE_TOPIC = b"F/"
@@ -44,10 +52,11 @@ TOPIC_END = b"\x00"
 _KIND_FEATURE = 1
 _KIND_ESTIMATE = 2
 _HEAD = struct.Struct("<4sBB")
-_FRAME_ID = struct.Struct("<qd")
+_FRAME_ID = struct.Struct("<Qqd")
 _PSD_HEAD = struct.Struct("<HHHI")
 _ESTIMATE = struct.Struct("<dd")
 _FEATURE_HEAD = struct.Struct("<HIIbH")
+_SETTINGS = struct.Struct("<BHHHHd")
 _PSD_LEVEL = 6
 
 
@@ -68,6 +77,8 @@ class FeatureFrame:
     frames_skipped: int = 0
     rts_schema_version: int = rts_schema.SCHEMA_VERSION
     rts_schema_fingerprint: int = rts_schema.FINGERPRINT
+    stream_session: int = 0
+    settings: DeviceSettings | None = None  # None: the device states none (the service refuses such frames)
 
 
 @dataclass(frozen=True)
@@ -80,6 +91,7 @@ class Estimate:
     error_m: float
     model_version: str
     server_ms: float = math.nan
+    stream_session: int = 0  # the stream session of the frames it was made from
 
 
 def topic(kind: bytes, device_id: str) -> bytes:
@@ -99,7 +111,7 @@ def _pack_text(text: str, what: str) -> bytes:
 def encode(message: FeatureFrame | Estimate) -> list[bytes]:
     """The ``[topic, body]`` frames of ``message``."""
     device = _pack_text(message.device_id, "device id")
-    ident = _FRAME_ID.pack(int(message.frame_index), float(message.timestamp))
+    ident = _FRAME_ID.pack(int(message.stream_session), int(message.frame_index), float(message.timestamp))
     if isinstance(message, FeatureFrame):
         rts = np.asarray(message.rts, dtype="<f4")
         if rts.shape != (rts_schema.NUM_CHANNELS,):
@@ -107,7 +119,7 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
         parts = [_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_FEATURE), device, ident,
                  _FEATURE_HEAD.pack(message.rts_schema_version, message.rts_schema_fingerprint,
                                     message.frames_skipped, int(message.tracking_state), rts.size),
-                 rts.tobytes()]
+                 rts.tobytes(), _pack_settings(message.settings)]
         if message.psd is None:
             parts.append(b"\x00")
         else:
@@ -119,6 +131,27 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
                          _pack_text(message.model_version, "model version")])
         return [topic(ESTIMATE_TOPIC, message.device_id), body]
     raise TypeError(f"cannot encode {type(message).__name__}")
+
+
+def _pack_settings(settings: DeviceSettings | None) -> bytes:
+    if settings is None:
+        return b"\x00"
+    return b"\x01" + _SETTINGS.pack(SLAM_MODES.index(settings.slam_mode), settings.fps, settings.orb_features,
+                                    settings.psd_patch_px, settings.psd_expansion, settings.near_depth)
+
+
+def _read_settings(r: _Reader) -> DeviceSettings | None:
+    (flag,) = r.take(1, "settings flag")
+    if flag == 0:
+        return None
+    if flag != 1:
+        raise MessageError(f"bad settings flag {flag}")
+    mode, fps, features, patch_px, expansion, near_depth = r.unpack(_SETTINGS, "device settings")
+    if mode >= len(SLAM_MODES):
+        raise MessageError(f"unknown SLAM mode {mode} in the device settings")
+    if not math.isfinite(near_depth):
+        raise MessageError(f"near depth is not finite: {near_depth}")
+    return DeviceSettings(SLAM_MODES[mode], fps, features, patch_px, expansion, near_depth)
 
 
 class _Reader:
@@ -164,7 +197,7 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     device_id = r.text("device id")
     if not device_id or "\x00" in device_id:
         raise MessageError(f"bad device id {device_id!r}")
-    frame_index, timestamp = r.unpack(_FRAME_ID, "frame id")
+    stream_session, frame_index, timestamp = r.unpack(_FRAME_ID, "frame id")
     if frame_index < 0:
         raise MessageError(f"negative frame index {frame_index}")
     if not math.isfinite(timestamp):
@@ -175,13 +208,13 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     if received_topic != topic(expected_topic, device_id):
         raise MessageError(f"topic {received_topic!r} does not match the body (kind {kind}, device {device_id!r})")
     if kind == _KIND_FEATURE:
-        return _decode_feature(r, device_id, frame_index, timestamp)
+        return _decode_feature(r, device_id, stream_session, frame_index, timestamp)
     error_m, server_ms = r.unpack(_ESTIMATE, "estimate")
     model_version = r.text("model version")
     r.finish()
     if not math.isfinite(error_m) or error_m < 0:
         raise MessageError(f"estimated error must be a finite non-negative number of metres, got {error_m}")
-    return Estimate(device_id, frame_index, timestamp, error_m, model_version, server_ms)
+    return Estimate(device_id, frame_index, timestamp, error_m, model_version, server_ms, stream_session)
 
 
 def pack_psd(psd: np.ndarray) -> bytes:
@@ -235,7 +268,8 @@ def unpack_psd(data: bytes) -> np.ndarray:
     return psd
 
 
-def _decode_feature(r: _Reader, device_id: str, frame_index: int, timestamp: float) -> FeatureFrame:
+def _decode_feature(r: _Reader, device_id: str, stream_session: int, frame_index: int,
+                    timestamp: float) -> FeatureFrame:
     version, schema_fingerprint, skipped, state_value, n_channels = r.unpack(_FEATURE_HEAD, "feature header")
     try:
         rts_schema.check_compatible(version, schema_fingerprint, f"the feature stream of device {device_id!r}")
@@ -249,6 +283,7 @@ def _decode_feature(r: _Reader, device_id: str, frame_index: int, timestamp: flo
         raise MessageError(f"RTS row has {n_channels} channels, schema v{rts_schema.SCHEMA_VERSION} has "
                            f"{rts_schema.NUM_CHANNELS}")
     rts = np.frombuffer(r.take(4 * n_channels, "RTS row"), dtype="<f4").astype(np.float32)
+    settings = _read_settings(r)
     (has_psd,) = r.take(1, "PSD flag")
     psd = None
     if has_psd == 1:
@@ -256,4 +291,5 @@ def _decode_feature(r: _Reader, device_id: str, frame_index: int, timestamp: flo
     elif has_psd != 0:
         raise MessageError(f"bad PSD flag {has_psd}")
     r.finish()
-    return FeatureFrame(device_id, frame_index, timestamp, state, rts, psd, skipped, version, schema_fingerprint)
+    return FeatureFrame(device_id, frame_index, timestamp, state, rts, psd, skipped, version, schema_fingerprint,
+                        stream_session, settings)

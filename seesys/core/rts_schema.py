@@ -136,12 +136,22 @@ _SIGNED_LOG1P = np.array([c.transform == "signed_log1p" for c in CHANNELS])
 
 
 def normalise(rows: np.ndarray) -> np.ndarray:
-    """Normalise raw RTS rows (..., NUM_CHANNELS) for the model; NaN (no value) becomes 0."""
+    """Normalise raw RTS rows (..., NUM_CHANNELS) for the model; NaN (no value) and ±inf become 0
+    (:func:`normalise_counted` also says how many)."""
+    return normalise_counted(rows)[0]
+
+
+def normalise_counted(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`normalise`, and per row (shape ``rows.shape[:-1]``) how many values were not finite after the
+    transform and were replaced by 0: a channel without a value (NaN) or out of range (±inf). The model cannot tell
+    such a 0 from a real one, so a receiver counts them."""
     x = np.asarray(rows, dtype=np.float64)
     if x.shape[-1] != NUM_CHANNELS:
         raise ValueError(f"RTS rows must have {NUM_CHANNELS} channels, got shape {x.shape}")
     out = x.copy()
-    out[..., _LOG1P] = np.log1p(np.maximum(x[..., _LOG1P], 0.0))
-    out[..., _SIGNED_LOG1P] = np.sign(x[..., _SIGNED_LOG1P]) * np.log1p(np.abs(x[..., _SIGNED_LOG1P]))
-    out /= _SCALES
-    return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        out[..., _LOG1P] = np.log1p(np.maximum(x[..., _LOG1P], 0.0))
+        out[..., _SIGNED_LOG1P] = np.sign(x[..., _SIGNED_LOG1P]) * np.log1p(np.abs(x[..., _SIGNED_LOG1P]))
+        out /= _SCALES
+    replaced = np.count_nonzero(~np.isfinite(out), axis=-1)
+    return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32), replaced

@@ -15,6 +15,10 @@ frame (``end_stride = 1``), one sample per labelled frame.
 Rows and matrices are looked up by frame index, never "the latest of each": a window is only emitted when its
 end frame is tracked, every PSD sample is present, and at most ``max_missing_rts`` of the T rows are missing
 or untracked. (The authors pair the newest RTS window with the newest PSD window, unsynchronised.)
+``max_missing_rts`` is the one rule for every model window: the service serves and the dataset trains on the
+same windows, and a model records the rule it was trained with. A window end whose whole history has arrived but
+that is refused all the same is named in :attr:`WindowAssembler.refused` (:data:`MISSING_RTS`,
+:data:`MISSING_PSD`), so that a receiver can count it instead of staying silent.
 
 The configured windows are ``load_window_config()`` (``configs/windows.toml``).
 """
@@ -28,6 +32,11 @@ import numpy as np
 
 from seesys.core import rts_schema
 from seesys.core.messages import FeatureFrame
+
+
+#: Why a window end whose history has arrived was refused: too many RTS rows missing or untracked; a PSD missing.
+MISSING_RTS = "missing_rts"
+MISSING_PSD = "missing_psd"
 
 
 @dataclass(frozen=True)
@@ -83,10 +92,18 @@ class WindowAssembler:
         self.config = config
         self._rows: dict[int, FeatureFrame] = {}
         self._psds: dict[int, np.ndarray] = {}
+        self._first: int | None = None
+        #: Why the window ending at the last frame added was refused (:data:`MISSING_RTS`, :data:`MISSING_PSD`);
+        #: None when it was emitted, when that frame ends no window, when its end frame is untracked, or when the
+        #: window reaches back before the first frame this assembler saw.
+        self.refused: str | None = None
 
     def add(self, frame: FeatureFrame) -> WindowSample | None:
         """Store ``frame``; return the window ending at it when it ends one and the window is complete."""
         index = frame.frame_index
+        self.refused = None
+        if self._first is None:
+            self._first = index
         self._rows[index] = frame
         if frame.psd is not None:
             self._psds[index] = frame.psd
@@ -104,7 +121,9 @@ class WindowAssembler:
         if not end.tracking_state.tracked or end.psd is None:
             return None
         psd_indices = cfg.psd_frame_indices(end.frame_index)
+        history_arrived = end.frame_index - cfg.history >= (self._first or 0)
         if any(int(i) not in self._psds for i in psd_indices):
+            self.refused = MISSING_PSD if history_arrived else None
             return None
         rts_indices = cfg.rts_frame_indices(end.frame_index)
         rts = np.full((cfg.rts_length, rts_schema.NUM_CHANNELS), np.nan, dtype=np.float32)
@@ -116,6 +135,7 @@ class WindowAssembler:
             if row is None or not row.tracking_state.tracked:
                 missing += 1
         if missing > cfg.max_missing_rts:
+            self.refused = MISSING_RTS if history_arrived else None
             return None
         psd = np.stack([self._psds[int(i)] for i in psd_indices])
         return WindowSample(end.device_id, end.frame_index, end.timestamp, rts, rts_indices, psd, psd_indices,

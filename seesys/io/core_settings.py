@@ -1,14 +1,18 @@
 """Settings of the core's concepts, loaded from ``configs/``: model windows (``windows.toml``), the label
-definition (``labels.toml``) and Equation 2 with the advisory timing it is scored on (``advisory.toml``)."""
+definition (``labels.toml``), Equation 2 with the advisory timing it is scored on (``advisory.toml``) and the
+device settings a model depends on (``monitor.toml``, ``slam.toml``; for a model made here, ``dataset.toml`` and
+``synth.toml``)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
 
+from seesys.core.device_settings import DeviceSettings, model_settings_record
 from seesys.core.equation2 import Equation2Config, PulseSettings
 from seesys.core.labels import LabelConfig
 from seesys.core.windows import WindowConfig
+from seesys.core.errors import ConfigError
 from seesys.io.config import build, config_dir, load_section, read_toml
 
 
@@ -37,3 +41,31 @@ def load_pulse_settings(directory: Path | None = None) -> PulseSettings:
     timing = data.get("timing", {})
     picked = build(_PulseTiming, {k: timing[k] for k in ("buffer_s", "window_s") if k in timing}, f"{path} [timing]")
     return PulseSettings(equation2, picked.buffer_s, picked.window_s)
+
+
+def _value(directory: Path | None, file: str, *keys: str) -> object:
+    path = (directory or config_dir()) / file
+    data: object = read_toml(path)
+    for key in keys:
+        if not isinstance(data, dict) or key not in data:
+            raise ConfigError(f"{path}: missing {'.'.join(keys)}")
+        data = data[key]
+    return data
+
+
+def load_device_settings(slam_mode: str, fps: float, directory: Path | None = None) -> DeviceSettings:
+    """A device's settings (:class:`~seesys.core.device_settings.DeviceSettings`) running ``slam_mode`` at ``fps``
+    with the configured PSD (``[psd]`` of monitor.toml) and ORB feature count (``[orb] features`` of slam.toml)."""
+    return DeviceSettings.of(slam_mode, fps, _value(directory, "slam.toml", "orb", "features"),
+                             _value(directory, "monitor.toml", "psd", "patch_px"),
+                             _value(directory, "monitor.toml", "psd", "expansion"),
+                             _value(directory, "monitor.toml", "psd", "near_depth"))
+
+
+def load_model_device_record(directory: Path | None = None) -> dict:
+    """The device part of the compatibility record of a model trained here: the configured device settings, the
+    SLAM modes the dataset builder runs (``modes`` of dataset.toml) and the frame rate of its rendered sequences
+    (``[camera] fps`` of synth.toml)."""
+    modes = _value(directory, "dataset.toml", "modes")
+    settings = load_device_settings(modes[0], _value(directory, "synth.toml", "camera", "fps"), directory)
+    return model_settings_record(settings, modes)

@@ -5,7 +5,10 @@ already written:
   :mod:`seesys.core.rts_schema` order and units; ``nan`` where a channel has no value (e.g. motion on a frame
   without a pose). A plain CSV that pandas and R read as it is.
 - ``rts.json``: the schema ``rts.csv`` was written with (``rts_schema_version``, ``rts_schema_fingerprint``, the
-  channels with their units). Readers refuse an ``rts.csv`` without it, or of another schema.
+  channels with their units) and the device settings the features were made with (``device_settings``:
+  :class:`~seesys.core.device_settings.DeviceSettings`, absent where unknown). Readers refuse an ``rts.csv``
+  without it, or of another schema; frames read back carry the settings, so that a replayed session states them
+  to the estimator service as the live device did.
 - ``psd/psd_NNNNNN.bin``: the PSD matrices, in chunks of ``psd_chunk_records`` records. A record is
   ``u32 n | i64 frame index | f64 timestamp | n bytes`` of :func:`seesys.core.messages.pack_psd` (the zlib'd
   matrix, the same bytes as on the wire). A record cut short by a crash at the end of the last chunk
@@ -26,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from seesys.core import rts_schema
+from seesys.core.device_settings import DeviceSettings
 from seesys.core.errors import SeesysError
 from seesys.core.messages import FeatureFrame, MessageError, pack_psd, unpack_psd
 from seesys.core.tracking_state import TrackingState
@@ -41,17 +45,20 @@ class MonitorLogError(SeesysError):
     """A monitor log in a session folder is missing or malformed."""
 
 
-def schema_metadata() -> dict:
-    """What ``rts.json`` records: the schema of the ``rts.csv`` beside it."""
-    return {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_schema_fingerprint": rts_schema.FINGERPRINT,
+def schema_metadata(settings: DeviceSettings | None = None) -> dict:
+    """What ``rts.json`` records: the schema of the ``rts.csv`` beside it and the device's ``settings``."""
+    meta = {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_schema_fingerprint": rts_schema.FINGERPRINT,
             "channels": [{"name": c.name, "unit": c.unit} for c in rts_schema.CHANNELS]}
+    if settings is not None:
+        meta["device_settings"] = settings.as_record()
+    return meta
 
 
 class RtsCsvWriter:
     """Appends one ``rts.csv`` row per frame (and writes ``rts.json`` beside it first)."""
 
-    def __init__(self, path: Path):
-        (path.parent / RTS_JSON).write_text(json.dumps(schema_metadata(), indent=2) + "\n")
+    def __init__(self, path: Path, settings: DeviceSettings | None = None):
+        (path.parent / RTS_JSON).write_text(json.dumps(schema_metadata(settings), indent=2) + "\n")
         self._file = open(path, "w", newline="")
         self._csv = csv.writer(self._file)
         self._csv.writerow(RTS_COLUMNS)
@@ -133,8 +140,9 @@ def read_psd_log(session: Path) -> Iterator[PsdRecord]:
             raise MonitorLogError(f"{chunk}: truncated PSD record at byte {pos} in a chunk that is not the last")
 
 
-def check_rts_schema(session: Path) -> None:
-    """Raise :class:`MonitorLogError` unless the session's ``rts.json`` says its ``rts.csv`` has this schema."""
+def check_rts_schema(session: Path) -> DeviceSettings | None:
+    """Raise :class:`MonitorLogError` unless the session's ``rts.json`` says its ``rts.csv`` has this schema; the
+    device settings it records (None where it records none)."""
     session = Path(session)
     path = session / RTS_JSON
     try:
@@ -149,14 +157,19 @@ def check_rts_schema(session: Path) -> None:
         rts_schema.check_compatible(version, fingerprint, f"{session / RTS_CSV}")
     except rts_schema.SchemaMismatch as e:
         raise MonitorLogError(str(e)) from None
+    try:
+        return DeviceSettings(**meta["device_settings"]) if "device_settings" in meta else None
+    except (TypeError, ValueError) as e:
+        raise MonitorLogError(f"{path}: malformed device_settings ({e})") from None
 
 
 def read_rts_csv(session: Path) -> pd.DataFrame:
-    """``rts.csv`` of a session as a DataFrame, its schema (``rts.json``) and columns checked."""
+    """``rts.csv`` of a session as a DataFrame, its schema (``rts.json``) and columns checked; the device settings
+    of ``rts.json`` in ``table.attrs["device_settings"]`` (None where unknown)."""
     path = Path(session) / RTS_CSV
     if not path.is_file():
         raise MonitorLogError(f"no RTS log in {session} (missing {path})")
-    check_rts_schema(session)
+    settings = check_rts_schema(session)
     try:
         table = pd.read_csv(path)
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
@@ -164,14 +177,16 @@ def read_rts_csv(session: Path) -> pd.DataFrame:
     if tuple(table.columns) != RTS_COLUMNS:
         raise MonitorLogError(f"{path}: columns {list(table.columns)} do not match RTS schema "
                               f"v{rts_schema.SCHEMA_VERSION} ({', '.join(RTS_COLUMNS)})")
+    table.attrs["device_settings"] = settings
     return table
 
 
 def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]:
     """The session's monitor logs as :class:`FeatureFrame` records in frame order, PSD attached where logged
-    (for :func:`seesys.core.windows.assemble_windows`)."""
+    (for :func:`seesys.core.windows.assemble_windows`), with the device settings ``rts.json`` records."""
     psds = {r.frame_index: r.psd for r in read_psd_log(session)}
     table = read_rts_csv(session)
+    settings = table.attrs["device_settings"]
     rts = table[list(rts_schema.CHANNEL_NAMES)].to_numpy(dtype=np.float32)
     for k, (index, timestamp, state) in enumerate(zip(table["frame_index"], table["timestamp"],
                                                       table["tracking_state"])):
@@ -179,4 +194,5 @@ def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]
             tracking_state = TrackingState[state]
         except KeyError:
             raise MonitorLogError(f"{session}/{RTS_CSV}: unknown tracking state {state!r} at frame {index}") from None
-        yield FeatureFrame(device_id, int(index), float(timestamp), tracking_state, rts[k], psds.get(int(index)))
+        yield FeatureFrame(device_id, int(index), float(timestamp), tracking_state, rts[k], psds.get(int(index)),
+                           settings=settings)

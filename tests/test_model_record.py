@@ -1,0 +1,97 @@
+"""The model's compatibility record: complete (RTS schema, windows and their missing-row rule, label transform and
+Δ, the device settings: SLAM modes, frame rate, ORB features, PSD geometry and near_depth), stored in the
+checkpoint and the ONNX metadata of the shipped model with the values it was trained with, and every difference
+refused by name: a model against this installation's configs, a device's settings against the model's."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+from service_fixtures import tiny_model  # noqa: F401
+
+from estimator.deepsee.compatibility import ModelMismatch, ModelSetup, compatibility
+from estimator.deepsee.config import load_estimator_config
+from estimator.deepsee.onnx_model import COMPATIBILITY_KEY
+from estimator.deepsee.transforms import LabelTransform
+from estimator.service.model import ServedModel
+from seesys.core.device_settings import DeviceSettings, settings_differences
+from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from seesys.io.core_settings import load_device_settings, load_window_config
+from seesys.io.resources import resolve
+
+# What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now).
+SHIPPED_DEVICE = {"slam_modes": ["rgbd"], "fps": 30, "orb_features": 1000, "psd_patch_px": 10, "psd_expansion": 2,
+                  "near_depth": 0.5}
+
+
+def test_the_shipped_model_carries_the_full_record_in_both_files():
+    import onnx
+    import torch
+
+    transform = LabelTransform(load_estimator_config().label_transform.k)
+    expected = compatibility(load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE))
+    assert expected == compatibility(load_window_config(), transform)  # the configs still describe it
+    assert expected["windows"]["max_missing_rts"] == 0
+    meta = {p.key: p.value for p in onnx.load(str(resolve("data/models/deepsee.onnx"))).metadata_props}
+    assert json.loads(meta[COMPATIBILITY_KEY]) == expected
+    payload = torch.load(resolve("data/models/deepsee.pt"), map_location="cpu", weights_only=False)
+    assert payload["compatibility"] == expected
+    assert ServedModel.load(resolve("data/models/deepsee.onnx"), load_window_config()).device_record == SHIPPED_DEVICE
+
+
+def test_a_model_made_for_other_settings_is_refused_naming_each_field(tiny_model):
+    windows = load_window_config()
+    here = ModelSetup.configured()
+    moved = ModelSetup(here.delta_frames, {**here.device, "near_depth": 1.0})
+    with pytest.raises(ModelMismatch, match=r"device\.near_depth: model 0\.5, here 1\.0") as refused:
+        ServedModel.load(tiny_model, windows, setup=moved)
+    assert "orb_features" not in str(refused.value)  # only what differs
+    with pytest.raises(ModelMismatch, match=r"label\.delta_frames: model 10, here 5"):
+        ServedModel.load(tiny_model, windows, setup=ModelSetup(5, here.device))
+    with pytest.raises(ModelMismatch, match=r"windows\.max_missing_rts: model 0, here 3"):
+        ServedModel.load(tiny_model, dataclasses.replace(windows, max_missing_rts=3))
+
+
+def test_serve_refuses_a_model_whose_near_depth_differs_from_monitor_toml(tiny_model, tmp_path):
+    config_dir = write_config_dir(tmp_path / "configs", {"near_depth": 1.0})
+    run = subprocess.run([sys.executable, "-m", "seesys", "estimator", "serve", "--model", str(tiny_model)],
+                         env={**os.environ, CONFIG_DIR_ENV: str(config_dir)}, capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode != 0
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "device.near_depth: model 0.5, here 1.0" in lines[0], run.stderr
+
+
+def test_a_device_is_compared_with_the_model_setting_by_setting():
+    model = SHIPPED_DEVICE
+    device = load_device_settings("rgbd", 29.97)
+    assert device == DeviceSettings("rgbd", 30, 1000, 10, 2, 0.5)
+    assert settings_differences(model, device) == []
+    assert settings_differences(model, dataclasses.replace(device, slam_mode="mono")) == [
+        "slam_mode: device mono, model rgbd"]
+    assert settings_differences(model, dataclasses.replace(device, fps=15, orb_features=1500)) == [
+        "fps: device 15, model 30", "orb_features: device 1500, model 1000"]
+
+
+def test_a_logged_session_replays_with_the_settings_its_device_stated(tmp_path):
+    """rts.json records the device settings, so a session replayed from its logs states them as the device did (a
+    session logged without them replays without, and the service refuses its frames)."""
+    import numpy as np
+
+    from seesys.core.messages import FeatureFrame
+    from seesys.core.tracking_state import TrackingState
+    from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter, read_feature_frames
+
+    settings = load_device_settings("rgbd", 30.0)
+    for folder, stated in ((tmp_path / "with", settings), (tmp_path / "without", None)):
+        folder.mkdir()
+        writer, psds = RtsCsvWriter(folder / RTS_CSV, stated), PsdLogWriter(folder / PSD_DIR, 10)
+        writer.write(FeatureFrame("d", 0, 1.0, TrackingState.OK, np.zeros(16, np.float32)))
+        writer.close()
+        psds.close()
+        assert [f.settings for f in read_feature_frames(folder, "d")] == [stated]
