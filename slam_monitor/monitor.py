@@ -37,6 +37,7 @@ from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_device_settings
 from seesys.io.network import load_network_config
 from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
+from slam_monitor.depth_features import depth_features
 from slam_monitor.frame import Frame
 from slam_monitor.image_features import image_features, keypoint_responses
 from slam_monitor.local_map import LocalMap
@@ -106,6 +107,7 @@ class FeatureExtractor:
                 width=intr.width, height=intr.height, match_gate_px=cfg.features.match_gate_px,
                 min_depth=cfg.features.min_depth)
             channels.update(_slam_channels(slam))
+        channels.update(vars(depth_features(frame.depth, frame.gray, intr.fx, intr.fy, cfg.depth)))
 
         psd = self._psd(item, slam) if cfg.windows.is_psd_frame(index) else None
         rts = np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32)

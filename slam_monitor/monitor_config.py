@@ -10,6 +10,7 @@ from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
 from seesys.io.config import build, config_dir, read_toml
 from seesys.io.core_settings import load_window_config
+from slam_monitor.depth_features import DepthQualityConfig
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,7 @@ class MonitorConfig:
     features: FeatureConfig
     psd: PsdConfig
     local_map: LocalMapConfig
+    depth: DepthQualityConfig
     windows: WindowConfig
     log: LogConfig
 

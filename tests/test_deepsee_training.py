@@ -123,14 +123,15 @@ def test_a_model_for_other_inputs_is_refused(trained, tmp_path):
     transform = LabelTransform(tiny_config().label_transform.k)
     model, payload = load_model(model_path, transform)
     other_windows = dataclasses.replace(load_window_config(), rts_length=20)
-    with pytest.raises(ModelMismatch, match=r"windows .*rts_length.: 30.*here .*rts_length.: 20"):
+    with pytest.raises(ModelMismatch, match=r"windows.rts_length: model 30, here 20"):
         load_model(model_path, transform, other_windows)
     with pytest.raises(ModelMismatch, match="label transform"):
         load_model(model_path, LabelTransform(1000.0))
-    tampered = dict(payload, compatibility={**payload["compatibility"], "rts_schema_version": 0})
-    torch.save(tampered, tmp_path / "old_schema.pt")
-    with pytest.raises(ModelMismatch, match="RTS schema v0"):
-        load_model(tmp_path / "old_schema.pt", transform)
+    record = payload["compatibility"]
+    tampered = dict(payload, compatibility={**record, "rts_channels": [*record["rts_channels"], "sonar_range"]})
+    torch.save(tampered, tmp_path / "other_schema.pt")
+    with pytest.raises(ModelMismatch, match="RTS channels .*does not have: sonar_range"):
+        load_model(tmp_path / "other_schema.pt", transform)
     (tmp_path / "junk.pt").write_text("not a model")
     with pytest.raises(ModelMismatch, match="not a DeepSEE model file"):
         load_model(tmp_path / "junk.pt", transform)

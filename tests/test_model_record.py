@@ -22,6 +22,7 @@ from estimator.service.model import ServedModel
 from seesys.core.device_settings import DeviceSettings, settings_differences
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.core_settings import load_device_settings, load_window_config
+from seesys.core import rts_schema
 from seesys.io.resources import resolve
 
 # What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now).
@@ -34,14 +35,20 @@ def test_the_shipped_model_carries_the_full_record_in_both_files():
     import torch
 
     transform = LabelTransform(load_estimator_config().label_transform.k)
-    expected = compatibility(load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE))
-    assert expected == compatibility(load_window_config(), transform)  # the configs still describe it
+    # It takes the 16 channels of RTS schema v1, which later schemas keep as their first 16.
+    v1_channels = list(rts_schema.CHANNEL_NAMES[:16])
+    expected = {**compatibility(load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE), v1_channels),
+                "rts_schema_version": 1}
+    here = compatibility(load_window_config(), transform, rts_channels=v1_channels)
+    assert expected == {**here, "rts_schema_version": 1}  # the configs still describe it
     assert expected["windows"]["max_missing_rts"] == 0
     meta = {p.key: p.value for p in onnx.load(str(resolve("data/models/deepsee.onnx"))).metadata_props}
     assert json.loads(meta[COMPATIBILITY_KEY]) == expected
     payload = torch.load(resolve("data/models/deepsee.pt"), map_location="cpu", weights_only=False)
     assert payload["compatibility"] == expected
-    assert ServedModel.load(resolve("data/models/deepsee.onnx"), load_window_config()).device_record == SHIPPED_DEVICE
+    served = ServedModel.load(resolve("data/models/deepsee.onnx"), load_window_config())
+    assert served.device_record == SHIPPED_DEVICE
+    assert list(served._model.rts_columns) == list(range(16))
 
 
 def test_a_model_made_for_other_settings_is_refused_naming_each_field(tiny_model):

@@ -82,7 +82,9 @@ def test_feature_row_of_constructed_frames():
     assert f11.rts[row_of["brightness"]] == pytest.approx(gray(11).mean() / 255, abs=1e-6)
     assert f11.rts[row_of["matched_inliers"]] == 300
     assert f11.rts[row_of["local_mapping_visual_error"]] == pytest.approx(0.0, abs=1e-3)
-    assert not np.isnan(f10.rts).any() and not np.isnan(f11.rts).any()
+    depth = [row_of[c.name] for c in rts_schema.CHANNELS if c.category == "depth"]
+    assert depth and np.isnan(f11.rts[depth]).all()                          # no depth image: unknown
+    assert not np.isnan(np.delete(f10.rts, depth)).any() and not np.isnan(np.delete(f11.rts, depth)).any()
     # PSD on tau-th frames only; all points matched → as many inlier cells as keypoint cells
     assert f10.psd is not None and f11.psd is None and f10.psd.shape == (96, 128, 3)
     assert np.count_nonzero(f10.psd[..., 1]) == np.count_nonzero(f10.psd[..., 0]) > 100
@@ -152,8 +154,9 @@ def test_bad_rts_log_is_a_clear_error(tmp_path):
     (tmp_path / "rts.json").write_text(json.dumps(meta))
     with pytest.raises(MonitorLogError, match="do not match RTS schema"):
         read_rts_csv(tmp_path)
-    (tmp_path / "rts.json").write_text(json.dumps({**meta, "rts_schema_version": 2}))
-    with pytest.raises(MonitorLogError, match="rts.csv uses RTS schema v2"):
+    other = rts_schema.SCHEMA_VERSION + 1
+    (tmp_path / "rts.json").write_text(json.dumps({**meta, "rts_schema_version": other}))
+    with pytest.raises(MonitorLogError, match=f"rts.csv uses RTS schema v{other}"):
         read_rts_csv(tmp_path)
 
 

@@ -66,13 +66,23 @@ def ground_truth_motion(session: Path) -> dict[float, np.ndarray]:
     return motion
 
 
-def check_session(session: Path, min_tracked: float, min_rotation_corr: float | None) -> None:
+def check_session(session: Path, min_tracked: float, min_rotation_corr: float | None, depth: bool) -> None:
     table = read_rts_csv(session)
     frames = table["frame_index"].to_numpy()
     assert (np.diff(frames) == 1).all()
     tracked = table[table["tracking_state"].isin(["OK", "OK_KLT"])]
     assert len(tracked) >= min_tracked * len(table)
-    assert not tracked[list(rts_schema.CHANNEL_NAMES)].isna().any().any(), "NaN on a tracked frame"
+    depth_channels = [c.name for c in rts_schema.CHANNELS if c.category == "depth"]
+    others = [name for name in rts_schema.CHANNEL_NAMES if name not in depth_channels]
+    assert not tracked[others].isna().any().any(), "NaN on a tracked frame"
+    if depth:  # every RGB-D frame has them (an edge offset needs depth edges: the sample's room has them)
+        assert not table[depth_channels].isna().any().any()
+        # An ideal render: 16-bit depth quantisation only, and depth edges on the colour edges (f = 525 px: a few
+        # motion-blurred frames of the JPEG-compressed sample place their colour edges up to 2 px off).
+        assert (table["depth_noise"] < 1e-3).all()
+        assert table["depth_edge_offset"].median() < 0.5 / 525 and table["depth_edge_offset"].max() < 3 / 525
+    else:
+        assert table[depth_channels].isna().all().all()
     assert (tracked["matched_inliers"] >= 10).all()
     assert (tracked["avg_mp_depth"] > 0).all() and (tracked["local_mapping_visual_error"] < 3).all()
 
@@ -115,7 +125,7 @@ def test_rgbd_session_logs_and_streams_every_frame(tmp_path):
 
     assert stats.frames_seen == result.frames
     assert stats.frames_processed + stats.frames_dropped == result.frames
-    check_session(out, min_tracked=0.9, min_rotation_corr=0.9)
+    check_session(out, min_tracked=0.9, min_rotation_corr=0.9, depth=True)
 
     # what crossed the wire is what was logged, frame by frame (subscribers may join a little late)
     logged = {f.frame_index: f for f in read_feature_frames(out, monitor.config.device_id)}
@@ -163,7 +173,7 @@ def test_monitor_run_command_mono_with_stream(tmp_path):
     # Monocular ORB-SLAM3 loses frames and its per-frame rotation jitters by up to ~0.05 rad on a few frames when
     # the CPU is shared (pose error is what SEESys estimates): signs and the median error are checked, not the
     # correlation.
-    check_session(out, min_tracked=0.3, min_rotation_corr=None)
+    check_session(out, min_tracked=0.3, min_rotation_corr=None, depth=False)
     assert collector.frames and {f.device_id for f in collector.frames} == {"phone-1"}
 
 

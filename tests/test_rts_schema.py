@@ -19,7 +19,7 @@ def test_a_reordered_schema_of_the_same_size_is_refused():
     channels[7], channels[8] = channels[8], channels[7]     # rel_tx <-> rel_ty: same count, other meaning
     reordered = rts_schema.fingerprint(tuple(channels))
     assert reordered != rts_schema.FINGERPRINT
-    with pytest.raises(rts_schema.SchemaMismatch, match="model.onnx uses RTS schema v1"):
+    with pytest.raises(rts_schema.SchemaMismatch, match=f"model.onnx uses RTS schema v{rts_schema.SCHEMA_VERSION}"):
         rts_schema.check_compatible(rts_schema.SCHEMA_VERSION, reordered, "model.onnx")
     rts_schema.check_compatible(rts_schema.SCHEMA_VERSION, rts_schema.FINGERPRINT, "this build")
 
@@ -61,3 +61,26 @@ def test_values_replaced_by_zero_are_counted_per_row():
     assert replaced.tolist() == [[0, 2, 0], [1, 0, 0]]
     assert np.isfinite(out).all()
     np.testing.assert_array_equal(out, rts_schema.normalise(rows))
+
+
+def test_a_model_takes_its_own_channels_from_a_later_schemas_rows():
+    """A model records its input channels by name and fingerprint: one made with the first 16 channels (schema v1)
+    takes those columns of today's rows; a channel unknown here, or defined otherwise, is refused by name."""
+    v1 = rts_schema.CHANNELS[:16]
+    names = [c.name for c in v1]
+    assert rts_schema.fingerprint(v1) == 0x272A99E0  # schema v1's channels, unchanged in later versions
+    assert list(rts_schema.columns_of(names, 0x272A99E0, "old.onnx")) == list(range(16))
+    reordered = [names[1], names[0]]
+    columns = rts_schema.columns_of(reordered, rts_schema.fingerprint((v1[1], v1[0])), "x")
+    assert list(columns) == [1, 0]
+    with pytest.raises(rts_schema.SchemaMismatch, match="model.onnx takes RTS channels this SEESys does not have: "
+                                                        "sonar_range"):
+        rts_schema.columns_of([*names, "sonar_range"], 0, "model.onnx")
+    with pytest.raises(rts_schema.SchemaMismatch, match="model.onnx takes RTS channels brightness, contrast "
+                                                        "defined otherwise"):
+        rts_schema.columns_of(names[:2], 0x1234, "model.onnx")
+    rows = np.arange(2 * rts_schema.NUM_CHANNELS, dtype=np.float64).reshape(2, -1)
+    rows[0, rts_schema.index_of("depth_noise")] = np.nan  # not among the model's channels: not counted
+    rows[1, rts_schema.index_of("contrast")] = np.nan
+    kept, replaced = rts_schema.normalise_counted(rows, columns)
+    assert kept.shape == (2, 2) and list(replaced) == [0, 1]

@@ -210,9 +210,7 @@ def test_cli_render_diversity_and_errors(tmp_path):
 
 def _with_camera(config, **effects):
     """The config with the lab preset seen through a camera model with ``effects`` (all else ideal)."""
-    model = dataclasses.replace(config.camera_model("ideal"), name="test", **effects)
-    presets = [dataclasses.replace(p, camera_model="test") if p.name == "lab" else p for p in config.presets]
-    return dataclasses.replace(config, camera_models=[*config.camera_models, model], presets=presets)
+    return config.seen_through("lab", dataclasses.replace(config.camera_model("ideal"), name="test", **effects))
 
 
 def _depths(folder: Path) -> list[np.ndarray]:

@@ -72,8 +72,10 @@ def save_atomic(obj: object, path: Path) -> Path:
 
 
 def save_model(path: Path, model: nn.Module, windows: WindowConfig, transform: LabelTransform,
-               training: dict) -> Path:
-    record = compatibility(windows, transform)
+               training: dict, rts_channels: list[str] | None = None) -> Path:
+    """Save ``model`` with its compatibility record; ``rts_channels``: the RTS channels it takes (a fine-tuned
+    model keeps its base's), every channel of the schema by default."""
+    record = compatibility(windows, transform, rts_channels=rts_channels)
     payload = {"format": FORMAT_VERSION, "compatibility": record, "compatibility_hash": compatibility_hash(record),
                "model": _spec(model),
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "training": training}

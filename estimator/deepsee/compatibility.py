@@ -1,7 +1,9 @@
 """What a model takes and what its inputs and output mean, without PyTorch: the window shape, the compatibility
 record stored with every model file (checkpoint, ONNX metadata, random-forest pickle) and its check.
 
-The record holds the RTS schema (version, fingerprint, channel names), the windows (T, K_L, tau and the missing-row
+The record holds the RTS channels the model takes (their names, the fingerprint of their definitions, and the schema
+version they were made with: a model takes the rows of any later schema that still has them, through
+:func:`rts_columns`), the windows (T, K_L, tau and the missing-row
 rule ``max_missing_rts``), the label transform, the label's Δ (``delta_frames``) and the device settings the
 training data was made with (:func:`seesys.core.device_settings.model_settings_record`: SLAM modes, frame rate,
 ORB feature count, PSD cell size, expansion and ``near_depth``). Loading a model compares every field but the
@@ -16,8 +18,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core import rts_schema
@@ -63,11 +68,15 @@ class ModelSetup:
         return cls(load_label_config(directory).delta_frames, load_model_device_record(directory))
 
 
-def compatibility(windows: WindowConfig, transform: LabelTransform, setup: ModelSetup | None = None) -> dict:
-    """What a model's inputs and output mean, as plain data (``setup``: this installation's by default)."""
+def compatibility(windows: WindowConfig, transform: LabelTransform, setup: ModelSetup | None = None,
+                  rts_channels: Sequence[str] | None = None) -> dict:
+    """What a model's inputs and output mean, as plain data (``setup``: this installation's by default;
+    ``rts_channels``: the channels it takes, every channel of the schema by default)."""
     setup = setup or ModelSetup.configured()
-    return {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_fingerprint": rts_schema.FINGERPRINT,
-            "rts_channels": list(rts_schema.CHANNEL_NAMES),
+    names = list(rts_channels) if rts_channels is not None else list(rts_schema.CHANNEL_NAMES)
+    channels = tuple(rts_schema.CHANNELS[rts_schema.index_of(name)] for name in names)
+    return {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_fingerprint": rts_schema.fingerprint(channels),
+            "rts_channels": names,
             "windows": {name: getattr(windows, name) for name in WINDOW_FIELDS},
             "label_transform": transform.describe(), "label": {"delta_frames": setup.delta_frames},
             "device": dict(setup.device)}
@@ -81,14 +90,26 @@ def _show(value: object) -> str:
     return "-" if value is None else json.dumps(value, sort_keys=True)
 
 
+def rts_columns(record: dict, source: str = "the model") -> np.ndarray:
+    """The columns of this schema's RTS rows that a model of ``record`` takes, in its order
+    (:func:`seesys.core.rts_schema.columns_of`; raises ``SchemaMismatch`` when it takes channels this schema
+    does not have as it knew them)."""
+    names, fingerprint = record.get("rts_channels"), record.get("rts_fingerprint")
+    if not isinstance(names, list) or not isinstance(fingerprint, int):
+        raise rts_schema.SchemaMismatch(f"{source} does not record its RTS channels")
+    return rts_schema.columns_of(names, fingerprint, source)
+
+
 def differences(record: dict, here: dict) -> list[str]:
     """Every field of a model's ``record`` that differs from ``here`` (both :func:`compatibility` records), as
-    ``"name: model VALUE, here VALUE"``; the device's SLAM modes and frame rate are left to the frames."""
+    ``"name: model VALUE, here VALUE"``; the device's SLAM modes and frame rate are left to the frames. The RTS
+    channels differ only when the model takes one that this schema lacks or defines otherwise."""
     out = []
-    if (record.get("rts_schema_version"), record.get("rts_fingerprint")) != (here["rts_schema_version"],
-                                                                              here["rts_fingerprint"]):
-        out.append(f"RTS schema: model v{record.get('rts_schema_version')}, here v{here['rts_schema_version']} "
-                   f"(channels {'same' if record.get('rts_channels') == here['rts_channels'] else 'differ'})")
+    try:
+        rts_columns(record)
+    except rts_schema.SchemaMismatch as e:
+        out.append(f"RTS channels (model of schema v{record.get('rts_schema_version')}, here "
+                   f"v{here['rts_schema_version']}): {e}")
     if record.get("label_transform") != here["label_transform"]:
         out.append(f"label transform: model {_show(record.get('label_transform'))}, here "
                    f"{_show(here['label_transform'])}")

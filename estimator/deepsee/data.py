@@ -59,6 +59,11 @@ class Windows:
         psd = _Subset(self.psd, index)
         return Windows(self.rts[index], psd, self.error_m[index], self.meta.iloc[index].reset_index(drop=True))
 
+    def select_rts(self, columns: np.ndarray) -> Windows:
+        """The same windows with only the RTS ``columns`` a model takes
+        (:func:`estimator.deepsee.compatibility.rts_columns`), in its order."""
+        return Windows(self.rts[..., columns], self.psd, self.error_m, self.meta)
+
     def input_shape(self) -> InputShape:
         if not len(self):
             raise DataError("no windows: nothing to train or evaluate on")

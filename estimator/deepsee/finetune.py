@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from estimator.deepsee.checkpoint import load_model, save_model
+from estimator.deepsee.compatibility import rts_columns
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import DataError, Windows, concat, session_windows
 from estimator.deepsee.inference import predict
@@ -70,6 +71,10 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     transform = ctx.transform
     model, payload = load_model(base, transform, windows)
     model = model.to(device)
+    # The base model takes the RTS channels it was trained with; a later schema's rows hold them among others.
+    columns = rts_columns(payload["compatibility"], str(base))
+    train, val = train.select_rts(columns), val.select_rts(columns)
+    test = test.select_rts(columns) if test is not None else None
 
     def estimate_m(data: Windows) -> np.ndarray:
         return transform.inverse(predict(model, data, config.evaluation.batch_size, device))
@@ -90,5 +95,5 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
                 "held_out": [str(s) for s in held_out],
                 "held_out_before": asdict(held_out_before) if held_out_before else None,
                 "held_out_after": asdict(held_out_after) if held_out_after else None}
-    save_model(out, model.cpu(), windows, transform, training)
+    save_model(out, model.cpu(), windows, transform, training, payload["compatibility"]["rts_channels"])
     return FinetuneResult(Path(out), len(train), len(val), before, after, held_out_before, held_out_after)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from estimator.deepsee.compatibility import InputShape, ModelMismatch, ModelSetup, check_compatible
+from estimator.deepsee.compatibility import InputShape, ModelMismatch, ModelSetup, check_compatible, rts_columns
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
@@ -81,6 +81,8 @@ class OnnxModel:
         #: The model's compatibility record (:mod:`estimator.deepsee.compatibility`).
         self.record: dict = json.loads(meta[COMPATIBILITY_KEY])
         check_compatible(self.record, str(path), windows or load_window_config(), transform, setup)
+        #: The columns of this schema's RTS rows the model takes: select them before :meth:`__call__`.
+        self.rts_columns: np.ndarray = rts_columns(self.record, str(path))
         self.session = session
         self.provider: str = session.get_providers()[0]
         rts, psd = (i.shape[1:] for i in session.get_inputs())

@@ -14,11 +14,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimator.deepsee.compatibility import InputShape, ModelMismatch, check_compatible
+from estimator.deepsee.compatibility import InputShape, ModelMismatch, check_compatible, rts_columns
 from estimator.deepsee.data import DataError, Windows
 from estimator.deepsee.onnx_model import OnnxModel
 from estimator.deepsee.transforms import LabelTransform
-from seesys.core.rts_schema import NUM_CHANNELS
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_window_config
 
@@ -29,15 +28,18 @@ if TYPE_CHECKING:
 @dataclass
 class Predictor:
     """``transformed(windows)``: outputs on the transformed scale; ``metres(windows)``: estimates in metres.
-    ``shape``: the window the model was made for (PSD sizes 0: a model of the RTS window only)."""
+    ``shape``: the window the model was made for (PSD sizes 0: a model of the RTS window only); ``columns``: the
+    RTS channels it takes, as columns of this schema's rows."""
 
     path: Path
     kind: str
     transform: LabelTransform
     _run: object
     shape: InputShape
+    columns: np.ndarray
 
     def transformed(self, windows: Windows) -> np.ndarray:
+        windows = windows.select_rts(self.columns)
         if len(windows):
             self.check(windows.input_shape())
         return self._run(windows)
@@ -71,7 +73,7 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
     windows = windows or load_window_config()
     if path.suffix == ".onnx":
         model = OnnxModel(path, transform, windows)
-        return Predictor(path, "onnx", transform, _onnx_runner(model, batch_size), model.shape)
+        return Predictor(path, "onnx", transform, _onnx_runner(model, batch_size), model.shape, model.rts_columns)
     if path.suffix == ".pkl":
         from estimator.deepsee.baselines import window_statistics
 
@@ -83,9 +85,10 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
             raise ModelMismatch(f"{path} is not a random-forest model file: {e}") from None
         check_compatible(record["compatibility"], str(path), windows, transform)
         forest = record["forest"]
+        columns = rts_columns(record["compatibility"], str(path))
         return Predictor(path, "random_forest", transform,
                          lambda w: forest.predict(window_statistics(w.rts)).astype(np.float32),
-                         InputShape(windows.rts_length, NUM_CHANNELS, 0, 0, 0))
+                         InputShape(windows.rts_length, len(columns), 0, 0, 0), columns)
     import torch
 
     from estimator.deepsee.checkpoint import load_model
@@ -96,4 +99,4 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
     model = model.to(device)
     shape = model.shape if hasattr(model, "shape") else InputShape(windows.rts_length, model.channels, 0, 0, 0)
     return Predictor(path, payload["model"]["kind"], transform, lambda w: predict(model, w, batch_size, device),
-                     shape)
+                     shape, rts_columns(payload["compatibility"], str(path)))

@@ -19,7 +19,7 @@ import numpy as np
 from seesys.core import psd as psd_layers
 from seesys.core import rts_schema
 
-RTS_CATEGORIES = ("sensor_input", "tracking", "mapping")
+RTS_CATEGORIES = ("sensor_input", "tracking", "mapping", "depth")
 PSD_LAYERS = {"keypoint": psd_layers.KEYPOINT_LAYER, "inlier": psd_layers.INLIER_LAYER,
               "map_point": psd_layers.MAP_POINT_LAYER}
 
@@ -64,7 +64,8 @@ def prepare_rts(raw: np.ndarray) -> np.ndarray:
     return rts_schema.normalise(raw)
 
 
-def prepare_rts_counted(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`prepare_rts`, and per window (shape ``raw.shape[:-2]``) how many values were not finite and became 0."""
-    rts, replaced = rts_schema.normalise_counted(raw)
+def prepare_rts_counted(raw: np.ndarray, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`prepare_rts` of the model's ``columns`` (all by default), and per window (shape ``raw.shape[:-2]``)
+    how many of their values were not finite and became 0."""
+    rts, replaced = rts_schema.normalise_counted(raw, columns)
     return rts, replaced.sum(axis=-1)

@@ -67,7 +67,7 @@ class ServedModel:
 
     def estimate_counted(self, samples: list[WindowSample]) -> tuple[np.ndarray, np.ndarray]:
         """The errors of ``samples`` and, per sample, how many RTS values were not finite and became 0."""
-        rts, replaced = prepare_rts_counted(np.stack([s.rts for s in samples]))
+        rts, replaced = prepare_rts_counted(np.stack([s.rts for s in samples]), self._model.rts_columns)
         psd = np.stack([s.psd for s in samples])
         return self._transform.inverse(self._model(rts, psd)), replaced
 

@@ -174,6 +174,15 @@ class SynthConfig:
         known = ", ".join(m.name for m in self.camera_models)
         raise ConfigError(f"unknown camera model {name!r} (configs/synth.toml has: {known})")
 
+    def seen_through(self, environment: str, model: CameraModel) -> SynthConfig:
+        """This config with the preset ``environment`` rendered through ``model`` (added to the camera models, or
+        replacing the one of its name)."""
+        self.preset(environment)  # refuse an unknown preset by name
+        models = [m for m in self.camera_models if m.name != model.name] + [model]
+        presets = [dataclasses.replace(p, camera_model=model.name) if p.name == environment else p
+                   for p in self.presets]
+        return dataclasses.replace(self, camera_models=models, presets=presets)
+
     def real_trajectory(self, name: str) -> RealTrajectory:
         for real in self.real_trajectories:
             if real.name == name:

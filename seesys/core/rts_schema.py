@@ -25,13 +25,14 @@ Conventions (the authors' code differs; see docs/rts-features.md):
 from __future__ import annotations
 
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from seesys.core.errors import SeesysError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,13 @@ CHANNELS: tuple[Channel, ...] = (
     Channel("local_mapping_visual_error", "mapping", "px",
             "mean reprojection error of the matched map points in the current frame "
             "(pyorbslam3 does not expose local bundle adjustment residuals)", "log1p", 2.0),
+    Channel("depth_holes", "depth", "fraction of pixels",
+            "share of the depth image's pixels with no depth (RGB-D only)", "identity", 0.2),
+    Channel("depth_noise", "depth", "1/m",
+            "depth noise sigma_z / z^2, from second differences of inverse depth (RGB-D only)", "identity", 0.005),
+    Channel("depth_edge_offset", "depth", "rad (px / focal length)",
+            "median offset of depth edges from the nearest strong colour edge, over the focal length (RGB-D only)",
+            "identity", 0.005),
 )
 
 
@@ -95,7 +103,7 @@ def fingerprint(channels: tuple[Channel, ...]) -> int:
 
 
 #: The fingerprint of each released schema version.
-_FINGERPRINTS = {1: 0x272A99E0}
+_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F}
 FINGERPRINT = fingerprint(CHANNELS)
 if _FINGERPRINTS.get(SCHEMA_VERSION) != FINGERPRINT:
     raise RuntimeError(f"the RTS channel list changed (fingerprint {FINGERPRINT:#010x}) but SCHEMA_VERSION is still "
@@ -130,6 +138,22 @@ def index_of(name: str) -> int:
         raise KeyError(f"unknown RTS channel {name!r}; channels are {', '.join(CHANNEL_NAMES)}") from None
 
 
+def columns_of(names: Sequence[str], recorded_fingerprint: int, source: str) -> np.ndarray:
+    """The columns of this schema's rows that hold the channels ``names`` a model was made with, in its order.
+
+    A model records its input channels by name and their :func:`fingerprint`; it takes any rows whose schema has
+    those channels with the same definitions (a model of schema v1 takes the first 16 columns of v2's rows).
+    Raises :class:`SchemaMismatch` naming ``source`` when a channel is unknown here or defined otherwise."""
+    unknown = [name for name in names if name not in _INDEX]
+    if unknown:
+        raise SchemaMismatch(f"{source} takes RTS channels this SEESys does not have: {', '.join(unknown)}")
+    columns = np.array([_INDEX[name] for name in names], dtype=np.intp)
+    if fingerprint(tuple(CHANNELS[i] for i in columns)) != recorded_fingerprint:
+        raise SchemaMismatch(f"{source} takes RTS channels {', '.join(names)} defined otherwise than here (fingerprint "
+                             f"{recorded_fingerprint:#010x}): their units, transforms or scales differ")
+    return columns
+
+
 _SCALES = np.array([c.scale for c in CHANNELS], dtype=np.float64)
 _LOG1P = np.array([c.transform == "log1p" for c in CHANNELS])
 _SIGNED_LOG1P = np.array([c.transform == "signed_log1p" for c in CHANNELS])
@@ -141,10 +165,11 @@ def normalise(rows: np.ndarray) -> np.ndarray:
     return normalise_counted(rows)[0]
 
 
-def normalise_counted(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`normalise`, and per row (shape ``rows.shape[:-1]``) how many values were not finite after the
-    transform and were replaced by 0: a channel without a value (NaN) or out of range (±inf). The model cannot tell
-    such a 0 from a real one, so a receiver counts them."""
+def normalise_counted(rows: np.ndarray, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`normalise` and keep ``columns`` (:func:`columns_of`; all by default), and per row (shape
+    ``rows.shape[:-1]``) how many of the kept values were not finite after the transform and were replaced by 0: a
+    channel without a value (NaN) or out of range (±inf). The model cannot tell such a 0 from a real one, so a
+    receiver counts them."""
     x = np.asarray(rows, dtype=np.float64)
     if x.shape[-1] != NUM_CHANNELS:
         raise ValueError(f"RTS rows must have {NUM_CHANNELS} channels, got shape {x.shape}")
@@ -153,5 +178,7 @@ def normalise_counted(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         out[..., _LOG1P] = np.log1p(np.maximum(x[..., _LOG1P], 0.0))
         out[..., _SIGNED_LOG1P] = np.sign(x[..., _SIGNED_LOG1P]) * np.log1p(np.abs(x[..., _SIGNED_LOG1P]))
         out /= _SCALES
+    if columns is not None:
+        out = out[..., columns]
     replaced = np.count_nonzero(~np.isfinite(out), axis=-1)
     return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32), replaced
