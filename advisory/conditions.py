@@ -57,7 +57,7 @@ def _subscription(kind: bytes, device_id: str) -> bytes:
 
 
 def condition_input(condition: Condition, cfg: AdvisoryConfig, network: NetworkConfig) -> ConditionInput:
-    device = cfg.timing.device_id
+    device = cfg.timing.listen_to_device
     if condition is Condition.ROTATION:
         speed = RotationSpeed(cfg.rotation)
 

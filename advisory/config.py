@@ -16,7 +16,7 @@ class TimingConfig:
     cadence_hz: float
     buffer_s: float
     stale_after_s: float
-    device_id: str
+    listen_to_device: str
 
     @property
     def cadence_s(self) -> float:

@@ -9,6 +9,10 @@ with other work, CPU % and latency differences between runs are dominated by tha
 thread's CPU time per frame is the figure that stays put. Configurations alternate run by run so that slow drifts in
 machine load hit all of them alike.
 
+In RGB-D mode it also times the depth-quality channels alone (``slam_monitor.depth_features``, schema v2) on every
+frame of the source, in this process: wall and thread CPU time per frame, the part of the monitor's per-frame cost
+they add.
+
     .venv/bin/python benchmarks/monitor_overhead.py [--source tum:data/sample] [--mode rgbd] [--runs 3]
 """
 
@@ -33,10 +37,14 @@ from rich.table import Table
 
 from seesys.core.session_layout import FRAMES_CSV
 from seesys.io.network import load_network_config
+from slam_monitor.depth_features import depth_features
 from slam_monitor.device_worker import ObserverSpec, SessionOptions, run_device_session
 from slam_monitor.monitor import MONITOR_STATS_JSON
 from slam_monitor.monitor_commands import MONITOR_FACTORY
+from slam_monitor.monitor_config import load_monitor_config
 from slam_monitor.orbslam_settings import SlamMode
+from slam_monitor.sources.registry import open_source, parse_source_spec
+from slam_monitor.sources.settings import load_camera_config
 from slam_monitor.stream import FeatureSubscriber
 from slam_monitor.supervisor import frames_logged
 
@@ -172,6 +180,26 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
     return figures
 
 
+def depth_channel_cost(source: str, repeats: int, console: Console) -> dict:
+    """Wall and thread CPU ms per frame of the depth-quality channels on every frame of ``source``."""
+    cfg = load_monitor_config().depth
+    wall, cpu = [], []
+    with open_source(parse_source_spec(source), load_camera_config(), with_depth=True) as frames:
+        for frame in frames.frames():
+            intr = frame.intrinsics
+            for _ in range(repeats):
+                start, start_cpu = time.perf_counter(), time.thread_time()
+                depth_features(frame.depth, frame.gray, intr.fx, intr.fy, cfg)
+                wall.append((time.perf_counter() - start) * 1000.0)
+                cpu.append((time.thread_time() - start_cpu) * 1000.0)
+    figures = {"depth_channels_ms_median": float(np.median(wall)), "depth_channels_ms_p90": float(np.percentile(wall, 90)),
+               "depth_channels_cpu_ms_mean": float(np.mean(cpu)), "depth_channel_calls": len(wall)}
+    console.print(f"depth channels: {figures['depth_channels_ms_median']:.3f} ms/frame median wall "
+                  f"(p90 {figures['depth_channels_ms_p90']:.3f}), {figures['depth_channels_cpu_ms_mean']:.3f} ms/frame "
+                  f"thread CPU, {len(wall)} calls ({repeats} per frame)")
+    return figures
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--source", default=f"tum:{REPO / 'data' / 'sample'}", help="KIND:PATH (default the sample)")
@@ -187,6 +215,9 @@ def main() -> None:
             console.print(f"run {run + 1}/{args.runs}: {name}")
             run_once(name, args.source, SlamMode(args.mode), args.max_frames, results[name])
     figures = report(results, console)
+    if SlamMode(args.mode) is SlamMode.RGBD:
+        figures["depth_channels"] = depth_channel_cost(args.source, 5, console)
+    console.print(f"load average {os.getloadavg()[0]:.2f} (1 min)")
     if args.json:
         args.json.write_text(json.dumps(figures, indent=2) + "\n")
 

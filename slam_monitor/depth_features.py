@@ -7,12 +7,12 @@ sensor, not the room or the lens. The last two are computed on the depth image s
 middle pixel of each stride × stride cell: nothing is interpolated across an edge) and, where an edge must be
 placed to the pixel, on short full-resolution segments around the edges found there:
 
-- ``depth_holes``: the share of the pixels with no depth (0 or NaN), at full resolution: structured-light shadows,
+- ``depth_holes``: the share of the pixels with no depth (0, as every source writes it): structured-light shadows,
   dark or shiny surfaces, out of range, the border a misregistration uncovers.
 - ``depth_noise``: the depth noise σ_z divided by z², in 1/m. Inverse depth w = 1/z is affine in the pixel
-  coordinates on a plane, so its second difference along a row or column is 0 there; depth noise σ_z becomes
+  coordinates on a plane, so its second difference along a row is 0 there; depth noise σ_z becomes
   w noise σ_z / z², and a second difference of independent noise has σ·√6. The channel is
-  median(|Δ²w|) / (0.6745·√6) over every three valid neighbours of the subsampled grid along rows and columns,
+  median(|Δ²w|) / (0.6745·√6) over every three valid neighbours along the rows of the subsampled grid,
   leaving out those that span a depth edge (|Δ²w| above ``edge_jump`` of w); curved surfaces, a minority, do not
   move a median. Active-stereo noise (σ_z ∝ z²) gives the same value at every distance; disparity quantisation
   (steps constant in disparity, so in w) shows here too.
@@ -83,13 +83,13 @@ def _inverse_depth(depth: np.ndarray) -> np.ndarray:
 
 
 def noise_over_z2(w: np.ndarray, edge_jump: float) -> float:
-    """σ_z / z² (1/m) from the second differences of inverse depth ``w`` (NaN: no depth) along rows and columns;
-    a second difference above ``edge_jump`` of its middle value spans a depth edge and is left out (edges, a tenth
-    of the triples in a cluttered room, would otherwise lift the median by about as much)."""
-    rows = np.abs(w[:, :-2] - 2.0 * w[:, 1:-1] + w[:, 2:])
-    cols = np.abs(w[:-2, :] - 2.0 * w[1:-1, :] + w[2:, :])
+    """σ_z / z² (1/m) from the second differences of inverse depth ``w`` (NaN: no depth) along its rows; a second
+    difference above ``edge_jump`` of its middle value spans a depth edge and is left out (edges, a tenth of the
+    triples in a cluttered room, would otherwise lift the median by about as much). Rows alone: the noise of a
+    depth sensor is the same along both axes, and one axis costs half."""
+    d2 = np.abs(w[:, :-2] - 2.0 * w[:, 1:-1] + w[:, 2:])
     with np.errstate(invalid="ignore"):
-        d2 = np.concatenate([rows[rows <= edge_jump * w[:, 1:-1]], cols[cols <= edge_jump * w[1:-1, :]]])
+        d2 = d2[d2 <= edge_jump * w[:, 1:-1]]
     return float(np.median(d2) / _SECOND_DIFFERENCE_MAD) if d2.size else float("nan")
 
 
@@ -107,59 +107,69 @@ def _peak(values: np.ndarray) -> np.ndarray:
     return k + np.clip(delta, -0.5, 0.5)
 
 
-def row_edge_offsets(depth: np.ndarray, gray: np.ndarray, w_sub: np.ndarray, cfg: DepthQualityConfig) -> np.ndarray:
-    """Signed offsets, in pixels along the rows, from each depth jump to the strongest gray step near it.
+def _evenly(index: tuple[np.ndarray, np.ndarray], most: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``most`` of the (row, column) pairs, evenly over the image: the same ones for the same frame."""
+    rows, cols = index
+    if rows.size > most:
+        keep = np.linspace(0, rows.size - 1, most).astype(np.intp)
+        return rows[keep], cols[keep]
+    return rows, cols
 
-    ``w_sub`` is the inverse depth subsampled by ``cfg.stride``; jumps between its horizontal neighbours are
-    placed on the full-resolution ``depth`` row between them; positive = the depth edge lies right of the colour
-    edge. Call with transposed arrays for columns."""
+
+def edge_offsets(depth: np.ndarray, gray: np.ndarray, w_sub: np.ndarray,
+                 cfg: DepthQualityConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Signed offsets, in pixels, from each depth jump to the strongest gray step near it: of the jumps between
+    horizontal neighbours of ``w_sub`` (the inverse depth subsampled by ``cfg.stride``) along the rows, and of those
+    between vertical neighbours along the columns; positive = the depth edge lies right of (below) the colour edge.
+
+    Each jump is a short line through the full-resolution images (a row or a column), handled in one pass through
+    flat indices: the largest depth step between the two subsampled pixels is the depth edge, at its middle; the
+    largest gray-level step within ``search_px`` of it is the colour edge."""
     s, r = cfg.stride, cfg.search_px
-    left, right = w_sub[:, :-1], w_sub[:, 1:]
-    with np.errstate(invalid="ignore"):
-        jump = np.abs(right - left) > cfg.edge_jump * np.fmax(left, right)
-    rows, cols = np.nonzero(jump)
-    if rows.size == 0:
-        return np.zeros(0)
-    if rows.size > cfg.max_edges:  # evenly over the image, the same ones for the same frame
-        keep = np.linspace(0, rows.size - 1, cfg.max_edges).astype(np.intp)
-        rows, cols = rows[keep], cols[keep]
     height, width = depth.shape
     first = s // 2  # the subsampled grid's first full-resolution pixel
-    v = first + rows * s
-    # The full-resolution depth between the two subsampled pixels: the largest step is the edge, at its middle.
-    span = first + cols[:, None] * s + np.arange(s + 1)
-    segment = depth[v[:, None], np.minimum(span, width - 1)].astype(np.float32)
+    with np.errstate(invalid="ignore"):
+        across_x = np.abs(w_sub[:, 1:] - w_sub[:, :-1]) > cfg.edge_jump * np.fmax(w_sub[:, 1:], w_sub[:, :-1])
+        across_y = np.abs(w_sub[1:, :] - w_sub[:-1, :]) > cfg.edge_jump * np.fmax(w_sub[1:, :], w_sub[:-1, :])
+    rows_x, cols_x = _evenly(np.nonzero(across_x), cfg.max_edges)
+    rows_y, cols_y = _evenly(np.nonzero(across_y), cfg.max_edges)
+    n_x = rows_x.size
+    if n_x + rows_y.size == 0:
+        return np.zeros(0), np.zeros(0)
+    # Per line: where the subsampled pair starts along it, its flat offset across, one pixel's flat step, its length.
+    start = first + np.concatenate([cols_x, rows_y]) * s
+    across = np.concatenate([(first + rows_x * s) * width, first + cols_y * s])
+    step = np.concatenate([np.ones(n_x, np.intp), np.full(rows_y.size, width, np.intp)])[:, None]
+    last = np.concatenate([np.full(n_x, width - 1), np.full(rows_y.size, height - 1)])[:, None]
+    flat_depth, flat_gray = depth.ravel(), gray.ravel()
+    segment = flat_depth[across[:, None] + np.minimum(start[:, None] + np.arange(s + 1), last) * step]
     steps = np.abs(np.diff(segment, axis=1))
-    steps[~((segment[:, :-1] > 0) & (segment[:, 1:] > 0))] = 0.0  # a hole is not an edge position
-    u_depth = first + cols * s + np.argmax(steps, axis=1) + 0.5
-    # The gray-level steps within search_px of it: the strongest is the colour edge.
-    base = np.floor(u_depth).astype(np.intp)
+    steps[(segment[:, :-1] <= 0) | (segment[:, 1:] <= 0)] = 0.0  # a hole is not an edge position
+    at_depth = start + np.argmax(steps, axis=1) + 0.5
+    base = np.floor(at_depth).astype(np.intp)
     around = base[:, None] + np.arange(-r, r + 1)
-    inside = (around >= 0) & (around < width - 1)
-    around = np.clip(around, 0, width - 2)
-    g = gray[v[:, None], around].astype(np.float32)
-    g_next = gray[v[:, None], around + 1].astype(np.float32)
-    strength = np.where(inside, np.abs(g_next - g), 0.0)
-    u_colour = base - r + _peak(strength) + 0.5
-    return u_depth - u_colour
+    inside = (around >= 0) & (around < last)
+    index = across[:, None] + np.clip(around, 0, last - 1) * step
+    strength = np.where(inside, np.abs(flat_gray[index + step].astype(np.float32) - flat_gray[index]), 0.0)
+    offsets = at_depth - (base - r + _peak(strength) + 0.5)
+    return offsets[:n_x], offsets[n_x:]
 
 
 def depth_features(depth: np.ndarray | None, gray: np.ndarray, fx: float, fy: float,
                    cfg: DepthQualityConfig) -> DepthFeatures:
     """The depth-quality channels of one frame.
 
-    ``depth``: (H, W) float32 metres aligned to ``gray`` (0 or NaN = unknown), or None (monocular: all NaN)."""
+    ``depth``: (H, W) float32 metres aligned to ``gray`` (0 = unknown), or None (monocular: all NaN)."""
     if depth is None:
         return DepthFeatures.absent()
     if depth.shape != gray.shape:
         raise ValueError(f"depth {depth.shape} is not aligned to the gray frame {gray.shape}")
     s = cfg.stride
     w_sub = _inverse_depth(depth[s // 2::s, s // 2::s])
-    # cv2.compare is false for NaN, and counting is several times faster than a numpy mean over the full frame.
-    holes = 1.0 - cv2.countNonZero(cv2.compare(depth, 0.0, cv2.CMP_GT)) / depth.size
+    # Sources write 0 where there is no depth (Frame); counting non-zero pixels is the cheapest full-frame pass.
+    holes = 1.0 - cv2.countNonZero(depth) / depth.size
     noise = noise_over_z2(w_sub, cfg.edge_jump)
-    along_x = row_edge_offsets(depth, gray, w_sub, cfg)
-    along_y = row_edge_offsets(depth.T, gray.T, w_sub.T, cfg)
+    along_x, along_y = edge_offsets(depth, gray, w_sub, cfg)
     if along_x.size + along_y.size < cfg.min_edges:
         edge_offset = float("nan")
     else:

@@ -57,6 +57,7 @@ from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.logfiles import CsvLog, write_json_atomically
 from seesys.io.network import load_network_config
 from seesys.io.session_files import utc_now
+from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
 from study.config import StudyConfig
 from study.mocap.calibrate import CALIBRATION_JSON, GROUND_TRUTH, MOCAP_LOG, calibrate_session
 from study.mocap.logger import CLOCKS, MOCAP_STATS
@@ -144,6 +145,10 @@ class Session:
                               f"({self.phase_folder}); pass --restart to record it again (the earlier attempts "
                               f"are kept, marked superseded)")
         self.source = options.source or cfg.runner.source
+        # The advisory and the watcher listen to this device alone (or to the replayed log's device id).
+        self.device_id = resolve_device_id(load_monitor_config().device_id, self.source)
+        self.estimates_from = (load_advisory_config().replay.replay_device_id
+                               if options.replay_estimates is not None else None)
         self.mode = options.mode or cfg.runner.mode
         if options.replay_estimates is not None:
             read_estimate_log(options.replay_estimates)  # a bad log is refused before anything starts
@@ -237,10 +242,10 @@ class Session:
         """The run's configs (``configs/``, what every child runs with) and environment; in an audible condition
         the sound goes to the output device or, without one, to a JACK dummy server started here, as ``seesys
         run`` does (``advisory.output``)."""
-        overrides: dict[str, object] = {}
+        overrides: dict[str, object] = {"listen_to_device": self.estimates_from or self.device_id}
         if Condition(self.condition).audible:
             self.output = open_audio_output(load_advisory_config().audio)
-            overrides = self.output.overrides
+            overrides.update(self.output.overrides)
             if self.output.unavailable is not None:
                 self.console.print(f"no audio output ({self.output.unavailable}): the advisory plays into a "
                                    f"{self.output.description}", markup=False, highlight=False)
@@ -298,7 +303,7 @@ class Session:
                        source=self.source, mode=self.mode, superseded=False,
                        replay_estimates=str(self.o.replay_estimates) if self.o.replay_estimates else None)
         events = CsvLog(self.attempt / EVENTS_CSV, EVENT_COLUMNS)
-        watcher = StreamWatcher(load_network_config(), self.attempt)
+        watcher = StreamWatcher(load_network_config(), self.attempt, self.device_id, self.estimates_from)
         watcher.start()
         watcher.wait_ready(SUBSCRIBER_READY_S)
         self._event(events, "start", self.attempt.name)

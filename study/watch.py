@@ -1,5 +1,12 @@
-"""The runner's view of the network: it logs every pose-error estimate it receives (``estimates.csv``, with the
-Unix time of arrival) and counts the device's feature frames that did not arrive, for the status line.
+"""The runner's view of the network: it logs every pose-error estimate of its device it receives
+(``estimates.csv``, with the Unix time of arrival) and counts the device's feature frames that did not arrive,
+for the status line.
+
+It listens to one device only (its feature topic and its estimate topic), as the advisory does: on a shared
+estimator another device's estimates are not this person's information. The device draws a stream session when
+it starts and states it on every feature frame; an estimate of another stream session (an earlier run of the
+device, still in flight) is counted as foreign and not logged. Replayed estimates (``seesys advisory replay``)
+come from their own device id and belong to no stream: all of them are logged.
 
 Both sockets connect (SUB) to the endpoints of ``configs/network.toml``; the publishers (the device's feature
 stream, the estimator or ``seesys advisory replay``) bind, so either side may start first. The estimates come
@@ -16,7 +23,7 @@ from pathlib import Path
 
 import zmq
 
-from seesys.core.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame, MessageError, decode
+from seesys.core.messages import ESTIMATE_TOPIC, FEATURE_TOPIC, Estimate, FeatureFrame, MessageError, decode, topic
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import NetworkConfig
 from seesys.io.transport import LossCounter, subscriber
@@ -26,12 +33,18 @@ POLL_MS = 100
 
 
 class StreamWatcher(threading.Thread):
-    """A thread that logs estimates and watches the feature stream until :meth:`stop`."""
+    """A thread that logs ``device_id``'s estimates (those of ``estimates_from``, a replay's device id, instead when
+    given) and watches its feature stream until :meth:`stop`."""
 
-    def __init__(self, network: NetworkConfig, folder: Path):
+    def __init__(self, network: NetworkConfig, folder: Path, device_id: str, estimates_from: str | None = None):
         super().__init__(name="study-stream-watcher", daemon=True)
         self._network = network
         self._folder = folder
+        self._device = device_id
+        self._replayed = estimates_from is not None
+        self._estimates_topic = topic(ESTIMATE_TOPIC, estimates_from or device_id)
+        self.stream_session: int | None = None  # the device's, from its newest feature frame
+        self.foreign_estimates = 0  # of another stream session of the device
         self._stopping = threading.Event()
         self._ready = threading.Event()
         self.estimates = 0
@@ -56,9 +69,9 @@ class StreamWatcher(threading.Thread):
         sockets = []
         try:
             network = self._network
-            sockets = [subscriber(ctx, network.estimates_endpoint, "estimates", [ESTIMATE_TOPIC],
+            sockets = [subscriber(ctx, network.estimates_endpoint, "estimates", [self._estimates_topic],
                                   options=network.client_options(network.estimates_endpoint)),
-                       subscriber(ctx, network.features_endpoint, "features", [FEATURE_TOPIC])]
+                       subscriber(ctx, network.features_endpoint, "features", [topic(FEATURE_TOPIC, self._device)])]
             poller = zmq.Poller()
             for s in sockets:
                 poller.register(s, zmq.POLLIN)
@@ -73,13 +86,17 @@ class StreamWatcher(threading.Thread):
                         self.bad_messages += 1
                         continue
                     if isinstance(message, Estimate):
+                        if not self._replayed and message.stream_session != self.stream_session:
+                            self.foreign_estimates += 1
+                            continue
                         log.write(arrived, message.device_id, message.frame_index, message.timestamp,
                                   message.error_m, message.model_version)
                         self.estimates += 1
                         self.latest_error_m = message.error_m
                     elif isinstance(message, FeatureFrame):
+                        self.stream_session = message.stream_session
                         self.losses.observe(message)
-                        self.tracked_frames += message.state.tracked
+                        self.tracked_frames += message.tracking_state.tracked
                         self.last_frame_mono = time.monotonic()
                         self.frames_skipped = message.frames_skipped
         except Exception as e:  # noqa: BLE001 - reported on the status line and in run.json, the session goes on

@@ -54,7 +54,7 @@ def test_with_curve_from_network_toml_only_the_allowed_device_is_served(tiny_mod
         observers.append(stranger_observer := observer_for(stranger_network, tmp_path / "stranger", "dev-x"))
         device = FeaturePublisher.for_network(network)
         observers.append(device_observer := observer_for(network, tmp_path / "device", "dev-ok"))
-        watcher = StreamWatcher(network, tmp_path)
+        watcher = StreamWatcher(network, tmp_path, "dev-ok")
         watcher.start()
         assert watcher.wait_ready(60)
         ours, theirs = device_frames("dev-ok", 80, seed=2), device_frames("dev-x", 80, seed=1)

@@ -102,7 +102,7 @@ def test_status_line_reads_the_growing_logs(within):
     (session.attempt / "frames.csv").write_text("frame_index,timestamp,state,tracked_points,track_ms\n"
                                                 "0,1.0,OK,300,20.0\n1,1.03,LOST,0,20.0\n2,1.06,O")  # half a row
     (session.attempt / MOCAP_STATS).write_text(json.dumps({"rate_hz": 99.6, "last_pose_time": time.time()}))
-    watcher = StreamWatcher(load_network_config(), session.attempt)
+    watcher = StreamWatcher(load_network_config(), session.attempt, "device")
     line = session._status_line(watcher).plain
     assert " 2 LOST " in line
     assert "mocap 100 Hz" in line

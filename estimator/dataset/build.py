@@ -284,7 +284,8 @@ class DatasetBuilder:
         meta = _sequence_metadata(sequence)
         name = run_name(sequence.name, mode.value, trial)
         info = RunInfo(name, sequence.name, meta["environment"], meta["motion_group"], meta["trajectory"],
-                       mode.value, trial, COMPLETED)
+                       mode.value, trial, COMPLETED,
+                       camera_model=meta.get("camera_model", {}).get("name", "ideal"))  # ideal: not recorded
         session_dir = self.root / SESSIONS_DIR / name
         shutil.rmtree(session_dir, ignore_errors=True)
         options = SessionOptions(f"tum:{sequence}", mode, session_dir, pace=self.config.pace,

@@ -8,6 +8,9 @@ RTS window feature follows the error.
 - Correlations use the model's samples (usable windows only): each RTS channel summarised over the 30-row
   window by its mean, minimum, maximum and standard deviation (NaN rows ignored), Spearman's ρ against the
   end frame's label (scipy).
+- Per camera model of the renderer: the label figures, and the correlation of the depth channels' window
+  features with the label within each camera model's samples (a channel that only tells the cameras apart shows
+  no correlation within one camera; one that follows the error within each does).
 """
 
 from __future__ import annotations
@@ -126,6 +129,8 @@ class ModeReport:
 @dataclass(frozen=True)
 class LabelReport:
     modes: list[ModeReport]
+    by_camera: pd.DataFrame  # label figures per mode and camera model
+    depth_correlations: pd.DataFrame  # the depth channels' window features against the label, per camera model
     by_group: pd.DataFrame
     by_trial: pd.DataFrame  # one batch = one trial of every sequence
     frames: pd.DataFrame  # per-frame labels of every run
@@ -155,9 +160,24 @@ def label_report(roots: list[Path], config: ReportConfig, targets: TargetConfig)
         best = float(correlations.spearman_rho.iloc[0]) if len(correlations) else float("nan")
         modes.append(ModeReport(mode, summary, correlations, check_targets(summary, best, targets), mode_features,
                                 errors[in_mode]))
-    by_group = summary_table(frames, ["mode", "environment", "motion_group"], config.thresholds_m)
+    by_camera = summary_table(frames, ["mode", "camera_model"], config.thresholds_m)
+    by_group = summary_table(frames, ["mode", "camera_model", "environment", "motion_group"], config.thresholds_m)
     by_trial = summary_table(frames, ["mode", "trial"], config.thresholds_m)
-    return LabelReport(modes, by_group, by_trial, frames)
+    return LabelReport(modes, by_camera, depth_by_camera(features, errors, reader.index, config.min_samples),
+                       by_group, by_trial, frames)
+
+
+def depth_by_camera(features: pd.DataFrame, errors: np.ndarray, index: pd.DataFrame, min_samples: int) -> pd.DataFrame:
+    """Spearman ρ of the depth channels' window features against the label within each mode and camera model."""
+    depth = [c.name for c in rts_schema.CHANNELS if c.category == "depth"]
+    columns = [f for f in features.columns if f.rsplit("_", 1)[0] in depth]
+    tables = []
+    for (mode, camera), group in index.groupby(["mode", "camera_model"], sort=True):
+        rows = group.index.to_numpy()
+        table = feature_correlations(features.loc[rows, columns].reset_index(drop=True), errors[rows], min_samples)
+        tables.append(table.assign(mode=mode, camera_model=camera))
+    return (pd.concat(tables, ignore_index=True) if tables
+            else pd.DataFrame(columns=["feature", "spearman_rho", "p_value", "samples", "mode", "camera_model"]))
 
 
 def _markdown_table(table: pd.DataFrame, digits: int = 1) -> str:
@@ -186,9 +206,18 @@ def render_markdown(report: LabelReport, config: ReportConfig) -> str:
         top = m.correlations.head(config.top_features)
         out += [f"RTS window features with the largest |Spearman ρ| against the label ({m.mode}, usable samples):",
                 "", _markdown_table(top[["feature", "spearman_rho", "samples"]], digits=3), ""]
+    out += ["## Per camera model", "", "Label figures per mode and camera model of the renderer:", "",
+            _markdown_table(report.by_camera), ""]
+    if len(report.depth_correlations):
+        top = (report.depth_correlations.assign(strength=report.depth_correlations.spearman_rho.abs())
+               .sort_values(["mode", "camera_model", "strength"], ascending=[True, True, False])
+               .groupby(["mode", "camera_model"]).head(config.top_features))
+        out += ["Depth channels' window features against the label within each camera model (usable samples; "
+                "monocular runs have no depth):", "",
+                _markdown_table(top[["mode", "camera_model", "feature", "spearman_rho", "samples"]], digits=3), ""]
     out += ["## Per mode and trial (each trial of every sequence is one batch)", "", _markdown_table(report.by_trial),
             ""]
-    out += ["## Per mode, environment and motion group", "", _markdown_table(report.by_group), ""]
+    out += ["## Per mode, camera model, environment and motion group", "", _markdown_table(report.by_group), ""]
     return "\n".join(out)
 
 

@@ -87,6 +87,7 @@ class RunInfo:
     error: str = ""
     slam_seconds: float = 0.0  # the SLAM session (ORB-SLAM3 + monitor at camera pace)
     seconds: float = 0.0  # the whole run: SLAM session, labelling and windowing
+    camera_model: str = "ideal"  # the renderer's camera model of the sequence (configs/synth.toml)
 
 
 @dataclass(frozen=True)
@@ -245,7 +246,8 @@ class DatasetReader:
                 if missing:
                     raise DatasetError(f"{folder / SAMPLES_CSV}: missing columns {sorted(missing)}")
                 meta = asdict(info)
-                for key in ("run", "sequence", "environment", "motion_group", "trajectory", "mode", "trial"):
+                for key in ("run", "sequence", "environment", "motion_group", "trajectory", "mode", "trial",
+                            "camera_model"):
                     table[key] = meta[key]
                 tables.append(table)
         if runs is not None:
@@ -301,7 +303,7 @@ class DatasetReader:
         for run, folder in self._folders.items():
             table = pd.read_csv(folder / FRAMES_CSV)
             info = read_run_info(folder)
-            for key in ("run", "environment", "motion_group", "trajectory", "mode", "trial"):
+            for key in ("run", "environment", "motion_group", "trajectory", "mode", "trial", "camera_model"):
                 table[key] = getattr(info, key)
             tables.append(table)
         return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()

@@ -144,6 +144,8 @@ class App:
         self.mode = options.mode or self.cfg.device.mode
         self.pace = self.cfg.device.pace if options.pace is None else options.pace
         check_source(options.source, self.mode)
+        # The device's id on the feature stream and the estimator: the advisory and the app listen to it alone.
+        self.device_id = resolve_device_id(load_monitor_config().device_id, options.source)
         self.folder = _new_folder(options.out)
         self.parts: dict[str, _Part] = {}
         self.output: AudioOutput | None = None  # where the player's audio goes (audible conditions)
@@ -170,7 +172,8 @@ class App:
 
     def _configure(self) -> dict[str, str]:
         """The run's config folder and the children's environment."""
-        overrides = self._audio_overrides()
+        overrides = dict(self._audio_overrides())
+        overrides["listen_to_device"] = self.device_id
         if self.estimates_endpoint is not None:
             overrides["estimates_endpoint"] = self.estimates_endpoint
         self.config_dir = write_config_dir(self.folder / CONFIGS, overrides)
@@ -203,8 +206,7 @@ class App:
 
     def _view_setup(self) -> ViewSetup:
         status_endpoint = load_service_config(self.config_dir).status_endpoint if self.o.local else None
-        return ViewSetup(self.folder, self.o.source, self.o.condition.value, self.cfg.view,
-                         resolve_device_id(load_monitor_config(self.config_dir).device_id, self.o.source),
+        return ViewSetup(self.folder, self.o.source, self.o.condition.value, self.cfg.view, self.device_id,
                          self.advisory.equation2.beta_m,
                          None if self.o.local else self.o.estimator, status_endpoint)
 
@@ -416,7 +418,7 @@ class App:
                                          f"estimator {'local' if self.o.local else self.o.estimator}, "
                                          f"audio {self.audio}")
             network = load_network_config(self.config_dir)
-            watcher = StreamWatcher(network, self.folder / LOGS)
+            watcher = StreamWatcher(network, self.folder / LOGS, self.device_id)
             (self.folder / LOGS).mkdir(exist_ok=True)
             watcher.start()
             self.watcher = watcher
