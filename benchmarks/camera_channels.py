@@ -28,12 +28,12 @@ from scipy.stats import spearmanr
 
 from estimator.deepsee.baselines import fit_random_forest, window_statistics
 from estimator.deepsee.config import load_estimator_config
+from estimator.deepsee.data import session_windows
 from estimator.deepsee.metrics import pulse_classes
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec, render_sequence
 from seesys.core import rts_schema
 from seesys.core.labels import LabelStatus
-from seesys.core.tracking_state import TrackingState
 from seesys.io.core_settings import load_label_config, load_pulse_settings, load_window_config
 from seesys.io.rts_log import read_rts_csv
 from seesys.io.session_files import read_manifest
@@ -45,7 +45,7 @@ from slam_monitor.supervisor import run_supervised_session
 
 CAMERAS = ("ideal", "d435")
 MOTION, SEED = "patrol", 5
-DEPTH_CHANNELS = tuple(c.name for c in rts_schema.CHANNELS if c.category == "depth")
+DEPTH_CHANNELS = rts_schema.channel_names("depth")
 BINS = 40
 
 
@@ -74,7 +74,6 @@ def track(sequence: Path, out: Path) -> Path:
 def frame_table(session: Path, environment: str, camera: str) -> pd.DataFrame:
     labels = label_session(session, False, load_label_config()).to_frame().reset_index(drop=True)
     table = read_rts_csv(session)
-    table["tracked"] = [TrackingState[s].tracked for s in table["tracking_state"]]
     table = table.join(labels[["error_m", "status"]], on="frame_index")
     table["environment"], table["camera"] = environment, camera
     return table
@@ -91,21 +90,15 @@ def overlap(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.minimum(pa / len(a), pb / len(b)).sum())
 
 
-def windows(table: pd.DataFrame, length: int) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised RTS windows of ``length`` rows, every row tracked, ending on each labelled frame; their labels."""
-    rows = rts_schema.normalise(table[list(rts_schema.CHANNEL_NAMES)].to_numpy())
-    tracked = table["tracked"].to_numpy()
-    ends = np.flatnonzero((table["status"] == LabelStatus.LABELLED.value).to_numpy())
-    ends = [e for e in ends if e >= length - 1 and tracked[e - length + 1:e + 1].all()]
-    return (np.stack([rows[e - length + 1:e + 1] for e in ends]) if ends else np.zeros((0, length, rows.shape[1])),
-            table["error_m"].to_numpy()[ends])
-
-
-def held_out_forest(tables: dict[tuple[str, str], pd.DataFrame], environments: list[str], channels: list[int],
-                    length: int) -> pd.DataFrame:
+def held_out_forest(sessions: dict[tuple[str, str], Path], environments: list[str],
+                    channels: list[int]) -> pd.DataFrame:
     est = load_estimator_config()
     pulses = load_pulse_settings()
-    data = {key: windows(t, length) for key, t in tables.items()}
+    # The model windows of each session, as the service forms them (windows.toml's rule), on every labelled frame.
+    data = {}
+    for key, session in sessions.items():
+        w = session_windows(session, load_window_config(), labelled=True)
+        data[key] = (w.rts, w.error_m)
     rows = []
     for held in environments:
         train = [data[(e, c)] for e in environments if e != held for c in CAMERAS]
@@ -132,13 +125,14 @@ def main() -> None:
     environments = presets if args.environments == "all" else args.environments.split(",")
     print(f"load average at start {os.getloadavg()[0]:.2f}; {len(environments)} environments x {CAMERAS}, "
           f"{args.frames} frames, {MOTION} seed {SEED}")
-    tables = {}
+    tables, sessions = {}, {}
     for environment in environments:
         for camera in CAMERAS:
-            session = track(render(environment, camera, args.frames, args.out), args.out)
+            session = sessions[(environment, camera)] = track(render(environment, camera, args.frames, args.out),
+                                                              args.out)
             tables[(environment, camera)] = frame_table(session, environment, camera)
     frames = pd.concat(tables.values(), ignore_index=True)
-    frames.to_csv(args.out / "frames.csv", index=False, float_format="%.9g")
+    frames.to_csv(args.out / "frames.csv", index=False)
 
     print("\nOverlap of the ideal and d435 per-frame distributions (0 = apart):")
     separation = pd.DataFrame({env: {ch: overlap(tables[(env, "ideal")][ch].to_numpy(), tables[(env, "d435")][ch].to_numpy())
@@ -148,12 +142,11 @@ def main() -> None:
     labelled = frames[frames.status == LabelStatus.LABELLED.value]
     print((1000 * labelled.groupby(["environment", "camera"]).error_m.median()).unstack().round(1).to_string())
 
-    length = load_window_config().rts_length
     everything = list(range(rts_schema.NUM_CHANNELS))
-    without_depth = [i for i, c in enumerate(rts_schema.CHANNELS) if c.category != "depth"]
+    without_depth = [i for i, name in enumerate(rts_schema.CHANNEL_NAMES) if name not in DEPTH_CHANNELS]
     results = {}
     for name, channels in (("all channels", everything), ("without depth channels", without_depth)):
-        table = held_out_forest(tables, environments, channels, length)
+        table = held_out_forest(sessions, environments, channels)
         results[name] = table
         print(f"\nRandom forest, {name}, trained on ideal + d435 of the other environments, tested on d435:")
         print(table.round(3).to_string(index=False))

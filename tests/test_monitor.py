@@ -82,7 +82,7 @@ def test_feature_row_of_constructed_frames():
     assert f11.rts[row_of["brightness"]] == pytest.approx(gray(11).mean() / 255, abs=1e-6)
     assert f11.rts[row_of["matched_inliers"]] == 300
     assert f11.rts[row_of["local_mapping_visual_error"]] == pytest.approx(0.0, abs=1e-3)
-    depth = [row_of[c.name] for c in rts_schema.CHANNELS if c.category == "depth"]
+    depth = [row_of[name] for name in rts_schema.channel_names("depth")]
     assert depth and np.isnan(f11.rts[depth]).all()                          # no depth image: unknown
     assert not np.isnan(np.delete(f10.rts, depth)).any() and not np.isnan(np.delete(f11.rts, depth)).any()
     # PSD on tau-th frames only; all points matched → as many inlier cells as keypoint cells

@@ -72,7 +72,7 @@ def check_session(session: Path, min_tracked: float, min_rotation_corr: float | 
     assert (np.diff(frames) == 1).all()
     tracked = table[table["tracking_state"].isin(["OK", "OK_KLT"])]
     assert len(tracked) >= min_tracked * len(table)
-    depth_channels = [c.name for c in rts_schema.CHANNELS if c.category == "depth"]
+    depth_channels = list(rts_schema.channel_names("depth"))
     others = [name for name in rts_schema.CHANNEL_NAMES if name not in depth_channels]
     assert not tracked[others].isna().any().any(), "NaN on a tracked frame"
     if depth:  # every RGB-D frame has them (an edge offset needs depth edges: the sample's room has them)

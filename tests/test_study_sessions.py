@@ -257,8 +257,8 @@ def test_a_device_that_ignores_sigint_is_terminated_after_the_timeout(tmp_path):
 
     from seesys.io.children import Child
 
-    code = ("import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); print('ready', flush=True); "
-            "time.sleep(600)")
+    code = ("import signal; signal.signal(signal.SIGINT, signal.SIG_IGN); print('ready', flush=True); "
+            "signal.pause()")
     process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
                                start_new_session=True)
     assert process.stdout.readline().strip() == "ready"

@@ -169,7 +169,7 @@ def label_report(roots: list[Path], config: ReportConfig, targets: TargetConfig)
 
 def depth_by_camera(features: pd.DataFrame, errors: np.ndarray, index: pd.DataFrame, min_samples: int) -> pd.DataFrame:
     """Spearman ρ of the depth channels' window features against the label within each mode and camera model."""
-    depth = [c.name for c in rts_schema.CHANNELS if c.category == "depth"]
+    depth = rts_schema.channel_names("depth")
     columns = [f for f in features.columns if f.rsplit("_", 1)[0] in depth]
     tables = []
     for (mode, camera), group in index.groupby(["mode", "camera_model"], sort=True):

@@ -126,6 +126,12 @@ CHANNEL_NAMES: tuple[str, ...] = tuple(c.name for c in CHANNELS)
 NUM_CHANNELS = len(CHANNELS)
 _INDEX = {name: i for i, name in enumerate(CHANNEL_NAMES)}
 
+def channel_names(category: str) -> tuple[str, ...]:
+    """The names of the channels of ``category`` (``sensor_input``, ``tracking``, ``mapping``, ``depth``), in
+    schema order."""
+    return tuple(c.name for c in CHANNELS if c.category == category)
+
+
 #: The relative-rotation channels (rad/frame), in roll, pitch, yaw order.
 ROTATION_CHANNELS: tuple[str, str, str] = ("rel_roll", "rel_pitch", "rel_yaw")
 
