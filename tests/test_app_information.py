@@ -97,14 +97,22 @@ def test_a_killed_estimator_plays_the_no_information_cue_and_the_run_ends_degrad
     cues = advisory[advisory.trigger == "cue"]
     assert len(cues) >= 2 and (cues.status == "no_information").all()
     assert (cues.time_mono.diff().dropna() >= cfg.no_information.cue_every_s - 1e-6).all()
-    # The WAV holds the cue's two tones where the player played each cue buffer, and nowhere else.
+    # The WAV holds the cue's two tones where the player played each cue buffer, and nowhere else. The stream
+    # stops when the run ends, which may cut the last cue short: only cues the capture holds to their end must be
+    # heard whole.
     samples, rate = read_wav(out / "advisory.wav")
     heard = cue_tones(samples, rate, cfg.no_information)
-    played = playback[playback.trigger == "cue"].stream_sample.astype(int)
-    assert len(played) >= 2 and len(heard) == 2 * len(played), (heard, played.tolist())
-    gap = int(round((cfg.no_information.cue_tone_s + cfg.no_information.cue_gap_s) * rate))
-    for start, first, second in zip(played, heard[::2], heard[1::2]):
-        assert abs(first - start) <= rate // 100 and abs(second - start - gap) <= rate // 100
+    played = playback[playback.trigger == "cue"].stream_sample.astype(int).tolist()
+    cue = cfg.no_information
+    gap = int(round((cue.cue_tone_s + cue.cue_gap_s) * rate))
+    whole = [start for start in played if start + gap + int(cue.cue_tone_s * rate) <= len(samples)]
+    tolerance = rate // 100
+    assert len(whole) >= 2 and len(played) - len(whole) <= 1, (len(samples), played)
+    for start in whole:
+        for tone in (start, start + gap):
+            assert any(abs(h - tone) <= tolerance for h in heard), (tone, heard, played)
+    for h in heard:
+        assert any(abs(h - s) <= tolerance or abs(h - s - gap) <= tolerance for s in played), (h, played)
 
 
 def test_sigint_ends_the_device_with_its_files_final(root):
