@@ -140,7 +140,8 @@ def _finetune(args: argparse.Namespace) -> int:
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.finetune import finetune
     from estimator.deepsee.loop import progress_bar
-    from seesys.io.core_settings import load_pulse_settings, load_window_config
+    from seesys.io.camera_check import load_scale_settings, sessions_scale_line
+    from seesys.io.core_settings import load_label_config, load_pulse_settings, load_window_config
     config = load_estimator_config()
     device = _device(args.device, args.threads)
     run_dir = args.run or args.out.with_name(args.out.stem + "_finetune_run")
@@ -153,6 +154,7 @@ def _finetune(args: argparse.Namespace) -> int:
           f"{result.validation_windows} validation windows, the last "
           f"{100 * config.finetune.validation_fraction:.0f} % of each session): validation RMSE "
           f"{result.rmse_before_cm:.3f} cm before, {result.rmse_after_cm:.3f} cm after -> {result.model}")
+    print(sessions_scale_line(args.sessions, load_scale_settings(), load_label_config().association_max_dt_s))
     if result.held_out_before is not None:
         print(f"held-out sessions ({result.held_out_before.windows} windows, never trained on):")
         for name, scores in (("before", result.held_out_before), ("after", result.held_out_after)):

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
+
 from seesys.core import session_layout
 from seesys.core.camera import Intrinsics
 from seesys.core.errors import SeesysError
@@ -140,9 +142,11 @@ def build_observer(spec: ObserverSpec, context: SessionContext) -> FrameObserver
     return factory(context, **spec.settings)
 
 
-def checked_frames(source: FrameSource, mode: SlamMode) -> Iterator[Frame]:
-    """The source's frames, checked against its intrinsics so that ORB-SLAM3 never sees a mismatched image."""
+def checked_frames(source: FrameSource, mode: SlamMode, depth_correction: float = 1.0) -> Iterator[Frame]:
+    """The source's frames, checked against its intrinsics so that ORB-SLAM3 never sees a mismatched image, their
+    depth multiplied by ``depth_correction`` (``[scale]`` of camera.toml: a camera's measured depth scale error)."""
     size = (source.intrinsics.height, source.intrinsics.width)
+    correction = np.float32(depth_correction)
     for frame in source.frames():
         if frame.gray.shape != size:
             raise SourceError(
@@ -151,6 +155,8 @@ def checked_frames(source: FrameSource, mode: SlamMode) -> Iterator[Frame]:
             )
         if mode is SlamMode.RGBD and frame.depth is None:
             raise SourceError(f"frame {frame.index} has no depth (needed for RGB-D)")
+        if frame.depth is not None and depth_correction != 1.0:
+            frame = dataclasses.replace(frame, depth=frame.depth * correction)
         yield frame
 
 
@@ -218,7 +224,8 @@ def run_device_session(
                     pacing = dataclasses.replace(pacing, wait_for_mapping=options.wait_for_mapping)
                 pacer = FramePacer(pacing, pace and not source.paced_by_clock,
                                    ThreadDemand(tracker.background_thread_ids))
-                for frame in itertools.islice(checked_frames(source, options.mode), options.max_frames):
+                frames = checked_frames(source, options.mode, camera_config.scale.depth_correction)
+                for frame in itertools.islice(frames, options.max_frames):
                     pacer.wait(frame.timestamp)
                     output = tracker.track(frame)
                     writer.write_frame(output)

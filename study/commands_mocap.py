@@ -9,17 +9,46 @@ import signal
 import threading
 from pathlib import Path
 
+import numpy as np
+
+from seesys.core.camera_scale import ScaleCheckError, ScaleFit, describe, window_scales
+from seesys.core.trajectory import Poses
+from seesys.io.camera_check import load_scale_settings
 from seesys.io.trajectory_files import read_tum, write_tum
-from study.config import load_study_config
+from study.config import MetricsConfig, load_study_config
 from study.metrics import format_metrics, read_frame_log, tracking_metrics
 
 
 def metrics_command(args: argparse.Namespace) -> int:
     cfg = load_study_config().metrics
     frames = read_frame_log(args.frames) if args.frames else None
-    result = tracking_metrics(read_tum(args.slam), read_tum(args.mocap), args.mono, cfg, frames)
-    print(json.dumps(result.as_dict(), indent=2) if args.json else format_metrics(result))
+    slam, mocap = read_tum(args.slam), read_tum(args.mocap)
+    result = tracking_metrics(slam, mocap, args.mono, cfg, frames)
+    scale = None if args.mono else camera_scale(slam, mocap, cfg)
+    if args.json:
+        print(json.dumps({**result.as_dict(), "camera_scale": _scale_record(scale)}, indent=2))
+        return 0
+    print(format_metrics(result))
+    if scale is not None:
+        print(f"camera scale against the mocap: {scale if isinstance(scale, str) else describe(scale)}")
     return 0
+
+
+def _scale_record(scale: ScaleFit | str | None) -> dict | None:
+    if scale is None or isinstance(scale, str):
+        return None if scale is None else {"not_measured": scale}
+    return {"scale": scale.scale, "p10": scale.spread[0], "p90": scale.spread[1], "windows": scale.windows,
+            "depth_scale_error": scale.depth_scale_error}
+
+
+def camera_scale(slam: Poses, mocap: Poses, cfg: MetricsConfig) -> ScaleFit | str:
+    """RGB-D: the SLAM trajectory's scale against the mocap (a depth scale error no estimate shows), on the tracked
+    poses, a stretch ending where poses are ``stretch_gap_s`` apart; why not, when it cannot be measured."""
+    try:
+        return window_scales(slam, np.ones(len(slam), bool), mocap, cfg.association_max_dt_s, load_scale_settings(),
+                             max_gap_s=cfg.stretch_gap_s)
+    except ScaleCheckError as e:
+        return f"not measured ({e})"
 
 
 def calibrate_command(args: argparse.Namespace) -> int:

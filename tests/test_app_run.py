@@ -1,9 +1,11 @@
 """`seesys run --local` end to end, as a person runs it: in a terminal (tmux, its pane captured; a pseudo-terminal
 where tmux is not installed), on a recording of the embedded sample slowed down (so that the run outlasts an
 estimator restart), with the shipped model, the audio into a WAV through a private JACK dummy server (`--wav`), the
-estimator killed with SIGKILL mid-run, and Ctrl-C at the end. One run, shared by the tests of this module.
+estimator killed with SIGKILL mid-run, and Ctrl-C at the end; its camera config records a 3 % depth correction.
+One run, shared by the tests of this module.
 
-Checked: the view shows every field while estimates come, and the restart after the kill; the kill is logged, the
+Checked: the app warns at start of the camera's recorded depth scale error; the view shows every field while
+estimates come, and the restart after the kill; the kill is logged, the
 estimator restarted and estimates resume; the device logged every frame; Ctrl-C stops every child and leaves a
 summary; the WAV holds, buffer by buffer, the pulses that Equation 2 gives for the estimates the device logged.
 """
@@ -48,6 +50,7 @@ SAMPLE = REPO / "data" / "sample"
 STRETCH = 6
 # Equation 2 made to sound at the sample's estimates (3 to 6 mm, below the paper's alpha of 4 mm at times), so that
 # the WAV holds pulses to check; the rule is the same.
+CORRECTION = 0.97  # a 3.1 % depth scale error, above the 2 % the app warns of
 EQUATION2 = {"alpha_m": 0.001, "pulses_per_metre": 500.0}
 
 COLUMNS, ROWS = 160, 40
@@ -181,7 +184,8 @@ def run():
     if not JackDummy.available():
         pytest.skip("jackd is not installed (apt package jackd2)")
     root = Path(tempfile.mkdtemp(prefix="sapp", dir="/tmp"))  # ipc paths must stay short
-    config_dir, _ = private_configs(root, endpoint=f"ipc://{root}/handoff", stale_after_ms=60000.0, **EQUATION2)
+    config_dir, _ = private_configs(root, endpoint=f"ipc://{root}/handoff", stale_after_ms=60000.0,
+                                    depth_correction=CORRECTION, **EQUATION2)
     source = stretched_sample(root / "source", STRETCH)
     out = root / "session"
     command = [sys.executable, "-m", "seesys", "run", "--source", f"tum:{source}", "--local", "--condition",
@@ -210,6 +214,14 @@ def run():
     finally:
         pane.close()
         shutil.rmtree(root, ignore_errors=True)
+
+
+def test_the_app_warns_at_start_of_the_camera_scale_error_its_config_records(run):
+    out, _ = run
+    warning = events(out).query("part == 'app' and event == 'camera warning'").detail
+    assert len(warning) == 1 and f"{1 / CORRECTION - 1:.1%} long" in warning.iloc[0], warning
+    manifest = json.loads((out / "session.json").read_text())
+    assert manifest["config"]["camera"]["scale"]["depth_correction"] == CORRECTION  # the device applied it
 
 
 def test_the_view_shows_tracking_estimate_pulses_latency_drops_and_sparkline(run):

@@ -66,6 +66,9 @@ def test_metrics_command_json_keys_and_values():
     assert data["rpe_mean_m"] == pytest.approx(float(np.mean(evo)), rel=1e-9)
     assert data["rpe_rmse_m"] == pytest.approx(float(np.sqrt(np.mean(evo ** 2))), rel=1e-9)
     assert 0.9 < data["completeness"] <= 1.0
+    # TUM's fr1/xyz (a Kinect v1 whose depth TUM calibrated) through RGB-D SLAM: metric within 2 %
+    scale = data["camera_scale"]
+    assert scale["windows"] > 20 and abs(scale["depth_scale_error"]) < 0.02, scale
 
 
 def test_no_overlap_gives_no_pairs_and_nan_error():

@@ -425,6 +425,9 @@ class App:
             watcher.wait_ready(SUBSCRIBER_READY_S)
             self.view = LiveView(self._view_setup())
             with self.view.shown():
+                camera_warning = load_camera_config(self.config_dir).scale.warning()
+                if camera_warning:
+                    self.event("app", "camera warning", camera_warning)
                 try:
                     status, error = self._supervise_until_stopped(stop)
                 finally:  # inside the view: it shows the stop until every part has ended

@@ -32,7 +32,7 @@ import pandas as pd
 
 from seesys.core.errors import SeesysError
 from seesys.core.tracking_state import TrackingState
-from seesys.core.trajectory import Poses
+from seesys.core.trajectory import Poses, sim3_scale
 
 
 @dataclass(frozen=True)
@@ -90,22 +90,33 @@ def tracked_stretches(tracked: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
 
 
+def ground_truth_of_frames(timestamps: np.ndarray, ground_truth: Poses, max_dt_s: float) -> np.ndarray:
+    """For each frame time, the index of its ground-truth pose (evo's association: nearest in time, within
+    ``max_dt_s``), or -1."""
+    from evo.core import sync
+
+    est_idx, gt_idx = sync.matching_time_indices(timestamps, ground_truth.timestamps, max_diff=max_dt_s)
+    gt_of_frame = np.full(len(timestamps), -1)
+    gt_of_frame[np.asarray(est_idx, int)] = np.asarray(gt_idx, int)
+    return gt_of_frame
+
+
+def tracked_states(states: np.ndarray) -> np.ndarray:
+    """Whether SLAM reported each frame tracked (``states``: tracking states by number or name)."""
+    return np.array([_state(s).tracked for s in states], bool)
+
+
 def label_frames(estimate: Poses, states: np.ndarray, ground_truth: Poses, monocular: bool,
                  config: LabelConfig) -> FrameLabels:
     """Label every frame of one SLAM run (``estimate`` has one pose per frame, ``states`` its tracking states)."""
-    from evo.core import sync
-
     n = len(estimate.timestamps)
     if len(states) != n:
         raise LabelError(f"{len(states)} tracking states for {n} frames")
     if n and np.any(np.diff(estimate.timestamps) <= 0):
         raise LabelError("frame timestamps must increase strictly")
-    est_idx, gt_idx = sync.matching_time_indices(estimate.timestamps, ground_truth.timestamps,
-                                                 max_diff=config.association_max_dt_s)
-    gt_of_frame = np.full(n, -1)
-    gt_of_frame[np.asarray(est_idx, int)] = np.asarray(gt_idx, int)
+    gt_of_frame = ground_truth_of_frames(estimate.timestamps, ground_truth, config.association_max_dt_s)
 
-    tracked = np.array([_state(s).tracked for s in states], bool)
+    tracked = tracked_states(states)
     status = np.where(tracked, LabelStatus.WARMUP.value, LabelStatus.NOT_TRACKED.value).astype(object)
     status[tracked & (gt_of_frame < 0)] = LabelStatus.NO_GROUND_TRUTH.value
     error = np.full(n, np.nan)
@@ -131,8 +142,6 @@ def label_frames(estimate: Poses, states: np.ndarray, ground_truth: Poses, monoc
 def _window_scales(estimate: Poses, ground_truth: Poses, frames: np.ndarray, gt_of_frame: np.ndarray,
                    config: LabelConfig) -> np.ndarray:
     """Monocular: the Sim(3) scale fitted on the window centred on each pair, clipped to the stretch."""
-    from evo.core.geometry import GeometryException, umeyama_alignment
-
     delta, window = config.delta_frames, config.mono_scale_window_frames
     est_xyz = estimate.positions[frames]
     gt_xyz = ground_truth.positions[gt_of_frame[frames]]
@@ -141,14 +150,8 @@ def _window_scales(estimate: Poses, ground_truth: Poses, frames: np.ndarray, gt_
         centre = end - delta / 2
         lo = int(max(0, min(round(centre - window / 2), len(frames) - window)))
         hi = min(len(frames), lo + window)
-        if hi - lo < config.min_alignment_frames:
-            scales.append(np.nan)
-            continue
-        try:
-            _, _, s = umeyama_alignment(est_xyz[lo:hi].T, gt_xyz[lo:hi].T, with_scale=True)
-        except GeometryException:
-            s = np.nan
-        scales.append(s if np.isfinite(s) and s > 0 else np.nan)
+        scales.append(sim3_scale(est_xyz[lo:hi], gt_xyz[lo:hi]) if hi - lo >= config.min_alignment_frames
+                      else np.nan)
     return np.array(scales)
 
 

@@ -84,6 +84,18 @@ class Poses:
                    np.asarray(trajectory.orientations_quat_wxyz, dtype=float)[:, [1, 2, 3, 0]])
 
 
+def sim3_scale(source_xyz: np.ndarray, target_xyz: np.ndarray) -> float:
+    """The scale c of the Sim(3) alignment (evo's Umeyama) that best maps the positions ``source_xyz`` (N×3) onto
+    ``target_xyz``: target ≈ c·R·source + t. NaN when the points are degenerate (too few, or all in a line)."""
+    from evo.core.geometry import GeometryException, umeyama_alignment
+
+    try:
+        _, _, c = umeyama_alignment(np.asarray(source_xyz, float).T, np.asarray(target_xyz, float).T, with_scale=True)
+    except GeometryException:
+        return float("nan")
+    return float(c) if np.isfinite(c) and c > 0 else float("nan")
+
+
 def tum_line(timestamp: float | str, position: np.ndarray, quaternion_xyzw: np.ndarray, decimals: int = 9) -> str:
     """One TUM line, with its newline: the timestamp to the microsecond (or as given, when a string) and the pose
     with ``decimals`` decimals."""

@@ -109,7 +109,10 @@ def build(cls: type[T], data: dict[str, Any], where: str) -> T:
     if missing:
         raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
     values = {name: _check_value(data[name], hints[name], f"{where}.{name}") for name in fields}
-    return cls(**values)
+    try:
+        return cls(**values)
+    except ValueError as e:  # a dataclass's own check of its values (__post_init__)
+        raise ConfigError(f"{where}: {e}") from None
 
 
 def load_section(name: str, cls: type[T], directory: Path | None = None) -> T:

@@ -4,6 +4,7 @@ with the settings of ``configs/labels.toml``
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,9 +17,18 @@ from seesys.core.trajectory import Poses
 from seesys.io.trajectory_files import read_tum
 
 
-def label_session(folder: Path, monocular: bool, config: LabelConfig) -> FrameLabels:
-    """Labels of a device session folder (docs/device.md): ``frames.csv`` (every frame and its state),
-    ``trajectory.tum`` (poses of the tracked frames) and ``groundtruth.tum``.
+@dataclass(frozen=True)
+class SessionTrack:
+    """A device session's frames as SLAM tracked them, and the ground truth recorded beside them."""
+
+    estimate: Poses  # one pose per frame of frames.csv (identity where SLAM gave none)
+    states: np.ndarray  # tracking state names; a frame without a pose counts as lost
+    ground_truth: Poses
+
+
+def read_session_track(folder: Path) -> SessionTrack:
+    """``frames.csv`` (every frame and its state), ``trajectory.tum`` (poses of the tracked frames) and
+    ``groundtruth.tum`` of a device session folder (docs/device.md); :class:`LabelError` naming what is missing.
 
     A frame reported tracked but absent from ``trajectory.tum`` (no valid pose) counts as not tracked.
     """
@@ -40,5 +50,10 @@ def label_session(folder: Path, monocular: bool, config: LabelConfig) -> FrameLa
         positions[has_pose] = poses.positions[row[has_pose]]
         quaternions[has_pose] = poses.quaternions_xyzw[row[has_pose]]
     states = np.where(has_pose, frames["state"].to_numpy(object), TrackingState.LOST.name)
-    estimate = Poses(times, positions, quaternions)
-    return label_frames(estimate, states, read_tum(ground_truth), monocular, config)
+    return SessionTrack(Poses(times, positions, quaternions), states, read_tum(ground_truth))
+
+
+def label_session(folder: Path, monocular: bool, config: LabelConfig) -> FrameLabels:
+    """Labels of a device session folder (:func:`read_session_track`)."""
+    track = read_session_track(folder)
+    return label_frames(track.estimate, track.states, track.ground_truth, monocular, config)

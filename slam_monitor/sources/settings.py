@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from seesys.core.camera import Intrinsics
+from seesys.core.camera_scale import ScaleSettings
 from seesys.io.config import load_section
 from slam_monitor.sources.base import DepthLimits, SourceError, read_yaml
 
@@ -54,6 +55,7 @@ class CameraConfig:
     realsense: RealSenseSettings
     recording: RecordingSettings
     rosbag: RosbagSettings
+    scale: ScaleSettings
 
 
 def load_camera_config(directory: Path | None = None) -> CameraConfig:
