@@ -29,6 +29,11 @@ def _names(text: str) -> list[str]:
     return [n.strip() for n in text.split(",") if n.strip()]
 
 
+def _camera_names(text: str) -> list[str]:
+    """Camera model names, or [] for 'preset' (each preset through its own camera model)."""
+    return [] if text.strip() == "preset" else _names(text)
+
+
 def _ints(text: str) -> list[int]:
     try:
         return [int(n) for n in _names(text)]
@@ -53,9 +58,8 @@ def _build(args: argparse.Namespace) -> int:
         config = replace_fields(config, keep_sessions=False)
     width, height = args.size or (None, None)
     template = SequenceSpec("", "", 0, args.frames, width, height, True, args.distortion)
-    plan = plan_from_config(config, synth, template, args.envs, args.motions,
-                            args.seeds, args.modes, args.trials,
-                            args.processes)
+    plan = plan_from_config(config, synth, template, args.envs, args.motions, args.seeds, args.modes, args.trials,
+                            args.processes, args.cameras)
     if args.ray is None:
         builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
         result = builder.build(plan)
@@ -143,6 +147,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=_ints, help="comma-separated batch seeds (default: configs/dataset.toml)")
     p.add_argument("--modes", type=_names, help="comma-separated SLAM modes: rgbd, mono (default: configs/dataset.toml)")
     p.add_argument("--trials", type=int, help="SLAM runs per sequence and mode (default: configs/dataset.toml)")
+    p.add_argument("--cameras", type=_camera_names,
+                   help="comma-separated camera models (configs/synth.toml) drawn with equal weights per sequence, or "
+                        "'preset' for each preset's own camera (default: [cameras] of configs/dataset.toml)")
     p.add_argument("--frames", type=int, help="frames per sequence (default: configs/synth.toml duration)")
     p.add_argument("--size", type=_size, help="image size WIDTHxHEIGHT (default: configs/synth.toml camera)")
     p.add_argument("--processes", type=int, help="render processes (default: configs/synth.toml)")

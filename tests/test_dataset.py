@@ -93,6 +93,9 @@ def test_build_stores_every_run_with_windows_and_labels(tiny):
         frames = pd.read_csv(folder / "frames.csv")
         assert json.loads((folder / "run.json").read_text())["format_version"] == FORMAT_VERSION
         assert info.environment in ENVIRONMENTS and info.motion_group == "patrol" and info.mode == "rgbd"
+        # Through the camera the default draw gives its sequence (configs/dataset.toml [cameras]).
+        assert info.camera_model == load_dataset_config().cameras.cameras(0, info.environment,
+                                                                           load_synth_config())["patrol"]
         assert len(frames) == info.frames == FRAMES
         assert info.seconds >= info.slam_seconds > 0
         # RGB-D runs are paced by the camera rate only (wait_for_mapping_modes = ["mono"]).

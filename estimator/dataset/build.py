@@ -45,7 +45,7 @@ from estimator.dataset.store import (
     write_run,
 )
 from estimator.jobs import Job, JobEnv, LocalExecutor, RayExecutor, load_ray_settings
-from estimator.synth.batch import expand_environments, expand_motions, plan_batch, render_into
+from estimator.synth.batch import CameraDraw, expand_environments, expand_motions, plan_batch, render_into
 from estimator.synth.config import SynthConfig
 from estimator.synth.sequence import SequenceSpec
 from seesys.core import rts_schema, session_layout
@@ -82,6 +82,7 @@ class BuildPlan:
     modes: list[SlamMode]
     trials: int
     render_processes: int | None = None
+    cameras: CameraDraw | None = None  # None: every preset through its own camera model
 
 
 @dataclass(frozen=True)
@@ -102,8 +103,9 @@ class BuildResult:
 def plan_from_config(config: DatasetConfig, synth: SynthConfig, template: SequenceSpec,
                      environments: list[str] | None = None, motions: list[str] | None = None,
                      seeds: list[int] | None = None, modes: list[str] | None = None, trials: int | None = None,
-                     render_processes: int | None = None) -> BuildPlan:
-    """The build plan: arguments given override configs/dataset.toml; names are checked here, before any work."""
+                     render_processes: int | None = None, cameras: list[str] | None = None) -> BuildPlan:
+    """The build plan: arguments given override configs/dataset.toml (``cameras``: models drawn with equal
+    weights; an empty list: each preset's own camera); names are checked here, before any work."""
     trials = config.trials if trials is None else trials
     if trials < 1:
         raise SeesysError(f"trials must be at least 1, got {trials}")
@@ -111,9 +113,12 @@ def plan_from_config(config: DatasetConfig, synth: SynthConfig, template: Sequen
         slam_modes = [SlamMode(m) for m in (modes or config.modes)]
     except ValueError as e:
         raise SeesysError(f"unknown SLAM mode: {e}") from None
+    draw = config.cameras if cameras is None else CameraDraw(tuple(cameras), (1.0,) * len(cameras))
+    for name in draw.models:
+        synth.camera_model(name)
     return BuildPlan(template, expand_environments(list(environments or config.environments), synth),
                      expand_motions(list(motions or config.motions), synth), list(seeds or config.seeds),
-                     slam_modes, trials, render_processes)
+                     slam_modes, trials, render_processes, draw if draw.models else None)
 
 
 def _sequence_metadata(folder: Path) -> dict:
@@ -164,11 +169,12 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
 
 def _merge_plans(earlier: dict, later: dict) -> dict:
     """The plan of a dataset built by ``earlier`` and then extended by ``later``: list entries in first-seen order,
-    the larger trial count."""
+    the larger trial count, the latest camera draw (each run's info records the camera it was rendered through)."""
     merged = dict(earlier)
     for key in ("environments", "motions", "seeds", "modes"):
         merged[key] = list(dict.fromkeys(earlier[key] + later[key]))
     merged["trials"] = max(earlier["trials"], later["trials"])
+    merged["cameras"] = later.get("cameras")
     return merged
 
 
@@ -199,9 +205,9 @@ class DatasetBuilder:
         self._write_description(plan)
         processes = plan.render_processes or self.synth.processes
         renders, rendered_before = plan_batch(plan.template, plan.environments, plan.motions, plan.seeds, self.synth,
-                                              self.root / SEQUENCES_DIR)
-        render_jobs = [Job(folder.name, render_job, (spec, self.synth, folder, processes), cpus=processes)
-                       for spec, folder in renders]
+                                              self.root / SEQUENCES_DIR, plan.cameras)
+        render_jobs = [Job(folder.name, render_job, (spec, seen, folder, processes), cpus=processes)
+                       for spec, folder, seen in renders]
         start = time.perf_counter()
         with Progress(*PROGRESS_COLUMNS, disable=not render_jobs) as progress:
             renders_task = progress.add_task("renders", total=len(render_jobs))
@@ -210,9 +216,9 @@ class DatasetBuilder:
         render_seconds = time.perf_counter() - start
         self._log({"phase": "render", "render_processes": processes, "rendered_frames": frames,
                    "render_seconds": render_seconds})
-        for _, folder in renders:
+        for _, folder, _ in renders:
             self._drop_runs_of(folder.name)
-        sequences = sorted([folder for _, folder in renders] + rendered_before)
+        sequences = sorted([folder for _, folder, _ in renders] + rendered_before)
         jobs = [(seq, mode, trial) for seq in sequences for mode in plan.modes for trial in range(plan.trials)]
         todo = [job for job in jobs if read_run_info(run_folder(self.root, run_name(job[0].name, job[1].value,
                                                                                      job[2]))) is None]
@@ -262,7 +268,8 @@ class DatasetBuilder:
             "pace": self.config.pace,
             "wait_for_mapping_modes": list(self.config.wait_for_mapping_modes),
             "plan": {"template": asdict(plan.template), "environments": plan.environments, "motions": plan.motions,
-                     "seeds": plan.seeds, "modes": [m.value for m in plan.modes], "trials": plan.trials},
+                     "seeds": plan.seeds, "modes": [m.value for m in plan.modes], "trials": plan.trials,
+                     "cameras": asdict(plan.cameras) if plan.cameras else None},
         }))
         path = self.root / DATASET_JSON
         if path.exists():

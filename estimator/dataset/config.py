@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from estimator.synth.batch import CameraDraw
 from seesys.core.errors import ConfigError
 from seesys.io.config import load_section
 from slam_monitor.orbslam_settings import SlamMode
@@ -57,6 +58,7 @@ class DatasetConfig:
     wait_for_mapping_modes: tuple[str, ...]
     keep_sessions: bool
     window_end_stride: int
+    cameras: CameraDraw
     report: ReportConfig
     targets: TargetConfig
     splits: SplitConfig

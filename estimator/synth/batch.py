@@ -2,8 +2,11 @@
 
 Folder names are ``<environment>__<motion>__s<seed>`` (``real:`` written as ``real-``), so that a batch can be
 resumed: a folder whose ``metadata.json`` exists is complete (it is written last) and is skipped, unless the
-preset it records differs from the preset of configs/synth.toml (the preset was retuned since): such a folder is
-rendered again.
+preset it records differs from the preset of configs/synth.toml (the preset was retuned since) or was seen through
+another camera model than the batch draws for it: such a folder is rendered again.
+
+A batch may draw a camera model per sequence (:class:`CameraDraw`): every environment is then seen through
+several cameras, so that a model trained on the batch meets the faults of real cameras in every room.
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ import shutil
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+
+import numpy as np
 
 from estimator.synth.config import SynthConfig
 from estimator.synth.sequence import REAL_PREFIX, SequenceSpec, preset_record, render_sequence
@@ -68,7 +73,8 @@ class BatchResult:
 
 
 def _rendered_with_current_preset(folder: Path, environment: str, config: SynthConfig) -> bool:
-    """True when ``folder`` holds a complete render whose recorded preset is the configured one."""
+    """True when ``folder`` holds a complete render whose recorded preset (camera model included) is the
+    configured one."""
     try:
         recorded = json.loads((folder / "metadata.json").read_text()).get("preset")
     except (OSError, ValueError):
@@ -77,21 +83,59 @@ def _rendered_with_current_preset(folder: Path, environment: str, config: SynthC
     return recorded == preset_record(preset, config.camera_model(preset.camera_model))
 
 
+@dataclass(frozen=True)
+class CameraDraw:
+    """The camera models a batch renders through (names of ``[[camera_models]]`` in configs/synth.toml) and their
+    weights. No models: every preset is rendered through its own ``camera_model``."""
+
+    models: tuple[str, ...]
+    weights: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.models) != len(self.weights):
+            raise ValueError(f"{len(self.models)} camera models but {len(self.weights)} weights")
+        if any(w <= 0 for w in self.weights):
+            raise ValueError(f"camera weights must be positive, got {list(self.weights)}")
+        if len(set(self.models)) != len(self.models):
+            raise ValueError(f"a camera model is listed twice: {list(self.models)}")
+
+    def cameras(self, batch_seed: int, environment: str, config: SynthConfig) -> dict[str, str]:
+        """The camera model of each motion of ``environment`` for ``batch_seed``.
+
+        The motions of one environment (every configured motion, in config order, whatever a batch asks for, so
+        that a sequence's camera does not depend on the request) draw their models weighted and without
+        replacement, starting again once every model is drawn: an environment is seen through as many cameras as
+        it has motions, while there are models enough."""
+        for name in self.models:
+            config.camera_model(name)  # refuse an unknown model by name
+        motions = expand_motions([ALL], config)
+        rng = np.random.default_rng([batch_seed, expand_environments([ALL], config).index(environment)])
+        p = np.asarray(self.weights) / sum(self.weights)
+        drawn: list[str] = []
+        while len(drawn) < len(motions):
+            count = min(len(self.models), len(motions) - len(drawn))
+            drawn += [self.models[i] for i in rng.choice(len(self.models), size=count, replace=False, p=p)]
+        return dict(zip(motions, drawn))
+
+
 def plan_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
-               config: SynthConfig, root: Path) -> tuple[list[tuple[SequenceSpec, Path]], list[Path]]:
-    """What a batch renders under ``root``: (spec, folder) of every sequence to render, in batch order, and the
-    folders already rendered with the current preset (skipped)."""
+               config: SynthConfig, root: Path, cameras: CameraDraw | None = None
+               ) -> tuple[list[tuple[SequenceSpec, Path, SynthConfig]], list[Path]]:
+    """What a batch renders under ``root``: (spec, folder, the config that renders it: its camera model drawn) of
+    every sequence to render, in batch order, and the folders already rendered as planned (skipped)."""
     todo, skipped = [], []
     for seed in seeds:
         for env in environments:
+            drawn = cameras.cameras(seed, env, config) if cameras is not None and cameras.models else {}
             for motion in motions:
                 spec = replace(template, environment=env, motion=motion,
                                seed=sequence_seed(seed, env, motion, config))
                 folder = root / sequence_folder_name(replace(spec, seed=seed))
-                if _rendered_with_current_preset(folder, env, config):
+                seen = config.seen_through(env, config.camera_model(drawn[motion])) if motion in drawn else config
+                if _rendered_with_current_preset(folder, env, seen):
                     skipped.append(folder)
                 else:
-                    todo.append((spec, folder))
+                    todo.append((spec, folder, seen))
     return todo, skipped
 
 
@@ -104,13 +148,15 @@ def render_into(spec: SequenceSpec, config: SynthConfig, folder: Path, processes
 
 
 def render_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
-                 config: SynthConfig, root: Path, processes: int | None = None) -> BatchResult:
-    """Render environments × motions × seeds under ``root`` (``template`` gives length, size, lens, blur).
+                 config: SynthConfig, root: Path, processes: int | None = None,
+                 cameras: CameraDraw | None = None) -> BatchResult:
+    """Render environments × motions × seeds under ``root`` (``template`` gives length, size, lens, blur), each
+    sequence through its preset's camera model or, with ``cameras``, the one drawn for it.
 
     Each sequence gets its own seed (:func:`sequence_seed`), so that two environments rendered with the same
     batch seed still get different trajectories.
     """
     start = time.perf_counter()
-    todo, skipped = plan_batch(template, environments, motions, seeds, config, root)
-    frames = sum(render_into(spec, config, folder, processes) for spec, folder in todo)
-    return BatchResult([folder for _, folder in todo], skipped, frames, time.perf_counter() - start)
+    todo, skipped = plan_batch(template, environments, motions, seeds, config, root, cameras)
+    frames = sum(render_into(spec, seen, folder, processes) for spec, folder, seen in todo)
+    return BatchResult([folder for _, folder, _ in todo], skipped, frames, time.perf_counter() - start)
