@@ -32,6 +32,7 @@ from rich.progress import Progress
 from estimator.synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
 from estimator.synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
 from estimator.synth.environments import Scene, build_scene
+from estimator.synth.lenses import told_lens, true_lens
 from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter, shift_depth
 from estimator.synth.renderer import RayGrid, render
 from estimator.synth.trajectories import (
@@ -43,6 +44,7 @@ from estimator.synth.trajectories import (
     load_tum,
     place_real,
 )
+from seesys.core.camera import Intrinsics
 from seesys.core.errors import SeesysError
 from seesys.core.trajectory import tum_line
 
@@ -81,6 +83,8 @@ class SequencePlan:
     gain: float
     photometry: Photometry
     camera_model: CameraModel
+    lens: Intrinsics  # the true lens the frames are seen through (distortion included)
+    told: Intrinsics  # the intrinsics calibration.yaml tells SLAM
 
 
 def _draw_range(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
@@ -90,7 +94,9 @@ def _draw_range(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
 def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     """Build the scene, the placed trajectory and the per-frame exposure schedule of ``spec``."""
     preset = config.preset(spec.environment)
+    model = config.camera_model(preset.camera_model)
     camera = config.camera
+    native_width = camera.lens.width
     if spec.width or spec.height:
         camera = camera.scaled(spec.width or camera.lens.width, spec.height or camera.lens.height)
     rng = np.random.default_rng([spec.seed, 0x7A7])
@@ -135,7 +141,6 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     low, high = sensor.light_modulation
     light = low + (high - low) * (wave - wave.min()) / max(np.ptp(wave), 1e-9) if count > 1 else np.full(1, high)
     base = _draw_range(rng, sensor.base_exposure_ms) / 1000.0
-    model = config.camera_model(preset.camera_model)
     target = base * light ** (-sensor.auto_exposure_strength)
     if model.auto_exposure_time_constant_s > 0:
         target = np.exp(auto_exposure_response(np.log(target), camera.fps, model.auto_exposure_time_constant_s,
@@ -148,7 +153,8 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
                             _draw_range(rng, sensor.shot_noise_dn_per_e) * preset.shot_noise_scale * noise**2,
                             _draw_range(rng, sensor.read_noise_dn) * noise, sensor.black_level_dn)
     return SequencePlan(spec, camera, scene, trajectory, group, name, frame_times, exposure, light, signal, gain,
-                        photometry, model)
+                        photometry, model, true_lens(camera.lens, model, spec.distortion),
+                        told_lens(camera.lens, model, spec.distortion, native_width))
 
 
 @dataclass(frozen=True)
@@ -177,7 +183,8 @@ class _Worker:
         cv2.setNumThreads(1)  # parallelism is across processes
         cls.plan = plan_sequence(spec, config)
         cls.grid = RayGrid.for_camera(cls.plan.camera)
-        cls.lens = LensDistortion.for_lens(cls.plan.camera.lens) if spec.distortion else None
+        distorted = spec.distortion or cls.plan.camera_model.radial_k1 != 0
+        cls.lens = LensDistortion.for_lens(cls.plan.lens) if distorted else None
         cls.out = out
         cls.max_samples = config.sensor.blur_max_samples
         cls.depth_factor = config.camera.depth_factor
@@ -218,7 +225,9 @@ class _Worker:
         gray = dataclasses.replace(plan.photometry, signal_scale=float(plan.signal_scale[index])).expose(image, rng)
         stamp = frame_stamp(cls.start_time + t)
         _write_png(cls.out / "rgb" / f"{stamp}.png", gray)
-        depth_png = np.clip(np.rint(depth * cls.depth_factor), 0, 65535).astype(np.uint16)
+        # The sensor's depth scale error is in what it reports, not in the depth_factor it says it uses.
+        reported = depth * np.float32(1 + model.depth_scale_error) if model.depth_scale_error else depth
+        depth_png = np.clip(np.rint(reported * cls.depth_factor), 0, 65535).astype(np.uint16)
         _write_png(cls.out / "depth" / f"{stamp}.png", depth_png)
         return FrameRecord(index, 1000 * exposure, float(plan.light[index]), float(plan.signal_scale[index]), streak,
                            float(gray.mean()))
@@ -317,6 +326,7 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
     }
     if not plan.camera_model.ideal:
         metadata["camera_model"] = dataclasses.asdict(plan.camera_model)
+        metadata["true_lens"] = dataclasses.asdict(plan.lens)  # calibration.yaml has the told one
     with open(out / "metadata.json", "w") as f:
         json.dump(metadata, f, indent=2)
         f.write("\n")
@@ -327,7 +337,7 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
 
 
 def _write_calibration(path: Path, plan: SequencePlan, config: SynthConfig) -> None:
-    intr = plan.camera.intrinsics(plan.spec.distortion)
+    intr = plan.told
     dist = ", ".join(f"{d:g}" for d in intr.distortion)
     text = (
         "# pinhole intrinsics of the synthetic sequence\n"

@@ -1,0 +1,36 @@
+"""The lens a camera model's images are rendered through, and the intrinsics ``calibration.yaml`` tells SLAM.
+
+A real camera's calibration is never exactly its lens: the focal length and the principal point are a little off,
+and a radial distortion may be left uncorrected. The images are rendered through the true lens; the calibration
+says the told one, as a user's calibration file would.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from estimator.synth.config import CameraModel
+from seesys.core.camera import Intrinsics
+
+
+def true_lens(lens: Intrinsics, model: CameraModel, distorted: bool) -> Intrinsics:
+    """The lens the images are seen through: ``lens`` with its distortion when the render applies it
+    (``distorted``), plus the model's uncorrected radial distortion ``radial_k1``."""
+    base = lens if distorted else lens.without_distortion()
+    k1, *rest = base.distortion
+    return dataclasses.replace(base, distortion=(k1 + model.radial_k1, *rest))
+
+
+def told_lens(lens: Intrinsics, model: CameraModel, distorted: bool, native_width: int) -> Intrinsics:
+    """The intrinsics SLAM is told for images rendered through ``lens``: the focal lengths times
+    (1 + ``told_focal_error``), the principal point moved by ``told_principal_point_px`` and the distortion the
+    render applies (``distorted``) without the model's ``radial_k1``.
+
+    The principal point error is in pixels of the camera's own sensor (``native_width`` wide) and scales with the
+    rendered size, as the lens itself does."""
+    base = lens if distorted else lens.without_distortion()
+    scale = lens.width / native_width
+    dx, dy = model.told_principal_point_px
+    return dataclasses.replace(base, fx=base.fx * (1 + model.told_focal_error),
+                               fy=base.fy * (1 + model.told_focal_error),
+                               cx=base.cx + dx * scale, cy=base.cy + dy * scale)

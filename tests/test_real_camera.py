@@ -1,0 +1,141 @@
+"""Real-camera faults of the synthetic renderer's camera models: the depth scale error, the intrinsics told to SLAM,
+uncorrected radial distortion, structured-light depth, JPEG colour, a model's own resolution and field of view,
+and the errors of a bad model. Renders are small (64×48 to 160×120, a few frames) so that the file runs in
+seconds."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from conftest import run_seesys
+from synth_renders import calibration, depths, grays, png_bytes, with_camera
+
+from estimator.synth.camera_effects import LensDistortion
+from estimator.synth.config import load_synth_config
+from estimator.synth.renderer import RayGrid, render
+from estimator.synth.sequence import SequenceSpec, plan_sequence, render_sequence
+from seesys.core.camera import Intrinsics
+from seesys.core.errors import ConfigError
+from seesys.io.config import CONFIG_DIR_ENV, config_dir, write_config_dir
+
+
+@pytest.fixture(scope="module")
+def config():
+    return load_synth_config()
+
+
+def _sharp(**kw) -> SequenceSpec:
+    """Three sharp frames of a rapid motion in the lab (no blur: each frame is one exact render)."""
+    return SequenceSpec("lab", "rapid", 7, frames=3, width=64, height=48, blur=False, **kw)
+
+
+def _render(spec: SequenceSpec, config, folder):
+    render_sequence(spec, config, folder, processes=1, show_progress=False)
+    return folder
+
+
+def test_a_depth_scale_error_multiplies_the_written_depth_and_leaves_the_calibration_nominal(config, tmp_path):
+    """The sensor reports z·(1 + s): every depth pixel is the exact render's z·1.07 × depth_factor, the
+    calibration still says depth_factor 5000 and the gray images are the ideal camera's."""
+    scaled = with_camera(config, depth_scale_error=0.07)
+    folder = _render(_sharp(), scaled, tmp_path / "scaled")
+    ideal = _render(_sharp(), config, tmp_path / "ideal")
+    plan = plan_sequence(_sharp(), scaled)
+    grid = RayGrid.for_camera(plan.camera)
+    positions, rotations = plan.trajectory.interpolate(plan.frame_times)
+    for written, p, r in zip(depths(folder), positions, rotations.as_matrix()):
+        z = render(plan.scene, r, p, grid).depth
+        expected = np.clip(np.rint(z * np.float32(1.07) * config.camera.depth_factor), 0, 65535)
+        assert np.array_equal(written, expected)
+        assert written[z > 0].astype(float).sum() / np.rint(z * config.camera.depth_factor).sum() == pytest.approx(
+            1.07, abs=1e-4)
+    assert calibration(folder)["depth_factor"] == config.camera.depth_factor
+    assert [g.tobytes() for g in grays(folder)] == [g.tobytes() for g in grays(ideal)]
+
+
+def test_told_intrinsics_are_in_the_calibration_and_leave_the_frames_as_they_were(config, tmp_path):
+    """Focal length told 3 % long and the principal point (8, −4) px off on the 640×480 sensor: at 64×48 the
+    calibration says fx = 52.5·1.03 and (cx, cy) moved by (0.8, −0.4) px; every PNG is the ideal camera's."""
+    told = with_camera(config, told_focal_error=0.03, told_principal_point_px=(8.0, -4.0))
+    folder = _render(_sharp(), told, tmp_path / "told")
+    ideal = _render(_sharp(), config, tmp_path / "ideal")
+    said, true = calibration(folder), calibration(ideal)
+    assert said["fx"] == pytest.approx(true["fx"] * 1.03) and said["fy"] == pytest.approx(true["fy"] * 1.03)
+    assert said["cx"] == pytest.approx(true["cx"] + 0.8) and said["cy"] == pytest.approx(true["cy"] - 0.4)
+    assert true["fx"] == pytest.approx(52.5) and said["distortion"] == [0, 0, 0, 0, 0]
+    assert png_bytes(folder) == png_bytes(ideal)
+    meta = json.loads((folder / "metadata.json").read_text())
+    assert meta["camera_model"]["told_focal_error"] == 0.03 and meta["true_lens"]["fx"] == pytest.approx(52.5)
+
+
+def _edge_column(image: np.ndarray, row: int) -> float:
+    """Where the dark-to-bright edge of ``row`` crosses 0.5, to a fraction of a pixel."""
+    values = image[row]
+    c = int(np.argmax(values >= 0.5))
+    return c - 1 + (0.5 - values[c - 1]) / (values[c] - values[c - 1])
+
+
+def test_radial_k1_bends_a_straight_edge_by_the_distortion_models_amount():
+    """A vertical edge at x = 0.5 (normalised) seen through k1 = −0.1: a point (x, y) of the pinhole image is
+    seen at (x, y)·(1 + k1·r²), so the edge reads f·0.5·(1 + k1·0.25) px right of the centre on the middle row
+    and bends inward towards the top, where the pinhole y of the top row is found by inverting y·(1 + k1·r²)."""
+    k1, f = -0.1, 200.0
+    lens = Intrinsics(320, 240, f, f, 159.5, 119.5, (k1, 0.0, 0.0, 0.0, 0.0))
+    image = np.zeros((240, 320), np.float32)
+    image[:, 260:] = 1.0  # the edge at u = 259.5: x = 100 / 200 = 0.5
+    warped, _ = LensDistortion.for_lens(lens).apply(image, np.zeros_like(image))
+    x = 0.5
+    middle = f * x * (1 + k1 * x * x)
+    y_top = -119.5 / f  # the distorted top row; solve y_u·(1 + k1·(x² + y_u²)) = y_top by fixed point
+    y_u = y_top
+    for _ in range(50):
+        y_u = y_top / (1 + k1 * (x * x + y_u * y_u))
+    top = f * x * (1 + k1 * (x * x + y_u * y_u))
+    assert _edge_column(warped, 119) - 159.5 == pytest.approx(middle, abs=0.05)
+    assert _edge_column(warped, 0) - 159.5 == pytest.approx(top, abs=0.1)
+    assert middle - top > 3.5  # 3.7 px of bend between the middle and the top row
+
+
+def test_radial_k1_distorts_colour_and_depth_alike_and_the_calibration_does_not_say_so(config, tmp_path):
+    """Uncorrected k1 = −0.1: each depth image is the ideal one resampled through the k1 lens (nearest, as the
+    renderer does), the gray images differ, and the calibration lists no distortion. With the configured lens
+    distortion on, the calibration lists the lens's k1 and the frames are seen through k1 − 0.1."""
+    model = with_camera(config, radial_k1=-0.1)
+    folder = _render(_sharp(), model, tmp_path / "k1")
+    ideal = _render(_sharp(), config, tmp_path / "ideal")
+    plan = plan_sequence(_sharp(), model)
+    lens = LensDistortion.for_lens(plan.lens)
+    for bent, straight in zip(depths(folder), depths(ideal)):
+        expected = cv2.remap(straight, lens.map_x, lens.map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+        assert np.array_equal(bent, expected)
+    assert all(not np.array_equal(a, b) for a, b in zip(grays(folder), grays(ideal)))
+    assert calibration(folder)["distortion"] == [0, 0, 0, 0, 0]
+    both = _render(_sharp(distortion=True), model, tmp_path / "both")
+    assert calibration(both)["distortion"][0] == pytest.approx(config.camera.lens.distortion[0])
+    true_k1 = json.loads((both / "metadata.json").read_text())["true_lens"]["distortion"][0]
+    assert true_k1 == pytest.approx(config.camera.lens.distortion[0] - 0.1)
+
+
+def test_an_unknown_option_or_a_value_out_of_range_is_a_one_line_error_naming_it(tmp_path):
+    """A misspelt key of a camera model and a per-cent value written as a percentage are refused when the config
+    is read, by the loader (the key and the keys it expected) and by the model (its name, the key, the range)."""
+    text = (config_dir() / "synth.toml").read_text()
+    typo = tmp_path / "typo"
+    typo.mkdir()
+    (typo / "synth.toml").write_text(text.replace('name = "d435"\n', 'name = "d435"\ndepth_scale_eror = 0.02\n'))
+    with pytest.raises(ConfigError) as caught:
+        load_synth_config(typo)
+    assert "unknown key(s) depth_scale_eror" in str(caught.value) and "\n" not in str(caught.value)
+
+    percent = write_config_dir(tmp_path / "percent", {"depth_scale_error": 2.0})  # the first model's: ideal
+    with pytest.raises(ConfigError) as caught:
+        load_synth_config(percent)
+    assert str(caught.value) == ("synth.toml: camera model 'ideal': depth_scale_error must be within [-0.3, 0.3], "
+                                 "got 2.0")
+    out = run_seesys("synth", "render", "--env", "lab", "--motion", "patrol", "--out", str(tmp_path / "x"),
+                     env={CONFIG_DIR_ENV: str(percent)})
+    assert out.returncode == 2 and out.stderr.strip().splitlines()[-1].endswith(
+        "depth_scale_error must be within [-0.3, 0.3], got 2.0")
