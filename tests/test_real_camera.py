@@ -5,6 +5,7 @@ seconds."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import cv2
@@ -17,6 +18,7 @@ from estimator.synth.camera_effects import LensDistortion
 from estimator.synth.config import load_synth_config
 from estimator.synth.renderer import RayGrid, render
 from estimator.synth.sequence import SequenceSpec, plan_sequence, render_sequence
+from estimator.synth.structured_light import as_measured, projector_shadow
 from seesys.core.camera import Intrinsics
 from seesys.core.errors import ConfigError
 from seesys.io.config import CONFIG_DIR_ENV, config_dir, write_config_dir
@@ -139,3 +141,73 @@ def test_an_unknown_option_or_a_value_out_of_range_is_a_one_line_error_naming_it
                      env={CONFIG_DIR_ENV: str(percent)})
     assert out.returncode == 2 and out.stderr.strip().splitlines()[-1].endswith(
         "depth_scale_error must be within [-0.3, 0.3], got 2.0")
+
+
+def _kinect_depth(config, **effects):
+    """The ideal model with the structured-light ``effects`` (Kinect v1 values unless given)."""
+    values = {"projector_offset_m": 0.075, "disparity_step_px": 0.125, "disparity_focal_px": 580.0} | effects
+    return dataclasses.replace(config.camera_model("ideal"), name="structured", **values)
+
+
+def test_disparity_quantisation_steps_grow_with_the_square_of_depth(config):
+    """A slanted plane from 0.8 to 4.5 m through the Kinect v1's 1/8 px disparity steps (f 580 px, b 75 mm): the
+    depth comes in steps of z²·q/(f·b), 2.9 mm at 1 m and four times that at 2 m; beyond depth_max_m (4 m) and
+    below depth_min_m (0.9 m) nothing is measured."""
+    ramp = np.linspace(0.8, 4.5, 200_000, dtype=np.float32)[None, :]
+    measured = as_measured(ramp, _kinect_depth(config, depth_min_m=0.9, depth_max_m=4.0))[0]
+    levels = np.unique(measured[measured > 0])
+
+    def step_at(z: float) -> float:
+        k = int(np.searchsorted(levels, z))
+        return float(levels[k + 1] - levels[k])
+
+    per_m2 = 0.125 / (580.0 * 0.075)
+    assert step_at(1.0) == pytest.approx(per_m2, rel=0.02) and step_at(2.0) == pytest.approx(4 * per_m2, rel=0.02)
+    assert step_at(2.0) / step_at(1.0) == pytest.approx(4.0, rel=0.02)
+    assert np.abs(measured - ramp[0])[measured > 0].max() <= 0.5 * 4.0**2 * per_m2 * 1.01  # rounded, not floored
+    assert levels.min() >= 0.9 and levels.max() <= 4.0 and measured[(ramp[0] > 0.95) & (ramp[0] < 3.9)].all()
+    assert not measured[(ramp[0] > 4.1) | (ramp[0] < 0.85)].any()
+
+
+def test_the_projector_shadow_is_the_band_beside_a_depth_jump_away_from_the_projector():
+    """A box at 1.2 m in front of a wall at 3 m, f = 200 px, projector 75 mm to the right: the wall left of the
+    box is unlit over f·b·(1/1.2 − 1/3) = 7.5 px (7 whole pixels), the wall right of it and the box are lit; with
+    the projector on the left the band is right of the box."""
+    depth = np.full((8, 256), 3.0, np.float32)
+    depth[:, 100:160] = 1.2
+    depth[:, :4] = 0.0  # no depth casts no shadow and is not shadowed
+    right = projector_shadow(depth, 200.0, 0.075)
+    assert np.array_equal(np.flatnonzero(right[3]), np.arange(93, 100))
+    left = projector_shadow(depth, 200.0, -0.075)
+    assert np.array_equal(np.flatnonzero(left[3]), np.arange(160, 167))
+
+
+def test_structured_light_leaves_holes_beside_depth_edges_and_on_dark_surfaces(config, tmp_path):
+    """Rendered through a projector 75 mm to the right: every hole is a pixel with a nearer surface within the
+    widest band (f·b / 0.9 m) to its right, and there are some; with dark_albedo 0.2 the holes are exactly the
+    pixels whose surface albedo is under 0.2."""
+    spec = SequenceSpec("lab", "rapid", 7, frames=2, width=160, height=120, blur=False)
+    shadowed = with_camera(config, projector_offset_m=0.075)
+    folder = _render(spec, shadowed, tmp_path / "shadow")
+    ideal = _render(spec, config, tmp_path / "ideal")
+    plan = plan_sequence(spec, shadowed)
+    band = int(np.ceil(plan.camera.lens.fx * 0.075 / 0.9))
+    holes = 0
+    for measured, exact in zip(depths(folder), depths(ideal)):
+        rows, cols = np.nonzero((measured == 0) & (exact > 0))
+        holes += len(rows)
+        padded = np.pad(exact.astype(float), ((0, 0), (0, band)), constant_values=np.inf)
+        nearer = [padded[r, c + 1:c + 1 + band][padded[r, c + 1:c + 1 + band] > 0].min() < exact[r, c]
+                  for r, c in zip(rows, cols)]
+        assert all(nearer)
+        assert np.array_equal(measured[measured > 0], exact[measured > 0])
+    assert holes > 20
+
+    dark = with_camera(config, dark_albedo=0.2)
+    folder = _render(spec, dark, tmp_path / "dark")
+    grid = RayGrid.for_camera(plan.camera)
+    positions, rotations = plan.trajectory.interpolate(plan.frame_times)
+    for measured, p, r in zip(depths(folder), positions, rotations.as_matrix()):
+        view = render(plan.scene, r, p, grid)
+        expected = np.where(view.albedo < 0.2, 0, np.clip(np.rint(view.depth * config.camera.depth_factor), 0, 65535))
+        assert np.array_equal(measured, expected) and (view.albedo[view.depth > 0] < 0.2).any()

@@ -99,19 +99,37 @@ class CameraModel:
     told_focal_error: float
     told_principal_point_px: tuple[float, float]
     radial_k1: float
+    projector_offset_m: float
+    disparity_step_px: float
+    disparity_focal_px: float
+    dark_albedo: float
+    depth_min_m: float
+    depth_max_m: float
 
     def __post_init__(self) -> None:
+        where = f"synth.toml: camera model {self.name!r}"
         for key, (low, high) in _MODEL_RANGES.items():
             value = getattr(self, key)
             for v in value if isinstance(value, tuple) else (value,):
                 if not low <= v <= high:
-                    raise ConfigError(f"synth.toml: camera model {self.name!r}: {key} must be within "
-                                      f"[{low:g}, {high:g}], got {value!r}")
+                    raise ConfigError(f"{where}: {key} must be within [{low:g}, {high:g}], got {value!r}")
+        if self.disparity_step_px > 0 and (self.projector_offset_m == 0 or self.disparity_focal_px == 0):
+            raise ConfigError(f"{where}: disparity_step_px needs the baseline projector_offset_m and the focal "
+                              f"length disparity_focal_px (both non-zero)")
+        if 0 < self.depth_max_m <= self.depth_min_m:
+            raise ConfigError(f"{where}: depth_max_m {self.depth_max_m:g} must exceed depth_min_m "
+                              f"{self.depth_min_m:g}")
 
     @property
     def separate_depth_view(self) -> bool:
         """True when depth is seen from another pose than colour (offset or delayed) and must be ray-cast apart."""
         return any(self.depth_offset_m) or self.depth_delay_s != 0
+
+    @property
+    def structured_light(self) -> bool:
+        """True when the depth has any fault of a structured-light sensor (estimator/synth/structured_light.py)."""
+        return (self.projector_offset_m != 0 or self.disparity_step_px != 0 or self.dark_albedo != 0
+                or self.depth_min_m != 0 or self.depth_max_m != 0)
 
     @property
     def told_differs(self) -> bool:
@@ -124,7 +142,7 @@ class CameraModel:
         return (not self.separate_depth_view and not any(self.depth_misregistration_px)
                 and self.rolling_shutter_s == 0 and self.auto_exposure_time_constant_s == 0
                 and self.depth_noise_m_per_m2 == 0 and self.colour_noise_scale == 1
-                and self.depth_scale_error == 0 and not self.told_differs)
+                and self.depth_scale_error == 0 and not self.told_differs and not self.structured_light)
 
 
 # The values a camera model may take (inclusive): wide enough for any real camera, narrow enough to catch a typo
@@ -142,6 +160,12 @@ _MODEL_RANGES: dict[str, tuple[float, float]] = {
     "told_focal_error": (-0.3, 0.3),
     "told_principal_point_px": (-100.0, 100.0),
     "radial_k1": (-0.5, 0.5),
+    "projector_offset_m": (-0.5, 0.5),
+    "disparity_step_px": (0.0, 1.0),
+    "disparity_focal_px": (0.0, 5000.0),
+    "dark_albedo": (0.0, 1.0),
+    "depth_min_m": (0.0, 10.0),
+    "depth_max_m": (0.0, 100.0),
 }
 
 

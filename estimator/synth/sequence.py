@@ -35,6 +35,7 @@ from estimator.synth.environments import Scene, build_scene
 from estimator.synth.lenses import told_lens, true_lens
 from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter, shift_depth
 from estimator.synth.renderer import RayGrid, render
+from estimator.synth.structured_light import as_measured, without_unlit
 from estimator.synth.trajectories import (
     MOTION_GROUPS,
     Trajectory,
@@ -202,7 +203,7 @@ class _Worker:
         positions, rotations = plan.trajectory.interpolate(times)
         matrices = rotations.as_matrix()
         sharp = render(plan.scene, matrices[0], positions[0], cls.grid)
-        image, depth, streak = sharp.radiance, sharp.depth, 0.0
+        image, streak = sharp.radiance, 0.0
 
         def flow_to(k: int) -> np.ndarray:
             return image_motion(sharp.depth, cls.grid, matrices[k].T @ matrices[0],
@@ -212,15 +213,21 @@ class _Worker:
             image, streak = motion_blur(image, cls.grid, flow_to(1), flow_to(2), cls.max_samples)
         if readout > 0:
             image = rolling_shutter(image, cls.grid, flow_to(3), flow_to(4))
+        view = sharp
         if model.separate_depth_view:
             centre = positions[5] + matrices[5] @ np.asarray(model.depth_offset_m)
-            depth = render(plan.scene, matrices[5], centre, cls.grid).depth
+            view = render(plan.scene, matrices[5], centre, cls.grid)
+        depth = view.depth
+        if model.structured_light:  # in the depth camera's own image, before it is registered to colour
+            depth = without_unlit(view, cls.grid.lens.fx, model)
         if any(model.depth_misregistration_px):
             depth = shift_depth(depth, model.depth_misregistration_px)
         if cls.lens is not None:
             image, depth = cls.lens.apply(image, depth)
         if model.depth_noise_m_per_m2 > 0:
             depth = depth_noise(depth, model.depth_noise_m_per_m2, np.random.default_rng([plan.spec.seed, index, 0xD3]))
+        if model.structured_light:  # the disparity is measured with its noise, then quantised
+            depth = as_measured(depth, model)
         rng = np.random.default_rng([plan.spec.seed, index, 0xF1])
         gray = dataclasses.replace(plan.photometry, signal_scale=float(plan.signal_scale[index])).expose(image, rng)
         stamp = frame_stamp(cls.start_time + t)
