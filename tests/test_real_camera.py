@@ -211,3 +211,17 @@ def test_structured_light_leaves_holes_beside_depth_edges_and_on_dark_surfaces(c
         view = render(plan.scene, r, p, grid)
         expected = np.where(view.albedo < 0.2, 0, np.clip(np.rint(view.depth * config.camera.depth_factor), 0, 65535))
         assert np.array_equal(measured, expected) and (view.albedo[view.depth > 0] < 0.2).any()
+
+
+def test_jpeg_changes_the_gray_image_by_its_compression_and_leaves_the_depth(config, tmp_path):
+    """Quality 50: each gray image is the ideal camera's encoded and decoded at 50 (not the same: ~10 DN off at
+    64×48), the depth images are the ideal's; quality 0 leaves every byte as it was."""
+    ideal = _render(_sharp(), config, tmp_path / "ideal")
+    compressed = _render(_sharp(), with_camera(config, jpeg_quality=50), tmp_path / "jpeg")
+    for lossy, lossless in zip(grays(compressed), grays(ideal)):
+        ok, data = cv2.imencode(".jpg", lossless, [cv2.IMWRITE_JPEG_QUALITY, 50])
+        assert ok and np.array_equal(lossy, cv2.imdecode(data, cv2.IMREAD_UNCHANGED))
+        assert 0.5 < np.abs(lossy.astype(float) - lossless).mean() < 20.0
+    assert [d.tobytes() for d in depths(compressed)] == [d.tobytes() for d in depths(ideal)]
+    off = _render(_sharp(), with_camera(config, jpeg_quality=0), tmp_path / "off")
+    assert png_bytes(off) == png_bytes(ideal)

@@ -105,6 +105,7 @@ class CameraModel:
     dark_albedo: float
     depth_min_m: float
     depth_max_m: float
+    jpeg_quality: int
 
     def __post_init__(self) -> None:
         where = f"synth.toml: camera model {self.name!r}"
@@ -142,7 +143,8 @@ class CameraModel:
         return (not self.separate_depth_view and not any(self.depth_misregistration_px)
                 and self.rolling_shutter_s == 0 and self.auto_exposure_time_constant_s == 0
                 and self.depth_noise_m_per_m2 == 0 and self.colour_noise_scale == 1
-                and self.depth_scale_error == 0 and not self.told_differs and not self.structured_light)
+                and self.depth_scale_error == 0 and not self.told_differs and not self.structured_light
+                and self.jpeg_quality == 0)
 
 
 # The values a camera model may take (inclusive): wide enough for any real camera, narrow enough to catch a typo
@@ -166,6 +168,7 @@ _MODEL_RANGES: dict[str, tuple[float, float]] = {
     "dark_albedo": (0.0, 1.0),
     "depth_min_m": (0.0, 10.0),
     "depth_max_m": (0.0, 100.0),
+    "jpeg_quality": (0, 100),
 }
 
 

@@ -33,7 +33,13 @@ from estimator.synth.camera_effects import LensDistortion, Photometry, image_mot
 from estimator.synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
 from estimator.synth.environments import Scene, build_scene
 from estimator.synth.lenses import told_lens, true_lens
-from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter, shift_depth
+from estimator.synth.real_camera import (
+    auto_exposure_response,
+    depth_noise,
+    jpeg_roundtrip,
+    rolling_shutter,
+    shift_depth,
+)
 from estimator.synth.renderer import RayGrid, render
 from estimator.synth.structured_light import as_measured, without_unlit
 from estimator.synth.trajectories import (
@@ -230,6 +236,8 @@ class _Worker:
             depth = as_measured(depth, model)
         rng = np.random.default_rng([plan.spec.seed, index, 0xF1])
         gray = dataclasses.replace(plan.photometry, signal_scale=float(plan.signal_scale[index])).expose(image, rng)
+        if model.jpeg_quality > 0:
+            gray = jpeg_roundtrip(gray, model.jpeg_quality)
         stamp = frame_stamp(cls.start_time + t)
         _write_png(cls.out / "rgb" / f"{stamp}.png", gray)
         # The sensor's depth scale error is in what it reports, not in the depth_factor it says it uses.

@@ -33,9 +33,9 @@ def projector_shadow(depth: np.ndarray, fx: float, projector_x_m: float) -> np.n
     """The pixels of ``depth`` that a projector at ``projector_x_m`` along the camera's x axis does not light.
 
     A pixel u at depth z is lit from the projector's image column u_p = u − fx·b / z (b = ``projector_x_m``; the
-    projector's columns share the camera's rows and, for this comparison, its principal point). Along a row, scanning from the projector's side, a pixel whose
-    u_p is not beyond every u_p already seen is behind a nearer surface as the projector sees it: in its shadow.
-    Pixels without depth cast no shadow."""
+    projector's columns share the camera's rows and, for this comparison, its principal point). Along a row,
+    scanning from the projector's side, a pixel whose u_p is not beyond every u_p already seen is behind a nearer
+    surface as the projector sees it: in its shadow. Pixels without depth cast no shadow."""
     flip = projector_x_m < 0  # a projector on the left is the mirror image of one on the right
     z = depth[:, ::-1] if flip else depth
     u = np.arange(z.shape[1], dtype=np.float32)
