@@ -225,3 +225,26 @@ def test_jpeg_changes_the_gray_image_by_its_compression_and_leaves_the_depth(con
     assert [d.tobytes() for d in depths(compressed)] == [d.tobytes() for d in depths(ideal)]
     off = _render(_sharp(), with_camera(config, jpeg_quality=0), tmp_path / "off")
     assert png_bytes(off) == png_bytes(ideal)
+
+
+def test_a_camera_model_with_its_own_sensor_and_field_of_view_writes_matching_images_and_calibration(config,
+                                                                                                     tmp_path):
+    """1280×720 at 90° horizontal: fx = 640 / tan(45°) = 640 px, centre (639.5, 359.5), and images of that
+    size; at --size 320x180 the same lens scaled (fx 160). A field of view alone keeps [camera.lens]'s sensor;
+    every ray of the render leaves at the angle the calibration says (the edge pixels' rays at ±45°)."""
+    wide = with_camera(config, resolution_px=(1280, 720), horizontal_fov_deg=90.0)
+    full = _render(SequenceSpec("lab", "rapid", 7, frames=1, blur=False), wide, tmp_path / "full")
+    said = calibration(full)
+    assert (said["width"], said["height"]) == (1280, 720)
+    assert said["fx"] == pytest.approx(640.0) and said["fy"] == pytest.approx(640.0)
+    assert (said["cx"], said["cy"]) == (pytest.approx(639.5), pytest.approx(359.5))
+    assert grays(full)[0].shape == depths(full)[0].shape == (720, 1280)
+    grid = RayGrid.for_camera(plan_sequence(SequenceSpec("lab", "rapid", 7, frames=1), wide).camera)
+    assert np.degrees(np.arctan(grid.x[0, [0, -1]] * 1280 / 1279)) == pytest.approx([-45.0, 45.0])
+
+    small = _render(SequenceSpec("lab", "rapid", 7, frames=1, width=320, height=180, blur=False), wide,
+                    tmp_path / "small")
+    assert calibration(small)["fx"] == pytest.approx(160.0) and grays(small)[0].shape == (180, 320)
+    narrow = with_camera(config, horizontal_fov_deg=60.0)
+    said = calibration(_render(_sharp(), narrow, tmp_path / "narrow"))
+    assert (said["width"], said["height"]) == (64, 48) and said["fx"] == pytest.approx(32.0 / np.tan(np.pi / 6))

@@ -106,6 +106,8 @@ class CameraModel:
     depth_min_m: float
     depth_max_m: float
     jpeg_quality: int
+    resolution_px: tuple[int, int]
+    horizontal_fov_deg: float
 
     def __post_init__(self) -> None:
         where = f"synth.toml: camera model {self.name!r}"
@@ -117,6 +119,9 @@ class CameraModel:
         if self.disparity_step_px > 0 and (self.projector_offset_m == 0 or self.disparity_focal_px == 0):
             raise ConfigError(f"{where}: disparity_step_px needs the baseline projector_offset_m and the focal "
                               f"length disparity_focal_px (both non-zero)")
+        if any(self.resolution_px) and min(self.resolution_px) < 16:
+            raise ConfigError(f"{where}: resolution_px must be [0, 0] (the [camera.lens] sensor) or at least "
+                              f"16 px a side, got {list(self.resolution_px)}")
         if 0 < self.depth_max_m <= self.depth_min_m:
             raise ConfigError(f"{where}: depth_max_m {self.depth_max_m:g} must exceed depth_min_m "
                               f"{self.depth_min_m:g}")
@@ -133,6 +138,11 @@ class CameraModel:
                 or self.depth_min_m != 0 or self.depth_max_m != 0)
 
     @property
+    def own_sensor(self) -> bool:
+        """True when the model has its own resolution or field of view instead of the [camera.lens] ones."""
+        return any(self.resolution_px) or self.horizontal_fov_deg != 0
+
+    @property
     def told_differs(self) -> bool:
         """True when the intrinsics told to SLAM are not the rendered lens's."""
         return self.told_focal_error != 0 or any(self.told_principal_point_px) or self.radial_k1 != 0
@@ -144,7 +154,7 @@ class CameraModel:
                 and self.rolling_shutter_s == 0 and self.auto_exposure_time_constant_s == 0
                 and self.depth_noise_m_per_m2 == 0 and self.colour_noise_scale == 1
                 and self.depth_scale_error == 0 and not self.told_differs and not self.structured_light
-                and self.jpeg_quality == 0)
+                and self.jpeg_quality == 0 and not self.own_sensor)
 
 
 # The values a camera model may take (inclusive): wide enough for any real camera, narrow enough to catch a typo
@@ -169,6 +179,8 @@ _MODEL_RANGES: dict[str, tuple[float, float]] = {
     "depth_min_m": (0.0, 10.0),
     "depth_max_m": (0.0, 100.0),
     "jpeg_quality": (0, 100),
+    "resolution_px": (0, 8192),
+    "horizontal_fov_deg": (0.0, 170.0),
 }
 
 

@@ -8,9 +8,27 @@ says the told one, as a user's calibration file would.
 from __future__ import annotations
 
 import dataclasses
+import math
 
-from estimator.synth.config import CameraModel
+from estimator.synth.config import CameraConfig, CameraModel
 from seesys.core.camera import Intrinsics
+
+
+def model_camera(camera: CameraConfig, model: CameraModel) -> CameraConfig:
+    """``camera`` with the model's own sensor (``resolution_px``) and horizontal field of view
+    (``horizontal_fov_deg``), each as ``[camera.lens]`` has it where the model leaves it at 0.
+
+    A model that sets either gets fx = (width / 2) / tan(fov / 2), the lens's pixel aspect fy / fx and the
+    principal point in the middle of its sensor; the lens's distortion coefficients (normalised) are kept."""
+    if not model.own_sensor:
+        return camera
+    lens = camera.lens
+    width, height = model.resolution_px if any(model.resolution_px) else (lens.width, lens.height)
+    fov = (math.radians(model.horizontal_fov_deg) if model.horizontal_fov_deg
+           else 2 * math.atan(lens.width / 2 / lens.fx))
+    fx = width / 2 / math.tan(fov / 2)
+    return dataclasses.replace(camera, lens=dataclasses.replace(
+        lens, width=width, height=height, fx=fx, fy=fx * lens.fy / lens.fx, cx=(width - 1) / 2, cy=(height - 1) / 2))
 
 
 def true_lens(lens: Intrinsics, model: CameraModel, distorted: bool) -> Intrinsics:

@@ -32,7 +32,7 @@ from rich.progress import Progress
 from estimator.synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
 from estimator.synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
 from estimator.synth.environments import Scene, build_scene
-from estimator.synth.lenses import told_lens, true_lens
+from estimator.synth.lenses import model_camera, told_lens, true_lens
 from estimator.synth.real_camera import (
     auto_exposure_response,
     depth_noise,
@@ -102,7 +102,7 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     """Build the scene, the placed trajectory and the per-frame exposure schedule of ``spec``."""
     preset = config.preset(spec.environment)
     model = config.camera_model(preset.camera_model)
-    camera = config.camera
+    camera = model_camera(config.camera, model)
     native_width = camera.lens.width
     if spec.width or spec.height:
         camera = camera.scaled(spec.width or camera.lens.width, spec.height or camera.lens.height)
