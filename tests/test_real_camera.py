@@ -248,3 +248,20 @@ def test_a_camera_model_with_its_own_sensor_and_field_of_view_writes_matching_im
     narrow = with_camera(config, horizontal_fov_deg=60.0)
     said = calibration(_render(_sharp(), narrow, tmp_path / "narrow"))
     assert (said["width"], said["height"]) == (64, 48) and said["fx"] == pytest.approx(32.0 / np.tan(np.pi / 6))
+
+
+@pytest.mark.parametrize("name", ["d435_unaligned", "kinect_v1", "phone"])
+def test_every_shipped_camera_model_renders_deterministically_and_says_which_camera_made_it(config, tmp_path,
+                                                                                           name):
+    """Each preset renders the same bytes on 1 and 2 processes, differs from the ideal camera, writes its own
+    sensor's size and records itself in full in metadata.json."""
+    model = config.seen_through("lab", config.camera_model(name))
+    spec = SequenceSpec("lab", "rapid", 7, frames=3, width=80, height=60 if name != "phone" else 45)
+    one = _render(spec, model, tmp_path / "one")
+    render_sequence(spec, model, tmp_path / "two", processes=2, show_progress=False)
+    ideal = _render(spec, config, tmp_path / "ideal")
+    assert png_bytes(one) == png_bytes(tmp_path / "two") != png_bytes(ideal)
+    meta = json.loads((one / "metadata.json").read_text())
+    assert meta["camera_model"] == json.loads(json.dumps(dataclasses.asdict(config.camera_model(name))))
+    assert meta["preset"]["camera_model"] == name
+    assert (calibration(one)["width"], calibration(one)["height"]) == grays(one)[0].shape[::-1]
