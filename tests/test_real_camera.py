@@ -16,6 +16,7 @@ from conftest import run_seesys
 from evo.core.geometry import umeyama_alignment
 from synth_renders import calibration, depths, grays, png_bytes, with_camera
 
+from estimator.synth.batch import render_batch
 from estimator.synth.camera_effects import LensDistortion
 from estimator.synth.config import load_synth_config
 from estimator.synth.renderer import RayGrid, render
@@ -295,3 +296,16 @@ def test_rgbd_orbslam3_on_depth_scaled_by_one_plus_s_estimates_a_path_one_plus_s
     result = run_seesys("track", "--source", f"tum:{folder}", "--mode", "rgbd", "--out", str(out))
     assert result.returncode == 0, result.stderr
     assert _umeyama_scale(out / "trajectory.tum", folder / "groundtruth.txt") == pytest.approx(1 / 1.07, abs=0.01)
+
+
+def test_a_resumed_batch_renders_again_what_a_retuned_camera_model_changes(config, tmp_path):
+    """The lab seen through kinect_v1, rendered and resumed: skipped; with the model's depth scale error retuned,
+    rendered again with the new value in its metadata."""
+    template = SequenceSpec("lab", "aiming", 0, frames=2, width=64, height=48)
+    kinect = config.seen_through("lab", config.camera_model("kinect_v1"))
+    assert len(render_batch(template, ["lab"], ["aiming"], [0], kinect, tmp_path, processes=1).rendered) == 1
+    assert render_batch(template, ["lab"], ["aiming"], [0], kinect, tmp_path, processes=1).rendered == []
+    retuned = config.seen_through("lab", dataclasses.replace(config.camera_model("kinect_v1"), depth_scale_error=0.03))
+    again = render_batch(template, ["lab"], ["aiming"], [0], retuned, tmp_path, processes=1)
+    assert again.rendered == [tmp_path / "lab__aiming__s0"]
+    assert json.loads((again.rendered[0] / "metadata.json").read_text())["camera_model"]["depth_scale_error"] == 0.03

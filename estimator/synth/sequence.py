@@ -303,6 +303,12 @@ def preset_record(preset: EnvironmentPreset, model: CameraModel) -> dict:
     return json.loads(json.dumps(record))
 
 
+def camera_record(model: CameraModel) -> dict | None:
+    """The camera model as ``metadata.json`` records it (JSON types), and as a resumed batch compares it; None for
+    an ideal model, which the metadata does not list."""
+    return None if model.ideal else json.loads(json.dumps(dataclasses.asdict(model)))
+
+
 def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, records: list[FrameRecord]) -> None:
     """The TUM list files, ground truth, calibration, metadata and per-frame render log of a rendered plan."""
     stamps = [frame_stamp(config.start_time_s + t) for t in plan.frame_times]
@@ -340,7 +346,7 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
         "generator": "seesys synth render (numpy ray caster, procedural textures)",
     }
     if not plan.camera_model.ideal:
-        metadata["camera_model"] = dataclasses.asdict(plan.camera_model)
+        metadata["camera_model"] = camera_record(plan.camera_model)
         metadata["true_lens"] = dataclasses.asdict(plan.lens)  # calibration.yaml has the told one
     with open(out / "metadata.json", "w") as f:
         json.dump(metadata, f, indent=2)
