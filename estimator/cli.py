@@ -26,7 +26,8 @@ def _size(text: str) -> tuple[int, int]:
 
 def _add_render_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, help="frames per sequence (default: the configured duration)")
-    p.add_argument("--size", type=_size, help="image size WIDTHxHEIGHT (default: configs/synth.toml camera)")
+    p.add_argument("--size", type=_size,
+                   help="image size WIDTHxHEIGHT (default: the camera model's, else configs/synth.toml camera)")
     p.add_argument("--processes", type=int, help="worker processes (default: configs/synth.toml)")
     p.add_argument("--no-blur", action="store_true", help="render without motion blur")
     p.add_argument("--distortion", action="store_true", help="apply the configured lens distortion")

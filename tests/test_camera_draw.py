@@ -9,7 +9,7 @@ from estimator.dataset.build import plan_from_config
 from estimator.dataset.config import load_dataset_config
 from estimator.synth.batch import CameraDraw, expand_environments, plan_batch, sequence_folder_name
 from estimator.synth.config import load_synth_config
-from estimator.synth.sequence import SequenceSpec, preset_record
+from estimator.synth.sequence import SequenceSpec, camera_record, preset_record
 from seesys.core.errors import ConfigError
 from seesys.io.config import write_config_dir
 
@@ -61,8 +61,9 @@ def test_the_plan_renders_each_sequence_through_its_drawn_camera_and_again_when_
     spec, folder, seen = todo[0]
     folder.mkdir()
     preset = seen.preset("lab")
-    (folder / "metadata.json").write_text(json.dumps({"preset": preset_record(preset, seen.camera_model(
-        preset.camera_model))}))
+    model = seen.camera_model(preset.camera_model)
+    (folder / "metadata.json").write_text(json.dumps({"preset": preset_record(preset, model),
+                                                      "camera_model": camera_record(model)}))
     todo, skipped = plan_batch(TEMPLATE, ["lab"], ["patrol", "aiming", "rapid"], [0], synth, tmp_path, draw)
     assert skipped == [folder] and len(todo) == 2
     other = "ideal" if drawn[spec.motion] == "d435" else "d435"

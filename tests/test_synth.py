@@ -22,6 +22,7 @@ from estimator.synth.renderer import RayGrid, render
 from estimator.synth.sequence import SequenceSpec, plan_sequence, render_sequence
 from estimator.synth.textures import make_tile
 from estimator.synth.trajectories import MOTION_GROUPS, generate_motion, load_euroc, load_tum, place_real
+from synth_renders import depths, grays, png_bytes, with_camera
 
 
 @pytest.fixture(scope="module")
@@ -126,16 +127,12 @@ def _tiny(motion: str, **kw) -> SequenceSpec:
     return SequenceSpec("lab", motion, 7, frames=6, width=64, height=48, **kw)
 
 
-def _files(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*.png"))}
-
-
 def test_sequence_is_deterministic_tum_layout_with_metadata(config, tmp_path):
     one = tmp_path / "one"
     two = tmp_path / "two"
     records = render_sequence(_tiny("rapid", distortion=True), config, one, processes=1, show_progress=False)
     render_sequence(_tiny("rapid", distortion=True), config, two, processes=2, show_progress=False)
-    assert _files(one) == _files(two) and len(_files(one)) == 12
+    assert png_bytes(one) == png_bytes(two) and len(png_bytes(one)) == 12
 
     for name in ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "calibration.yaml",
                  "metadata.json", "render_log.csv"):
@@ -165,7 +162,7 @@ def test_a_batch_folder_is_the_same_sequence_whatever_else_the_batch_renders(con
     alone, wide = tmp_path / "alone" / "basement__aiming__s0", tmp_path / "wide" / "basement__aiming__s0"
     assert json.loads((alone / "metadata.json").read_text())["seed"] == json.loads(
         (wide / "metadata.json").read_text())["seed"]
-    assert _files(alone) == _files(wide)
+    assert png_bytes(alone) == png_bytes(wide)
     lab_rapid = json.loads((tmp_path / "wide" / "lab__rapid__s0" / "metadata.json").read_text())
     assert lab_rapid["seed"] != json.loads((wide / "metadata.json").read_text())["seed"]
 
@@ -208,61 +205,48 @@ def test_cli_render_diversity_and_errors(tmp_path):
     assert out.returncode == 2 and "unknown motion 'jumping'" in out.stderr
 
 
-def _with_camera(config, **effects):
-    """The config with the lab preset seen through a camera model with ``effects`` (all else ideal)."""
-    return config.seen_through("lab", dataclasses.replace(config.camera_model("ideal"), name="test", **effects))
-
-
-def _depths(folder: Path) -> list[np.ndarray]:
-    return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((folder / "depth").glob("*.png"))]
-
-
-def _grays(folder: Path) -> list[np.ndarray]:
-    return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((folder / "rgb").glob("*.png"))]
-
-
 def test_camera_models_off_render_as_before_and_on_are_deterministic(config, tmp_path):
     """A model with every effect off gives the same bytes as the ideal camera, and its metadata does not list it;
     the D435-like model (every effect on) renders the same bytes on 1 and on 2 processes."""
     render_sequence(_tiny("rapid"), config, tmp_path / "ideal", processes=1, show_progress=False)
-    render_sequence(_tiny("rapid"), _with_camera(config), tmp_path / "off", processes=1, show_progress=False)
-    assert _files(tmp_path / "ideal") == _files(tmp_path / "off")
+    render_sequence(_tiny("rapid"), with_camera(config), tmp_path / "off", processes=1, show_progress=False)
+    assert png_bytes(tmp_path / "ideal") == png_bytes(tmp_path / "off")
     assert (tmp_path / "ideal" / "metadata.json").read_text() == (tmp_path / "off" / "metadata.json").read_text()
     d435 = dataclasses.asdict(config.camera_model("d435"))
     del d435["name"]
-    real = _with_camera(config, **d435)
+    real = with_camera(config, **d435)
     render_sequence(_tiny("rapid"), real, tmp_path / "one", processes=1, show_progress=False)
     render_sequence(_tiny("rapid"), real, tmp_path / "two", processes=2, show_progress=False)
-    assert _files(tmp_path / "one") == _files(tmp_path / "two") != _files(tmp_path / "ideal")
+    assert png_bytes(tmp_path / "one") == png_bytes(tmp_path / "two") != png_bytes(tmp_path / "ideal")
     assert json.loads((tmp_path / "one" / "metadata.json").read_text())["camera_model"]["rolling_shutter_s"] == 0.02
 
 
 def test_misregistered_depth_is_shifted_by_the_configured_pixels(config, tmp_path):
     render_sequence(_tiny("rapid"), config, tmp_path / "ideal", processes=1, show_progress=False)
-    render_sequence(_tiny("rapid"), _with_camera(config, depth_misregistration_px=(3.0, 2.0)), tmp_path / "shifted",
+    render_sequence(_tiny("rapid"), with_camera(config, depth_misregistration_px=(3.0, 2.0)), tmp_path / "shifted",
                     processes=1, show_progress=False)
-    for ideal, shifted in zip(_depths(tmp_path / "ideal"), _depths(tmp_path / "shifted")):
+    for ideal, shifted in zip(depths(tmp_path / "ideal"), depths(tmp_path / "shifted")):
         assert np.array_equal(shifted[2:, 3:], ideal[:-2, :-3])  # every depth edge moved by (3, 2) px
         assert not shifted[:2].any() and not shifted[:, :3].any()  # uncovered pixels have no depth
-    assert [g.tobytes() for g in _grays(tmp_path / "ideal")] == [g.tobytes() for g in _grays(tmp_path / "shifted")]
+    assert [g.tobytes() for g in grays(tmp_path / "ideal")] == [g.tobytes() for g in grays(tmp_path / "shifted")]
 
 
 def test_unregistered_and_late_depth_is_the_depth_cameras_own_view(config, tmp_path):
     """Depth from a camera 5 cm to the side, captured 20 ms late: each depth image is the exact depth at that
     pose, not the colour camera's."""
     spec = _tiny("rapid", blur=False)
-    late = _with_camera(config, depth_offset_m=(0.05, 0.0, 0.0), depth_delay_s=0.02)
+    late = with_camera(config, depth_offset_m=(0.05, 0.0, 0.0), depth_delay_s=0.02)
     render_sequence(spec, late, tmp_path / "late", processes=1, show_progress=False)
     render_sequence(spec, config, tmp_path / "ideal", processes=1, show_progress=False)
     plan = plan_sequence(spec, late)
     grid = RayGrid.for_camera(plan.camera)
     positions, rotations = plan.trajectory.interpolate(plan.frame_times + 0.02)
-    depths, ideal = _depths(tmp_path / "late"), _depths(tmp_path / "ideal")
+    late_depths, ideal = depths(tmp_path / "late"), depths(tmp_path / "ideal")
     for k, (p, r) in enumerate(zip(positions, rotations.as_matrix())):
         expected = render(plan.scene, r, p + r @ np.array([0.05, 0.0, 0.0]), grid).depth
-        assert np.array_equal(depths[k], np.clip(np.rint(expected * config.camera.depth_factor), 0, 65535))
-        assert np.abs(depths[k].astype(float) - ideal[k]).mean() > 10  # > 2 mm on average: another view
-    assert [g.tobytes() for g in _grays(tmp_path / "late")] == [g.tobytes() for g in _grays(tmp_path / "ideal")]
+        assert np.array_equal(late_depths[k], np.clip(np.rint(expected * config.camera.depth_factor), 0, 65535))
+        assert np.abs(late_depths[k].astype(float) - ideal[k]).mean() > 10  # > 2 mm on average: another view
+    assert [g.tobytes() for g in grays(tmp_path / "late")] == [g.tobytes() for g in grays(tmp_path / "ideal")]
 
 
 def test_rolling_shutter_shears_an_edge_by_the_motion_during_readout(config):
@@ -296,7 +280,7 @@ def test_auto_exposure_lags_and_overshoots_a_light_step():
 def test_auto_exposure_lag_shows_in_the_exposure_schedule(config):
     spec = SequenceSpec("lab", "aiming", 7, frames=300, width=64, height=48)
     ideal = plan_sequence(spec, config)
-    lagged = plan_sequence(spec, _with_camera(config, auto_exposure_time_constant_s=0.5, auto_exposure_damping=0.5))
+    lagged = plan_sequence(spec, with_camera(config, auto_exposure_time_constant_s=0.5, auto_exposure_damping=0.5))
     assert lagged.exposure_s[0] == pytest.approx(ideal.exposure_s[0]) and np.array_equal(lagged.light, ideal.light)
     # The exposure trails the light: it is best matched by the ideal schedule some frames earlier.
     errors = [np.abs(lagged.exposure_s[30 + d:] - ideal.exposure_s[30:300 - d]).mean() for d in range(0, 30)]
@@ -317,7 +301,7 @@ def test_depth_noise_grows_with_the_square_of_depth():
 def test_colour_noise_scale_scales_the_sensor_noise(config):
     spec = SequenceSpec("lab", "aiming", 7, frames=2, width=64, height=48)
     ideal = plan_sequence(spec, config).photometry
-    noisy = plan_sequence(spec, _with_camera(config, colour_noise_scale=2.0)).photometry
+    noisy = plan_sequence(spec, with_camera(config, colour_noise_scale=2.0)).photometry
     flat = np.full((200, 200), 0.3, np.float32)
     sigma = [float(np.std(p.expose(flat, np.random.default_rng(1)).astype(float))) for p in (ideal, noisy)]
     assert sigma[1] / sigma[0] == pytest.approx(2.0, rel=0.1)
@@ -328,11 +312,11 @@ def test_a_resumed_batch_renders_again_only_what_a_retuned_preset_changes(config
     first = render_batch(template, ["lab", "basement"], ["aiming"], [0], config, tmp_path, processes=1)
     assert len(first.rendered) == 2
     lab = tmp_path / "lab__aiming__s0"
-    before = _files(lab)
+    before = png_bytes(lab)
     again = render_batch(template, ["lab", "basement"], ["aiming"], [0], config, tmp_path, processes=1)
     assert again.rendered == [] and len(again.skipped) == 2
     retuned = dataclasses.replace(config, presets=[dataclasses.replace(p, albedo=0.3) if p.name == "lab" else p
                                                    for p in config.presets])
     third = render_batch(template, ["lab", "basement"], ["aiming"], [0], retuned, tmp_path, processes=1)
     assert third.rendered == [lab] and third.skipped == [tmp_path / "basement__aiming__s0"]
-    assert _files(lab) != before and json.loads((lab / "metadata.json").read_text())["preset"]["albedo"] == 0.3
+    assert png_bytes(lab) != before and json.loads((lab / "metadata.json").read_text())["preset"]["albedo"] == 0.3

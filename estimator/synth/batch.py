@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.synth.config import SynthConfig
-from estimator.synth.sequence import REAL_PREFIX, SequenceSpec, preset_record, render_sequence
+from estimator.synth.sequence import REAL_PREFIX, SequenceSpec, camera_record, preset_record, render_sequence
 from estimator.synth.trajectories import MOTION_GROUPS
 
 ALL = "all"
@@ -73,14 +73,16 @@ class BatchResult:
 
 
 def _rendered_with_current_preset(folder: Path, environment: str, config: SynthConfig) -> bool:
-    """True when ``folder`` holds a complete render whose recorded preset (camera model included) is the
-    configured one."""
+    """True when ``folder`` holds a complete render whose recorded preset and camera model are the configured
+    ones (a camera model retuned since renders the folder again, as a retuned preset does)."""
     try:
-        recorded = json.loads((folder / "metadata.json").read_text()).get("preset")
+        recorded = json.loads((folder / "metadata.json").read_text())
     except (OSError, ValueError):
         return False
     preset = config.preset(environment)
-    return recorded == preset_record(preset, config.camera_model(preset.camera_model))
+    model = config.camera_model(preset.camera_model)
+    return (recorded.get("preset") == preset_record(preset, model)
+            and recorded.get("camera_model") == camera_record(model))
 
 
 @dataclass(frozen=True)

@@ -27,10 +27,6 @@ class CameraConfig:
         """The same lens on a sensor of ``width``×``height``."""
         return dataclasses.replace(self, lens=self.lens.scaled(width, height))
 
-    def intrinsics(self, distorted: bool) -> Intrinsics:
-        """The intrinsics a render is written with; the distortion only when the render applies it."""
-        return self.lens if distorted else self.lens.without_distortion()
-
 
 @dataclass(frozen=True)
 class SensorConfig:
@@ -85,8 +81,10 @@ class MotionConfig:
 
 @dataclass(frozen=True)
 class CameraModel:
-    """What a real RGB-D camera adds to the ideal rendered one (estimator/synth/real_camera.py); every effect is
-    off at zero (``auto_exposure_damping`` and ``colour_noise_scale`` at 1)."""
+    """What a real RGB-D camera adds to the ideal rendered one (estimator/synth/real_camera.py,
+    estimator/synth/structured_light.py, estimator/synth/lenses.py); every effect is off at zero
+    (``auto_exposure_damping`` and ``colour_noise_scale`` at 1). A value out of its range raises a
+    :class:`ConfigError` naming the model and the key."""
 
     name: str
     depth_offset_m: tuple[float, float, float]
@@ -97,6 +95,36 @@ class CameraModel:
     auto_exposure_damping: float
     depth_noise_m_per_m2: float
     colour_noise_scale: float
+    depth_scale_error: float
+    told_focal_error: float
+    told_principal_point_px: tuple[float, float]
+    radial_k1: float
+    projector_offset_m: float
+    disparity_step_px: float
+    disparity_focal_px: float
+    dark_albedo: float
+    depth_min_m: float
+    depth_max_m: float
+    jpeg_quality: int
+    resolution_px: tuple[int, int]
+    horizontal_fov_deg: float
+
+    def __post_init__(self) -> None:
+        where = f"synth.toml: camera model {self.name!r}"
+        for key, (low, high) in _MODEL_RANGES.items():
+            value = getattr(self, key)
+            for v in value if isinstance(value, tuple) else (value,):
+                if not low <= v <= high:
+                    raise ConfigError(f"{where}: {key} must be within [{low:g}, {high:g}], got {value!r}")
+        if self.disparity_step_px > 0 and (self.projector_offset_m == 0 or self.disparity_focal_px == 0):
+            raise ConfigError(f"{where}: disparity_step_px needs the baseline projector_offset_m and the focal "
+                              f"length disparity_focal_px (both non-zero)")
+        if any(self.resolution_px) and min(self.resolution_px) < 16:
+            raise ConfigError(f"{where}: resolution_px must be [0, 0] (the [camera.lens] sensor) or at least "
+                              f"16 px a side, got {list(self.resolution_px)}")
+        if 0 < self.depth_max_m <= self.depth_min_m:
+            raise ConfigError(f"{where}: depth_max_m {self.depth_max_m:g} must exceed depth_min_m "
+                              f"{self.depth_min_m:g}")
 
     @property
     def separate_depth_view(self) -> bool:
@@ -104,11 +132,56 @@ class CameraModel:
         return any(self.depth_offset_m) or self.depth_delay_s != 0
 
     @property
+    def structured_light(self) -> bool:
+        """True when the depth has any fault of a structured-light sensor (estimator/synth/structured_light.py)."""
+        return (self.projector_offset_m != 0 or self.disparity_step_px != 0 or self.dark_albedo != 0
+                or self.depth_min_m != 0 or self.depth_max_m != 0)
+
+    @property
+    def own_sensor(self) -> bool:
+        """True when the model has its own resolution or field of view instead of the [camera.lens] ones."""
+        return any(self.resolution_px) or self.horizontal_fov_deg != 0
+
+    @property
+    def told_differs(self) -> bool:
+        """True when the intrinsics told to SLAM are not the rendered lens's."""
+        return self.told_focal_error != 0 or any(self.told_principal_point_px) or self.radial_k1 != 0
+
+    @property
     def ideal(self) -> bool:
         """True when the model changes nothing: the renders are the ideal camera's, byte for byte."""
         return (not self.separate_depth_view and not any(self.depth_misregistration_px)
                 and self.rolling_shutter_s == 0 and self.auto_exposure_time_constant_s == 0
-                and self.depth_noise_m_per_m2 == 0 and self.colour_noise_scale == 1)
+                and self.depth_noise_m_per_m2 == 0 and self.colour_noise_scale == 1
+                and self.depth_scale_error == 0 and not self.told_differs and not self.structured_light
+                and self.jpeg_quality == 0 and not self.own_sensor)
+
+
+# The values a camera model may take (inclusive): wide enough for any real camera, narrow enough to catch a typo
+# (a per-cent value written as 5 instead of 0.05, a damping of 0 that never settles).
+_MODEL_RANGES: dict[str, tuple[float, float]] = {
+    "depth_offset_m": (-0.5, 0.5),
+    "depth_misregistration_px": (-50.0, 50.0),
+    "depth_delay_s": (-0.1, 0.1),
+    "rolling_shutter_s": (0.0, 0.1),
+    "auto_exposure_time_constant_s": (0.0, 5.0),
+    "auto_exposure_damping": (0.05, 5.0),
+    "depth_noise_m_per_m2": (0.0, 0.1),
+    "colour_noise_scale": (0.0, 10.0),
+    "depth_scale_error": (-0.3, 0.3),
+    "told_focal_error": (-0.3, 0.3),
+    "told_principal_point_px": (-100.0, 100.0),
+    "radial_k1": (-0.5, 0.5),
+    "projector_offset_m": (-0.5, 0.5),
+    "disparity_step_px": (0.0, 1.0),
+    "disparity_focal_px": (0.0, 5000.0),
+    "dark_albedo": (0.0, 1.0),
+    "depth_min_m": (0.0, 10.0),
+    "depth_max_m": (0.0, 100.0),
+    "jpeg_quality": (0, 100),
+    "resolution_px": (0, 8192),
+    "horizontal_fov_deg": (0.0, 170.0),
+}
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,8 @@ every effect off renders exactly as before the models existed (same bytes):
   changes show as brightness flashes until the loop settles.
 - **Depth noise growing with z²**, as on an active-stereo camera: σ_z = ``depth_noise_m_per_m2`` · z².
 - **Colour noise level**: shot and read noise of ``[sensor]`` scaled by ``colour_noise_scale`` (in σ).
+- **JPEG colour**: the 8-bit image goes through JPEG at ``jpeg_quality`` (1–100; 0: off), as from a camera that
+  streams MJPEG; the PNG written holds the decoded pixels.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import cv2
 import numpy as np
 
 from estimator.synth.renderer import RayGrid
+from seesys.core.errors import SeesysError
 
 # Sub-steps per frame of the auto-exposure loop's integration (stable for time constants down to ~1 frame).
 _AE_SUBSTEPS = 20
@@ -82,3 +85,12 @@ def depth_noise(depth: np.ndarray, sigma_m_per_m2: float, rng: np.random.Generat
     valid = depth > 0
     noisy = depth + np.float32(sigma_m_per_m2) * depth * depth * rng.standard_normal(depth.shape, np.float32)
     return np.where(valid, np.maximum(noisy, 0.0), 0.0).astype(np.float32)
+
+
+def jpeg_roundtrip(gray: np.ndarray, quality: int) -> np.ndarray:
+    """``gray`` encoded as JPEG at ``quality`` (1–100) and decoded: blocking and ringing as a streaming camera's
+    compression gives them. A :class:`SeesysError` if OpenCV cannot encode it."""
+    ok, data = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise SeesysError(f"cannot JPEG-encode a {gray.shape} image at quality {quality}")
+    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)

@@ -44,11 +44,12 @@ class RayGrid:
 
 @dataclass(frozen=True)
 class Render:
-    """A sharp render: linear radiance (arbitrary units, ~0.5 for a mid-grey lit surface) and z-depth in metres
-    (0 where a ray hit nothing)."""
+    """A sharp render: linear radiance (arbitrary units, ~0.5 for a mid-grey lit surface), z-depth in metres
+    (0 where a ray hit nothing) and the surface's albedo (reflectance 0..1; 0 where a ray hit nothing)."""
 
     radiance: np.ndarray
     depth: np.ndarray
+    albedo: np.ndarray
 
 
 def _clip_near(points_cam: np.ndarray, near: float) -> np.ndarray:
@@ -138,4 +139,5 @@ def render(scene: Scene, rotation: np.ndarray, centre: np.ndarray, grid: RayGrid
         irradiance += np.float32(scene.light_power) * cosine / (1.0 + r2 / np.float32(scene.falloff_m**2))
     radiance = albedo * irradiance
     radiance[missed] = 0.0
-    return Render(radiance, depth)
+    albedo[missed] = 0.0
+    return Render(radiance, depth, albedo)

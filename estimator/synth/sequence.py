@@ -32,8 +32,16 @@ from rich.progress import Progress
 from estimator.synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
 from estimator.synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
 from estimator.synth.environments import Scene, build_scene
-from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter, shift_depth
+from estimator.synth.lenses import model_camera, told_lens, true_lens
+from estimator.synth.real_camera import (
+    auto_exposure_response,
+    depth_noise,
+    jpeg_roundtrip,
+    rolling_shutter,
+    shift_depth,
+)
 from estimator.synth.renderer import RayGrid, render
+from estimator.synth.structured_light import as_measured, without_unlit
 from estimator.synth.trajectories import (
     MOTION_GROUPS,
     Trajectory,
@@ -43,6 +51,7 @@ from estimator.synth.trajectories import (
     load_tum,
     place_real,
 )
+from seesys.core.camera import Intrinsics
 from seesys.core.errors import SeesysError
 from seesys.core.trajectory import tum_line
 
@@ -81,6 +90,8 @@ class SequencePlan:
     gain: float
     photometry: Photometry
     camera_model: CameraModel
+    lens: Intrinsics  # the true lens the frames are seen through (distortion included)
+    told: Intrinsics  # the intrinsics calibration.yaml tells SLAM
 
 
 def _draw_range(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
@@ -90,7 +101,9 @@ def _draw_range(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
 def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     """Build the scene, the placed trajectory and the per-frame exposure schedule of ``spec``."""
     preset = config.preset(spec.environment)
-    camera = config.camera
+    model = config.camera_model(preset.camera_model)
+    camera = model_camera(config.camera, model)
+    native_width = camera.lens.width
     if spec.width or spec.height:
         camera = camera.scaled(spec.width or camera.lens.width, spec.height or camera.lens.height)
     rng = np.random.default_rng([spec.seed, 0x7A7])
@@ -135,7 +148,6 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     low, high = sensor.light_modulation
     light = low + (high - low) * (wave - wave.min()) / max(np.ptp(wave), 1e-9) if count > 1 else np.full(1, high)
     base = _draw_range(rng, sensor.base_exposure_ms) / 1000.0
-    model = config.camera_model(preset.camera_model)
     target = base * light ** (-sensor.auto_exposure_strength)
     if model.auto_exposure_time_constant_s > 0:
         target = np.exp(auto_exposure_response(np.log(target), camera.fps, model.auto_exposure_time_constant_s,
@@ -148,7 +160,8 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
                             _draw_range(rng, sensor.shot_noise_dn_per_e) * preset.shot_noise_scale * noise**2,
                             _draw_range(rng, sensor.read_noise_dn) * noise, sensor.black_level_dn)
     return SequencePlan(spec, camera, scene, trajectory, group, name, frame_times, exposure, light, signal, gain,
-                        photometry, model)
+                        photometry, model, true_lens(camera.lens, model, spec.distortion),
+                        told_lens(camera.lens, model, spec.distortion, native_width))
 
 
 @dataclass(frozen=True)
@@ -177,7 +190,8 @@ class _Worker:
         cv2.setNumThreads(1)  # parallelism is across processes
         cls.plan = plan_sequence(spec, config)
         cls.grid = RayGrid.for_camera(cls.plan.camera)
-        cls.lens = LensDistortion.for_lens(cls.plan.camera.lens) if spec.distortion else None
+        distorted = spec.distortion or cls.plan.camera_model.radial_k1 != 0
+        cls.lens = LensDistortion.for_lens(cls.plan.lens) if distorted else None
         cls.out = out
         cls.max_samples = config.sensor.blur_max_samples
         cls.depth_factor = config.camera.depth_factor
@@ -195,7 +209,7 @@ class _Worker:
         positions, rotations = plan.trajectory.interpolate(times)
         matrices = rotations.as_matrix()
         sharp = render(plan.scene, matrices[0], positions[0], cls.grid)
-        image, depth, streak = sharp.radiance, sharp.depth, 0.0
+        image, streak = sharp.radiance, 0.0
 
         def flow_to(k: int) -> np.ndarray:
             return image_motion(sharp.depth, cls.grid, matrices[k].T @ matrices[0],
@@ -205,20 +219,30 @@ class _Worker:
             image, streak = motion_blur(image, cls.grid, flow_to(1), flow_to(2), cls.max_samples)
         if readout > 0:
             image = rolling_shutter(image, cls.grid, flow_to(3), flow_to(4))
+        view = sharp
         if model.separate_depth_view:
             centre = positions[5] + matrices[5] @ np.asarray(model.depth_offset_m)
-            depth = render(plan.scene, matrices[5], centre, cls.grid).depth
+            view = render(plan.scene, matrices[5], centre, cls.grid)
+        depth = view.depth
+        if model.structured_light:  # in the depth camera's own image, before it is registered to colour
+            depth = without_unlit(view, cls.grid.lens.fx, model)
         if any(model.depth_misregistration_px):
             depth = shift_depth(depth, model.depth_misregistration_px)
         if cls.lens is not None:
             image, depth = cls.lens.apply(image, depth)
         if model.depth_noise_m_per_m2 > 0:
             depth = depth_noise(depth, model.depth_noise_m_per_m2, np.random.default_rng([plan.spec.seed, index, 0xD3]))
+        if model.structured_light:  # the disparity is measured with its noise, then quantised
+            depth = as_measured(depth, model)
         rng = np.random.default_rng([plan.spec.seed, index, 0xF1])
         gray = dataclasses.replace(plan.photometry, signal_scale=float(plan.signal_scale[index])).expose(image, rng)
+        if model.jpeg_quality > 0:
+            gray = jpeg_roundtrip(gray, model.jpeg_quality)
         stamp = frame_stamp(cls.start_time + t)
         _write_png(cls.out / "rgb" / f"{stamp}.png", gray)
-        depth_png = np.clip(np.rint(depth * cls.depth_factor), 0, 65535).astype(np.uint16)
+        # The sensor's depth scale error is in what it reports, not in the depth_factor it says it uses.
+        reported = depth * np.float32(1 + model.depth_scale_error) if model.depth_scale_error else depth
+        depth_png = np.clip(np.rint(reported * cls.depth_factor), 0, 65535).astype(np.uint16)
         _write_png(cls.out / "depth" / f"{stamp}.png", depth_png)
         return FrameRecord(index, 1000 * exposure, float(plan.light[index]), float(plan.signal_scale[index]), streak,
                            float(gray.mean()))
@@ -279,6 +303,12 @@ def preset_record(preset: EnvironmentPreset, model: CameraModel) -> dict:
     return json.loads(json.dumps(record))
 
 
+def camera_record(model: CameraModel) -> dict | None:
+    """The camera model as ``metadata.json`` records it (JSON types), and as a resumed batch compares it; None for
+    an ideal model, which the metadata does not list."""
+    return None if model.ideal else json.loads(json.dumps(dataclasses.asdict(model)))
+
+
 def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, records: list[FrameRecord]) -> None:
     """The TUM list files, ground truth, calibration, metadata and per-frame render log of a rendered plan."""
     stamps = [frame_stamp(config.start_time_s + t) for t in plan.frame_times]
@@ -316,7 +346,8 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
         "generator": "seesys synth render (numpy ray caster, procedural textures)",
     }
     if not plan.camera_model.ideal:
-        metadata["camera_model"] = dataclasses.asdict(plan.camera_model)
+        metadata["camera_model"] = camera_record(plan.camera_model)
+        metadata["true_lens"] = dataclasses.asdict(plan.lens)  # calibration.yaml has the told one
     with open(out / "metadata.json", "w") as f:
         json.dump(metadata, f, indent=2)
         f.write("\n")
@@ -327,7 +358,7 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
 
 
 def _write_calibration(path: Path, plan: SequencePlan, config: SynthConfig) -> None:
-    intr = plan.camera.intrinsics(plan.spec.distortion)
+    intr = plan.told
     dist = ", ".join(f"{d:g}" for d in intr.distortion)
     text = (
         "# pinhole intrinsics of the synthetic sequence\n"
