@@ -109,6 +109,7 @@ class ProgressRelay:
         self._calls: list[tuple] = []
         self._next_id = 0
         self._sent = 0.0
+        self._last_put = None  # the ObjectRef of the last batch sent
         self.console = _ConsoleRelay(self)
 
     def add_task(self, description: str, **kwargs) -> int:
@@ -134,16 +135,18 @@ class ProgressRelay:
             self.flush()
 
     def flush(self, wait: bool = False) -> None:
-        """Send the calls not sent yet; ``wait``: until the sink has them (a task's last flush, so that its bars
-        are up to date when the driver hears that it ended)."""
+        """Send the calls not sent yet; ``wait``: until the sink has every call sent so far (a task's last flush,
+        so that its bars are up to date when the driver hears that it ended). The sink runs one caller's calls in
+        order, so waiting for the last one sent is waiting for all: a batch sent at once (a removed bar) and not
+        waited for could otherwise reach the sink after the driver's last look."""
         if self._calls:
-            sent = self._sink.put.remote(self._job, self._calls)
+            self._last_put = self._sink.put.remote(self._job, self._calls)
             self._calls = []
             self._sent = time.monotonic()
-            if wait:
-                import ray
+        if wait and self._last_put is not None:
+            import ray
 
-                ray.get(sent)
+            ray.get(self._last_put)
 
 
 class _ConsoleRelay:

@@ -10,7 +10,7 @@ from estimator.dataset.config import load_dataset_config
 from estimator.synth.batch import CameraDraw, expand_environments, plan_batch, sequence_folder_name
 from estimator.synth.config import load_synth_config
 from estimator.synth.sequence import SequenceSpec, camera_record, preset_record
-from seesys.core.errors import ConfigError
+from seesys.core.errors import ConfigError, SeesysError
 from seesys.io.config import write_config_dir
 
 TEMPLATE = SequenceSpec("", "", 0, 30, 160, 120)
@@ -43,9 +43,11 @@ def test_bad_draws_are_refused_by_name(tmp_path):
     with pytest.raises(ValueError, match="2 camera models but 1 weights"):
         CameraDraw(("ideal", "d435"), (1.0,))
     with pytest.raises(ConfigError, match=r"cameras.*weights must be positive"):
-        load_dataset_config(write_config_dir(tmp_path, {"weights": [1.0, 0.0]}))
+        load_dataset_config(write_config_dir(tmp_path, {"weights": [1.0, 0.0, 1.0, 1.0]}))
     with pytest.raises(ConfigError, match="unknown camera model 'kinect_v9'"):
         plan_from_config(load_dataset_config(), synth, TEMPLATE, ["lab"], ["patrol"], [0], cameras=["kinect_v9"])
+    with pytest.raises(SeesysError, match="mixes image sizes .*phone 1280x720"):
+        plan_from_config(load_dataset_config(), synth, TEMPLATE, cameras=["ideal", "phone"])
 
 
 def test_the_plan_renders_each_sequence_through_its_drawn_camera_and_again_when_it_was_seen_through_another(tmp_path):

@@ -47,6 +47,7 @@ from estimator.dataset.store import (
 from estimator.jobs import Job, JobEnv, LocalExecutor, RayExecutor, load_ray_settings
 from estimator.synth.batch import CameraDraw, expand_environments, expand_motions, plan_batch, render_into
 from estimator.synth.config import SynthConfig
+from estimator.synth.lenses import model_camera
 from estimator.synth.sequence import SequenceSpec
 from seesys.core import rts_schema, session_layout
 from seesys.core.errors import SeesysError
@@ -114,8 +115,10 @@ def plan_from_config(config: DatasetConfig, synth: SynthConfig, template: Sequen
     except ValueError as e:
         raise SeesysError(f"unknown SLAM mode: {e}") from None
     draw = config.cameras if cameras is None else CameraDraw(tuple(cameras), (1.0,) * len(cameras))
-    for name in draw.models:
-        synth.camera_model(name)
+    sizes = {name: model_camera(synth.camera, synth.camera_model(name)).lens for name in draw.models}
+    if len({(lens.width, lens.height) for lens in sizes.values()}) > 1:
+        listed = ", ".join(f"{name} {lens.width}x{lens.height}" for name, lens in sizes.items())
+        raise SeesysError(f"the camera draw mixes image sizes ({listed}): a dataset's windows need one PSD size")
     return BuildPlan(template, expand_environments(list(environments or config.environments), synth),
                      expand_motions(list(motions or config.motions), synth), list(seeds or config.seeds),
                      slam_modes, trials, render_processes, draw if draw.models else None)
