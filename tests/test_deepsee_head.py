@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 from test_deepsee_sessions import PSD_SHAPE, single_thread, tiny_config, tiny_dataset, trained_runs  # noqa: F401 (pytest fixtures among them)
@@ -15,6 +16,7 @@ from estimator.deepsee.compatibility import InputShape
 from estimator.deepsee.data import read_splits, split_windows
 from estimator.deepsee.export import PARITY_TOLERANCE, export_onnx, parity
 from estimator.deepsee.inference import predict_outputs
+from estimator.deepsee.metrics import equation2_head, score
 from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.onnx_model import OnnxModel
 from estimator.deepsee.ordinal import bce, exceeded, head_thresholds
@@ -153,3 +155,23 @@ def test_the_shipped_model_has_no_head_and_gives_what_it_always_gave():
     assert probabilities is None and y.shape == (3,)
     np.testing.assert_array_equal(y, onnx_model.session.run(None, {"rts": rts.numpy(), "psd": psd.numpy()})[0])
     assert load_predictor(resolve("data/models/deepsee.onnx"), TRANSFORM, 64).thresholds_m == ()
+
+
+def test_scores_judge_the_heads_class_beside_the_estimates():
+    """Two runs of 1/3 s bins: the head's class is that of its probabilities averaged over a bin."""
+    pulses = load_pulse_settings()
+    t = np.array([0.0, 0.1, 0.2, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.2])  # bins of 0.33 s: 3 windows each
+    meta = pd.DataFrame({"run": ["a"] * 12, "timestamp": t})
+    true_m = np.repeat([0.002, 0.006, 0.010, 0.020], 3)
+    estimate_m = 0.007 + 1e-6 * np.arange(12)  # the middle: agrees with the truth in one bin of four
+    right = np.array([[0.1, 0.0, 0.0], [0.9, 0.1, 0.0], [0.9, 0.8, 0.1], [0.9, 0.9, 0.9]])
+    probabilities = np.repeat(right, 3, axis=0)
+    evaluation = tiny_config().evaluation
+    plain = score(meta, estimate_m, true_m, evaluation, pulses)
+    assert np.isnan(plain.head_agreement) and np.isnan(plain.head_recall_large)
+    scores = score(meta, estimate_m, true_m, evaluation, pulses, probabilities)
+    assert scores.bins == 4 and scores.agreement == 0.25 and scores.recall_large == 0.0
+    assert scores.head_agreement == 1.0 and scores.head_recall_large == 1.0
+    assert equation2_head(probabilities, BOUNDS, pulses) is probabilities
+    assert equation2_head(probabilities, (0.004, 0.008, 0.016), pulses) is None
+    assert equation2_head(None, BOUNDS, pulses) is None
