@@ -9,7 +9,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -44,18 +44,22 @@ class ConditionInput:
     rule_name: str  # how advisory.csv names the rule: "estimate" (Equation 2) or "rotation"
 
 
-def estimate_reading(cfg: AdvisoryConfig) -> Callable[[Estimate | FeatureFrame], Reading | None]:
-    """An estimate → its error and, with ``pulses_from = "head"``, its head's probabilities when their thresholds
-    are exactly Equation 2's class boundaries (a head of other thresholds, or none, leaves Equation 2 to the
-    estimate)."""
+def head_rule(cfg: AdvisoryConfig) -> Callable[[Sequence[float]], bool]:
+    """Whether a head of these thresholds decides N: ``pulses_from = "head"`` and the thresholds are exactly
+    Equation 2's class boundaries (a head of other thresholds, or none, leaves Equation 2 to the estimate)."""
     boundaries = class_boundaries_m(PulseSettings(cfg.equation2, cfg.timing.buffer_s, cfg.timing.window_s))
     use_head = cfg.pulses.pulses_from == HEAD_SOURCE
+    return lambda thresholds_m: use_head and same_thresholds(thresholds_m, boundaries)
+
+
+def estimate_reading(cfg: AdvisoryConfig) -> Callable[[Estimate | FeatureFrame], Reading | None]:
+    """An estimate → its error and, where :func:`head_rule` allows, its head's probabilities."""
+    decides = head_rule(cfg)
 
     def sample(message: Estimate | FeatureFrame) -> Reading | None:
         if not isinstance(message, Estimate):
             return None
-        thresholds = [e.threshold_m for e in message.head]
-        if use_head and same_thresholds(thresholds, boundaries):
+        if decides([e.threshold_m for e in message.head]):
             return Reading(message.error_m, tuple(e.probability for e in message.head))
         return Reading(message.error_m)
     return sample

@@ -132,14 +132,18 @@ def test_run_none_starts_only_the_generator_and_needs_no_audio_device(make_sandb
     assert processes == {"supervisor", "generator"}
 
 
-def test_replay_sends_the_logged_frame_index(make_sandbox):
+def test_replay_sends_the_logged_frame_index_and_head(make_sandbox):
     sandbox = make_sandbox(None)
     t = np.arange(0, 0.5, 1 / 30)
     frames = 40 + 3 * np.arange(t.size)  # a device's estimates: every third frame, from frame 40
     log, sent_log = sandbox.root / "estimates.csv", sandbox.root / "sent.csv"
-    pd.DataFrame({"frame_index": frames, "timestamp": t + 50.0, "error_m": 0.006}).to_csv(log, index=False)
+    pd.DataFrame({"frame_index": frames, "timestamp": t + 50.0, "error_m": 0.006, "p_ge_0.004": 0.75,
+                  "p_ge_0.008": 0.25}).to_csv(log, index=False)
     received, _ = replay_and_receive(sandbox, log, sent_log)
     assert [m.frame_index for m in received] == frames.tolist()
+    # the log's head travels with every estimate, each probability with its threshold
+    assert {tuple((h.threshold_m, h.probability) for h in m.head) for m in received} == {
+        ((float(np.float32(0.004)), 0.75), (float(np.float32(0.008)), 0.25))}
     assert pd.read_csv(sent_log).frame_index.tolist() == frames.tolist()
 
 

@@ -314,3 +314,31 @@ def test_a_window_where_some_estimates_carry_no_head_is_decided_by_equation_2():
     plain = read(_estimate(0.006))
     d = s.add(0.03, plain.value, plain.head)
     assert (d.n_pulses, d.pulses_from) == (1, "estimate")
+
+
+def test_render_plays_the_heads_class_of_an_estimate_log_with_equation_2s_thresholds(tmp_path):
+    """A log of 6 mm estimates (Equation 2: 1 pulse) whose head says 8-12 mm: 2 pulses from the head; the same log
+    with other thresholds, or rendered with pulses_from = "estimate", plays Equation 2's 1 pulse."""
+    import dataclasses
+
+    t = np.arange(0, 2, 1 / 30)
+    probabilities = {"p_ge_0.004": 0.97, "p_ge_0.008": 0.7, "p_ge_0.012": 0.1}
+    path = tmp_path / "head.csv"
+    pd.DataFrame({"timestamp": t, "error_m": 0.006, **probabilities, "head_class": 2}).to_csv(path, index=False)
+    log = read_estimate_log(path)
+    assert log.head_thresholds_m == HEAD_BOUNDS and log.head(0) == (0.97, 0.7, 0.1)
+    live = [d for d in render_estimates(log, CFG).decisions if d.status == LIVE]
+    assert {(d.n_pulses, d.pulses_from) for d in live} == {(2, "head")}
+    by_estimate = dataclasses.replace(CFG, pulses=dataclasses.replace(CFG.pulses, pulses_from="estimate"))
+    other = tmp_path / "other.csv"
+    pd.DataFrame({"timestamp": t, "error_m": 0.006, "p_ge_0.004": 0.97, "p_ge_0.009": 0.7,
+                  "p_ge_0.012": 0.1}).to_csv(other, index=False)
+    for rendering in (render_estimates(log, by_estimate), render_estimates(read_estimate_log(other), CFG)):
+        assert {(d.n_pulses, d.pulses_from) for d in rendering.decisions if d.status == LIVE} == {(1, "estimate")}
+
+
+def test_an_estimate_log_with_a_probability_outside_0_1_is_refused(tmp_path):
+    path = tmp_path / "bad.csv"
+    pd.DataFrame({"timestamp": [0.0, 0.1], "error_m": 0.006, "p_ge_0.004": [0.5, 1.2]}).to_csv(path, index=False)
+    with pytest.raises(SeesysError, match=r"row 3: p_ge_0.004 1.2 is not a probability"):
+        read_estimate_log(path)

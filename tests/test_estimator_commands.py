@@ -104,6 +104,7 @@ def test_export_to_onnx_then_estimate_a_session_for_the_advisory(tiny_dataset, t
     probabilities = torch_estimates[head[:3]].to_numpy()
     assert ((0 <= probabilities) & (probabilities <= 1)).all() and (np.diff(probabilities, axis=1) <= 0).all()
     assert (torch_estimates.head_class == (probabilities >= 0.5).sum(axis=1)).all()
+    assert read_estimate_log(tmp_path / "pt.csv").head_thresholds_m == (0.004, 0.008, 0.012)  # render plays it
     np.testing.assert_allclose(onnx_estimates[head[:3]], probabilities, atol=1e-4)
     assert main(["estimator", "estimate", str(session), "--model", str(tmp_path / "none.pt"),
                  "--out", str(tmp_path / "x.csv")]) == 2

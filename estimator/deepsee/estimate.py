@@ -17,15 +17,8 @@ import pandas as pd
 
 from estimator.deepsee.data import DataError, session_windows
 from estimator.deepsee.predictors import Predictor
-from seesys.core.exceedance import head_class
+from seesys.core.exceedance import HEAD_CLASS_COLUMN, head_class, probability_column
 from seesys.core.windows import WindowConfig
-
-HEAD_CLASS = "head_class"
-
-
-def probability_column(threshold_m: float) -> str:
-    """The estimate log's column of P(error ≥ ``threshold_m``)."""
-    return f"p_ge_{threshold_m!r}"
 
 
 def estimate_session(predictor: Predictor, session: Path, windows: WindowConfig, out: Path) -> pd.DataFrame:
@@ -38,7 +31,7 @@ def estimate_session(predictor: Predictor, session: Path, windows: WindowConfig,
     if estimates.probabilities is not None:
         for k, threshold in enumerate(predictor.thresholds_m):
             table[probability_column(threshold)] = estimates.probabilities[:, k].astype(np.float64)
-        table[HEAD_CLASS] = head_class(estimates.probabilities)
+        table[HEAD_CLASS_COLUMN] = head_class(estimates.probabilities)
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(out, index=False)
     return table

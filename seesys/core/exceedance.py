@@ -20,6 +20,10 @@ from seesys.core.equation2 import PulseSettings
 
 #: A head probability at least this counts its threshold as exceeded.
 EXCEEDED = 0.5
+#: Estimate logs (``seesys estimator estimate``; read by ``seesys advisory render`` and ``replay``): the column of
+#: P(error ≥ t) is this prefix and t in metres (``p_ge_0.004``); ``head_class`` the head's class.
+PROBABILITY_PREFIX = "p_ge_"
+HEAD_CLASS_COLUMN = "head_class"
 
 
 def class_boundaries_m(pulses: PulseSettings) -> tuple[float, ...]:
@@ -39,6 +43,21 @@ def same_thresholds(thresholds_m: Sequence[float], boundaries_m: Sequence[float]
     """Whether ``thresholds_m`` (a model's, possibly read back from float32) are exactly ``boundaries_m``."""
     return len(thresholds_m) == len(boundaries_m) and bool(
         np.array_equal(np.asarray(thresholds_m, np.float32), np.asarray(boundaries_m, np.float32)))
+
+
+def probability_column(threshold_m: float) -> str:
+    """An estimate log's column of P(error ≥ ``threshold_m``)."""
+    return f"{PROBABILITY_PREFIX}{float(threshold_m)!r}"
+
+
+def column_threshold(column: str) -> float | None:
+    """The threshold of an estimate log's probability column, or None for another column."""
+    if not column.startswith(PROBABILITY_PREFIX):
+        return None
+    try:
+        return float(column[len(PROBABILITY_PREFIX):])
+    except ValueError:
+        return None
 
 
 def head_class(probabilities: np.ndarray) -> np.ndarray:
