@@ -17,9 +17,8 @@ whose head class is at least that error's class. Both are NaN for a model withou
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
