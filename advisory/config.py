@@ -66,6 +66,17 @@ class SupervisorConfig:
     session_folder: str
 
 
+#: ``[pulses] pulses_from``: the head's class where the estimates carry one for Equation 2's class boundaries, or
+#: always Equation 2 of the moving-mean estimate.
+HEAD_SOURCE = "head"
+ESTIMATE_SOURCE = "estimate"
+
+
+@dataclass(frozen=True)
+class PulsesConfig:
+    pulses_from: str  # HEAD_SOURCE or ESTIMATE_SOURCE
+
+
 @dataclass(frozen=True)
 class AdvisoryConfig:
     equation2: Equation2Config
@@ -76,6 +87,7 @@ class AdvisoryConfig:
     handoff: HandoffConfig
     replay: ReplayConfig
     supervisor: SupervisorConfig
+    pulses: PulsesConfig
 
 
 def _check(cfg: AdvisoryConfig, where: str) -> None:
@@ -103,6 +115,8 @@ def _check(cfg: AdvisoryConfig, where: str) -> None:
         problems.append(f"cue_level must be in (0, 1] (got {ni.cue_level})")
     if 2 * ni.cue_tone_s + ni.cue_gap_s > tm.buffer_s:
         problems.append(f"the cue (two tones of cue_tone_s and cue_gap_s between) must fit in buffer_s ({tm.buffer_s})")
+    if cfg.pulses.pulses_from not in (HEAD_SOURCE, ESTIMATE_SOURCE):
+        problems.append(f"pulses_from must be {HEAD_SOURCE!r} or {ESTIMATE_SOURCE!r} (got {cfg.pulses.pulses_from!r})")
     if problems:
         raise ConfigError(f"{where}: " + "; ".join(problems))
 

@@ -1,5 +1,7 @@
 """Estimate logs (CSV with columns ``timestamp,error_m`` and optionally ``frame_index``), the input of ``render``
-and ``replay``."""
+and ``replay``; a log of a model with an ordinal head (``seesys estimator estimate``) also has one column
+``p_ge_<threshold in metres>`` per threshold (:func:`seesys.core.exceedance.probability_column`), read as the
+estimates' head."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from seesys.core.errors import SeesysError
+from seesys.core.exceedance import column_threshold
 
 COLUMNS = ("timestamp", "error_m")
 FRAME_INDEX = "frame_index"
@@ -20,6 +23,12 @@ class EstimateLog:
     timestamps: np.ndarray  # seconds, non-decreasing
     errors_m: np.ndarray
     frame_indices: np.ndarray | None = None  # the logged frame index of each estimate (None: the log has none)
+    head_thresholds_m: tuple[float, ...] = ()  # the head's thresholds, increasing (empty: the log has no head)
+    head_probabilities: np.ndarray | None = None  # (N, K) P(error ≥ threshold) per estimate; None without a head
+
+    def head(self, row: int) -> tuple[float, ...] | None:
+        """Row ``row``'s head probabilities, None for a log without a head."""
+        return None if self.head_probabilities is None else tuple(float(p) for p in self.head_probabilities[row])
 
     def frame_index(self, row: int) -> int:
         """The frame index of row ``row``: the logged one, or the row number in a log without frame indices."""
@@ -77,4 +86,24 @@ def read_estimate_log(path: Path) -> EstimateLog:
             raise SeesysError(f"{path}: row {row + 2}: {FRAME_INDEX} {table[FRAME_INDEX].iloc[row]!r} is not a "
                               f"frame index (a non-negative integer)")
         frames = numbers.astype(np.int64)
-    return EstimateLog(values["timestamp"], values["error_m"], frames)
+    thresholds, probabilities = _read_head(path, table)
+    return EstimateLog(values["timestamp"], values["error_m"], frames, thresholds, probabilities)
+
+
+def _read_head(path: Path, table: pd.DataFrame) -> tuple[tuple[float, ...], np.ndarray | None]:
+    """The head's thresholds (increasing) and probabilities of the log's ``p_ge_*`` columns; raises a
+    SeesysError naming the file, the column and the row of a probability outside [0, 1]."""
+    columns = sorted((t, c) for c in table.columns if (t := column_threshold(str(c))) is not None)
+    if not columns:
+        return (), None
+    thresholds = tuple(t for t, _ in columns)
+    if len(set(thresholds)) != len(thresholds) or not all(np.isfinite(thresholds)) or thresholds[0] <= 0:
+        raise SeesysError(f"{path}: head columns {[c for _, c in columns]} are not of distinct positive thresholds")
+    probabilities = np.column_stack([pd.to_numeric(table[c], errors="coerce").to_numpy(np.float64)
+                                     for _, c in columns])
+    bad = np.argwhere(~((probabilities >= 0) & (probabilities <= 1)))
+    if bad.size:
+        row, k = (int(v) for v in bad[0])
+        raise SeesysError(f"{path}: row {row + 2}: {columns[k][1]} {table[columns[k][1]].iloc[row]} is not a "
+                          f"probability")
+    return thresholds, probabilities

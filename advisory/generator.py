@@ -3,7 +3,9 @@
 It subscribes to the condition's input (estimates, or the device's features), keeps the moving average, and every
 1/3 s (and at once when a new input changes N, see ``advisory.scheduler``) synthesises a buffer and publishes it
 to the player over the hand-off socket. It never waits on the player: PUB drops when nobody listens. Every buffer
-is logged to ``advisory.csv``; status changes and bad messages to ``advisory_events.csv``.
+is logged to ``advisory.csv`` with the rule that gave its pulse count (``pulses_from``: the model's ordinal head or
+Equation 2 of the moving-mean estimate, see ``advisory.scheduler``); status changes and bad messages to
+``advisory_events.csv``.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ class Generator:
         self._sub = subscriber(self._ctx, self._input.endpoint, f"{condition.value} input", [self._input.topic],
                                options=network.client_options(self._input.endpoint))
         self._scheduler = PulseScheduler(self._input.rule, cfg.timing.window_s, cfg.timing.cadence_s,
-                                         cfg.timing.stale_after_s, time.monotonic())
+                                         cfg.timing.stale_after_s, time.monotonic(), self._input.rule_name)
         self._status = self._scheduler.status
         self._buffers: dict[int, np.ndarray] = {}
         self._next_id = 0
@@ -80,7 +82,7 @@ class Generator:
         self._next_id += 1
         self._pub.send(encode_buffer(buf))
         self._log.write(time.time(), d.time, self._condition.value, d.status, trigger, d.value, d.n_pulses,
-                        played, buf.buffer_id, d.arrival, buf.play_at)
+                        played, buf.buffer_id, d.arrival, buf.play_at, d.pulses_from)
 
     def _note_status(self) -> None:
         status = self._scheduler.status
@@ -108,10 +110,10 @@ class Generator:
             except MessageError as e:
                 self._bad_message(e)
                 continue
-            value = self._input.sample(message)
-            if value is None or not math.isfinite(value):
+            reading = self._input.sample(message)
+            if reading is None or not math.isfinite(reading.value):
                 continue
-            decision = self._scheduler.add(arrival, value)
+            decision = self._scheduler.add(arrival, reading.value, reading.head)
             self._note_status()
             if decision is not None:
                 self._emit(decision)

@@ -1,4 +1,5 @@
-"""``seesys advisory replay``: publish an estimate log as :class:`Estimate` messages at its original pace.
+"""``seesys advisory replay``: publish an estimate log as :class:`Estimate` messages at its original pace, each with
+the log's head probabilities and their thresholds where the log has them.
 
 It binds the estimator's endpoint (``network.toml``'s ``estimates_endpoint``) exactly as the estimator service
 does, so the advisory can run live before (or without) the estimator. Optionally it logs when it sent each
@@ -15,7 +16,7 @@ from rich.progress import Progress
 
 from advisory.config import ReplayConfig
 from advisory.estimate_log import EstimateLog
-from seesys.core.messages import Estimate, encode
+from seesys.core.messages import Estimate, Exceedance, encode
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import NetworkConfig
 from seesys.io.transport import publisher
@@ -55,8 +56,9 @@ def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkCon
                 if index == 0:
                     start = sent_mono  # the schedule runs from the first send, however late that was
                 frame_index = log.frame_index(index)
+                head = tuple(Exceedance(t, p) for t, p in zip(log.head_thresholds_m, log.head(index) or ()))
                 pub.send_multipart(encode(Estimate(replay.replay_device_id, frame_index, float(timestamp),
-                                                   float(error_m), replay.replay_model_version)))
+                                                   float(error_m), replay.replay_model_version, head=head)))
                 if sent is not None:
                     sent.write(frame_index, float(timestamp), sent_mono)
                 progress.advance(task)

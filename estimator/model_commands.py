@@ -168,6 +168,7 @@ def _export(args: argparse.Namespace) -> int:
     from estimator.deepsee.checkpoint import load_model
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity
+    from estimator.deepsee.ordinal import model_thresholds
     from estimator.deepsee.transforms import LabelTransform
     from seesys.io.core_settings import load_window_config
     transform = LabelTransform(load_estimator_config().label_transform.k)
@@ -177,8 +178,9 @@ def _export(args: argparse.Namespace) -> int:
     difference = parity(model, OnnxModel(path, transform, windows))
     if difference > PARITY_TOLERANCE:
         raise SeesysError(f"{path}: ONNX Runtime differs from PyTorch by {difference:.2e} (> {PARITY_TOLERANCE:g})")
+    outputs = "the transformed scale" + (" and the head's probabilities" if model_thresholds(model) else "")
     print(f"exported {args.model} -> {path} ({path.stat().st_size / 1e6:.1f} MB); parity with PyTorch: max abs "
-          f"difference {difference:.1e} on the transformed scale")
+          f"difference {difference:.1e} on {outputs}")
     return 0
 
 
@@ -193,7 +195,8 @@ def _estimate(args: argparse.Namespace) -> int:
     predictor = load_predictor(_default_model(args), LabelTransform(config.label_transform.k),
                                config.evaluation.batch_size, windows=windows)
     table = estimate_session(predictor, args.session, windows, args.out)
-    print(f"{len(table)} estimates (median {1000 * table.error_m.median():.1f} mm) -> {args.out}; "
+    head = ", with the ordinal head's probabilities and class" if predictor.thresholds_m else ""
+    print(f"{len(table)} estimates (median {1000 * table.error_m.median():.1f} mm{head}) -> {args.out}; "
           f"listen with `seesys advisory render --estimates {args.out} --out preview.wav`")
     return 0
 

@@ -36,15 +36,26 @@ _exported: dict[str, Path] = {}
 def tiny_model(tmp_path_factory) -> Path:
     """An untrained DeepSEE small enough for tests, exported as the service serves it (once per test session: each
     module importing this fixture has its own copy of it, hence the cache)."""
+    return _tiny_export(tmp_path_factory, "tiny", ())
+
+
+def _tiny_export(tmp_path_factory, name: str, thresholds_m: tuple[float, ...]) -> Path:
     from estimator.deepsee.config import FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
     from estimator.service.model import export_untrained
 
-    if "tiny" not in _exported:
+    if name not in _exported:
         config = ModelConfig(32, PsdEncoderConfig(16, 1, 2, 2.0, 0.0), RtsEncoderConfig(16, 2, 3, 0.0),
                              FusionConfig(1, 2, 2.0, (32,), 0.0))
-        path = tmp_path_factory.mktemp("service_model") / "tiny.onnx"
-        _exported["tiny"] = export_untrained(path, load_window_config(), PSD_SHAPE[:2], seed=0, model_config=config)
-    return _exported["tiny"]
+        path = tmp_path_factory.mktemp("service_model") / f"{name}.onnx"
+        _exported[name] = export_untrained(path, load_window_config(), PSD_SHAPE[:2], seed=0, model_config=config,
+                                           thresholds_m=thresholds_m)
+    return _exported[name]
+
+
+@pytest.fixture(scope="session")
+def tiny_head_model(tmp_path_factory) -> Path:
+    """:func:`tiny_model` with an ordinal head for Equation 2's class boundaries (4, 8, 12 mm)."""
+    return _tiny_export(tmp_path_factory, "tiny_head", (0.004, 0.008, 0.012))
 
 
 class ServiceSetup:

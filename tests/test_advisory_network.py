@@ -3,6 +3,7 @@ pace), fed garbage, and started on an endpoint that is taken."""
 
 import signal
 import subprocess
+import time
 
 import numpy as np
 import pandas as pd
@@ -77,7 +78,8 @@ def test_replay_refuses_a_sent_log_it_cannot_write(make_sandbox, tmp_path):
     assert f"seesys: error: cannot write the log {blocker / 'sent.csv'}" in result.stderr
 
 
-def test_generator_drops_malformed_messages_and_keeps_going(make_sandbox):
+def silent_generator_fed_by_this_test(make_sandbox):
+    """A ``none`` generator and the estimates socket it listens to, once it has subscribed: (sandbox, ctx, pub)."""
     sandbox = make_sandbox(None)
     sandbox.generator("none")
     wait_started(sandbox, "generator")
@@ -86,6 +88,11 @@ def test_generator_drops_malformed_messages_and_keeps_going(make_sandbox):
     pub = open_socket(ctx, zmq.XPUB, sandbox.estimates_endpoint, "test estimates", bind=True)
     assert pub.poll(30_000), "the generator never subscribed to the estimates"
     assert pub.recv() == b"\x01" + ESTIMATE_TOPIC
+    return sandbox, ctx, pub
+
+
+def test_generator_drops_malformed_messages_and_keeps_going(make_sandbox):
+    sandbox, ctx, pub = silent_generator_fed_by_this_test(make_sandbox)
     good = encode(Estimate("test-device", 0, 0.0, 0.006, "test"))
     for frames in ([ESTIMATE_TOPIC + b"x", b"not a message"], [good[0], good[1][:-3]], good):
         pub.send_multipart(frames)
@@ -125,12 +132,39 @@ def test_run_none_starts_only_the_generator_and_needs_no_audio_device(make_sandb
     assert processes == {"supervisor", "generator"}
 
 
-def test_replay_sends_the_logged_frame_index(make_sandbox):
+def test_replay_sends_the_logged_frame_index_and_head(make_sandbox):
     sandbox = make_sandbox(None)
     t = np.arange(0, 0.5, 1 / 30)
     frames = 40 + 3 * np.arange(t.size)  # a device's estimates: every third frame, from frame 40
     log, sent_log = sandbox.root / "estimates.csv", sandbox.root / "sent.csv"
-    pd.DataFrame({"frame_index": frames, "timestamp": t + 50.0, "error_m": 0.006}).to_csv(log, index=False)
+    pd.DataFrame({"frame_index": frames, "timestamp": t + 50.0, "error_m": 0.006, "p_ge_0.004": 0.75,
+                  "p_ge_0.008": 0.25}).to_csv(log, index=False)
     received, _ = replay_and_receive(sandbox, log, sent_log)
     assert [m.frame_index for m in received] == frames.tolist()
+    # the log's head travels with every estimate, each probability with its threshold
+    assert {tuple((h.threshold_m, h.probability) for h in m.head) for m in received} == {
+        ((float(np.float32(0.004)), 0.75), (float(np.float32(0.008)), 0.25))}
     assert pd.read_csv(sent_log).frame_index.tolist() == frames.tolist()
+
+
+def test_the_generator_plays_the_heads_class_when_estimates_carry_it_and_logs_which_rule(make_sandbox):
+    """6 mm estimates (Equation 2: 1 pulse) whose head says ≥ 12 mm are logged with 3 pulses from the head; the
+    same estimates without a head go back to Equation 2 of the estimate."""
+    from seesys.core.messages import Exceedance
+
+    sandbox, ctx, pub = silent_generator_fed_by_this_test(make_sandbox)
+    head = tuple(Exceedance(t, 0.9) for t in (0.004, 0.008, 0.012))
+    for k in range(10):
+        pub.send_multipart(encode(Estimate("test-device", k, k / 30, 0.006, "test", head=head)))
+    wait_until(lambda: (live_rows(sandbox).pulses_from == "head").any(), "a buffer from the head")
+    for k in range(10, 40):
+        pub.send_multipart(encode(Estimate("test-device", k, k / 30, 0.006, "test")))
+        time.sleep(1 / 30)
+    wait_until(lambda: (live_rows(sandbox).pulses_from == "estimate").any(), "a buffer from the estimate")
+    pub.close()
+    ctx.term()
+    sandbox.stop_all()
+    live = live_rows(sandbox)
+    assert set(live[live.pulses_from == "head"].n_pulses) == {3}
+    assert set(live[live.pulses_from == "estimate"].n_pulses) == {1}
+    assert list(dict.fromkeys(live.pulses_from)) == ["head", "estimate"]

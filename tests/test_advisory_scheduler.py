@@ -240,3 +240,105 @@ def test_an_estimate_log_whose_timestamps_collapsed_is_refused_in_one_line(tmp_p
     log = read_estimate_log(path)
     assert log.frame_indices.tolist() == [7, 9, 12] and log.frame_index(2) == 12
     assert read_estimate_log(steps_log(tmp_path)).frame_index(5) == 5  # no column: the row number
+
+
+HEAD_BOUNDS = (0.004, 0.008, 0.012)
+
+
+def _estimate(error_m, probabilities=None, thresholds=HEAD_BOUNDS):
+    from seesys.core.messages import Estimate, Exceedance, decode, encode
+
+    head = () if probabilities is None else tuple(Exceedance(t, p) for t, p in zip(thresholds, probabilities))
+    return decode(encode(Estimate("dev", 0, 0.0, error_m, "m", head=head)))  # as received: float32 on the wire
+
+
+def test_the_head_class_of_the_window_mean_decides_n_where_every_estimate_carries_it():
+    """A 6 mm estimate (Equation 2: 1 pulse) whose head says ≥ 12 mm plays 3 pulses; the probabilities are averaged
+    over the same window as the estimates: 0.9 and 0.2 for 12 mm average to 0.55, still ≥ 0.5."""
+    from advisory.conditions import estimate_reading
+    from advisory.scheduler import HEAD
+
+    read = estimate_reading(CFG)
+    s = scheduler()
+    r = read(_estimate(0.006, (0.95, 0.9, 0.9)))
+    d = s.add(0.0, r.value, r.head)
+    assert (d.n_pulses, d.pulses_from, d.value) == (3, HEAD, 0.006)
+    r = read(_estimate(0.006, (0.95, 0.6, 0.2)))
+    assert s.add(0.05, r.value, r.head) is None  # means (0.95, 0.75, 0.55): class 3 still, no change
+    d = s.tick(s.next_tick)  # 1/3 s after the change: the first estimate has left the window
+    assert (d.n_pulses, d.pulses_from, d.time) == (2, HEAD, pytest.approx(PERIOD))
+
+
+@pytest.mark.parametrize("case", ["no head", "other thresholds", "fewer thresholds", "pulses_from estimate"])
+def test_equation_2_of_the_estimate_decides_n_otherwise(case):
+    import dataclasses
+
+    from advisory.conditions import estimate_reading
+
+    cfg = CFG
+    messages = [_estimate(0.006, (0.95, 0.9, 0.9))] * 3
+    if case == "no head":
+        messages = [_estimate(0.006)] * 3
+    elif case == "other thresholds":
+        messages = [_estimate(0.006, (0.95, 0.9, 0.9), (0.004, 0.008, 0.016))] * 3
+    elif case == "fewer thresholds":
+        messages = [_estimate(0.006, (0.95, 0.9), (0.004, 0.008))] * 3
+    else:
+        cfg = dataclasses.replace(CFG, pulses=dataclasses.replace(CFG.pulses, pulses_from="estimate"))
+    read = estimate_reading(cfg)
+    s = scheduler()
+    for k, message in enumerate(messages):
+        r = read(message)
+        s.add(0.03 * k, r.value, r.head)
+    d = s.tick(s.next_tick)
+    assert (d.n_pulses, d.pulses_from, d.value) == (1, "estimate", pytest.approx(0.006))
+
+
+def test_pulses_from_must_be_head_or_estimate(tmp_path):
+    from seesys.core.errors import ConfigError
+    from seesys.io.config import write_config_dir
+
+    assert CFG.pulses.pulses_from == "head"
+    with pytest.raises(ConfigError, match="pulses_from must be 'head' or 'estimate'"):
+        load_advisory_config(write_config_dir(tmp_path, {"pulses_from": "forest"}))
+
+
+def test_a_window_where_some_estimates_carry_no_head_is_decided_by_equation_2():
+    """A model without a head takes over mid-window: the head's mean would be of some estimates only."""
+    from advisory.conditions import estimate_reading
+
+    read = estimate_reading(CFG)
+    s = scheduler()
+    first = read(_estimate(0.006, (0.95, 0.9, 0.9)))
+    assert s.add(0.0, first.value, first.head).pulses_from == "head"
+    plain = read(_estimate(0.006))
+    d = s.add(0.03, plain.value, plain.head)
+    assert (d.n_pulses, d.pulses_from) == (1, "estimate")
+
+
+def test_render_plays_the_heads_class_of_an_estimate_log_with_equation_2s_thresholds(tmp_path):
+    """A log of 6 mm estimates (Equation 2: 1 pulse) whose head says 8-12 mm: 2 pulses from the head; the same log
+    with other thresholds, or rendered with pulses_from = "estimate", plays Equation 2's 1 pulse."""
+    import dataclasses
+
+    t = np.arange(0, 2, 1 / 30)
+    probabilities = {"p_ge_0.004": 0.97, "p_ge_0.008": 0.7, "p_ge_0.012": 0.1}
+    path = tmp_path / "head.csv"
+    pd.DataFrame({"timestamp": t, "error_m": 0.006, **probabilities, "head_class": 2}).to_csv(path, index=False)
+    log = read_estimate_log(path)
+    assert log.head_thresholds_m == HEAD_BOUNDS and log.head(0) == (0.97, 0.7, 0.1)
+    live = [d for d in render_estimates(log, CFG).decisions if d.status == LIVE]
+    assert {(d.n_pulses, d.pulses_from) for d in live} == {(2, "head")}
+    by_estimate = dataclasses.replace(CFG, pulses=dataclasses.replace(CFG.pulses, pulses_from="estimate"))
+    other = tmp_path / "other.csv"
+    pd.DataFrame({"timestamp": t, "error_m": 0.006, "p_ge_0.004": 0.97, "p_ge_0.009": 0.7,
+                  "p_ge_0.012": 0.1}).to_csv(other, index=False)
+    for rendering in (render_estimates(log, by_estimate), render_estimates(read_estimate_log(other), CFG)):
+        assert {(d.n_pulses, d.pulses_from) for d in rendering.decisions if d.status == LIVE} == {(1, "estimate")}
+
+
+def test_an_estimate_log_with_a_probability_outside_0_1_is_refused(tmp_path):
+    path = tmp_path / "bad.csv"
+    pd.DataFrame({"timestamp": [0.0, 0.1], "error_m": 0.006, "p_ge_0.004": [0.5, 1.2]}).to_csv(path, index=False)
+    with pytest.raises(SeesysError, match=r"row 3: p_ge_0.004 1.2 is not a probability"):
+        read_estimate_log(path)

@@ -46,7 +46,7 @@ def session(tmp_path: Path) -> Path:
     for k, pulses in enumerate(PULSES):
         row = {"wall_time": 1.0e9 + k, "time_mono": float(k), "condition": "seesys", "status": "ok",
                "trigger": "cadence", "input_value": ERRORS_M[k], "n_pulses": pulses, "played_pulses": pulses,
-               "buffer_id": k, "arrival_mono": float(k), "play_at_mono": float(k)}
+               "buffer_id": k, "arrival_mono": float(k), "play_at_mono": float(k), "pulses_from": "estimate"}
         advisory.write(*(row[c] for c in ADVISORY_COLUMNS))
     advisory.close()
     return folder

@@ -18,7 +18,7 @@ from estimator.deepsee.checkpoint import ModelMismatch, load_model
 from estimator.deepsee.data import DataError, concat, session_windows
 from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity
 from estimator.deepsee.finetune import finetune
-from estimator.deepsee.predictors import load_predictor
+from estimator.deepsee.predictors import WindowEstimates, load_predictor
 from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIMESERIES_PNG
 from estimator.deepsee.transforms import LabelTransform
 from seesys.cli import main
@@ -52,6 +52,11 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     deepsee = scores[(scores.row == "deepsee") & (scores.set == "test trajectories")].iloc[0]
     assert deepsee.windows > 100 and 0 < deepsee.rmse_cm < 2 and deepsee.spearman > 0.3
     assert 0 <= deepsee.agreement <= 1 and deepsee.bins > 10
+    # DeepSEE and its ablation have the ordinal head: its agreement and recall are columns of the table; the
+    # baselines have none.
+    assert 0 <= deepsee.head_agreement <= 1
+    assert scores[scores.row.isin(["lstm", "random_forest"])].head_agreement.isna().all()
+    assert "head agreement | head recall ≥ 12 mm |" in report
 
 
 def test_ablation_rows_start_from_the_pretrained_encoders(trained_runs):
@@ -84,15 +89,23 @@ def test_export_to_onnx_then_estimate_a_session_for_the_advisory(tiny_dataset, t
         OnnxModel(onnx_path, TRANSFORM, dataclasses.replace(load_window_config(), rts_length=20))
 
     session = sorted(tiny_dataset.sessions.iterdir())[0]
-    for path in (_model(trained_runs), onnx_path, trained_runs / "round_0" / "random_forest" / "model.pkl"):
+    head = ["p_ge_0.004", "p_ge_0.008", "p_ge_0.012", "head_class"]
+    for path, columns in ((_model(trained_runs), head), (onnx_path, head),
+                          (trained_runs / "round_0" / "random_forest" / "model.pkl", [])):
         out = tmp_path / f"{path.suffix[1:]}.csv"
         assert main(["estimator", "estimate", str(session), "--model", str(path), "--out", str(out)]) == 0
         table = pd.read_csv(out)
-        assert list(table.columns) == ["frame_index", "timestamp", "error_m"]
+        assert list(table.columns) == ["frame_index", "timestamp", "error_m"] + columns
         log = read_estimate_log(out)
         assert len(log.timestamps) == len(table) > 100 and (log.errors_m >= 0).all()
-    torch_estimates = pd.read_csv(tmp_path / "pt.csv").error_m
-    np.testing.assert_allclose(pd.read_csv(tmp_path / "onnx.csv").error_m, torch_estimates, rtol=1e-3, atol=1e-7)
+    torch_estimates = pd.read_csv(tmp_path / "pt.csv")
+    onnx_estimates = pd.read_csv(tmp_path / "onnx.csv")
+    np.testing.assert_allclose(onnx_estimates.error_m, torch_estimates.error_m, rtol=1e-3, atol=1e-7)
+    probabilities = torch_estimates[head[:3]].to_numpy()
+    assert ((0 <= probabilities) & (probabilities <= 1)).all() and (np.diff(probabilities, axis=1) <= 0).all()
+    assert (torch_estimates.head_class == (probabilities >= 0.5).sum(axis=1)).all()
+    assert read_estimate_log(tmp_path / "pt.csv").head_thresholds_m == (0.004, 0.008, 0.012)  # render plays it
+    np.testing.assert_allclose(onnx_estimates[head[:3]], probabilities, atol=1e-4)
     assert main(["estimator", "estimate", str(session), "--model", str(tmp_path / "none.pt"),
                  "--out", str(tmp_path / "x.csv")]) == 2
     assert "model file not found" in capsys.readouterr().err
@@ -176,10 +189,13 @@ def test_cli_trains_a_row_into_a_run_folder_and_resumes(tiny_dataset, tmp_path, 
 
 
 class _ConstantPredictor:
-    """A stand-in model: the same estimate for every window (the estimate log's format is under test, not a model)."""
+    """A stand-in model without a head: the same estimate for every window (the estimate log's format is under
+    test, not a model)."""
 
-    def metres(self, windows) -> np.ndarray:
-        return np.full(len(windows), 0.02)
+    thresholds_m = ()
+
+    def estimates(self, windows) -> WindowEstimates:
+        return WindowEstimates(np.full(len(windows), 0.02), None)
 
 
 def test_a_session_with_epoch_timestamps_renders_its_pulses_across_its_whole_duration(tmp_path):

@@ -99,10 +99,12 @@ def test_frames_of_another_rts_schema_are_refused_by_name():
         12, rts_schema.SCHEMA_VERSION, rts_schema.FINGERPRINT)
 
 
-@pytest.mark.parametrize("version", [1, 2])
-def test_a_message_of_an_earlier_protocol_version_is_refused(version):
-    """Version 2 had no stream session and no device settings: refused by name, never misread."""
-    topic, body = encode(feature())
+@pytest.mark.parametrize("version", [1, 2, 3])
+@pytest.mark.parametrize("kind", ["feature", "estimate"])
+def test_a_message_of_an_earlier_protocol_version_is_refused(version, kind):
+    """Version 2 had no stream session and no device settings, version 3 no head probabilities in an estimate:
+    refused naming both versions, never misread."""
+    topic, body = encode(feature() if kind == "feature" else Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1"))
     old = body[:4] + bytes([version]) + body[5:]
     with pytest.raises(MessageError, match=f"protocol version {version} is not supported .this end speaks "
                                            f"{messages.PROTOCOL_VERSION}"):
@@ -159,3 +161,36 @@ def test_psd_cells_come_back_in_place_across_layers():
     out = messages.unpack_psd(messages.pack_psd(psd))
     assert out.shape == (2, 3, 3) and out.flags.c_contiguous
     np.testing.assert_array_equal(out, psd)
+
+
+def test_an_estimate_carries_its_heads_thresholds_and_probabilities_and_the_class_survives():
+    """Each probability travels with its threshold (float32 both); the head's class read back is the one sent."""
+    from seesys.core.exceedance import head_class
+    from seesys.core.messages import Exceedance
+
+    for probabilities in ([0.9, 0.6, 0.2], [0.5, 0.5, 0.4999], [0.1, 0.05, 0.0], [1.0, 1.0, 0.75]):
+        head = tuple(Exceedance(t, p) for t, p in zip((0.004, 0.008, 0.012), probabilities))
+        msg = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", 3.5, 99, head)
+        out = decode(encode(msg))
+        assert [e.threshold_m for e in out.head] == [float(np.float32(t)) for t in (0.004, 0.008, 0.012)]
+        np.testing.assert_array_equal([e.probability for e in out.head], np.float32(probabilities))
+        assert head_class(np.array([e.probability for e in out.head])) == head_class(np.array(probabilities))
+        assert dataclasses.replace(out, head=()) == dataclasses.replace(msg, head=())
+    plain = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", 3.5)
+    topic, body = encode(plain)
+    assert body[-1] == 0 and decode([topic, body]).head == ()  # no head: a count of 0, nothing after it
+
+
+@pytest.mark.parametrize("head, problem", [
+    (((0.008, 0.5), (0.004, 0.5)), "increasing"),
+    (((0.004, 0.5), (0.004, 0.4)), "increasing"),
+    (((-0.004, 0.5),), "positive"),
+    (((0.004, 1.5),), r"\[0, 1\]"),
+    (((0.004, math.nan),), r"\[0, 1\]"),
+])
+def test_a_head_that_cannot_be_read_is_refused(head, problem):
+    from seesys.core.messages import Exceedance
+
+    msg = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", head=tuple(Exceedance(*e) for e in head))
+    with pytest.raises(MessageError, match=problem):
+        decode(encode(msg))

@@ -21,6 +21,7 @@ from service_fixtures import (  # noqa: F401
     expected_errors,
     serve_in_lockstep,
     setup_factory,
+    tiny_head_model,
     tiny_model,
     wait_for,
 )
@@ -29,6 +30,7 @@ from estimator.service.config import load_service_config
 from estimator.service.keys import ClientKeys, make_key_pair
 from estimator.service.model import ServedModel
 from seesys.core import messages
+from seesys.core.windows import assemble_windows
 from seesys.io.core_settings import load_window_config
 from seesys.io.network import load_network_config
 
@@ -84,7 +86,7 @@ def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exa
         np.testing.assert_allclose([e.error_m for e in estimates], [expected[e.frame_index] for e in estimates],
                                    rtol=1e-4)
         assert all(e.device_id == "dev-1" and e.model_version.startswith("tiny-") and e.server_ms >= 0
-                   and e.timestamp == frames[e.frame_index].timestamp for e in estimates)
+                   and e.timestamp == frames[e.frame_index].timestamp and e.head == () for e in estimates)
         status = service.status()
         assert status["devices"]["dev-1"]["estimates"] >= len(estimates)
         assert status["devices"]["dev-1"]["server_ms"]["p99"] is not None
@@ -236,3 +238,27 @@ def test_the_served_model_fits_any_end_stride_but_not_another_window(tiny_model)
         assert model.psd_shape == (windows.psd_samples, 96, 128, 3)
     with pytest.raises(ModelMismatch, match="windows"):
         ServedModel.load(tiny_model, dataclasses.replace(windows, psd_stride=20))
+
+
+def test_a_model_with_a_head_serves_its_thresholds_and_probabilities_with_every_estimate(setup_factory,
+                                                                                         tiny_head_model):
+    setup = setup_factory()
+    service = ServiceProcess(setup, tiny_head_model)
+    try:
+        service.wait_ready()
+        client = Client(setup, [messages.topic(messages.ESTIMATE_TOPIC, "dev-1")])
+        frames = device_frames("dev-1", 60, seed=5)
+        estimates = serve_in_lockstep(client, frames)
+        client.close()
+        model = ServedModel.load(tiny_head_model, load_window_config())
+        assert model.thresholds_m == (0.004, 0.008, 0.012)
+        expected = {w.frame_index: model.estimate_batch([w]).probabilities[0]
+                    for w in assemble_windows(frames, load_window_config())}
+        assert len(estimates) > 3
+        for e in estimates:
+            assert [h.threshold_m for h in e.head] == [float(np.float32(t)) for t in model.thresholds_m]
+            np.testing.assert_allclose([h.probability for h in e.head], expected[e.frame_index], atol=1e-5)
+        assert service.stop(signal.SIGTERM) == 0
+    finally:
+        service.kill()
+        setup.cleanup()

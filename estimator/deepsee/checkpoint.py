@@ -7,12 +7,14 @@ A checkpoint (``torch.save`` of a dict) holds:
   tau and the missing-row rule ``max_missing_rts``: what a window contains and which windows a model sees; not how
   often one is formed), the label transform, the label's Δ and the device settings the training data was made with
   (SLAM modes, frame rate, ORB feature count, PSD cell size, expansion and ``near_depth``;
-  :mod:`estimator.deepsee.compatibility`), and ``compatibility_hash``, the SHA-256 of that record. A model is
+  :mod:`estimator.deepsee.compatibility`), the ordinal head's thresholds where the model has one
+  (``ordinal_head``), and ``compatibility_hash``, the SHA-256 of that record. A model is
   loaded only where every field matches this installation, and the service serves a device only where its own
   settings match: a model trained on other inputs reads different numbers and its estimates would be
   meaningless, silently;
 - ``model``: the kind (``deepsee`` or the ``lstm`` baseline) and what rebuilds the network (configuration, input
-  shape, variant); ``state_dict``: the weights;
+  shape, variant, the ordinal head's thresholds ``ordinal_thresholds_m``: absent in a model without a head, such
+  as every model made before the head); ``state_dict``: the weights;
 - ``training``: how it was made (command, data, schedule, round, metrics), for the record.
 
 The same hash is written into the exported ONNX model's metadata and checked when it is loaded.
@@ -46,8 +48,10 @@ FORMAT_VERSION = 1
 
 def _spec(model: nn.Module) -> dict:
     if isinstance(model, DeepSEE):
-        return {"kind": "deepsee", "config": asdict(model.config), "shape": asdict(model.shape),
+        spec = {"kind": "deepsee", "config": asdict(model.config), "shape": asdict(model.shape),
                 "variant": asdict(model.variant)}
+        # Only a model with a head records thresholds: a model without one keeps the spec it always had.
+        return {**spec, "ordinal_thresholds_m": list(model.thresholds_m)} if model.thresholds_m else spec
     if isinstance(model, LstmBaseline):
         return {"kind": "lstm", "config": asdict(model.config), "channels": model.channels}
     raise TypeError(f"cannot save a {type(model).__name__}")
@@ -57,7 +61,8 @@ def _build(spec: dict) -> nn.Module:
     if spec["kind"] == "lstm":
         return LstmBaseline(LstmConfig(**spec["config"]), spec["channels"])
     variant = Variant(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec["variant"].items()})
-    return DeepSEE(_model_config(spec["config"]), InputShape(**spec["shape"]), variant)
+    return DeepSEE(_model_config(spec["config"]), InputShape(**spec["shape"]), variant,
+                   tuple(spec.get("ordinal_thresholds_m", ())))
 
 
 def save_atomic(obj: object, path: Path) -> Path:
@@ -75,7 +80,8 @@ def save_model(path: Path, model: nn.Module, windows: WindowConfig, transform: L
                training: dict, rts_channels: list[str] | None = None) -> Path:
     """Save ``model`` with its compatibility record; ``rts_channels``: the RTS channels it takes (a fine-tuned
     model keeps its base's), every channel of the schema by default."""
-    record = compatibility(windows, transform, rts_channels=rts_channels)
+    record = compatibility(windows, transform, rts_channels=rts_channels,
+                           head_thresholds_m=getattr(model, "thresholds_m", ()))
     payload = {"format": FORMAT_VERSION, "compatibility": record, "compatibility_hash": compatibility_hash(record),
                "model": _spec(model),
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "training": training}

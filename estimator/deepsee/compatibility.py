@@ -6,7 +6,11 @@ version they were made with: a model takes the rows of any later schema that sti
 :func:`rts_columns`), the windows (T, K_L, tau and the missing-row
 rule ``max_missing_rts``), the label transform, the label's Δ (``delta_frames``) and the device settings the
 training data was made with (:func:`seesys.core.device_settings.model_settings_record`: SLAM modes, frame rate,
-ORB feature count, PSD cell size, expansion and ``near_depth``). Loading a model compares every field but the
+ORB feature count, PSD cell size, expansion and ``near_depth``) and, for a model with an ordinal head, the head's
+thresholds (``ordinal_head``: ``{"thresholds_m": [...]}``; absent without a head, so the record of a model without
+one is what it always was). The thresholds are recorded, not compared: they say which threshold each of the head's
+probabilities is for, and the advisory uses the head only where they are Equation 2's class boundaries. Loading a
+model compares every field but the
 SLAM modes and the frame rate with this installation's configs and names each one that differs; those two are a
 device's own and the service checks them on every device's frames.
 
@@ -36,6 +40,7 @@ WINDOW_FIELDS = ("rts_length", "psd_samples", "psd_stride", "max_missing_rts")
 # The device settings every device of an installation shares (its configs); the SLAM mode and the frame rate are a
 # device's own and are checked on its frames (seesys.core.device_settings).
 INSTALLATION_DEVICE_FIELDS = ("orb_features", "psd_patch_px", "psd_expansion", "near_depth")
+ORDINAL_HEAD = "ordinal_head"
 
 
 class ModelMismatch(SeesysError):
@@ -69,17 +74,26 @@ class ModelSetup:
 
 
 def compatibility(windows: WindowConfig, transform: LabelTransform, setup: ModelSetup | None = None,
-                  rts_channels: Sequence[str] | None = None) -> dict:
-    """What a model's inputs and output mean, as plain data (``setup``: this installation's by default;
-    ``rts_channels``: the channels it takes, every channel of the schema by default)."""
+                  rts_channels: Sequence[str] | None = None, head_thresholds_m: Sequence[float] = ()) -> dict:
+    """What a model's inputs and outputs mean, as plain data (``setup``: this installation's by default;
+    ``rts_channels``: the channels it takes, every channel of the schema by default; ``head_thresholds_m``: its
+    ordinal head's thresholds, none without a head)."""
     setup = setup or ModelSetup.configured()
     names = list(rts_channels) if rts_channels is not None else list(rts_schema.CHANNEL_NAMES)
     channels = tuple(rts_schema.CHANNELS[rts_schema.index_of(name)] for name in names)
-    return {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_fingerprint": rts_schema.fingerprint(channels),
-            "rts_channels": names,
-            "windows": {name: getattr(windows, name) for name in WINDOW_FIELDS},
-            "label_transform": transform.describe(), "label": {"delta_frames": setup.delta_frames},
-            "device": dict(setup.device)}
+    record = {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_fingerprint": rts_schema.fingerprint(channels),
+              "rts_channels": names,
+              "windows": {name: getattr(windows, name) for name in WINDOW_FIELDS},
+              "label_transform": transform.describe(), "label": {"delta_frames": setup.delta_frames},
+              "device": dict(setup.device)}
+    if head_thresholds_m:
+        record[ORDINAL_HEAD] = {"thresholds_m": [float(t) for t in head_thresholds_m]}
+    return record
+
+
+def head_thresholds_of(record: dict) -> tuple[float, ...]:
+    """The ordinal head's thresholds a model's ``record`` states; empty for a model without a head."""
+    return tuple(float(t) for t in (record.get(ORDINAL_HEAD) or {}).get("thresholds_m", ()))
 
 
 def compatibility_hash(record: dict) -> str:

@@ -52,6 +52,15 @@ class ModelConfig:
 
 
 @dataclass(frozen=True)
+class OrdinalHeadConfig:
+    """DeepSEE's ordinal head: P(error ≥ t_k) for Equation 2's class boundaries (configs/advisory.toml), trained
+    with loss = MSE(y) + bce_weight · BCE(head)."""
+
+    enabled: bool  # new DeepSEE models (and the ablations) get the head; a model's own file says whether it has one
+    bce_weight: float  # λ
+
+
+@dataclass(frozen=True)
 class LabelTransformConfig:
     """y = log(1 + k · error_m) (paper §5.2, K_L = 10,000 there) and its inverse."""
 
@@ -161,6 +170,7 @@ class EstimatorConfig:
     seed: int
     shipped_model: str
     model: ModelConfig
+    ordinal_head: OrdinalHeadConfig
     label_transform: LabelTransformConfig
     schedules: Schedules
     random_forest: RandomForestConfig
@@ -174,6 +184,9 @@ def load_estimator_config(directory: Path | None = None) -> EstimatorConfig:
     """Load ``configs/estimator.toml``."""
     config = load_section("estimator", EstimatorConfig, directory)
     check_model_config(config.model)
+    if config.ordinal_head.bce_weight < 0:
+        raise ConfigError(f"configs/estimator.toml: ordinal_head.bce_weight must not be negative, got "
+                          f"{config.ordinal_head.bce_weight}")
     return config
 
 

@@ -19,7 +19,7 @@ import torch
 from estimator.dataset.splits import Splits
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import Windows, concat, session_windows, split_windows
-from estimator.deepsee.metrics import score
+from estimator.deepsee.metrics import equation2_head, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.rows import ROWS
 from estimator.deepsee.run_folder import MODEL_PT
@@ -76,9 +76,11 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
         for row, path in trained:
             predictor = load_predictor(path, transform, config.evaluation.batch_size, device, windows)
             for name, data in sets.items():
-                estimate = predictor.metres(data) if len(data) else np.zeros(0)
+                estimates = predictor.estimates(data)
+                estimate = estimates.metres
+                head = equation2_head(estimates.probabilities, predictor.thresholds_m, pulses)
                 scores.append({"set": name, "row": row.name, "round": r,
-                               **asdict(score(data.meta, estimate, data.error_m, config.evaluation, pulses))})
+                               **asdict(score(data.meta, estimate, data.error_m, config.evaluation, pulses, head))})
                 predictions.append(pd.DataFrame({"set": name, "row": row.name, "round": r,
                                                  "run": data.meta.run.to_numpy(),
                                                  "frame_index": data.meta.frame_index.to_numpy(),

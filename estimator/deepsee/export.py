@@ -1,11 +1,12 @@
 """The served model: ONNX export with the weights inside the one file and a parity check against PyTorch. The
 ONNX Runtime session that serves it, without PyTorch, is :class:`estimator.deepsee.onnx_model.OnnxModel`.
 
-The exported graph takes ``rts`` (B, T, C) float32 (normalised) and ``psd`` (B, K_L, H, W, 3) uint8 and returns
-``y`` (B,), the transformed error; the batch size is dynamic. The checkpoint's compatibility record and hash
-(:mod:`estimator.deepsee.checkpoint`: windows, label, RTS schema and the device settings the model was trained with)
-are stored in the ONNX metadata. Weights are never written to a side file:
-a copied ``.onnx`` with a stale ``.onnx.data`` beside it once served other weights silently.
+The exported graph takes ``rts`` (B, T, C) float32 (normalised) and ``psd`` (B, K_L, H, W, 3) uint8 and returns ``y``
+(B,), the transformed error, and, for a model with an ordinal head, a second output ``probabilities`` (B, K): P(error ≥
+t_k) (the sigmoid is inside the graph); the batch size is dynamic. The checkpoint's compatibility record and hash
+(:mod:`estimator.deepsee.checkpoint`: windows, label, RTS schema and the device settings the model was trained with) are
+stored in the ONNX metadata. Weights are never written to a side file: a copied ``.onnx`` with a stale ``.onnx.data``
+beside it once served other weights silently.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import torch
 from torch import nn
 
 from estimator.deepsee.compatibility import compatibility, compatibility_hash
-from estimator.deepsee.onnx_model import COMPATIBILITY_KEY, HASH_KEY, OnnxModel
+from estimator.deepsee.model import exceedance_probabilities
+from estimator.deepsee.onnx_model import COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, Y, OnnxModel
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.windows import WindowConfig
 
@@ -37,6 +39,25 @@ def example_inputs(shape, batch: int, seed: int = 0) -> tuple[torch.Tensor, torc
     return rts, psd
 
 
+class _WithProbabilities(nn.Module):
+    """A model with an ordinal head as served: its logits turned into probabilities inside the graph."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, rts: torch.Tensor, psd: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        y, logits = self.model(rts, psd)
+        return y, exceedance_probabilities(logits)
+
+
+def _served(model: nn.Module) -> tuple[nn.Module, list[str]]:
+    """What is exported, and its output names: the model itself (``y``), or with its head's probabilities."""
+    if getattr(model, "thresholds_m", ()):
+        return _WithProbabilities(model).eval(), [Y, PROBABILITIES]
+    return model, [Y]
+
+
 def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: LabelTransform,
                 record: dict | None = None) -> Path:
     """Write ``model`` (a DeepSEE) as one self-contained ONNX file with its compatibility record: ``record`` (a
@@ -45,12 +66,14 @@ def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     batch = torch.export.Dim("batch", min=1, max=4096)
+    served, outputs = _served(model)
     with contextlib.redirect_stdout(io.StringIO()):  # the exporter narrates every step
-        program = torch.onnx.export(model, example_inputs(model.shape, 2), dynamo=True, external_data=False,
-                                    input_names=["rts", "psd"], output_names=["y"],
+        program = torch.onnx.export(served, example_inputs(model.shape, 2), dynamo=True, external_data=False,
+                                    input_names=["rts", "psd"], output_names=outputs,
                                     dynamic_shapes=({0: batch}, {0: batch}), optimize=True)
     proto = program.model_proto
-    record = record if record is not None else compatibility(windows, transform)
+    record = record if record is not None else compatibility(windows, transform,
+                                                             head_thresholds_m=getattr(model, "thresholds_m", ()))
     for key, value in ((COMPATIBILITY_KEY, json.dumps(record, sort_keys=True)), (HASH_KEY, compatibility_hash(record))):
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
@@ -59,12 +82,19 @@ def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: 
 
 
 def parity(model: nn.Module, onnx_model: OnnxModel, batches: tuple[int, ...] = (1, 7)) -> float:
-    """Largest absolute difference between PyTorch and ONNX Runtime outputs (transformed scale) on random inputs."""
-    model = model.eval().cpu()
+    """Largest absolute difference between PyTorch and ONNX Runtime outputs on random inputs: the transformed
+    error and, for a model with a head, its probabilities. A head on one side only is an infinite difference."""
+    served, _ = _served(model.eval().cpu())
     worst = 0.0
     for k, batch in enumerate(batches):
         rts, psd = example_inputs(model.shape, batch, seed=k + 1)
         with torch.no_grad():
-            expected = model(rts, psd).numpy()
-        worst = max(worst, float(np.abs(onnx_model(rts.numpy(), psd.numpy()) - expected).max()))
+            expected = served(rts, psd)
+        expected = expected if isinstance(expected, tuple) else (expected, None)
+        got = onnx_model.outputs(rts.numpy(), psd.numpy())
+        if (expected[1] is None) != (got[1] is None):
+            return float("inf")
+        for want, have in zip(expected, got):
+            if want is not None:
+                worst = max(worst, float(np.abs(have - want.numpy()).max()))
     return worst

@@ -2,13 +2,14 @@
 (a study session with motion capture, a TUM or EuRoC recording run through ``seesys monitor run``), labelled with
 :func:`seesys.core.labels.label_session`, the definition the dataset uses.
 
-Each session is split in time: its first part trains, its last ``validation_fraction`` decides early stopping and
-gives the before/after figures (windows of one session are strongly correlated, so a random split would let the
-model see the validation windows' neighbours). Few-shot friendly: the whole model is fine-tuned with a small
-learning rate from the given model, and the best epoch on the validation part is kept (the given model itself when
-no epoch beats it). Whole held-out sessions, never trained on, are judged before and after with the scores of the
-Table 3 report (:func:`estimator.deepsee.metrics.score`): the in-session validation tail is correlated with the
-training part and flatters the model.
+Each session is split in time: its first part trains, its last ``validation_fraction`` decides early stopping and gives
+the before/after figures (windows of one session are strongly correlated, so a random split would let the model see the
+validation windows' neighbours). Few-shot friendly: the whole model is fine-tuned with a small learning rate from the
+given model, and the best epoch on the validation part is kept (the given model itself when no epoch beats it). A model
+with an ordinal head is fine-tuned on MSE + λ·BCE, its head with the rest; a model without one (the shipped model,
+trained before the head) stays without one. Whole held-out sessions, never trained on, are judged before and after with
+the scores of the Table 3 report (:func:`estimator.deepsee.metrics.score`): the in-session validation tail is correlated
+with the training part and flatters the model.
 """
 
 from __future__ import annotations
@@ -23,8 +24,9 @@ from estimator.deepsee.checkpoint import load_model, save_model
 from estimator.deepsee.compatibility import rts_columns
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import DataError, Windows, concat, session_windows
-from estimator.deepsee.inference import predict
-from estimator.deepsee.metrics import CM_PER_M, Scores, score
+from estimator.deepsee.inference import predict, predict_outputs
+from estimator.deepsee.metrics import CM_PER_M, Scores, equation2_head, score
+from estimator.deepsee.ordinal import model_thresholds
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
 from seesys.core.equation2 import PulseSettings
@@ -83,7 +85,11 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
         return CM_PER_M * float(np.sqrt(np.mean((estimate_m(val) - val.error_m) ** 2)))
 
     def judge() -> Scores | None:
-        return score(test.meta, estimate_m(test), test.error_m, config.evaluation, pulses) if test else None
+        if not test:
+            return None
+        y, probabilities = predict_outputs(model, test, config.evaluation.batch_size, device)
+        return score(test.meta, transform.inverse(y), test.error_m, config.evaluation, pulses,
+                     equation2_head(probabilities, model_thresholds(model), pulses))
 
     before, held_out_before = rmse_cm(), judge()
     run = RunFolder(run_dir, {"finetune": asdict(config.finetune),

@@ -7,6 +7,7 @@ import torch
 from torch import nn
 
 from estimator.deepsee.data import Windows
+from estimator.deepsee.model import exceedance_probabilities
 
 
 def uses_psd(model: nn.Module) -> bool:
@@ -26,13 +27,28 @@ def batch_tensors(windows: Windows, index: np.ndarray, device: torch.device,
 
 
 @torch.no_grad()
-def predict(model: nn.Module, windows: Windows, batch_size: int, device: torch.device) -> np.ndarray:
-    """The model's outputs (transformed scale) for every window, in eval mode; the model's mode is restored."""
+def predict_outputs(model: nn.Module, windows: Windows, batch_size: int,
+                    device: torch.device) -> tuple[np.ndarray, np.ndarray | None]:
+    """The model's transformed-scale outputs (N,) for every window, and its head's probabilities P(error ≥ t_k)
+    (N, K) (None for a model without a head); in eval mode, the model's mode restored."""
     was_training = model.training
     model.eval()
-    out = []
+    ys, probabilities = [], []
     for start in range(0, len(windows), batch_size):
         index = np.arange(start, min(start + batch_size, len(windows)))
-        out.append(model(*batch_tensors(windows, index, device, uses_psd(model))).float().cpu().numpy())
+        out = model(*batch_tensors(windows, index, device, uses_psd(model)))
+        if isinstance(out, tuple):
+            out, logits = out
+            probabilities.append(exceedance_probabilities(logits).float().cpu().numpy())
+        ys.append(out.float().cpu().numpy())
     model.train(was_training)
-    return np.concatenate(out) if out else np.zeros(0, np.float32)
+    thresholds = len(getattr(model, "thresholds_m", ()))
+    y = np.concatenate(ys) if ys else np.zeros(0, np.float32)
+    if not thresholds:
+        return y, None
+    return y, np.concatenate(probabilities) if probabilities else np.zeros((0, thresholds), np.float32)
+
+
+def predict(model: nn.Module, windows: Windows, batch_size: int, device: torch.device) -> np.ndarray:
+    """The model's outputs (transformed scale) for every window (:func:`predict_outputs` without the head)."""
+    return predict_outputs(model, windows, batch_size, device)[0]

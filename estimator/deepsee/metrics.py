@@ -7,10 +7,17 @@ bin are averaged, and each mean is turned into Equation 2's pulse count (0–3) 
 (:meth:`seesys.core.equation2.PulseSettings.pulses`). ``agreement`` is the share of bins where both counts are equal;
 ``recall_large`` the share of bins whose true mean is at least ``large_error_m`` (12 mm: the top class) that the
 estimates also put there.
+
+Where a model's ordinal head gives P(error ≥ t_k) for exactly Equation 2's class boundaries, the head is judged as
+the advisory uses it: its probabilities are averaged over the same bins and the bin's class is the number of means
+at least 0.5 (:func:`seesys.core.exceedance.head_class`). ``head_agreement`` is the share of bins where that class
+equals the true mean's Equation 2 class; ``head_recall_large`` the share of bins with a true mean ≥ ``large_error_m``
+whose head class is at least that error's class. Both are NaN for a model without a head.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +26,7 @@ from scipy.stats import spearmanr
 
 from estimator.deepsee.config import EvaluationConfig
 from seesys.core.equation2 import PulseSettings
+from seesys.core.exceedance import class_boundaries_m, head_class, same_thresholds
 
 CM_PER_M = 100.0
 
@@ -34,6 +42,17 @@ class Scores:
     recall_large: float
     bins: int
     large_bins: int
+    head_agreement: float = float("nan")
+    head_recall_large: float = float("nan")
+
+
+def equation2_head(probabilities: np.ndarray | None, thresholds_m: Sequence[float],
+                   pulses: PulseSettings) -> np.ndarray | None:
+    """``probabilities`` when their ``thresholds_m`` are Equation 2's class boundaries (the head's class is then
+    Equation 2's), else None: a head of other thresholds is not judged against Equation 2's classes."""
+    if probabilities is None or not same_thresholds(thresholds_m, class_boundaries_m(pulses)):
+        return None
+    return probabilities
 
 
 def advisory_bins(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, window_s: float) -> pd.DataFrame:
@@ -57,8 +76,27 @@ def confusion(bins: pd.DataFrame, pulses: PulseSettings) -> np.ndarray:
     return matrix
 
 
+def _head_scores(meta: pd.DataFrame, probabilities: np.ndarray, bins: pd.DataFrame, evaluation: EvaluationConfig,
+                 pulses: PulseSettings) -> tuple[float, float]:
+    """(head agreement, head recall of large-error bins) over the bins of :func:`advisory_bins`."""
+    columns = [f"p{k}" for k in range(probabilities.shape[1])]
+    table = pd.DataFrame(probabilities, columns=columns)
+    table["run"] = meta.run.to_numpy()
+    t = pd.Series(meta.timestamp.to_numpy(float))
+    table["bin"] = np.floor((t - t.groupby(table.run).transform("min")) / pulses.window_s).astype(int)
+    means = table.groupby(["run", "bin"], sort=False)[columns].mean().reset_index().merge(
+        bins[["run", "bin", "truth"]], on=["run", "bin"], validate="one_to_one")
+    classes = head_class(means[columns].to_numpy())
+    truth = pulse_classes(means.truth.to_numpy(), pulses)
+    large = (means.truth >= evaluation.large_error_m).to_numpy()
+    recall = float((classes[large] >= pulses.pulses(evaluation.large_error_m)).mean()) if large.any() else np.nan
+    return float(np.mean(classes == truth)), recall
+
+
 def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evaluation: EvaluationConfig,
-          pulses: PulseSettings) -> Scores:
+          pulses: PulseSettings, probabilities: np.ndarray | None = None) -> Scores:
+    """The scores of one model on windows ``meta``; ``probabilities``: its head's P(error ≥ t_k) (N, K) for
+    Equation 2's class boundaries (:func:`equation2_head`), None to leave the head's scores NaN."""
     estimate_m, true_m = np.asarray(estimate_m, float), np.asarray(true_m, float)
     if len(true_m) == 0:
         nan = float("nan")
@@ -70,6 +108,8 @@ def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evalua
     bins = advisory_bins(meta, estimate_m, true_m, pulses.window_s)
     matrix = confusion(bins, pulses)
     large = bins.truth >= evaluation.large_error_m
+    head = (_head_scores(meta, probabilities, bins, evaluation, pulses) if probabilities is not None
+            else (np.nan, np.nan))
     return Scores(
         windows=len(true_m),
         rmse_cm=CM_PER_M * float(np.sqrt(np.mean(error ** 2))),
@@ -78,4 +118,4 @@ def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evalua
         spearman=float(spearmanr(estimate_m, true_m).statistic) if len(true_m) > 2 else np.nan,
         agreement=float(np.trace(matrix) / matrix.sum()),
         recall_large=float((bins.estimate[large] >= evaluation.large_error_m).mean()) if large.any() else np.nan,
-        bins=len(bins), large_bins=int(large.sum()))
+        bins=len(bins), large_bins=int(large.sum()), head_agreement=head[0], head_recall_large=head[1])

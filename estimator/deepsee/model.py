@@ -1,6 +1,7 @@
 """DeepSEE (paper §4.2), written from the papers it builds on: TimeSformer's divided space–time attention for the
 PSD window, TS2Vec's dilated-convolution encoder for the RTS window, bidirectional multi-head cross-attention
-fusion, and an MLP head that outputs the transformed error ``log(1 + k · RPE)``.
+fusion, and an MLP head that outputs the transformed error ``log(1 + k · RPE)``; optionally an ordinal head beside
+it (:class:`OrdinalHead`: the logits of P(RPE ≥ t_k) for Equation 2's class boundaries t_k, docs/estimator.md).
 
 Inputs of :meth:`DeepSEE.forward`:
 
@@ -210,12 +211,38 @@ def mlp_head(dim_in: int, hidden: tuple[int, ...], dropout: float) -> nn.Sequent
     return nn.Sequential(*layers)
 
 
-class DeepSEE(nn.Module):
-    """The estimator; :meth:`encode` and :meth:`head` split it where stage (c) caches the frozen encoders."""
+class OrdinalHead(nn.Module):
+    """K logits of P(error ≥ t_k), t_1 < … < t_K, monotone by construction: the first logit minus cumulative
+    softplus offsets, so logit_1 ≥ logit_2 ≥ … and the probabilities never cross (a crossing would make the class
+    depend on which threshold is read)."""
 
-    def __init__(self, config: ModelConfig, shape: InputShape, variant: Variant = Variant()):
+    def __init__(self, dim_in: int, thresholds: int):
         super().__init__()
+        self.first = nn.Linear(dim_in, 1)
+        self.steps = nn.Linear(dim_in, thresholds - 1)
+
+    def forward(self, pooled: torch.Tensor) -> torch.Tensor:
+        """(B, F) → (B, K) logits, non-increasing along K."""
+        offsets = torch.cumsum(F.softplus(self.steps(pooled)), dim=-1)
+        first = self.first(pooled)
+        return torch.cat([first, first - offsets], dim=-1)
+
+
+class DeepSEE(nn.Module):
+    """The estimator; :meth:`encode` and :meth:`head` split it where stage (c) caches the frozen encoders.
+
+    ``thresholds_m``: the error thresholds of the ordinal head (metres, increasing); empty: no head, and the model
+    outputs the transformed error alone, as every model trained before the head did. With a head, the outputs are
+    ``(y, logits)``: the transformed error (B,) and the head's logits (B, K) (:func:`exceedance_probabilities`
+    turns them into probabilities)."""
+
+    def __init__(self, config: ModelConfig, shape: InputShape, variant: Variant = Variant(),
+                 thresholds_m: tuple[float, ...] = ()):
+        super().__init__()
+        if list(thresholds_m) != sorted(set(thresholds_m)):
+            raise ValueError(f"the ordinal head's thresholds must increase strictly, got {list(thresholds_m)}")
         self.config, self.shape, self.variant = config, shape, variant
+        self.thresholds_m = tuple(float(t) for t in thresholds_m)
         dim = config.dim
         self.register_buffer("rts_mask", torch.from_numpy(rts_channel_mask(variant.drop_rts)))
         self.register_buffer("psd_mask", torch.from_numpy(psd_layer_mask(variant.drop_psd) / 255.0).float())
@@ -227,7 +254,9 @@ class DeepSEE(nn.Module):
         if variant.use_psd and not use_cross:
             # w/o CA: the pooled encodings go through fully connected layers instead of cross-attention
             self.concat_fc = nn.Sequential(nn.Linear(2 * dim, 2 * dim), nn.GELU(), nn.Dropout(config.fusion.dropout))
-        self.head_net = mlp_head((2 if variant.use_psd else 1) * dim, config.fusion.head_hidden, config.fusion.dropout)
+        pooled = (2 if variant.use_psd else 1) * dim
+        self.head_net = mlp_head(pooled, config.fusion.head_hidden, config.fusion.dropout)
+        self.ordinal = OrdinalHead(pooled, len(self.thresholds_m)) if self.thresholds_m else None
 
     def psd_input(self, psd: torch.Tensor) -> torch.Tensor:
         """uint8 (B, K, H, W, 3) → float (B, K, 3, H, W) in [0, 1], dropped layers zero."""
@@ -244,19 +273,26 @@ class DeepSEE(nn.Module):
         patches, cls = self.psd_encoder(self.psd_input(psd))
         return r, torch.cat([patches.mean(dim=2), cls.unsqueeze(1)], dim=1)
 
-    def head(self, r: torch.Tensor, p: torch.Tensor | None) -> torch.Tensor:
-        """Fusion and output layers: (B,) transformed error."""
+    def head(self, r: torch.Tensor, p: torch.Tensor | None) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Fusion and output layers: (B,) transformed error, and (B, K) ordinal logits when the model has a head."""
         if p is None:
-            return self.head_net(r.mean(dim=1)).squeeze(-1)
-        for layer in self.fusion:
-            r, p = layer(r, p)
-        pooled = torch.cat([r.mean(dim=1), p.mean(dim=1)], dim=-1)
-        if not len(self.fusion):
-            pooled = self.concat_fc(pooled)
-        return self.head_net(pooled).squeeze(-1)
+            pooled = r.mean(dim=1)
+        else:
+            for layer in self.fusion:
+                r, p = layer(r, p)
+            pooled = torch.cat([r.mean(dim=1), p.mean(dim=1)], dim=-1)
+            if not len(self.fusion):
+                pooled = self.concat_fc(pooled)
+        y = self.head_net(pooled).squeeze(-1)
+        return y if self.ordinal is None else (y, self.ordinal(pooled))
 
-    def forward(self, rts: torch.Tensor, psd: torch.Tensor) -> torch.Tensor:
+    def forward(self, rts: torch.Tensor, psd: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         return self.head(*self.encode(rts, psd))
 
     def encoder_modules(self) -> list[nn.Module]:
         return [m for m in (self.rts_encoder, self.psd_encoder) if m is not None]
+
+
+def exceedance_probabilities(logits: torch.Tensor) -> torch.Tensor:
+    """The ordinal head's logits as P(error ≥ t_k); the sigmoid keeps their order, so they stay monotone."""
+    return torch.sigmoid(logits)

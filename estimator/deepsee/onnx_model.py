@@ -1,8 +1,10 @@
 """An exported model served by ONNX Runtime, without PyTorch (``import torch`` costs a worker seconds of start-up).
 
 The exported graph (:mod:`estimator.deepsee.export`) takes ``rts`` (B, T, C) float32 (normalised) and ``psd``
-(B, K_L, H, W, 3) uint8 and returns ``y`` (B,), the transformed error. Its metadata carries the compatibility record
-(:mod:`estimator.deepsee.compatibility`); a model made for other inputs is refused when it is loaded.
+(B, K_L, H, W, 3) uint8 and returns ``y`` (B,), the transformed error, and for a model with an ordinal head
+``probabilities`` (B, K), P(error ≥ t_k) for the thresholds its record states. Its metadata carries the
+compatibility record (:mod:`estimator.deepsee.compatibility`); a model made for other inputs is refused when it is
+loaded.
 
 Execution providers: ``"cpu"`` runs on the CPU; ``"cuda"`` on an NVIDIA GPU (an error where this ONNX Runtime
 offers none); ``"auto"`` takes CUDA when ONNX Runtime lists it (``onnxruntime.get_available_providers()``) and the
@@ -18,7 +20,14 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from estimator.deepsee.compatibility import InputShape, ModelMismatch, ModelSetup, check_compatible, rts_columns
+from estimator.deepsee.compatibility import (
+    InputShape,
+    ModelMismatch,
+    ModelSetup,
+    check_compatible,
+    head_thresholds_of,
+    rts_columns,
+)
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
@@ -26,6 +35,9 @@ from seesys.io.core_settings import load_window_config
 
 COMPATIBILITY_KEY = "seesys_compatibility"
 HASH_KEY = "seesys_compatibility_hash"
+#: The graph's output names: the transformed error, and the ordinal head's probabilities (a model with a head).
+Y = "y"
+PROBABILITIES = "probabilities"
 PROVIDER_SETTINGS = ("auto", "cpu", "cuda")
 CPU = "CPUExecutionProvider"
 CUDA = "CUDAExecutionProvider"
@@ -51,9 +63,10 @@ class OnnxModel:
     providers of ``providers`` (see the module's docstring).
 
     Raises :class:`ModelMismatch` for a missing file, a file that is not an ONNX model, one exported elsewhere
-    (no compatibility record) or one made for other inputs (windows, label, device settings of ``setup``: this
-    installation's configs by default); :class:`~seesys.core.errors.ConfigError` for an unknown or
-    unavailable ``providers`` setting.
+    (no compatibility record), one whose outputs are not what its record says (head thresholds without a
+    ``probabilities`` output of as many columns, or the reverse) or one made for other inputs (windows, label,
+    device settings of ``setup``: this installation's configs by default);
+    :class:`~seesys.core.errors.ConfigError` for an unknown or unavailable ``providers`` setting.
     """
 
     def __init__(self, path: Path, transform: LabelTransform, windows: WindowConfig | None = None, threads: int = 1,
@@ -87,7 +100,21 @@ class OnnxModel:
         self.provider: str = session.get_providers()[0]
         rts, psd = (i.shape[1:] for i in session.get_inputs())
         self.shape = InputShape(*rts, *psd[:3])
+        #: The ordinal head's thresholds (metres), one per column of the probabilities; empty without a head.
+        self.thresholds_m: tuple[float, ...] = head_thresholds_of(self.record)
+        outputs = {o.name: o.shape for o in session.get_outputs()}
+        head_columns = outputs[PROBABILITIES][1] if PROBABILITIES in outputs else 0
+        if head_columns != len(self.thresholds_m):
+            raise ModelMismatch(f"{path} records {len(self.thresholds_m)} head threshold(s) but its graph gives "
+                                f"{head_columns} head probabilities")
+
+    def outputs(self, rts: np.ndarray, psd: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The transformed errors (B,) and the head's probabilities (B, K), None for a model without a head."""
+        names = [Y, PROBABILITIES] if self.thresholds_m else [Y]
+        out = self.session.run(names, {"rts": np.ascontiguousarray(rts, np.float32),
+                                       "psd": np.ascontiguousarray(psd, np.uint8)})
+        return out[0], (out[1] if self.thresholds_m else None)
 
     def __call__(self, rts: np.ndarray, psd: np.ndarray) -> np.ndarray:
-        return self.session.run(None, {"rts": np.ascontiguousarray(rts, np.float32),
-                                       "psd": np.ascontiguousarray(psd, np.uint8)})[0]
+        """The transformed errors (B,) alone."""
+        return self.outputs(rts, psd)[0]

@@ -1,6 +1,7 @@
 """Any trained model file as one thing that maps windows to estimates: a PyTorch checkpoint (DeepSEE, an
 ablation, the LSTM), an exported ONNX model, or the random forest's pickle. Each is checked against this
-installation's RTS schema, windows and label transform before it is used.
+installation's RTS schema, windows and label transform before it is used. A DeepSEE with an ordinal head (a
+checkpoint or its ONNX export) also gives its head's probabilities P(error ≥ t_k); every other model gives None.
 
 PyTorch and scikit-learn are imported only for the kinds that need them: loading an ONNX model imports neither.
 """
@@ -25,24 +26,44 @@ if TYPE_CHECKING:
     import torch
 
 
+@dataclass(frozen=True)
+class WindowEstimates:
+    """A model's estimates of N windows: metres (N,), and its head's P(error ≥ t_k) (N, K) or None."""
+
+    metres: np.ndarray
+    probabilities: np.ndarray | None
+
+
 @dataclass
 class Predictor:
-    """``transformed(windows)``: outputs on the transformed scale; ``metres(windows)``: estimates in metres.
-    ``shape``: the window the model was made for (PSD sizes 0: a model of the RTS window only); ``columns``: the
-    RTS channels it takes, as columns of this schema's rows."""
+    """``transformed(windows)``: outputs on the transformed scale; ``metres(windows)``: estimates in metres;
+    ``estimates(windows)``: both the metres and the head's probabilities from one run. ``shape``: the window the
+    model was made for (PSD sizes 0: a model of the RTS window only); ``columns``: the RTS channels it takes, as
+    columns of this schema's rows; ``thresholds_m``: its head's thresholds, one per column of the probabilities
+    (empty: no head)."""
 
     path: Path
     kind: str
     transform: LabelTransform
-    _run: object
+    _run: object  # windows → (transformed outputs, head probabilities or None)
     shape: InputShape
     columns: np.ndarray
+    thresholds_m: tuple[float, ...] = ()
 
-    def transformed(self, windows: Windows) -> np.ndarray:
+    def outputs(self, windows: Windows) -> tuple[np.ndarray, np.ndarray | None]:
+        """Transformed-scale outputs and head probabilities (None without a head); raises ``DataError`` for
+        windows of another shape than the model's."""
         windows = windows.select_rts(self.columns)
         if len(windows):
             self.check(windows.input_shape())
         return self._run(windows)
+
+    def transformed(self, windows: Windows) -> np.ndarray:
+        return self.outputs(windows)[0]
+
+    def estimates(self, windows: Windows) -> WindowEstimates:
+        y, probabilities = self.outputs(windows)
+        return WindowEstimates(self.transform.inverse(y), probabilities)
 
     def check(self, shape: InputShape) -> None:
         """Raise :class:`DataError` when windows of ``shape`` are not what the model takes (another camera
@@ -58,11 +79,15 @@ class Predictor:
 
 
 def _onnx_runner(model: OnnxModel, batch_size: int):
-    def run(windows: Windows) -> np.ndarray:
-        out = [model(windows.rts[s:s + batch_size], np.stack([windows.psd_at(i) for i in
-                                                              range(s, min(s + batch_size, len(windows)))]))
+    def run(windows: Windows) -> tuple[np.ndarray, np.ndarray | None]:
+        out = [model.outputs(windows.rts[s:s + batch_size],
+                             np.stack([windows.psd_at(i) for i in range(s, min(s + batch_size, len(windows)))]))
                for s in range(0, len(windows), batch_size)]
-        return np.concatenate(out) if out else np.zeros(0, np.float32)
+        y = np.concatenate([o[0] for o in out]) if out else np.zeros(0, np.float32)
+        if not model.thresholds_m:
+            return y, None
+        return y, (np.concatenate([o[1] for o in out]) if out else np.zeros((0, len(model.thresholds_m)),
+                                                                             np.float32))
     return run
 
 
@@ -73,7 +98,8 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
     windows = windows or load_window_config()
     if path.suffix == ".onnx":
         model = OnnxModel(path, transform, windows)
-        return Predictor(path, "onnx", transform, _onnx_runner(model, batch_size), model.shape, model.rts_columns)
+        return Predictor(path, "onnx", transform, _onnx_runner(model, batch_size), model.shape, model.rts_columns,
+                         model.thresholds_m)
     if path.suffix == ".pkl":
         from estimator.deepsee.baselines import window_statistics
 
@@ -87,16 +113,18 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
         forest = record["forest"]
         columns = rts_columns(record["compatibility"], str(path))
         return Predictor(path, "random_forest", transform,
-                         lambda w: forest.predict(window_statistics(w.rts)).astype(np.float32),
+                         lambda w: (forest.predict(window_statistics(w.rts)).astype(np.float32), None),
                          InputShape(windows.rts_length, len(columns), 0, 0, 0), columns)
     import torch
 
     from estimator.deepsee.checkpoint import load_model
-    from estimator.deepsee.inference import predict
+    from estimator.deepsee.inference import predict_outputs
+    from estimator.deepsee.ordinal import model_thresholds
 
     device = device or torch.device("cpu")
     model, payload = load_model(path, transform, windows)
     model = model.to(device)
     shape = model.shape if hasattr(model, "shape") else InputShape(windows.rts_length, model.channels, 0, 0, 0)
-    return Predictor(path, payload["model"]["kind"], transform, lambda w: predict(model, w, batch_size, device),
-                     shape, rts_columns(payload["compatibility"], str(path)))
+    return Predictor(path, payload["model"]["kind"], transform,
+                     lambda w: predict_outputs(model, w, batch_size, device), shape,
+                     rts_columns(payload["compatibility"], str(path)), model_thresholds(model))

@@ -6,9 +6,13 @@ DeepSEE (paper §5.4, here on the training runs of a cross-validation round):
 (b) TS2Vec on the RTS encoder, in epochs of :data:`TS2VEC_EPOCH` iterations;
 (c) supervised, both encoders frozen: their outputs for the training and validation windows are computed once
     and cached in the run folder (``state/cache_*.npy``, reused only for the same encoders and windows), and only
-    the fusion and the head are trained;
+    the fusion and the output layers are trained;
 (d) supervised fine-tuning of the whole model on the training runs (the paper's real-data stage; on a lab's real
     sessions, ``seesys estimator finetune``).
+
+Stages (c) and (d) minimise MSE of the transformed error plus λ × the ordinal head's BCE where the model has the
+head (:mod:`estimator.deepsee.ordinal`; new DeepSEE rows get it when ``[ordinal_head] enabled``), the MSE alone
+otherwise (the LSTM).
 
 Every stage checkpoints after every epoch (:mod:`estimator.deepsee.loop`), so the same command resumes an
 interrupted run. The encoders after (b) are saved as ``state/encoders.pt``; an ablation row given a DeepSEE run
@@ -35,9 +39,10 @@ from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
 from estimator.deepsee.config import EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.data import Windows, limit
-from estimator.deepsee.inference import batch_tensors, predict, uses_psd
+from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
 from estimator.deepsee.loop import run_stage, stage_seed
-from estimator.deepsee.model import DeepSEE
+from estimator.deepsee.model import DeepSEE, exceedance_probabilities
+from estimator.deepsee.ordinal import exceeded, head_thresholds, model_thresholds, training_loss, validation_loss
 from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
 from estimator.deepsee.run_folder import MODEL_PT, RunFolder
 from estimator.deepsee.ssl import PsdReconstruction, ts2vec_loss
@@ -75,11 +80,25 @@ def _targets(windows: Windows, transform: LabelTransform) -> np.ndarray:
     return transform.forward(windows.error_m).astype(np.float32)
 
 
-def _mse_validator(model: nn.Module, val: Windows, targets: np.ndarray, ctx: TrainContext):
+def _head_targets(model: nn.Module, windows: Windows) -> np.ndarray | None:
+    """The ordinal head's targets of ``windows``; None for a model without a head."""
+    thresholds = model_thresholds(model)
+    return exceeded(windows.error_m, thresholds) if thresholds else None
+
+
+def _validator(model: nn.Module, val: Windows, ctx: TrainContext):
+    """The validation loss: the training loss (:func:`estimator.deepsee.ordinal.training_loss`) on ``val``."""
+    targets, exceeds = _targets(val, ctx.transform), _head_targets(model, val)
+
     def validate() -> float:
-        y = predict(model, val, ctx.config.evaluation.batch_size, ctx.device)
-        return float(np.mean((y - targets) ** 2))
+        y, probabilities = predict_outputs(model, val, ctx.config.evaluation.batch_size, ctx.device)
+        return validation_loss(y, probabilities, targets, exceeds, ctx.config.ordinal_head.bce_weight)
     return validate
+
+
+def _batch_targets(y: torch.Tensor, exceeds: np.ndarray | None, index: np.ndarray,
+                   device: torch.device) -> tuple[torch.Tensor, torch.Tensor | None]:
+    return y[index].to(device), (torch.from_numpy(exceeds[index]).to(device) if exceeds is not None else None)
 
 
 def _psd_ssl(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, ctx: TrainContext) -> None:
@@ -206,6 +225,8 @@ def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedu
     r_val, p_val = _cached_encodings(run, model, val, "validation", ctx)
     y_train = torch.from_numpy(_targets(train, ctx.transform))
     y_val = _targets(val, ctx.transform)
+    exceeds_train, exceeds_val = _head_targets(model, train), _head_targets(model, val)
+    weight = ctx.config.ordinal_head.bce_weight
 
     def tokens(r: np.ndarray, p: np.ndarray | None, index: np.ndarray):
         as_tensor = lambda a: torch.from_numpy(np.asarray(a[index], np.float32)).to(ctx.device)  # noqa: E731
@@ -213,16 +234,21 @@ def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedu
 
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
         index = np.sort(index)  # memory maps read faster in order
-        return nn.functional.mse_loss(model.head(*tokens(r_train, p_train, index)), y_train[index].to(ctx.device))
+        return training_loss(model.head(*tokens(r_train, p_train, index)),
+                             *_batch_targets(y_train, exceeds_train, index, ctx.device), weight)
 
     @torch.no_grad()
     def validate() -> float:
         model.eval()
         batch = ctx.config.evaluation.batch_size
-        y = np.concatenate([model.head(*tokens(r_val, p_val, np.arange(s, min(s + batch, len(val))))).cpu().numpy()
-                            for s in range(0, len(val), batch)])
+        outputs = [model.head(*tokens(r_val, p_val, np.arange(s, min(s + batch, len(val)))))
+                   for s in range(0, len(val), batch)]
         model.train()
-        return float(np.mean((y - y_val) ** 2))
+        if model.ordinal is None:
+            return validation_loss(torch.cat(outputs).cpu().numpy(), None, y_val, None, weight)
+        y = torch.cat([o[0] for o in outputs]).cpu().numpy()
+        probabilities = exceedance_probabilities(torch.cat([o[1] for o in outputs])).cpu().numpy()
+        return validation_loss(y, probabilities, y_val, exceeds_val, weight)
 
     head = [p for p in model.parameters() if id(p) not in encoders]
     run_stage(run, "c_supervised_frozen", model, head, schedule, len(train), step, validate if len(val) else None,
@@ -234,16 +260,19 @@ def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedu
 def supervised(run: RunFolder, name: str, model: nn.Module, train: Windows, val: Windows, schedule: StageSchedule,
                ctx: TrainContext) -> None:
     """A supervised stage on the whole model (stage (d), the LSTM, fine-tuning on sessions), its training batches
-    augmented as ``[augmentation]`` of configs/estimator.toml says."""
+    augmented as ``[augmentation]`` of configs/estimator.toml says; the ordinal head, where the model has one, is
+    trained with the rest."""
     y_train = torch.from_numpy(_targets(train, ctx.transform))
+    exceeds = _head_targets(model, train)
     augment = Augmenter(ctx.config.augmentation)
     with_psd = uses_psd(model)
 
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
         inputs = augment(*batch_tensors(train, index, ctx.device, with_psd), generator)
-        return nn.functional.mse_loss(model(*inputs), y_train[index].to(ctx.device))
+        return training_loss(model(*inputs), *_batch_targets(y_train, exceeds, index, ctx.device),
+                             ctx.config.ordinal_head.bce_weight)
 
-    validate = _mse_validator(model, val, _targets(val, ctx.transform), ctx) if len(val) else None
+    validate = _validator(model, val, ctx) if len(val) else None
     run_stage(run, name, model, model.parameters(), schedule, len(train), step, validate, ctx.config.seed, ctx.progress)
 
 
@@ -272,7 +301,7 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
         model: nn.Module = LstmBaseline(ctx.config.lstm, train.input_shape().channels).to(ctx.device)
         supervised(run, "lstm", model, train, val, schedule.lstm, ctx)
     else:
-        model = DeepSEE(ctx.config.model, train.input_shape(), row.variant).to(ctx.device)
+        model = DeepSEE(ctx.config.model, train.input_shape(), row.variant, head_thresholds(ctx.config)).to(ctx.device)
         if row.ssl and pretrained is not None:
             _load_encoders(model, Path(pretrained) / "state" / ENCODERS_PT)
         elif row.ssl:

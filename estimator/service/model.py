@@ -1,7 +1,8 @@
 """The model a worker serves: an exported ONNX model (checked against this installation's RTS schema, windows,
 label and device settings when loaded), its version string, the window shape it accepts, the device settings it
-was made for (every device's frames are checked against them) and the ONNX Runtime execution provider that runs
-it; and the untrained stand-in served until a trained model ships.
+was made for (every device's frames are checked against them), its ordinal head's thresholds (none for a model
+without a head: its estimates carry no probabilities) and the ONNX Runtime execution provider that runs it; and the
+untrained stand-in served until a trained model ships.
 
 Serving imports neither PyTorch nor the ``onnx`` package (:mod:`estimator.deepsee.onnx_model`): a worker starts in
 well under a second plus the model's load. Only :func:`export_untrained` needs PyTorch."""
@@ -19,6 +20,7 @@ from estimator.deepsee.config import ModelConfig, load_estimator_config
 from estimator.deepsee.onnx_model import OnnxModel
 from estimator.deepsee.transforms import LabelTransform, prepare_rts_counted
 from seesys.core.device_settings import DeviceSettings, settings_differences
+from seesys.core.messages import Exceedance
 from seesys.core.windows import WindowConfig, WindowSample
 
 
@@ -26,6 +28,23 @@ def model_version(path: Path) -> str:
     """``<file stem>-<first 12 hex digits of the file's SHA-256>``: names the exact weights an estimate came from."""
     digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
     return f"{Path(path).stem}-{digest[:12]}"
+
+
+@dataclass(frozen=True)
+class BatchEstimates:
+    """One batched run: errors in metres (B,), the head's P(error ≥ t_k) (B, K) for ``thresholds_m`` (None without
+    a head), and per sample how many RTS values were not finite and became 0."""
+
+    errors_m: np.ndarray
+    probabilities: np.ndarray | None
+    nonfinite: np.ndarray
+    thresholds_m: tuple[float, ...] = ()
+
+    def head(self, sample: int) -> tuple[Exceedance, ...]:
+        """Sample ``sample``'s head as an :class:`~seesys.core.messages.Estimate` carries it (empty: no head)."""
+        if self.probabilities is None:
+            return ()
+        return tuple(Exceedance(t, float(p)) for t, p in zip(self.thresholds_m, self.probabilities[sample]))
 
 
 @dataclass
@@ -62,21 +81,27 @@ class ServedModel:
             return ["the device states no settings"]
         return settings_differences(self.device_record, settings)
 
-    def estimate(self, samples: list[WindowSample]) -> np.ndarray:
-        return self.estimate_counted(samples)[0]
+    @property
+    def thresholds_m(self) -> tuple[float, ...]:
+        """The ordinal head's thresholds, one per column of :attr:`BatchEstimates.probabilities`; empty: no head."""
+        return self._model.thresholds_m
 
-    def estimate_counted(self, samples: list[WindowSample]) -> tuple[np.ndarray, np.ndarray]:
-        """The errors of ``samples`` and, per sample, how many RTS values were not finite and became 0."""
+    def estimate(self, samples: list[WindowSample]) -> np.ndarray:
+        return self.estimate_batch(samples).errors_m
+
+    def estimate_batch(self, samples: list[WindowSample]) -> BatchEstimates:
+        """The errors and head probabilities of ``samples``, and how many of each one's RTS values became 0."""
         rts, replaced = prepare_rts_counted(np.stack([s.rts for s in samples]), self._model.rts_columns)
         psd = np.stack([s.psd for s in samples])
-        return self._transform.inverse(self._model(rts, psd)), replaced
+        y, probabilities = self._model.outputs(rts, psd)
+        return BatchEstimates(self._transform.inverse(y), probabilities, replaced, self.thresholds_m)
 
 
 def export_untrained(path: Path, windows: WindowConfig, psd_size: tuple[int, int], seed: int,
-                     model_config: ModelConfig | None = None) -> Path:
+                     model_config: ModelConfig | None = None, thresholds_m: tuple[float, ...] = ()) -> Path:
     """Export DeepSEE of the configured size (configs/estimator.toml, or ``model_config``) with untrained weights
-    (seeded): the model of the right shape and cost to serve until a trained one ships. Its estimates mean
-    nothing."""
+    (seeded), with an ordinal head of ``thresholds_m`` (none by default): the model of the right shape and cost to
+    serve until a trained one ships. Its estimates mean nothing."""
     import torch
 
     from estimator.deepsee.export import export_onnx
@@ -87,5 +112,5 @@ def export_untrained(path: Path, windows: WindowConfig, psd_size: tuple[int, int
     torch.manual_seed(seed)
     height, width = psd_size
     shape = InputShape(windows.rts_length, rts_schema.NUM_CHANNELS, windows.psd_samples, height, width)
-    model = DeepSEE(model_config or config.model, shape)
+    model = DeepSEE(model_config or config.model, shape, thresholds_m=thresholds_m)
     return export_onnx(model, Path(path), windows, LabelTransform(config.label_transform.k))

@@ -248,7 +248,7 @@ class Worker:
         for ready in batch:
             del self._ready[ready.sample.device_id]
         start = time.perf_counter()
-        errors, replaced = self.model.estimate_counted([r.sample for r in batch])
+        estimates = self.model.estimate_batch([r.sample for r in batch])
         elapsed_ms = (time.perf_counter() - start) * 1000.0
         per_window = elapsed_ms / len(batch)
         self._window_ms = per_window if not self._window_ms else (
@@ -258,12 +258,12 @@ class Worker:
         self.counters.batches += 1
         parts = [envelope.ESTIMATES]
         sent = self._clock()
-        for ready, error_m, nonfinite in zip(batch, errors, replaced):
+        for i, (ready, error_m, nonfinite) in enumerate(zip(batch, estimates.errors_m, estimates.nonfinite)):
             s = ready.sample
             if nonfinite:
                 self.counters.nonfinite[s.device_id] += int(nonfinite)
             estimate = Estimate(s.device_id, s.frame_index, s.timestamp, float(error_m), self.model.version,
-                                (sent - ready.received) * 1000.0, ready.stream_session)
+                                (sent - ready.received) * 1000.0, ready.stream_session, estimates.head(i))
             parts += [*messages.encode(estimate), envelope.pack_meta(ready.token, s.frame_index, ready.stream_session)]
         self.counters.estimates += len(batch)
         self._send(parts)

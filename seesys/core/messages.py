@@ -16,7 +16,11 @@ i64 frame index | f64 timestamp`` followed by the kind's payload:
   :func:`pack_psd` writes it (``u16 H | u16 W | u16 L | u32 n + n bytes``). "Frames skipped" is the device's
   running count of frames it tracked but did not publish (its monitor fell behind): a receiver that sees a gap in
   frame indices can tell those from frames lost on the way.
-- :class:`Estimate`: ``f64 error (m) | f64 server time (ms) | u8 len + model version (utf-8)``.
+- :class:`Estimate`: ``f64 error (m) | f64 server time (ms) | u8 len + model version (utf-8) | u8 K`` and K ×
+  ``f32 threshold (m) | f32 probability``: the model's ordinal head, P(error ≥ threshold) for each of its thresholds
+  in increasing order (:class:`Exceedance`; K = 0 from a model without a head). Each probability travels with its
+  threshold, so a receiver knows what it is for without loading the model (8 bytes per threshold, 24 for
+  Equation 2's three classes), and a model of other thresholds is told apart from Equation 2's at once.
 
 The *stream session* is a random number a device draws when it starts streaming and carries in every frame: the
 service binds a device id to the stream session that used it first (ZeroMQ tells a subscriber nothing of its
@@ -42,7 +46,8 @@ from seesys.core.device_settings import SLAM_MODES, DeviceSettings
 from seesys.core.errors import SeesysError
 from seesys.core.tracking_state import TrackingState
 
-PROTOCOL_VERSION = 3
+# 4: estimates carry the ordinal head's thresholds and probabilities (3 had none).
+PROTOCOL_VERSION = 4
 MAGIC = b"SEES"
 #: Topic prefixes of the two kinds; subscribe to one alone to receive every device's messages of that kind.
 FEATURE_TOPIC = b"F/"
@@ -55,6 +60,7 @@ _HEAD = struct.Struct("<4sBB")
 _FRAME_ID = struct.Struct("<Qqd")
 _PSD_HEAD = struct.Struct("<HHHI")
 _ESTIMATE = struct.Struct("<dd")
+_EXCEEDANCE = struct.Struct("<ff")
 _FEATURE_HEAD = struct.Struct("<HIIbH")
 _SETTINGS = struct.Struct("<BHHHHd")
 _PSD_LEVEL = 6
@@ -82,8 +88,18 @@ class FeatureFrame:
 
 
 @dataclass(frozen=True)
+class Exceedance:
+    """One output of a model's ordinal head: P(error ≥ ``threshold_m``). Both travel as float32: a decoded
+    value is the float32 nearest the one sent."""
+
+    threshold_m: float
+    probability: float
+
+
+@dataclass(frozen=True)
 class Estimate:
-    """Estimator → device and advisories: the estimated pose error of one frame."""
+    """Estimator → device and advisories: the estimated pose error of one frame, and the model's ordinal head
+    (``head``: one :class:`Exceedance` per threshold, thresholds increasing; empty from a model without a head)."""
 
     device_id: str
     frame_index: int
@@ -92,6 +108,7 @@ class Estimate:
     model_version: str
     server_ms: float = math.nan
     stream_session: int = 0  # the stream session of the frames it was made from
+    head: tuple[Exceedance, ...] = ()
 
 
 def topic(kind: bytes, device_id: str) -> bytes:
@@ -128,9 +145,26 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
     if isinstance(message, Estimate):
         body = b"".join([_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_ESTIMATE), device, ident,
                          _ESTIMATE.pack(float(message.error_m), float(message.server_ms)),
-                         _pack_text(message.model_version, "model version")])
+                         _pack_text(message.model_version, "model version"), _pack_head(message.head)])
         return [topic(ESTIMATE_TOPIC, message.device_id), body]
     raise TypeError(f"cannot encode {type(message).__name__}")
+
+
+def _pack_head(head: tuple[Exceedance, ...]) -> bytes:
+    if len(head) > 255:
+        raise ValueError(f"an estimate carries at most 255 head probabilities, got {len(head)}")
+    return bytes([len(head)]) + b"".join(_EXCEEDANCE.pack(float(e.threshold_m), float(e.probability)) for e in head)
+
+
+def _read_head(r: _Reader) -> tuple[Exceedance, ...]:
+    (count,) = r.take(1, "head count")
+    head = tuple(Exceedance(*r.unpack(_EXCEEDANCE, "head probability")) for _ in range(count))
+    thresholds = [e.threshold_m for e in head]
+    if not all(math.isfinite(t) and t > 0 for t in thresholds) or thresholds != sorted(set(thresholds)):
+        raise MessageError(f"head thresholds must be finite, positive and increasing, got {thresholds}")
+    if not all(0.0 <= e.probability <= 1.0 for e in head):  # False for NaN too
+        raise MessageError(f"head probabilities must lie in [0, 1], got {[e.probability for e in head]}")
+    return head
 
 
 def _pack_settings(settings: DeviceSettings | None) -> bytes:
@@ -211,10 +245,11 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
         return _decode_feature(r, device_id, stream_session, frame_index, timestamp)
     error_m, server_ms = r.unpack(_ESTIMATE, "estimate")
     model_version = r.text("model version")
+    head = _read_head(r)
     r.finish()
     if not math.isfinite(error_m) or error_m < 0:
         raise MessageError(f"estimated error must be a finite non-negative number of metres, got {error_m}")
-    return Estimate(device_id, frame_index, timestamp, error_m, model_version, server_ms, stream_session)
+    return Estimate(device_id, frame_index, timestamp, error_m, model_version, server_ms, stream_session, head)
 
 
 def pack_psd(psd: np.ndarray) -> bytes:
