@@ -155,6 +155,12 @@ def test_the_shipped_model_has_no_head_and_gives_what_it_always_gave():
     assert probabilities is None and y.shape == (3,)
     np.testing.assert_array_equal(y, onnx_model.session.run(None, {"rts": rts.numpy(), "psd": psd.numpy()})[0])
     assert load_predictor(resolve("data/models/deepsee.onnx"), TRANSFORM, 64).thresholds_m == ()
+    # The checkpoint (what finetune starts from) loads: its 16 channels of the first RTS schema, not the schema's
+    # 19, and the same outputs as the ONNX graph exported from it.
+    model, _ = load_model(resolve("data/models/deepsee.pt"), TRANSFORM)
+    assert model.rts_mask.shape == (onnx_model.shape.channels,) == (16,)
+    with torch.no_grad():
+        np.testing.assert_allclose(model(rts, psd).numpy(), y, rtol=1e-4, atol=1e-4)
 
 
 def test_scores_judge_the_heads_class_beside_the_estimates():

@@ -35,6 +35,7 @@ from estimator.deepsee.compatibility import (
     check_compatible,
     compatibility,
     compatibility_hash,
+    rts_columns,
 )
 from estimator.deepsee.config import FusionConfig, LstmConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
 from estimator.deepsee.model import DeepSEE
@@ -57,12 +58,13 @@ def _spec(model: nn.Module) -> dict:
     raise TypeError(f"cannot save a {type(model).__name__}")
 
 
-def _build(spec: dict) -> nn.Module:
+def _build(spec: dict, rts_channels: tuple[str, ...]) -> nn.Module:
+    """The untrained model of ``spec`` taking the RTS channels ``rts_channels`` (names)."""
     if spec["kind"] == "lstm":
         return LstmBaseline(LstmConfig(**spec["config"]), spec["channels"])
     variant = Variant(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec["variant"].items()})
     return DeepSEE(_model_config(spec["config"]), InputShape(**spec["shape"]), variant,
-                   tuple(spec.get("ordinal_thresholds_m", ())))
+                   tuple(spec.get("ordinal_thresholds_m", ())), rts_channels)
 
 
 def save_atomic(obj: object, path: Path) -> Path:
@@ -112,6 +114,7 @@ def load_model(path: Path, transform: LabelTransform, windows: WindowConfig | No
     ``transform``."""
     payload = load_payload(path)
     check_compatible(payload["compatibility"], str(path), windows or load_window_config(), transform)
-    model = _build(payload["model"])
+    rts_columns(payload["compatibility"], str(path))  # refuses channels this schema does not have as recorded
+    model = _build(payload["model"], tuple(payload["compatibility"]["rts_channels"]))
     model.load_state_dict(payload["state_dict"])
     return model.eval(), payload

@@ -237,14 +237,17 @@ class DeepSEE(nn.Module):
     turns them into probabilities)."""
 
     def __init__(self, config: ModelConfig, shape: InputShape, variant: Variant = Variant(),
-                 thresholds_m: tuple[float, ...] = ()):
+                 thresholds_m: tuple[float, ...] = (), rts_channels: tuple[str, ...] | None = None):
         super().__init__()
+        if rts_channels is not None and len(rts_channels) != shape.channels:
+            raise ValueError(f"{len(rts_channels)} RTS channel names for a model of {shape.channels} channels")
         if list(thresholds_m) != sorted(set(thresholds_m)):
             raise ValueError(f"the ordinal head's thresholds must increase strictly, got {list(thresholds_m)}")
         self.config, self.shape, self.variant = config, shape, variant
         self.thresholds_m = tuple(float(t) for t in thresholds_m)
         dim = config.dim
-        self.register_buffer("rts_mask", torch.from_numpy(rts_channel_mask(variant.drop_rts)))
+        # Over the channels the model takes: a model of an earlier schema takes fewer than the schema has now.
+        self.register_buffer("rts_mask", torch.from_numpy(rts_channel_mask(variant.drop_rts, rts_channels)))
         self.register_buffer("psd_mask", torch.from_numpy(psd_layer_mask(variant.drop_psd) / 255.0).float())
         self.rts_encoder = RtsEncoder(dim, config.rts, shape.channels)
         self.psd_encoder = PsdEncoder(dim, config.psd, shape) if variant.use_psd else None

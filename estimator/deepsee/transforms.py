@@ -40,12 +40,15 @@ class LabelTransform:
         return {"name": "log1p_scaled", "k": self.k}
 
 
-def rts_channel_mask(drop_categories: tuple[str, ...] = ()) -> np.ndarray:
-    """(C,) float32: 1 for the RTS channels the model sees, 0 for those of the dropped categories."""
+def rts_channel_mask(drop_categories: tuple[str, ...] = (), channels: tuple[str, ...] | None = None) -> np.ndarray:
+    """(C,) float32 over ``channels`` (names; default every channel of the schema, in its order): 1 for the RTS
+    channels the model sees, 0 for those of the dropped categories."""
     unknown = sorted(set(drop_categories) - set(RTS_CATEGORIES))
     if unknown:
         raise ValueError(f"unknown RTS categories {unknown}; categories are {', '.join(RTS_CATEGORIES)}")
-    return np.array([0.0 if c.category in drop_categories else 1.0 for c in rts_schema.CHANNELS], np.float32)
+    category = {c.name: c.category for c in rts_schema.CHANNELS}
+    names = rts_schema.CHANNEL_NAMES if channels is None else channels
+    return np.array([0.0 if category[name] in drop_categories else 1.0 for name in names], np.float32)
 
 
 def psd_layer_mask(drop_layers: tuple[str, ...] = ()) -> np.ndarray:
