@@ -93,6 +93,8 @@ def _splits(args: argparse.Namespace) -> int:
     config = load_dataset_config().splits
     if args.heldout is not None:
         config = replace_fields(config, heldout_environments=tuple(args.heldout))
+    if args.heldout_cameras is not None:
+        config = replace_fields(config, heldout_cameras=tuple(args.heldout_cameras))
     if args.rounds is not None:
         config = replace_fields(config, rounds=args.rounds)
     splits = write_splits(args.roots, config, args.out)
@@ -167,6 +169,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("roots", type=Path, nargs="+", help="dataset folders split together (e.g. pretraining + others)")
     p.add_argument("--out", type=Path, required=True, help="JSON file to write")
     p.add_argument("--heldout", type=_names, help="held-out environments (default: configs/dataset.toml; '' for none)")
+    p.add_argument("--heldout-cameras", type=_names,
+                   help="held-out camera models, e.g. kinect_v1 for leave-one-camera-out (default: configs/dataset.toml;"
+                        " '' for none)")
     p.add_argument("--rounds", type=int, help="cross-validation rounds (default: configs/dataset.toml)")
     p.set_defaults(func=_splits)
 

@@ -20,7 +20,7 @@ from estimator.dataset import build as build_module
 from estimator.dataset.build import DATASET_JSON, SESSIONS_DIR, DatasetBuilder, plan_from_config
 from estimator.dataset.config import SplitConfig, load_dataset_config
 from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
-from estimator.dataset.splits import SplitError, check_no_leak, make_splits, run_table
+from estimator.dataset.splits import SplitError, Splits, check_no_leak, make_splits, run_table
 from estimator.dataset.store import (
     COMPLETED,
     CRASHED,
@@ -305,19 +305,20 @@ def test_a_dataset_is_extended_only_with_the_same_sample_definition(tiny, tmp_pa
 
 def _synthetic_runs() -> pd.DataFrame:
     """Runs of 4 environments: per group 4 generated trajectories (one per environment) plus one real
-    trajectory rendered in every environment."""
+    trajectory rendered in every environment; environment b's generated trajectories through a Kinect, the rest
+    through the ideal camera."""
     rows = []
     for e, env in enumerate(["a", "b", "c", "held"]):
         for group in ("patrol", "aiming", "rapid"):
-            rows.append((f"{env}_{group}", env, group, f"{group}_{e}"))
-            rows.append((f"{env}_real_{group}", env, group, f"real_{group}"))
-    rows.append(("held_only", "held", "patrol", "patrol_private"))
-    return pd.DataFrame(rows, columns=["run", "environment", "motion_group", "trajectory"])
+            rows.append((f"{env}_{group}", env, group, f"{group}_{e}", "kinect" if env == "b" else "ideal"))
+            rows.append((f"{env}_real_{group}", env, group, f"real_{group}", "ideal"))
+    rows.append(("held_only", "held", "patrol", "patrol_private", "ideal"))
+    return pd.DataFrame(rows, columns=["run", "environment", "motion_group", "trajectory", "camera_model"])
 
 
 def test_splits_never_share_a_trajectory_between_parts():
     runs = _synthetic_runs()
-    splits = make_splits(runs, SplitConfig(rounds=4, seed=3, heldout_environments=("held",)))
+    splits = make_splits(runs, SplitConfig(rounds=4, seed=3, heldout_environments=("held",), heldout_cameras=()))
     trajectory = dict(zip(runs.run, runs.trajectory))
     environment = dict(zip(runs.run, runs.environment))
     for r in splits.rounds:
@@ -334,21 +335,40 @@ def test_splits_never_share_a_trajectory_between_parts():
         tested = [t for r in splits.rounds for t in r.test_trajectories if group_of[t] == group]
         assert sorted(tested) == sorted([f"{group}_0", f"{group}_1", f"{group}_2", f"real_{group}"])
     with pytest.raises(SplitError, match="at most 4 distinct rounds"):
-        make_splits(runs, SplitConfig(rounds=5, seed=3, heldout_environments=("held",)))
+        make_splits(runs, SplitConfig(rounds=5, seed=3, heldout_environments=("held",), heldout_cameras=()))
     leaky = splits.rounds[0]
     leaky.train.append(leaky.test[0])
     with pytest.raises(SplitError, match="is in train and test"):
         check_no_leak(splits, runs)
 
 
+def test_a_held_out_camera_is_test_data_only_and_recorded(tmp_path):
+    runs = _synthetic_runs()
+    splits = make_splits(runs, SplitConfig(rounds=3, seed=3, heldout_environments=(), heldout_cameras=("kinect",)))
+    camera = dict(zip(runs.run, runs.camera_model))
+    kinect = set(runs.run[runs.camera_model == "kinect"])
+    for r in splits.rounds:
+        assert {camera[x] for x in r.train + r.validation} == {"ideal"}
+        assert kinect <= set(r.test + r.excluded) and kinect & set(r.test)  # its own trajectories: test data
+    out = tmp_path / "splits.json"
+    out.write_text(splits.to_json())
+    assert Splits.from_json(out.read_text()).heldout_cameras == ["kinect"]
+    leaky = splits.rounds[0]
+    leaky.train.append(sorted(kinect)[0])
+    with pytest.raises(SplitError, match="held-out camera kinect is in train"):
+        check_no_leak(splits, runs)
+    with pytest.raises(SplitError, match=r"held-out camera models not in the data: d435 \(the data has ideal, kinect\)"):
+        make_splits(runs, SplitConfig(rounds=3, seed=3, heldout_environments=(), heldout_cameras=("d435",)))
+
+
 def test_splits_need_three_trajectories_per_group(tiny):
     root, _ = tiny
     runs = run_table([root])
-    assert len(make_splits(runs, SplitConfig(1, 0, ())).rounds[0].train) == 1
+    assert len(make_splits(runs, SplitConfig(1, 0, (), ())).rounds[0].train) == 1
     with pytest.raises(SplitError, match="needs 3"):
-        make_splits(runs, SplitConfig(1, 0, ("lab",)))
+        make_splits(runs, SplitConfig(1, 0, ("lab",), ()))
     with pytest.raises(SplitError, match="not in the data"):
-        make_splits(runs, SplitConfig(1, 0, ("nowhere",)))
+        make_splits(runs, SplitConfig(1, 0, ("nowhere",), ()))
 
 
 def test_report_writes_figures_against_targets(tiny, tmp_path):

@@ -36,6 +36,7 @@ class SplitConfig:
     rounds: int
     seed: int
     heldout_environments: tuple[str, ...]
+    heldout_cameras: tuple[str, ...]
 
 
 @dataclass(frozen=True)

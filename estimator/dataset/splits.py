@@ -7,8 +7,8 @@ every run of one or more dataset folders at once (the synthetic pretraining data
 grouped by trajectory *name*: a real trajectory rendered in nine environments is one group, so all its renders
 land in the same part.
 
-On top, environments listed in ``heldout_environments`` never serve for training or validation: their runs
-are test data (unseen scenes). A held-out-environment run whose trajectory also occurs in other environments
+On top, environments listed in ``heldout_environments`` and camera models listed in ``heldout_cameras`` never
+serve for training or validation: their runs are test data (unseen scenes, unseen cameras). A held-out run whose trajectory also occurs in runs that are not held out
 goes to test only when that trajectory is a test trajectory of the round; otherwise it is left out (listed
 under ``excluded``), since putting it in test would share its trajectory with training.
 """
@@ -16,7 +16,7 @@ under ``excluded``), since putting it in test would share its trajectory with tr
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +47,7 @@ class SplitRound:
 class Splits:
     heldout_environments: list[str]
     rounds: list[SplitRound]
+    heldout_cameras: list[str] = field(default_factory=list)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2) + "\n"
@@ -54,14 +55,17 @@ class Splits:
     @classmethod
     def from_json(cls, text: str) -> Splits:
         data = json.loads(text)
-        return cls(data["heldout_environments"], [SplitRound(**r) for r in data["rounds"]])
+        # Splits written before held-out cameras hold none.
+        return cls(data["heldout_environments"], [SplitRound(**r) for r in data["rounds"]],
+                   data.get("heldout_cameras", []))
 
 
 def run_table(roots: list[Path]) -> pd.DataFrame:
-    """One row per run with samples of the dataset folders: run, environment, motion group, trajectory."""
-    rows = [(i.run, i.environment, i.motion_group, i.trajectory) for root in roots for i in list_runs(root)
-            if i.status in WITH_SAMPLES]
-    table = pd.DataFrame(rows, columns=["run", "environment", "motion_group", "trajectory"])
+    """One row per run with samples of the dataset folders: run, environment, motion group, trajectory, camera
+    model."""
+    rows = [(i.run, i.environment, i.motion_group, i.trajectory, i.camera_model) for root in roots
+            for i in list_runs(root) if i.status in WITH_SAMPLES]
+    table = pd.DataFrame(rows, columns=["run", "environment", "motion_group", "trajectory", "camera_model"])
     duplicated = table.run[table.run.duplicated()]
     if len(duplicated):
         raise SplitError(f"run {duplicated.iloc[0]} occurs in two dataset folders")
@@ -72,11 +76,16 @@ def run_table(roots: list[Path]) -> pd.DataFrame:
 
 
 def make_splits(runs: pd.DataFrame, config: SplitConfig) -> Splits:
-    """Grouped cross-validation rounds over ``runs`` (:func:`run_table`), plus held-out environments."""
+    """Grouped cross-validation rounds over ``runs`` (:func:`run_table`), plus held-out environments and
+    cameras."""
     unknown = sorted(set(config.heldout_environments) - set(runs.environment))
     if unknown:
         raise SplitError(f"held-out environments not in the data: {', '.join(unknown)}")
-    heldout = runs.environment.isin(config.heldout_environments)
+    unknown = sorted(set(config.heldout_cameras) - set(runs.camera_model))
+    if unknown:
+        raise SplitError(f"held-out camera models not in the data: {', '.join(unknown)} (the data has "
+                         f"{', '.join(sorted(set(runs.camera_model)))})")
+    heldout = runs.environment.isin(config.heldout_environments) | runs.camera_model.isin(config.heldout_cameras)
     # A trajectory seen only in held-out environments is always test data; the others rotate through the rounds.
     shared = set(runs.trajectory[~heldout])
     rng = np.random.default_rng(config.seed)
@@ -104,16 +113,17 @@ def make_splits(runs: pd.DataFrame, config: SplitConfig) -> Splits:
         rounds.append(SplitRound(validation_traj, test_traj, sorted(runs.run[is_train]),
                                  sorted(runs.run[is_validation]), sorted(runs.run[is_test]),
                                  sorted(runs.run[excluded])))
-    splits = Splits(sorted(config.heldout_environments), rounds)
+    splits = Splits(sorted(config.heldout_environments), rounds, sorted(config.heldout_cameras))
     check_no_leak(splits, runs)
     return splits
 
 
 def check_no_leak(splits: Splits, runs: pd.DataFrame) -> None:
     """Raise :class:`SplitError` if a run or a trajectory is in two parts of a round, or a held-out
-    environment is in training or validation."""
+    environment or camera is in training or validation."""
     trajectory_of = dict(zip(runs.run, runs.trajectory))
     environment_of = dict(zip(runs.run, runs.environment))
+    camera_of = dict(zip(runs.run, runs.camera_model))
     for k, split_round in enumerate(splits.rounds):
         seen: dict[str, str] = {}
         for part in PARTS:
@@ -123,6 +133,8 @@ def check_no_leak(splits: Splits, runs: pd.DataFrame) -> None:
                     raise SplitError(f"round {k}: trajectory {trajectory} is in {seen[trajectory]} and {part}")
                 if part != "test" and environment_of[run] in splits.heldout_environments:
                     raise SplitError(f"round {k}: held-out environment {environment_of[run]} is in {part}")
+                if part != "test" and camera_of[run] in splits.heldout_cameras:
+                    raise SplitError(f"round {k}: held-out camera {camera_of[run]} is in {part}")
 
 
 def write_splits(roots: list[Path], config: SplitConfig, out: Path) -> Splits:

@@ -3,7 +3,8 @@
 Runs folder layout (``seesys estimator train-table``): ``RUNS/round_<r>/<row>/`` with ``model.pt`` (DeepSEE, the
 ablations, the LSTM) or ``model.pkl`` (random forest). The test runs of a round are judged in two sets, never
 mixed: the *test trajectories* in the training environments, and the *held-out environments* (scenes no model
-saw). Labelled session folders given as out-of-domain data (another renderer, a real camera) are a third set,
+saw); with held-out camera models (leave-one-camera-out splits), each held-out camera is a set of its own,
+``held-out camera NAME``, taken out of the other two. Labelled session folders given as out-of-domain data (another renderer, a real camera) are a third set,
 judged by every round's model.
 """
 
@@ -52,10 +53,21 @@ class Evaluation:
     runs: Path
 
 
-def _sets(test: Windows, heldout: list[str]) -> dict[str, Windows]:
-    in_heldout = test.meta.environment.isin(heldout).to_numpy()
-    return {TEST_TRAJECTORIES: test.subset(np.flatnonzero(~in_heldout)),
+def heldout_camera_set(camera: str) -> str:
+    return f"held-out camera {camera}"
+
+
+def _sets(test: Windows, splits: Splits) -> dict[str, Windows]:
+    """The test windows of a round by set: the test trajectories, the held-out environments and each held-out
+    camera (through which a held-out environment's run counts for its camera)."""
+    camera = test.meta.camera_model.to_numpy() if len(test.meta) else np.zeros(0, str)
+    unseen_camera = np.isin(camera, splits.heldout_cameras)
+    in_heldout = test.meta.environment.isin(splits.heldout_environments).to_numpy() & ~unseen_camera
+    sets = {TEST_TRAJECTORIES: test.subset(np.flatnonzero(~in_heldout & ~unseen_camera)),
             HELDOUT_ENVIRONMENTS: test.subset(np.flatnonzero(in_heldout))}
+    for name in splits.heldout_cameras:
+        sets[heldout_camera_set(name)] = test.subset(np.flatnonzero(camera == name))
+    return sets
 
 
 def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], sessions: list[Path],
@@ -70,7 +82,7 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
         trained = [(row, path) for row, path in trained if path is not None]
         if not trained:
             raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
-        sets = _sets(split_windows(roots, splits, r, ("test",))["test"], splits.heldout_environments)
+        sets = _sets(split_windows(roots, splits, r, ("test",))["test"], splits)
         if other is not None:
             sets[OUT_OF_DOMAIN] = other
         for row, path in trained:

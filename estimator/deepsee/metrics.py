@@ -44,6 +44,8 @@ class Scores:
     large_bins: int
     head_agreement: float = float("nan")
     head_recall_large: float = float("nan")
+    # median estimate / median true error: how far a model's level is off on a camera or scene it did not see
+    median_ratio: float = float("nan")
 
 
 def equation2_head(probabilities: np.ndarray | None, thresholds_m: Sequence[float],
@@ -118,4 +120,5 @@ def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evalua
         spearman=float(spearmanr(estimate_m, true_m).statistic) if len(true_m) > 2 else np.nan,
         agreement=float(np.trace(matrix) / matrix.sum()),
         recall_large=float((bins.estimate[large] >= evaluation.large_error_m).mean()) if large.any() else np.nan,
-        bins=len(bins), large_bins=int(large.sum()), head_agreement=head[0], head_recall_large=head[1])
+        bins=len(bins), large_bins=int(large.sum()), head_agreement=head[0], head_recall_large=head[1],
+        median_ratio=float(np.median(estimate_m) / np.median(true_m)) if np.median(true_m) > 0 else np.nan)

@@ -32,7 +32,8 @@ CONFUSION_PNG = "estimator-advisory-confusion.png"
 # (column, heading, format) of the Table 3 layout.
 COLUMNS = (("rmse_cm", "RMSE (cm)", "{:.3f}"), ("rmse_paper_range_cm", "RMSE 1 mm–2 cm (cm)", "{:.3f}"),
            ("mape", "MAPE", "{:.3f}"), ("spearman", "Spearman ρ", "{:.2f}"),
-           ("agreement", "advisory agreement", "{:.2f}"), ("recall_large", "recall ≥ 12 mm", "{:.2f}"))
+           ("agreement", "advisory agreement", "{:.2f}"), ("recall_large", "recall ≥ 12 mm", "{:.2f}"),
+           ("median_ratio", "median est. / true", "{:.2f}"))
 # The ordinal head's columns, shown where some row of the set has a head (estimator/deepsee/metrics.py).
 HEAD_COLUMNS = (("head_agreement", "head agreement", "{:.2f}"),
                 ("head_recall_large", "head recall ≥ 12 mm", "{:.2f}"))
