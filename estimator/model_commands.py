@@ -167,14 +167,15 @@ def _finetune(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from estimator.deepsee.checkpoint import load_model
     from estimator.deepsee.config import load_estimator_config
-    from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity
+    from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity, training_cameras
     from estimator.deepsee.ordinal import model_thresholds
     from estimator.deepsee.transforms import LabelTransform
     from seesys.io.core_settings import load_window_config
     transform = LabelTransform(load_estimator_config().label_transform.k)
     windows = load_window_config()
     model, payload = load_model(args.model, transform, windows)
-    path = export_onnx(model, args.out, windows, transform, payload["compatibility"])
+    path = export_onnx(model, args.out, windows, transform, payload["compatibility"],
+                       training_cameras(payload.get("training", {})))
     difference = parity(model, OnnxModel(path, transform, windows))
     if difference > PARITY_TOLERANCE:
         raise SeesysError(f"{path}: ONNX Runtime differs from PyTorch by {difference:.2e} (> {PARITY_TOLERANCE:g})")

@@ -216,12 +216,15 @@ def run():
         shutil.rmtree(root, ignore_errors=True)
 
 
-def test_the_app_warns_at_start_of_the_camera_scale_error_its_config_records(run):
+def test_the_app_says_at_start_the_camera_scale_error_and_the_cameras_its_model_knows(run):
     out, _ = run
     warning = events(out).query("part == 'app' and event == 'camera warning'").detail
     assert len(warning) == 1 and f"{1 / CORRECTION - 1:.1%} long" in warning.iloc[0], warning
     manifest = json.loads((out / "session.json").read_text())
     assert manifest["config"]["camera"]["scale"]["depth_correction"] == CORRECTION  # the device applied it
+    model = events(out).query("part == 'app' and event == 'model'").detail
+    assert len(model) == 1 and "deepsee.onnx trained and fine-tuned on the cameras: ideal;" in model.iloc[0]
+    assert "seesys estimator finetune --sessions" in model.iloc[0]
 
 
 def test_the_view_shows_tracking_estimate_pulses_latency_drops_and_sparkline(run):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 from pathlib import Path
 
@@ -16,8 +17,9 @@ from test_deepsee_sessions import single_thread, tiny_config, tiny_dataset, trai
 from advisory.estimate_log import read_estimate_log
 from estimator.deepsee.checkpoint import ModelMismatch, load_model
 from estimator.deepsee.data import DataError, concat, session_windows
-from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity
+from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity, training_cameras
 from estimator.deepsee.finetune import finetune
+from estimator.deepsee.onnx_model import recorded_cameras
 from estimator.deepsee.predictors import WindowEstimates, load_predictor
 from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIMESERIES_PNG
 from estimator.deepsee.transforms import LabelTransform
@@ -81,8 +83,11 @@ def test_export_to_onnx_then_estimate_a_session_for_the_advisory(tiny_dataset, t
     onnx_path = tmp_path / "elsewhere" / "m.onnx"
     onnx_path.parent.mkdir()
     exported.rename(onnx_path)
-    model, _ = load_model(_model(trained_runs), TRANSFORM)
+    model, payload = load_model(_model(trained_runs), TRANSFORM)
     assert parity(model, OnnxModel(onnx_path, TRANSFORM)) <= PARITY_TOLERANCE
+    # The cameras of its training runs travel with it (what the app tells its user).
+    cameras = payload["training"]["cameras"]
+    assert cameras and OnnxModel(onnx_path, TRANSFORM).cameras == recorded_cameras(onnx_path) == cameras
     with pytest.raises(ModelMismatch, match="label transform"):
         OnnxModel(onnx_path, LabelTransform(100.0))
     with pytest.raises(ModelMismatch, match="windows"):
@@ -141,6 +146,11 @@ def test_finetune_on_a_few_sessions_lowers_the_error_on_held_out_sessions(traine
     assert result.held_out_after.rmse_cm == pytest.approx(100 * after, rel=1e-4)
     training = load_model(result.model, TRANSFORM)[1]["training"]
     assert training["finetuned_on"] == [str(s) for s in train] and training["held_out"] == [str(s) for s in held_out]
+    # The sessions' camera after the dataset's: their source as each manifest describes it (these sessions were
+    # written without a source, so each is named by its folder).
+    sources = [f"the camera of {s}" for s in train]
+    assert training["finetuned_cameras"] == list(dict.fromkeys(sources))
+    assert training_cameras(training) == training["cameras"] + list(dict.fromkeys(sources))
 
 
 def test_windows_of_another_camera_are_refused_with_a_clear_error(trained_runs, tmp_path):

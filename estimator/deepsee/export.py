@@ -23,7 +23,7 @@ from torch import nn
 
 from estimator.deepsee.compatibility import compatibility, compatibility_hash
 from estimator.deepsee.model import exceedance_probabilities
-from estimator.deepsee.onnx_model import COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, Y, OnnxModel
+from estimator.deepsee.onnx_model import CAMERAS_KEY, COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, Y, OnnxModel
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.windows import WindowConfig
 
@@ -59,9 +59,10 @@ def _served(model: nn.Module) -> tuple[nn.Module, list[str]]:
 
 
 def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: LabelTransform,
-                record: dict | None = None) -> Path:
+                record: dict | None = None, cameras: list[str] | None = None) -> Path:
     """Write ``model`` (a DeepSEE) as one self-contained ONNX file with its compatibility record: ``record`` (a
-    checkpoint's, which loading it has checked against this installation), or this installation's."""
+    checkpoint's, which loading it has checked against this installation), or this installation's; and, when
+    given, the ``cameras`` it was trained and fine-tuned on (:func:`training_cameras`)."""
     model = model.eval().cpu()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -74,11 +75,22 @@ def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: 
     proto = program.model_proto
     record = record if record is not None else compatibility(windows, transform,
                                                              head_thresholds_m=getattr(model, "thresholds_m", ()))
-    for key, value in ((COMPATIBILITY_KEY, json.dumps(record, sort_keys=True)), (HASH_KEY, compatibility_hash(record))):
+    metadata = [(COMPATIBILITY_KEY, json.dumps(record, sort_keys=True)), (HASH_KEY, compatibility_hash(record))]
+    if cameras is not None:
+        metadata.append((CAMERAS_KEY, json.dumps(list(cameras))))
+    for key, value in metadata:
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
     onnx.save_model(proto, str(path), save_as_external_data=False)
     return path
+
+
+def training_cameras(training: dict) -> list[str] | None:
+    """The cameras a checkpoint's training record says it was trained on (the dataset's camera models) and then
+    fine-tuned on (the sessions' sources), in that order; None when it records none (a model made before)."""
+    if "cameras" not in training and "finetuned_cameras" not in training:
+        return None
+    return list(dict.fromkeys(list(training.get("cameras", [])) + list(training.get("finetuned_cameras", []))))
 
 
 def parity(model: nn.Module, onnx_model: OnnxModel, batches: tuple[int, ...] = (1, 7)) -> float:

@@ -14,6 +14,7 @@ with the training part and flatters the model.
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from estimator.deepsee.ordinal import model_thresholds
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
 from seesys.core.equation2 import PulseSettings
+from seesys.core.session_layout import MANIFEST
 from seesys.core.windows import WindowConfig
 
 
@@ -49,6 +51,15 @@ def split_in_time(windows: Windows, validation_fraction: float) -> tuple[Windows
     order = np.argsort(windows.meta.frame_index.to_numpy(), kind="stable")
     cut = int(round(len(order) * (1 - validation_fraction)))
     return windows.subset(order[:cut]), windows.subset(order[cut:])
+
+
+def _camera_of(session: Path) -> str:
+    """The camera a session was recorded with, as its manifest describes the source (``session.json``)."""
+    try:
+        manifest = json.loads((Path(session) / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return f"the camera of {session}"
+    return str(manifest.get("source_description") or manifest.get("source") or f"the camera of {session}")
 
 
 def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config: EstimatorConfig,
@@ -96,7 +107,9 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
                               "base_compatibility_hash": payload["compatibility_hash"], **ctx.provenance}, device)
     supervised(run, "finetune_sessions", model, train, val, config.finetune.schedule, ctx)
     after, held_out_after = rmse_cm(), judge()
-    training = {**payload["training"], "finetuned_on": [str(s) for s in sessions], "train_windows": len(train),
+    cameras = list(dict.fromkeys(payload["training"].get("finetuned_cameras", []) + [_camera_of(s) for s in sessions]))
+    training = {**payload["training"], "finetuned_on": [str(s) for s in sessions], "finetuned_cameras": cameras,
+                "train_windows": len(train),
                 "validation_windows": len(val), "rmse_before_cm": before, "rmse_after_cm": after,
                 "held_out": [str(s) for s in held_out],
                 "held_out_before": asdict(held_out_before) if held_out_before else None,

@@ -35,6 +35,8 @@ from seesys.io.core_settings import load_window_config
 
 COMPATIBILITY_KEY = "seesys_compatibility"
 HASH_KEY = "seesys_compatibility_hash"
+# The cameras the model was trained and fine-tuned on (JSON list of names): what the app tells its user.
+CAMERAS_KEY = "seesys_cameras"
 #: The graph's output names: the transformed error, and the ordinal head's probabilities (a model with a head).
 Y = "y"
 PROBABILITIES = "probabilities"
@@ -55,6 +57,20 @@ def choose_providers(setting: str, available: list[str] | None = None) -> list[s
     if setting != "cpu" and CUDA in available:
         return [CUDA, CPU]
     return [CPU]
+
+
+def recorded_cameras(path: Path) -> list[str] | None:
+    """The cameras an exported model records it was trained and fine-tuned on, without loading it for inference;
+    None when it records none (exported before the cameras were recorded) or is not a readable ONNX file."""
+    import onnx
+    from google.protobuf.message import DecodeError
+
+    try:
+        proto = onnx.load(str(path), load_external_data=False)
+    except (OSError, ValueError, DecodeError):
+        return None
+    meta = {entry.key: entry.value for entry in proto.metadata_props}
+    return json.loads(meta[CAMERAS_KEY]) if CAMERAS_KEY in meta else None
 
 
 class OnnxModel:
@@ -93,6 +109,8 @@ class OnnxModel:
             raise ModelMismatch(f"{path} carries no SEESys compatibility record: not exported by seesys estimator")
         #: The model's compatibility record (:mod:`estimator.deepsee.compatibility`).
         self.record: dict = json.loads(meta[COMPATIBILITY_KEY])
+        # None: a model exported before the cameras were recorded
+        self.cameras: list[str] | None = json.loads(meta[CAMERAS_KEY]) if CAMERAS_KEY in meta else None
         check_compatible(self.record, str(path), windows or load_window_config(), transform, setup)
         #: The columns of this schema's RTS rows the model takes: select them before :meth:`__call__`.
         self.rts_columns: np.ndarray = rts_columns(self.record, str(path))

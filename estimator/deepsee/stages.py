@@ -284,6 +284,11 @@ def _run_config(row: Row, ctx: TrainContext, pretrained: Path | None) -> dict:
             **ctx.provenance}
 
 
+def _cameras(windows: Windows) -> list[str]:
+    """The camera models of the dataset runs ``windows`` come from (the renderer's, docs/dataset.md)."""
+    return sorted(set(windows.meta.camera_model)) if "camera_model" in windows.meta else []
+
+
 def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
               pretrained: Path | None = None) -> Path:
     """Train ``row`` on ``data['train']`` (early stopping on ``data['validation']``) into the run folder ``out``;
@@ -294,7 +299,7 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
     val = limit(data["validation"], schedule.max_validation_samples, seed)
     torch.manual_seed(seed)
     training = {"row": row.name, "schedule": ctx.schedule_name, "train_windows": len(train),
-                "validation_windows": len(val), **ctx.provenance}
+                "validation_windows": len(val), "cameras": _cameras(train), **ctx.provenance}
     if row.kind == RANDOM_FOREST:
         return _train_forest(run, train, ctx, training)
     if row.kind == LSTM:

@@ -41,6 +41,7 @@ from advisory.config import load_advisory_config
 from advisory.process import stop_on_signals
 from advisory.output import AudioOutput, open_audio_output
 from advisory.supervisor import process_commands
+from estimator.deepsee.onnx_model import recorded_cameras
 from estimator.service.config import load_service_config
 from seesys.app.config import AppConfig, load_app_config
 from seesys.app.information import InformationClock
@@ -53,6 +54,7 @@ from seesys.io.children import LOGS, Child, CsvTail, RowCounter
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
+from seesys.io.resources import resolve
 from seesys.io.session_files import utc_now
 from seesys.io.transport import peer_answers
 from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
@@ -181,6 +183,16 @@ class App:
         if self.output is not None:
             env.update(self.output.env())
         return env
+
+    def _model_cameras(self) -> str:
+        """Which cameras the local estimator's model was trained and fine-tuned on, and how to make it this
+        camera's: the user should know when the advisory speaks from a model that never saw their camera."""
+        path = self.o.model or resolve(load_service_config(self.config_dir).model)
+        cameras = recorded_cameras(path)
+        seen = (f"trained and fine-tuned on the cameras: {', '.join(cameras)}" if cameras
+                else "records no cameras it was trained on")
+        return (f"{Path(path).name} {seen}; for another camera, fine-tune it on a few minutes of that camera's "
+                "sessions with ground truth: seesys estimator finetune --sessions SESSION... (docs/estimator.md)")
 
     def event(self, part: str, event: str, detail: str = "") -> None:
         """Log an app event and show it, with the parts' state as it is now (a restart shows as done at once)."""
@@ -428,6 +440,8 @@ class App:
                 camera_warning = load_camera_config(self.config_dir).scale.warning()
                 if camera_warning:
                     self.event("app", "camera warning", camera_warning)
+                if self.o.local:
+                    self.event("app", "model", self._model_cameras())
                 try:
                     status, error = self._supervise_until_stopped(stop)
                 finally:  # inside the view: it shows the stop until every part has ended
