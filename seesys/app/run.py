@@ -189,7 +189,7 @@ class App:
         camera's: the user should know when the advisory speaks from a model that never saw their camera."""
         path = self.o.model or resolve(load_service_config(self.config_dir).model)
         cameras = recorded_cameras(path)
-        seen = (f"trained and fine-tuned on the cameras: {', '.join(cameras)}" if cameras
+        seen = (f"was trained or fine-tuned on the cameras: {', '.join(cameras)}" if cameras
                 else "records no cameras it was trained on")
         return (f"{Path(path).name} {seen}; for another camera, fine-tune it on a few minutes of that camera's "
                 "sessions with ground truth: seesys estimator finetune --sessions SESSION... (docs/estimator.md)")
