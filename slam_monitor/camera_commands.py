@@ -4,27 +4,21 @@ should say (:mod:`seesys.core.camera_scale`)."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from seesys.core import session_layout
 from seesys.core.camera_scale import ScaleFit, describe
 from seesys.io.camera_check import SessionScale, load_scale_settings, session_scale
 from seesys.io.core_settings import load_label_config
-from slam_monitor.sources.settings import folder_calibration, load_camera_config
+from slam_monitor.sources.settings import FileSourceDefaults, folder_calibration, load_camera_config
 
 
-def _folder_depth_factor(session: Path) -> tuple[Path, float] | None:
-    """The depth factor a folder source's calibration (or the camera config's default) gave the session, when
-    its source was a dataset folder."""
-    try:
-        source = json.loads((session / session_layout.MANIFEST).read_text()).get("source", "")
-    except (OSError, json.JSONDecodeError):
-        return None
+def _folder_depth_factor(source: str, defaults: FileSourceDefaults) -> tuple[Path, float] | None:
+    """The depth factor a folder source's calibration (or the camera config's default) gave a session recorded
+    from ``source`` (KIND:PATH), when it was a dataset folder."""
     kind, _, path = source.partition(":")
     if kind != "tum" or not Path(path).is_dir():
         return None
-    return Path(path), folder_calibration(Path(path), load_camera_config().files).depth_units_per_metre
+    return Path(path), folder_calibration(Path(path), defaults).depth_units_per_metre
 
 
 def _check(args: argparse.Namespace) -> int:
@@ -44,8 +38,9 @@ def _check(args: argparse.Namespace) -> int:
     correction = pooled.correction(applied.pop())
     print("\nFor this camera, in camera.toml (the source multiplies every depth by it):\n"
           f"[scale]\ndepth_correction = {correction:.4f}")
+    defaults = load_camera_config().files
     for one in checked:
-        folder = _folder_depth_factor(one.folder)
+        folder = _folder_depth_factor(one.source, defaults)
         if folder is not None:
             print(f"or in {folder[0] / 'calibration.yaml'}: depth_factor: {one.fit.depth_factor(folder[1]):.2f} "
                   f"(was {folder[1]:g})")

@@ -14,7 +14,6 @@ with the training part and flatters the model.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -31,7 +30,7 @@ from estimator.deepsee.ordinal import model_thresholds
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
 from seesys.core.equation2 import PulseSettings
-from seesys.core.session_layout import MANIFEST
+from seesys.io.session_files import read_manifest
 from seesys.core.windows import WindowConfig
 
 
@@ -56,7 +55,7 @@ def split_in_time(windows: Windows, validation_fraction: float) -> tuple[Windows
 def _camera_of(session: Path) -> str:
     """The camera a session was recorded with, as its manifest describes the source (``session.json``)."""
     try:
-        manifest = json.loads((Path(session) / MANIFEST).read_text())
+        manifest = read_manifest(Path(session))
     except (OSError, ValueError):
         return f"the camera of {session}"
     return str(manifest.get("source_description") or manifest.get("source") or f"the camera of {session}")

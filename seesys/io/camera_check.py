@@ -11,6 +11,7 @@ from seesys.core import session_layout
 from seesys.core.camera_scale import ScaleCheckError, ScaleFit, ScaleSettings, describe, window_scales
 from seesys.core.labels import LabelError, tracked_states
 from seesys.io.config import build, config_dir, read_toml
+from seesys.io.session_files import read_manifest
 from seesys.io.session_labels import read_session_track
 
 
@@ -19,6 +20,7 @@ class SessionScale:
     folder: Path
     fit: ScaleFit
     applied_correction: float  # the depth_correction the device applied while recording
+    source: str  # the session's frame source as recorded (KIND:PATH)
 
 
 def load_scale_settings(directory: Path | None = None) -> ScaleSettings:
@@ -28,11 +30,10 @@ def load_scale_settings(directory: Path | None = None) -> ScaleSettings:
 
 
 def _manifest(folder: Path) -> dict:
-    path = folder / session_layout.MANIFEST
     try:
-        return json.loads(path.read_text())
+        return read_manifest(folder)
     except (OSError, json.JSONDecodeError) as e:
-        raise ScaleCheckError(f"cannot read {path}: {e}") from None
+        raise ScaleCheckError(f"cannot read {folder / session_layout.MANIFEST}: {e}") from None
 
 
 def session_scale(folder: Path, settings: ScaleSettings, association_max_dt_s: float) -> SessionScale:
@@ -49,7 +50,7 @@ def session_scale(folder: Path, settings: ScaleSettings, association_max_dt_s: f
                             association_max_dt_s, settings)
     except (LabelError, ScaleCheckError) as e:
         raise ScaleCheckError(f"{folder}: {e}") from None
-    return SessionScale(folder, fit, float(applied))
+    return SessionScale(folder, fit, float(applied), str(manifest.get("source", "")))
 
 
 def sessions_scale_line(folders: list[Path], settings: ScaleSettings, association_max_dt_s: float) -> str:
