@@ -57,11 +57,16 @@ def equation2_head(probabilities: np.ndarray | None, thresholds_m: Sequence[floa
     return probabilities
 
 
+def bin_index(meta: pd.DataFrame, window_s: float) -> np.ndarray:
+    """The advisory bin of each window: ``window_s`` long, counted from its run's first window."""
+    t = pd.Series(meta.timestamp.to_numpy(float))
+    return np.floor((t - t.groupby(meta.run.to_numpy()).transform("min")) / window_s).astype(int).to_numpy()
+
+
 def advisory_bins(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, window_s: float) -> pd.DataFrame:
-    """Mean estimate and mean truth per run and 1/3 s bin (bins counted from each run's first window)."""
-    table = pd.DataFrame({"run": meta.run.to_numpy(), "t": meta.timestamp.to_numpy(float), "estimate": estimate_m,
-                          "truth": true_m})
-    table["bin"] = np.floor((table.t - table.groupby("run").t.transform("min")) / window_s).astype(int)
+    """Mean estimate and mean truth per run and 1/3 s bin (:func:`bin_index`)."""
+    table = pd.DataFrame({"run": meta.run.to_numpy(), "estimate": estimate_m, "truth": true_m,
+                          "bin": bin_index(meta, window_s)})
     return table.groupby(["run", "bin"], sort=False)[["estimate", "truth"]].mean().reset_index()
 
 
@@ -84,8 +89,7 @@ def _head_scores(meta: pd.DataFrame, probabilities: np.ndarray, bins: pd.DataFra
     columns = [f"p{k}" for k in range(probabilities.shape[1])]
     table = pd.DataFrame(probabilities, columns=columns)
     table["run"] = meta.run.to_numpy()
-    t = pd.Series(meta.timestamp.to_numpy(float))
-    table["bin"] = np.floor((t - t.groupby(table.run).transform("min")) / pulses.window_s).astype(int)
+    table["bin"] = bin_index(meta, pulses.window_s)
     means = table.groupby(["run", "bin"], sort=False)[columns].mean().reset_index().merge(
         bins[["run", "bin", "truth"]], on=["run", "bin"], validate="one_to_one")
     classes = head_class(means[columns].to_numpy())
