@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from seesys.core.camera_scale import ScaleFit, describe
+from seesys.core.camera_scale import ScaleFit, depth_scale_error, describe
 from seesys.io.camera_check import SessionScale, load_scale_settings, session_scale
 from seesys.io.core_settings import load_label_config
 from slam_monitor.sources.settings import FileSourceDefaults, folder_calibration, load_camera_config
@@ -44,8 +44,9 @@ def _check(args: argparse.Namespace) -> int:
         if folder is not None:
             print(f"or in {folder[0] / 'calibration.yaml'}: depth_factor: {one.fit.depth_factor(folder[1]):.2f} "
                   f"(was {folder[1]:g})")
-    if abs(1.0 / correction - 1.0) > settings.warn_above:
-        print(f"warning: a depth scale error of {1.0 / correction - 1.0:+.1%}, above the {settings.warn_above:.0%} "
+    error = depth_scale_error(correction)
+    if abs(error) > settings.warn_above:
+        print(f"warning: a depth scale error of {error:+.1%}, above the {settings.warn_above:.0%} "
               "the app tolerates silently; the app warns at start while camera.toml records it")
     return 0
 

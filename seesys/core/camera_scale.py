@@ -25,6 +25,12 @@ class ScaleCheckError(SeesysError):
     """The scale cannot be measured from the session(s): too little tracked motion with ground truth."""
 
 
+def depth_scale_error(correction: float) -> float:
+    """The depth scale error s (the camera reads z·(1+s)) that the depth correction (or the Sim(3) scale) c
+    undoes: 1/c − 1; positive when the depth reads long."""
+    return 1.0 / correction - 1.0
+
+
 @dataclass(frozen=True)
 class ScaleSettings:
     """``[scale]`` of ``configs/camera.toml``."""
@@ -44,7 +50,7 @@ class ScaleSettings:
     @property
     def recorded_error(self) -> float:
         """The depth scale error s the configured correction compensates (the camera reads z·(1+s))."""
-        return 1.0 / self.depth_correction - 1.0
+        return depth_scale_error(self.depth_correction)
 
     def warning(self) -> str | None:
         """What the app says when it starts, if the recorded scale error is above ``warn_above``; else None."""
@@ -79,7 +85,7 @@ class ScaleFit:
     @property
     def depth_scale_error(self) -> float:
         """The camera's depth scale error s, the depth reading z·(1+s): 1/c − 1 (positive: depth reads long)."""
-        return 1.0 / self.scale - 1.0
+        return depth_scale_error(self.scale)
 
     def correction(self, applied: float = 1.0) -> float:
         """The ``depth_correction`` that would have made the trajectory metric, given the one ``applied`` while
