@@ -22,7 +22,7 @@ from advisory.conditions import Condition, ConditionInput, condition_input
 from advisory.config import AdvisoryConfig
 from advisory.handoff import AudioBuffer, encode_buffer
 from advisory.logs import EventLog
-from advisory.scheduler import CUE, NO_INFORMATION, TICK, Decision, PulseScheduler
+from advisory.scheduler import CUE, CueClock, Decision, PulseScheduler
 from advisory.synth import synthesise, synthesise_cue
 from seesys.core.messages import MessageError, decode
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
@@ -56,7 +56,8 @@ class Generator:
         self._next_id = 0
         self._bad_messages = 0
         self._cue = synthesise_cue(cfg.no_information, cfg.audio.sample_rate, cfg.timing.buffer_s)
-        self._last_cue = -math.inf
+        self._cues = CueClock(condition.audible, cfg.no_information.no_information_cue,
+                              cfg.no_information.cue_every_s)
         self._events.event("started", f"condition={condition.value} input={self._input.endpoint} "
                                       f"handoff={cfg.handoff.endpoint}")
 
@@ -65,18 +66,10 @@ class Generator:
             self._buffers[n] = synthesise(n, self._cfg.equation2, self._cfg.audio, self._cfg.timing.buffer_s)
         return self._buffers[n]
 
-    def _cue_due(self, d: Decision) -> bool:
-        """Whether this buffer carries the "no information" cue: a tick without information, in an audible
-        condition with the cue on, ``cue_every_s`` after the last cue."""
-        cue = self._cfg.no_information
-        return (d.status == NO_INFORMATION and d.trigger == TICK and self._condition.audible
-                and cue.no_information_cue and d.time - self._last_cue >= cue.cue_every_s - 1e-9)
-
     def _emit(self, d: Decision) -> None:
         played = d.n_pulses if self._condition.audible else 0
-        trigger, samples = d.trigger, self._samples(played)
-        if self._cue_due(d):
-            trigger, samples, self._last_cue = CUE, self._cue, d.time
+        trigger = self._cues.trigger(d)
+        samples = self._cue if trigger == CUE else self._samples(played)
         buf = AudioBuffer(self._next_id, trigger, d.n_pulses, played, self._cfg.audio.sample_rate, d.time,
                           d.time + self._cfg.audio.schedule_latency_s, d.arrival, samples)
         self._next_id += 1

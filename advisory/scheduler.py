@@ -144,3 +144,20 @@ class PulseScheduler:
         """
         scheduled = self.next_tick if t - self.next_tick < self._cadence else t
         return self._emitted(self._decide(scheduled, TICK))
+
+
+class CueClock:
+    """Which buffers carry the "no information" cue instead of silence: a tick without information, in an audible
+    condition with the cue on, at least ``every_s`` after the last cue."""
+
+    def __init__(self, audible: bool, enabled: bool, every_s: float):
+        self._on = audible and enabled
+        self._every = every_s
+        self._last = -math.inf
+
+    def trigger(self, d: Decision) -> str:
+        """The trigger the buffer of ``d`` is logged with: :data:`CUE` when it carries the cue, else ``d.trigger``."""
+        if self._on and d.status == NO_INFORMATION and d.trigger == TICK and d.time - self._last >= self._every - 1e-9:
+            self._last = d.time
+            return CUE
+        return d.trigger

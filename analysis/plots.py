@@ -23,7 +23,7 @@ from analysis.config import AnalysisConfig, Variable  # noqa: E402
 from seesys.core.trajectory import TrajectoryError  # noqa: E402
 from seesys.io.logfiles import read_csv_log  # noqa: E402
 from seesys.io.trajectory_files import read_tum
-from study.estimates import read_estimate_log  # noqa: E402
+from study.estimates import read_estimate_log, wall_to_camera_offset  # noqa: E402
 from study.sessions import StudyData, read_events  # noqa: E402
 
 ADVISORY_CSV = "advisory.csv"
@@ -46,14 +46,6 @@ def box_strip(table: pd.DataFrame, variable: Variable, conditions: list[str], ou
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
-
-
-def wall_to_camera_offset(attempt: Path) -> float:
-    """Seconds to add to a Unix time to get the camera clock (see the module docstring)."""
-    log = read_estimate_log(attempt)
-    if log.empty:
-        return 0.0
-    return float(np.median(log.timestamp - log.receipt_time))
 
 
 def _estimated_error_at(attempt: Path, times: np.ndarray, max_gap_s: float = 0.5) -> np.ndarray:

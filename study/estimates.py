@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from seesys.io.logfiles import read_csv_log
@@ -24,3 +25,13 @@ def read_estimate_log(folder: Path) -> pd.DataFrame:
     except pd.errors.EmptyDataError:
         return pd.DataFrame(columns=list(ESTIMATE_COLUMNS))
     return log.dropna(subset=["receipt_time", "timestamp", "error_m"])
+
+
+def wall_to_camera_offset(folder: Path) -> float:
+    """Seconds to add to a Unix time of the session (the advisory's buffers, the operator's events) to get the
+    camera clock: the median of the estimates' frame timestamp minus their receipt time (it includes the estimate's
+    latency, tens of milliseconds). Without an estimate log both clocks are taken to be the same."""
+    log = read_estimate_log(folder)
+    if log.empty:
+        return 0.0
+    return float(np.median(log.timestamp - log.receipt_time))

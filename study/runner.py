@@ -68,11 +68,11 @@ from study.sessions import (
     DONE_STATUSES,
     EVENTS_CSV,
     RUN_JSON,
-    attempt_folders,
     next_attempt_folder,
     phase_status,
     read_run,
     set_aside_failed_start,
+    supersede_attempts,
 )
 from study.watch import StreamWatcher
 
@@ -118,13 +118,6 @@ def choose_condition(protocol: Protocol, study: Path, participant: str, phase: s
         if phase_status(protocol.phase_folder(study, participant, phase, c)) != DONE:
             return c
     return person.conditions[-1]
-
-
-def _supersede(phase_folder: Path) -> None:
-    for attempt in attempt_folders(phase_folder):
-        run = read_run(attempt)
-        run["superseded"] = True
-        write_json_atomically(attempt / RUN_JSON, run)
 
 
 class Session:
@@ -293,7 +286,7 @@ class Session:
 
     def _run(self, stop: threading.Event) -> RunResult:
         if self.o.restart:
-            _supersede(self.phase_folder)
+            supersede_attempts(self.phase_folder)
         self.attempt = next_attempt_folder(self.phase_folder)
         self.frames = RowCounter(self.attempt / "frames.csv")
         self.advisory_rows = RowCounter(self.attempt / ADVISORY_CSV)

@@ -138,6 +138,16 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     count = int(np.floor(duration * camera.fps)) if spec.frames is None else spec.frames
     if count < 1:
         raise SeesysError(f"sequence too short: {duration:.2f} s gives no frame")
+    return plan_frames(spec, config, camera, model, scene, trajectory, group, name, count, rng, native_width)
+
+
+def plan_frames(spec: SequenceSpec, config: SynthConfig, camera: CameraConfig, model: CameraModel, scene: Scene,
+                trajectory: Trajectory, group: str, name: str, count: int, rng: np.random.Generator,
+                native_width: int) -> SequencePlan:
+    """The per-frame exposure, light and noise schedule of ``count`` frames through ``camera`` and ``model``,
+    drawn from ``rng`` after the scene and trajectory (the closed-loop study plans its frames the same way, with a
+    trajectory that its simulated operator extends as it goes)."""
+    margin = 2 * config.sensor.exposure_max_ms / 1000.0
     # The first frame's exposure starts at the trajectory's start.
     frame_times = margin / 2 + np.arange(count) / camera.fps
 
@@ -157,7 +167,7 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     signal = sensor.signal_scale * gain * light * exposure / base
     noise = model.colour_noise_scale
     photometry = Photometry(sensor.signal_scale,
-                            _draw_range(rng, sensor.shot_noise_dn_per_e) * preset.shot_noise_scale * noise**2,
+                            _draw_range(rng, sensor.shot_noise_dn_per_e) * scene.preset.shot_noise_scale * noise**2,
                             _draw_range(rng, sensor.read_noise_dn) * noise, sensor.black_level_dn)
     return SequencePlan(spec, camera, scene, trajectory, group, name, frame_times, exposure, light, signal, gain,
                         photometry, model, true_lens(camera.lens, model, spec.distortion),
@@ -199,53 +209,76 @@ class _Worker:
 
     @classmethod
     def render_frame(cls, index: int) -> FrameRecord:
-        plan, model = cls.plan, cls.plan.camera_model
-        t = plan.frame_times[index]
-        exposure = plan.exposure_s[index]
-        readout = model.rolling_shutter_s
-        # Poses: mid-exposure, exposure start and end, first and last row read, depth capture.
-        times = np.array([t, t - exposure / 2, t + exposure / 2, t - readout / 2, t + readout / 2,
-                          t + model.depth_delay_s])
-        positions, rotations = plan.trajectory.interpolate(times)
-        matrices = rotations.as_matrix()
-        sharp = render(plan.scene, matrices[0], positions[0], cls.grid)
-        image, streak = sharp.radiance, 0.0
+        images = render_images(cls.plan, cls.grid, cls.lens, cls.max_samples, index, cls.plan.trajectory)
+        stamp = frame_stamp(cls.start_time + cls.plan.frame_times[index])
+        _write_png(cls.out / "rgb" / f"{stamp}.png", images.gray)
+        _write_png(cls.out / "depth" / f"{stamp}.png", depth_png(images.depth_m, cls.depth_factor))
+        return images.record
 
-        def flow_to(k: int) -> np.ndarray:
-            return image_motion(sharp.depth, cls.grid, matrices[k].T @ matrices[0],
-                                matrices[k].T @ (positions[0] - positions[k]))
 
-        if plan.spec.blur:
-            image, streak = motion_blur(image, cls.grid, flow_to(1), flow_to(2), cls.max_samples)
-        if readout > 0:
-            image = rolling_shutter(image, cls.grid, flow_to(3), flow_to(4))
-        view = sharp
-        if model.separate_depth_view:
-            centre = positions[5] + matrices[5] @ np.asarray(model.depth_offset_m)
-            view = render(plan.scene, matrices[5], centre, cls.grid)
-        depth = view.depth
-        if model.structured_light:  # in the depth camera's own image, before it is registered to colour
-            depth = without_unlit(view, cls.grid.lens.fx, model)
-        if any(model.depth_misregistration_px):
-            depth = shift_depth(depth, model.depth_misregistration_px)
-        if cls.lens is not None:
-            image, depth = cls.lens.apply(image, depth)
-        if model.depth_noise_m_per_m2 > 0:
-            depth = depth_noise(depth, model.depth_noise_m_per_m2, np.random.default_rng([plan.spec.seed, index, 0xD3]))
-        if model.structured_light:  # the disparity is measured with its noise, then quantised
-            depth = as_measured(depth, model)
-        rng = np.random.default_rng([plan.spec.seed, index, 0xF1])
-        gray = dataclasses.replace(plan.photometry, signal_scale=float(plan.signal_scale[index])).expose(image, rng)
-        if model.jpeg_quality > 0:
-            gray = jpeg_roundtrip(gray, model.jpeg_quality)
-        stamp = frame_stamp(cls.start_time + t)
-        _write_png(cls.out / "rgb" / f"{stamp}.png", gray)
-        # The sensor's depth scale error is in what it reports, not in the depth_factor it says it uses.
-        reported = depth * np.float32(1 + model.depth_scale_error) if model.depth_scale_error else depth
-        depth_png = np.clip(np.rint(reported * cls.depth_factor), 0, 65535).astype(np.uint16)
-        _write_png(cls.out / "depth" / f"{stamp}.png", depth_png)
-        return FrameRecord(index, 1000 * exposure, float(plan.light[index]), float(plan.signal_scale[index]), streak,
-                           float(gray.mean()))
+@dataclass(frozen=True)
+class FrameImages:
+    """One frame as the camera delivers it: 8-bit gray, and the z-depth (metres, float32) the sensor reports (its
+    scale error included, 0 where it has none), with the frame's render record."""
+
+    gray: np.ndarray
+    depth_m: np.ndarray
+    record: FrameRecord
+
+
+def render_images(plan: SequencePlan, grid: RayGrid, lens: LensDistortion | None, max_samples: int, index: int,
+                  trajectory: Trajectory) -> FrameImages:
+    """Frame ``index`` of ``plan`` seen along ``trajectory``, which must cover the frame's exposure, rolling
+    shutter and depth capture (a few milliseconds either side of its time)."""
+    model = plan.camera_model
+    t = plan.frame_times[index]
+    exposure = plan.exposure_s[index]
+    readout = model.rolling_shutter_s
+    # Poses: mid-exposure, exposure start and end, first and last row read, depth capture.
+    times = np.array([t, t - exposure / 2, t + exposure / 2, t - readout / 2, t + readout / 2,
+                      t + model.depth_delay_s])
+    positions, rotations = trajectory.interpolate(times)
+    matrices = rotations.as_matrix()
+    sharp = render(plan.scene, matrices[0], positions[0], grid)
+    image, streak = sharp.radiance, 0.0
+
+    def flow_to(k: int) -> np.ndarray:
+        return image_motion(sharp.depth, grid, matrices[k].T @ matrices[0],
+                            matrices[k].T @ (positions[0] - positions[k]))
+
+    if plan.spec.blur:
+        image, streak = motion_blur(image, grid, flow_to(1), flow_to(2), max_samples)
+    if readout > 0:
+        image = rolling_shutter(image, grid, flow_to(3), flow_to(4))
+    view = sharp
+    if model.separate_depth_view:
+        centre = positions[5] + matrices[5] @ np.asarray(model.depth_offset_m)
+        view = render(plan.scene, matrices[5], centre, grid)
+    depth = view.depth
+    if model.structured_light:  # in the depth camera's own image, before it is registered to colour
+        depth = without_unlit(view, grid.lens.fx, model)
+    if any(model.depth_misregistration_px):
+        depth = shift_depth(depth, model.depth_misregistration_px)
+    if lens is not None:
+        image, depth = lens.apply(image, depth)
+    if model.depth_noise_m_per_m2 > 0:
+        depth = depth_noise(depth, model.depth_noise_m_per_m2, np.random.default_rng([plan.spec.seed, index, 0xD3]))
+    if model.structured_light:  # the disparity is measured with its noise, then quantised
+        depth = as_measured(depth, model)
+    rng = np.random.default_rng([plan.spec.seed, index, 0xF1])
+    gray = dataclasses.replace(plan.photometry, signal_scale=float(plan.signal_scale[index])).expose(image, rng)
+    if model.jpeg_quality > 0:
+        gray = jpeg_roundtrip(gray, model.jpeg_quality)
+    # The sensor's depth scale error is in what it reports, not in the depth_factor it says it uses.
+    reported = depth * np.float32(1 + model.depth_scale_error) if model.depth_scale_error else depth
+    record = FrameRecord(index, 1000 * exposure, float(plan.light[index]), float(plan.signal_scale[index]), streak,
+                         float(gray.mean()))
+    return FrameImages(gray, reported, record)
+
+
+def depth_png(depth_m: np.ndarray, depth_factor: float) -> np.ndarray:
+    """The 16-bit depth image of a TUM sequence (``depth_factor`` units per metre, 0 = none)."""
+    return np.clip(np.rint(depth_m * depth_factor), 0, 65535).astype(np.uint16)
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:

@@ -67,7 +67,7 @@ def load_euroc(path: Path) -> Trajectory:
     return from_poses(read_euroc_groundtruth(path))
 
 
-def _look_rotation(forward: np.ndarray) -> Rotation:
+def look_rotation(forward: np.ndarray) -> Rotation:
     """R_world_camera for an optical camera looking along ``forward`` (N×3) with the world z axis up."""
     f = forward / np.linalg.norm(forward, axis=1, keepdims=True)
     right = np.cross(f, np.array([0.0, 0.0, 1.0]))
@@ -104,7 +104,7 @@ def place_real(trajectory: Trajectory, room_lo: np.ndarray, room_hi: np.ndarray,
     return Trajectory(trajectory.times - trajectory.times[0], positions, place * trajectory.rotations)
 
 
-def _smooth_noise(rng: np.random.Generator, t: np.ndarray, band_hz: tuple[float, float], components: int = 4,
+def smooth_noise(rng: np.random.Generator, t: np.ndarray, band_hz: tuple[float, float], components: int = 4,
                   ) -> np.ndarray:
     """Band-limited noise with unit RMS: a sum of sinusoids at random frequencies in ``band_hz``."""
     freqs = rng.uniform(*band_hz, components)
@@ -112,7 +112,7 @@ def _smooth_noise(rng: np.random.Generator, t: np.ndarray, band_hz: tuple[float,
     return np.sqrt(2.0 / components) * np.sin(2 * np.pi * freqs[:, None] * t[None, :] + phases[:, None]).sum(axis=0)
 
 
-def _jerks(rng: np.random.Generator, t: np.ndarray, rate_hz: float, amplitude: float) -> np.ndarray:
+def jerk_offsets(rng: np.random.Generator, t: np.ndarray, rate_hz: float, amplitude: float) -> np.ndarray:
     """Sudden out-and-back turns of the hand (yaw, pitch offsets, 2×N): Poisson events at ``rate_hz``, each a
     sin² bump of 0.5-1 × ``amplitude`` lasting 0.15-0.35 s (peak rates of 100-300 deg/s for 15°). They are
     rare and short, and with the exposure they make the motion-blur bursts of real handheld footage."""
@@ -125,7 +125,7 @@ def _jerks(rng: np.random.Generator, t: np.ndarray, rate_hz: float, amplitude: f
     return out
 
 
-def _min_jerk(x: np.ndarray) -> np.ndarray:
+def min_jerk(x: np.ndarray) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
     return x**3 * (10 - 15 * x + 6 * x**2)
 
@@ -160,24 +160,24 @@ def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, 
         positions, yaw, pitch = _walking(rng, s, centre, half, walk, yaw_rate, height)
         if group == "rapid":
             # Waving runs at its own rate (wave_hz in real time, not sped up), in bursts.
-            envelope = _min_jerk(0.5 + 0.8 * _smooth_noise(rng, t, (0.05, 0.15), 2))
+            envelope = min_jerk(0.5 + 0.8 * smooth_noise(rng, t, (0.05, 0.15), 2))
             amplitude = np.radians(motion.wave_deg)
-            yaw = yaw + amplitude * envelope * _smooth_noise(rng, t, motion.wave_hz, 2)
-            pitch = pitch + 0.5 * amplitude * envelope * _smooth_noise(rng, t, motion.wave_hz, 2)
+            yaw = yaw + amplitude * envelope * smooth_noise(rng, t, motion.wave_hz, 2)
+            pitch = pitch + 0.5 * amplitude * envelope * smooth_noise(rng, t, motion.wave_hz, 2)
 
     # Hand shake (in real time, like the waving): shake_m and shake_deg are the RMS of the 3-D offset and angle.
     per_axis = 1.0 / np.sqrt(3.0)
-    bumps = _jerks(rng, t, motion.jerk_rate_hz, np.radians(motion.jerk_deg))
+    bumps = jerk_offsets(rng, t, motion.jerk_rate_hz, np.radians(motion.jerk_deg))
     yaw, pitch = yaw + bumps[0], pitch + bumps[1]
     shake_hz = motion.shake_hz
     positions = positions + per_axis * motion.shake_m * np.column_stack(
-        [_smooth_noise(rng, t, shake_hz) for _ in range(3)])
+        [smooth_noise(rng, t, shake_hz) for _ in range(3)])
     forward = np.column_stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
-    roll = np.radians(3.0) * _smooth_noise(rng, s, (0.1, 0.4), 2)
+    roll = np.radians(3.0) * smooth_noise(rng, s, (0.1, 0.4), 2)
     shake = per_axis * np.radians(motion.shake_deg) * np.column_stack(
-        [_smooth_noise(rng, t, shake_hz) for _ in range(3)])
+        [smooth_noise(rng, t, shake_hz) for _ in range(3)])
     shake[:, 2] += roll
-    rotations = _look_rotation(forward) * Rotation.from_rotvec(shake)
+    rotations = look_rotation(forward) * Rotation.from_rotvec(shake)
     return Trajectory(t, np.clip(positions, inner_lo, inner_hi), rotations)
 
 
@@ -188,7 +188,7 @@ def _walking(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: 
     mean_radius = float(np.mean(radii))
     direction = rng.choice([-1.0, 1.0])
     phase = rng.uniform(0, 2 * np.pi) + direction * walk * s / mean_radius
-    wobble = 1.0 + 0.15 * _smooth_noise(rng, s, (0.03, 0.1), 2)
+    wobble = 1.0 + 0.15 * smooth_noise(rng, s, (0.03, 0.1), 2)
     x = centre[0] + radii[0] * wobble * np.cos(phase)
     y = centre[1] + radii[1] * wobble * np.sin(phase)
     z = height + 0.015 * np.sin(2 * np.pi * 1.8 * s * walk / 0.5 + rng.uniform(0, 2 * np.pi))
@@ -198,7 +198,7 @@ def _walking(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: 
     look_amp = min(yaw_rate / (2 * np.pi * look_freq), np.radians(80))
     outward = -direction * np.radians(rng.uniform(-30, 70))
     yaw = heading + outward + look_amp * np.sin(2 * np.pi * look_freq * s + rng.uniform(0, 2 * np.pi))
-    pitch = np.radians(-8.0) + np.radians(8.0) * _smooth_noise(rng, s, (0.05, 0.2), 2)
+    pitch = np.radians(-8.0) + np.radians(8.0) * smooth_noise(rng, s, (0.05, 0.2), 2)
     return np.column_stack([x, y, z]), yaw, pitch
 
 
@@ -208,9 +208,9 @@ def _aiming(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: n
     spot = centre[:2] + half[:2] * rng.uniform(-0.6, 0.6, 2)
     arc_radius = rng.uniform(0.05, 0.25)
     arc_phase = walk * s / max(arc_radius, 1e-3) * rng.choice([-1.0, 1.0])
-    x = spot[0] + arc_radius * np.cos(arc_phase) + 0.3 * half[0] * _smooth_noise(rng, s, (0.01, 0.03), 2)
-    y = spot[1] + arc_radius * np.sin(arc_phase) + 0.3 * half[1] * _smooth_noise(rng, s, (0.01, 0.03), 2)
-    z = height + 0.05 * _smooth_noise(rng, s, (0.05, 0.2), 2)
+    x = spot[0] + arc_radius * np.cos(arc_phase) + 0.3 * half[0] * smooth_noise(rng, s, (0.01, 0.03), 2)
+    y = spot[1] + arc_radius * np.sin(arc_phase) + 0.3 * half[1] * smooth_noise(rng, s, (0.01, 0.03), 2)
+    z = height + 0.05 * smooth_noise(rng, s, (0.05, 0.2), 2)
     positions = np.column_stack([x, y, z])
 
     # Aim points on the walls; each aim holds a few seconds, then a minimum-jerk turn to the next one.
@@ -224,12 +224,12 @@ def _aiming(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: n
         next_pitch = np.radians(rng.uniform(-30, 10))
         turn = max(0.4, 1.875 * abs(next_yaw - aim_yaw) / yaw_rate)
         sel = s >= start
-        blend = _min_jerk((s[sel] - start - hold) / turn)
+        blend = min_jerk((s[sel] - start - hold) / turn)
         yaw[sel] = aim_yaw + blend * (next_yaw - aim_yaw)
         pitch[sel] = aim_pitch + blend * (next_pitch - aim_pitch)
         aim_yaw, aim_pitch = next_yaw, next_pitch
         start += hold + turn
     # Small scanning motion around each aim point while holding it.
-    yaw += np.radians(4.0) * _smooth_noise(rng, s, (0.2, 0.6), 3)
-    pitch += np.radians(3.0) * _smooth_noise(rng, s, (0.2, 0.6), 3)
+    yaw += np.radians(4.0) * smooth_noise(rng, s, (0.2, 0.6), 3)
+    pitch += np.radians(3.0) * smooth_noise(rng, s, (0.2, 0.6), 3)
     return positions, yaw, pitch
