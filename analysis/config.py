@@ -30,6 +30,7 @@ class AnalysisConfig:
     bootstrap_seed: int
     include_incomplete: bool
     plots_per_condition: int
+    changes_of: list[str]
     condition_labels: dict[str, str]
     variables: list[Variable]
 

@@ -7,6 +7,8 @@ Writes into the output folder (default ``STUDY/analysis``):
 - ``rpe_pairs.csv``: every RPE pair (participant, condition, attempt, timestamp, error_m);
 - ``descriptives.csv``, ``assumptions.csv``, ``tests.csv``, ``posthoc.csv``: the statistics, one row per
   variable and condition / check / test / pair, in the reported units (R and JASP read them as they are);
+- ``changes.csv``: the relative change of the means of ``changes_of`` (analysis.toml) against every other
+  condition, with bootstrap CIs;
 - ``figures/*.png`` and ``report.md`` / ``report.html`` (the same report; the HTML embeds nothing, it links the
   figures).
 """
@@ -22,10 +24,10 @@ from markdown_it import MarkdownIt
 
 from analysis import plots
 from analysis.config import AnalysisConfig
-from analysis.stats import Comparison, compare
+from analysis.stats import Comparison, compare, relative_changes
 from seesys.core.errors import SeesysError
 from study.config import MetricsConfig
-from study.sessions import DONE, collect_study
+from study.sessions import DONE, advice_thresholds, collect_study
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
@@ -76,6 +78,14 @@ def analyse_table(table: pd.DataFrame, conditions: list[str], design: str, cfg: 
     return [compare(table, v, conditions, design, cfg) for v in cfg.variables if v.column in table]
 
 
+def changes_of(table: pd.DataFrame, comparisons: list[Comparison], conditions: list[str], design: str,
+               cfg: AnalysisConfig) -> pd.DataFrame:
+    """The relative changes (``changes_of`` of analysis.toml) of every compared variable, as one tidy table."""
+    frames = [relative_changes(table, c.variable, conditions, design, cfg.changes_of, cfg) for c in comparisons]
+    frames = [f for f in frames if not f.empty]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
 def _tidy(comparisons: list[Comparison], part: str) -> pd.DataFrame:
     frames = [getattr(c, part).assign(variable=c.variable.column) for c in comparisons if not getattr(c, part).empty]
     if not frames:
@@ -87,6 +97,20 @@ def _tidy(comparisons: list[Comparison], part: str) -> pd.DataFrame:
 def write_tables(comparisons: list[Comparison], out: Path) -> None:
     for part in ("descriptives", "assumptions", "tests", "posthoc"):
         _tidy(comparisons, part).to_csv(out / f"{part}.csv", index=False)
+
+
+def changes_table(changes: pd.DataFrame, comparisons: list[Comparison], cfg: AnalysisConfig) -> pd.DataFrame:
+    """One row per variable and pair: the relative change in percent with its CI."""
+    titles = {c.variable.column: c.variable.title for c in comparisons}
+    rows = []
+    for r in changes.itertuples():
+        label = cfg.condition_labels
+        rows.append({"Performance metric": titles.get(r.variable, r.variable),
+                     "change": f"{label.get(r.condition, r.condition)} vs {label.get(r.against, r.against)}",
+                     "relative change [CI]": f"{fmt(100 * r.relative_change, 1)} % "
+                                             f"[{fmt(100 * r.ci_low, 1)}, {fmt(100 * r.ci_high, 1)}]",
+                     "n": f"{r.n_condition} vs {r.n_against}"})
+    return pd.DataFrame(rows)
 
 
 def _section(c: Comparison, cfg: AnalysisConfig, figures: dict[str, Path], out: Path) -> list[str]:
@@ -137,7 +161,7 @@ def metrics_note(metrics: MetricsConfig) -> str:
 
 def render_report(table: pd.DataFrame, comparisons: list[Comparison], conditions: list[str],
                   design: str, cfg: AnalysisConfig, figures: dict[str, Path], out: Path, title: str,
-                  note: str = "") -> str:
+                  note: str = "", changes: pd.DataFrame | None = None) -> str:
     measured = table.dropna(subset=[c.variable.column for c in comparisons], how="all")
     counts = measured.groupby("condition").participant.nunique().reindex(conditions, fill_value=0)
     statuses = table.status.value_counts().to_dict() if "status" in table else {}
@@ -152,6 +176,10 @@ def render_report(table: pd.DataFrame, comparisons: list[Comparison], conditions
         lines.append(note)
     lines += ["", "## Results per condition (Table 5 layout: mean ± SD [95 % CI])", "",
               table5(comparisons, conditions, cfg).to_markdown(index=False), ""]
+    if changes is not None and not changes.empty:
+        lines += [f"## Relative change of the means ({cfg.confidence:.0%} percentile bootstrap CI)", "",
+                  "mean of the condition / mean of the other − 1; negative is lower. Tidy table: changes.csv.", "",
+                  changes_table(changes, comparisons, cfg).to_markdown(index=False), ""]
     for c in comparisons:
         lines += _section(c, cfg, figures, out)
     extra = [p for key, p in figures.items() if key.startswith(("trajectories_", "error_over_time_"))]
@@ -171,7 +199,7 @@ def write_report(markdown: str, out: Path, title: str) -> None:
 def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: MetricsConfig) -> AnalysisResult:
     """The whole analysis of a study folder (see the module docstring)."""
     out = Path(out or Path(study) / "analysis")
-    data = collect_study(study, metrics)
+    data = collect_study(study, metrics, advice_thresholds())
     table = data.participants
     if not cfg.include_incomplete:
         table = table[table.status == DONE]
@@ -185,6 +213,8 @@ def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: M
     conditions = data.protocol.conditions
     comparisons = analyse_table(table, conditions, data.protocol.design, cfg)
     write_tables(comparisons, out)
+    changes = changes_of(table, comparisons, conditions, data.protocol.design, cfg)
+    changes.to_csv(out / "changes.csv", index=False)
     figures: dict[str, Path] = {c.variable.column: plots.box_strip(table, c.variable, conditions, figures_dir)
                                 for c in comparisons}
     for condition in conditions:
@@ -194,7 +224,7 @@ def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: M
                 figures[f"{kind}_{condition}"] = path
     title = f"Study {Path(study).resolve().name}"
     write_report(render_report(table, comparisons, conditions, data.protocol.design, cfg, figures, out, title,
-                               metrics_note(metrics)), out, title)
+                               metrics_note(metrics), changes), out, title)
     return AnalysisResult(out, comparisons, table)
 
 

@@ -26,6 +26,8 @@ class MetricsConfig:
     association_max_dt_s: float
     loss_gap_factor: float
     stretch_gap_s: float
+    speed_sample_s: float
+    advice_high_error_m: float
 
 
 @dataclass(frozen=True)

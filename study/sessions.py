@@ -26,10 +26,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from seesys.core.session_layout import ADVISORY_CSV
 from seesys.core.trajectory import TrajectoryError
-from seesys.io.logfiles import read_csv_log
+from seesys.io.logfiles import read_csv_log, write_json_atomically
 from seesys.io.trajectory_files import read_tum
 from study.config import MetricsConfig
+from study.advice import AdviceOutcome, advice_outcome, path_speed
+from study.estimates import wall_to_camera_offset
 from study.metrics import RpeResult, TrackingMetrics, combine, measure, read_frame_log
 from study.protocol import Protocol, read_protocol
 
@@ -58,6 +61,14 @@ def next_attempt_folder(phase_folder: Path) -> Path:
     folder = phase_folder / f"attempt-{number}"
     folder.mkdir(parents=True)
     return folder
+
+
+def supersede_attempts(phase_folder: Path) -> None:
+    """Mark every attempt of the phase ``superseded``: kept on disk, left out of the metrics (a restart)."""
+    for attempt in attempt_folders(phase_folder):
+        run = read_run(attempt)
+        run["superseded"] = True
+        write_json_atomically(attempt / RUN_JSON, run)
 
 
 def set_aside_failed_start(attempt: Path) -> Path:
@@ -186,10 +197,57 @@ class StudyData:
 
 METRIC_COLUMNS = ("rpe_mean_m", "rpe_rmse_m", "pairs", "completeness", "tracking_losses", "loss_duration_s",
                   "map_resets", "time_on_task_s")
+ADVICE_COLUMNS = ("mean_speed_mps", "false_alarm_rate", "miss_rate")
 
 
-def collect_study(study: Path, cfg: MetricsConfig) -> StudyData:
-    """Metrics of every participant and condition of the analysed phase (participants without data have NaN)."""
+@dataclass(frozen=True)
+class AdviceThresholds:
+    """Equation 2's α and the advisory's window (configs/advisory.toml), which the advice is judged with."""
+
+    alpha_m: float
+    window_s: float
+
+
+def advice_thresholds(directory: Path | None = None) -> AdviceThresholds:
+    """α and the window of the advisory's settings (configs/advisory.toml)."""
+    from advisory.config import load_advisory_config
+
+    cfg = load_advisory_config(directory)
+    return AdviceThresholds(cfg.equation2.alpha_m, cfg.timing.window_s)
+
+
+def participant_advice(per_attempt: list[AttemptMetrics], cfg: MetricsConfig,
+                       thresholds: AdviceThresholds) -> dict[str, float]:
+    """Mean speed, false-alarm and miss rates (``study.advice``) of a participant's attempts, pooled."""
+    length = duration = 0.0
+    outcome = AdviceOutcome()
+    for a in per_attempt:
+        offset = wall_to_camera_offset(a.folder)
+        events = read_events(a.folder)
+        reference = _read_poses(a.folder / "groundtruth.tum")
+        start = events.loc[events.kind == "initialised", "time"]
+        objects = events.loc[events.kind == "object", "time"]
+        begin = float(start.min()) + offset if not start.empty else float(a.rpe.timestamps.min(initial=np.inf))
+        end = task_end_s(a.folder)
+        end = end if end is not None else float(objects.max()) + offset if not objects.empty else np.inf
+        if reference is not None:
+            metres, seconds = path_speed(reference, begin, end, cfg.speed_sample_s)
+            length, duration = length + metres, duration + seconds
+        advisory = a.folder / ADVISORY_CSV
+        log = read_csv_log(advisory) if advisory.exists() else pd.DataFrame()
+        # An advisory log of another layout (an older advisory's, a hand-made one) is not judged.
+        if {"wall_time", "played_pulses"} <= set(log.columns):
+            log = log.dropna(subset=["wall_time", "played_pulses"])
+            outcome = outcome + advice_outcome(log, a.rpe.timestamps, a.rpe.errors_m, offset, thresholds.window_s,
+                                               thresholds.alpha_m, cfg.advice_high_error_m,
+                                               None if not np.isfinite(end) else end)
+    return {"mean_speed_mps": length / duration if duration > 0 else np.nan,
+            "false_alarm_rate": outcome.false_alarm_rate, "miss_rate": outcome.miss_rate}
+
+
+def collect_study(study: Path, cfg: MetricsConfig, thresholds: AdviceThresholds) -> StudyData:
+    """Metrics of every participant and condition of the analysed phase (participants without data have NaN),
+    with the advice's cost and accuracy (:func:`participant_advice`)."""
     protocol = read_protocol(study)
     rows, pair_rows, attempts = [], [], {}
     for person in protocol.participants:
@@ -199,10 +257,11 @@ def collect_study(study: Path, cfg: MetricsConfig) -> StudyData:
             row = {"participant": person.id, "condition": condition, "position": position,
                    "status": phase_status(folder), "attempts": len(used_attempts(folder))}
             if result is None:
-                row.update({c: np.nan for c in METRIC_COLUMNS})
+                row.update({c: np.nan for c in METRIC_COLUMNS + ADVICE_COLUMNS})
             else:
                 metrics, per_attempt = result
                 row.update({c: getattr(metrics, c) for c in METRIC_COLUMNS})
+                row.update(participant_advice(per_attempt, cfg, thresholds))
                 attempts[(person.id, condition)] = per_attempt
                 for a in per_attempt:
                     pair_rows.append(pd.DataFrame({"participant": person.id, "condition": condition,

@@ -8,6 +8,7 @@ from one seed, so the same (preset, seed) gives the same scene in every worker p
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,6 +135,22 @@ def _place_boxes(rng: np.random.Generator, preset: EnvironmentPreset, room: np.n
     return boxes
 
 
+def _faces(rows: list, tile: np.ndarray, texel_m: float, size: int, rng: np.random.Generator) -> Faces:
+    """Faces of ``rows`` (owner, (axis, coord, sign, lo, hi)) with their tiles; texel sizes vary ±(0.7–1.4)× around
+    ``texel_m`` and textures are offset at random, drawn from ``rng``."""
+    return Faces(
+        axis=np.array([f[0] for _, f in rows], np.int64),
+        coord=np.array([f[1] for _, f in rows]),
+        sign=np.array([f[2] for _, f in rows], np.float64),
+        lo=np.array([f[3] for _, f in rows]),
+        hi=np.array([f[4] for _, f in rows]),
+        owner=np.array([o for o, _ in rows], np.int64),
+        tile=tile,
+        texel_m=texel_m * rng.uniform(0.7, 1.4, len(rows)),
+        offset=rng.uniform(0, size, (len(rows), 2)),
+    )
+
+
 def build_scene(preset: EnvironmentPreset, seed: int, sensor: SensorConfig) -> Scene:
     """The scene of ``preset`` drawn from ``seed``: room, clutter, textures and lights."""
     rng = np.random.default_rng([seed, 0x5EE5])
@@ -165,17 +182,7 @@ def build_scene(preset: EnvironmentPreset, seed: int, sensor: SensorConfig) -> S
     poor |= {i for i, (owner, _) in enumerate(rows) if owner in poor_owners}
     tile = np.array([RICH_TILES + rng.integers(0, POOR_TILES) if i in poor else rng.integers(0, RICH_TILES)
                      for i in range(len(rows))], np.int64)
-    faces = Faces(
-        axis=np.array([f[0] for _, f in rows], np.int64),
-        coord=np.array([f[1] for _, f in rows]),
-        sign=np.array([f[2] for _, f in rows], np.float64),
-        lo=np.array([f[3] for _, f in rows]),
-        hi=np.array([f[4] for _, f in rows]),
-        owner=np.array([o for o, _ in rows], np.int64),
-        tile=tile,
-        texel_m=preset.texture_scale_m / size * rng.uniform(0.7, 1.4, len(rows)),
-        offset=rng.uniform(0, size, (len(rows), 2)),
-    )
+    faces = _faces(rows, tile, preset.texture_scale_m / size, size, rng)
 
     n_lights = 1 if room[0] * room[1] < 40 else 2
     lights = np.column_stack([
@@ -185,3 +192,15 @@ def build_scene(preset: EnvironmentPreset, seed: int, sensor: SensorConfig) -> S
     ])
     return Scene(preset, seed, room, tuple(boxes), faces, textures, lights, preset.light, preset.falloff_m,
                  preset.ambient)
+
+
+def with_boxes(scene: Scene, boxes: list[Box], rng: np.random.Generator) -> Scene:
+    """``scene`` with ``boxes`` added as textured clutter (rich tiles; the scanning task's objects)."""
+    faces = scene.faces
+    rows = [(len(scene.boxes) + k, f) for k, box in enumerate(boxes) for f in _box_faces(box.lo, box.hi, inward=False)]
+    size = scene.textures.size
+    added = _faces(rows, rng.integers(0, RICH_TILES, len(rows)).astype(np.int64),
+                   scene.preset.texture_scale_m / size, size, rng)
+    merged = Faces(*(np.concatenate([getattr(faces, name), getattr(added, name)])
+                     for name in ("axis", "coord", "sign", "lo", "hi", "owner", "tile", "texel_m", "offset")))
+    return dataclasses.replace(scene, boxes=scene.boxes + tuple(boxes), faces=merged)

@@ -48,8 +48,16 @@ def _positive(text: str) -> int:
     return int(text)
 
 
+def _subcommands(parser: argparse.ArgumentParser) -> argparse._SubParsersAction:
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``seesys run`` to the command line."""
+    """Add ``seesys run`` to the command line, and ``simulate`` to ``seesys study`` (registered before the app: the
+    simulated study runs the estimator in-process, which the study's own commands never import)."""
+    from seesys.app.simulate import cli as simulate_cli
+
+    simulate_cli.register(_subcommands(subparsers.choices["study"]))
     p = subparsers.add_parser(
         "run", help="the handheld advisory as one app: device, estimator and advisory, supervised, with a live view",
         description="Start the device (ORB-SLAM3 + RTS monitor), the estimator (local, or a remote service's "

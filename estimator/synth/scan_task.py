@@ -1,0 +1,156 @@
+"""The scanning task of the simulated user study: a rendered room with N objects to scan in order.
+
+Every object is a textured box standing on the floor against a wall, placed round the room by the layout seed (the
+same room and objects for every participant, as in a lab). The places differ in difficulty because the room does:
+an object may stand before a bare wall, in a dark corner far from the lights, or among clutter, and the same hand
+motion that is harmless before a textured, well-lit wall makes SLAM fail there. Each object's region is recorded.
+
+Clutter boxes on the way between objects are removed (the operator walks a straight line from one object's
+viewpoint to the next), as the dataset's renders remove boxes on the camera path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator.synth.config import EnvironmentPreset, SensorConfig
+from estimator.synth.environments import RICH_TILES, Box, Scene, build_scene, with_boxes
+
+# Clearance (m) kept between the operator's path (walks and sweeps) and clutter boxes, and between objects and
+# clutter boxes.
+PATH_CLEARANCE_M = 0.3
+OBJECT_CLEARANCE_M = 0.05
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    """``[task]`` of configs/simulate.toml."""
+
+    environment: str
+    layout_seed: int
+    camera_model: str
+    mode: str
+    objects: int
+    object_size_m: tuple[float, float]
+    object_height_m: tuple[float, float]
+    wall_gap_m: float
+    start_offset_m: float
+    settle_s: float
+    max_task_s: float
+    dark_light_share: float
+    clutter_boxes: int
+    clutter_radius_m: float
+
+
+@dataclass(frozen=True)
+class TaskObject:
+    """One object to scan: the point the operator aims at (its top, world frame), the horizontal unit vector from
+    it into the room (where the operator stands), and what makes its place hard."""
+
+    number: int  # 1, 2, ... in scanning order
+    aim: np.ndarray
+    facing: np.ndarray
+    regions: tuple[str, ...]  # of "bare wall", "dark", "clutter"; empty: a textured, lit, open place
+    light_share: float  # light reaching it / the best lit object's
+
+    def record(self) -> dict:
+        return {"object": self.number, "aim_m": [round(float(v), 4) for v in self.aim],
+                "facing": [round(float(v), 4) for v in self.facing], "regions": list(self.regions),
+                "light_share": round(self.light_share, 3)}
+
+
+@dataclass(frozen=True)
+class ScanTask:
+    scene: Scene
+    objects: tuple[TaskObject, ...]
+
+    def viewpoint(self, number: int, distance_m: float) -> np.ndarray:
+        """Where the operator stands (x, y) to scan object ``number`` from ``distance_m``."""
+        obj = self.objects[number - 1]
+        return obj.aim[:2] + distance_m * obj.facing
+
+
+def _wall_point(angle: float, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The point of the room's walls (half extents ``half``) in direction ``angle`` from the centre, and the wall's
+    inward normal."""
+    direction = np.array([np.cos(angle), np.sin(angle)])
+    scale = np.min(half / np.maximum(np.abs(direction), 1e-9))
+    point = direction * scale
+    axis = int(np.argmax(np.abs(point) / half))
+    normal = np.zeros(2)
+    normal[axis] = -np.sign(point[axis])
+    return point, normal
+
+
+def _light_at(scene: Scene, point: np.ndarray) -> float:
+    r = np.linalg.norm(scene.lights - point, axis=1)
+    return float(np.sum(1.0 / (1.0 + (r / scene.falloff_m) ** 2)))
+
+
+def _bare_wall_behind(scene: Scene, point: np.ndarray, normal: np.ndarray) -> bool:
+    """Whether the room wall behind ``point`` (facing ``normal``) has a bare tile."""
+    faces = scene.faces
+    axis = int(np.argmax(np.abs(normal)))
+    for i in range(len(faces)):
+        if faces.owner[i] == -1 and faces.axis[i] == axis and faces.sign[i] == np.sign(normal[axis]):
+            return bool(faces.tile[i] >= RICH_TILES)
+    return False
+
+
+def build_scan_task(preset: EnvironmentPreset, sensor: SensorConfig, task: TaskConfig,
+                    scan_distance_m: float, scan_arc_deg: float) -> ScanTask:
+    """The room of ``preset`` drawn from ``task.layout_seed`` with ``task.objects`` objects round it; clutter in the
+    way of the walks between viewpoints and of sweeps of ``scan_arc_deg`` at ``scan_distance_m`` (the largest the
+    operators use) is removed."""
+    scene = build_scene(preset, task.layout_seed, sensor)
+    rng = np.random.default_rng([task.layout_seed, 0x5CA7])
+    half = scene.room[:2] / 2
+    first = rng.uniform(0, 2 * np.pi)
+    direction = rng.choice([-1.0, 1.0])
+    placed: list[tuple[np.ndarray, np.ndarray, Box]] = []
+    for k in range(task.objects):
+        angle = first + direction * 2 * np.pi * (k + rng.uniform(-0.2, 0.2)) / task.objects
+        wall, normal = _wall_point(angle, half)
+        size = rng.uniform(*task.object_size_m)
+        height = rng.uniform(*task.object_height_m)
+        centre = wall + normal * (task.wall_gap_m + size / 2)
+        # Away from the corners' other wall too.
+        centre = np.clip(centre, -half + task.wall_gap_m + size / 2, half - task.wall_gap_m - size / 2)
+        lo = np.array([centre[0] - size / 2, centre[1] - size / 2, 0.0])
+        box = Box(lo, lo + np.array([size, size, height]))
+        placed.append((np.array([centre[0], centre[1], height - 0.05]), normal, box))
+
+    # Clear the way: the straight walks between viewpoints and the sweeps round the objects (at the device's
+    # height), and the objects' own places.
+    viewpoints = [aim[:2] + scan_distance_m * normal for aim, normal, _ in placed]
+    path = [np.linspace(a, b, 20) for a, b in zip(viewpoints[:-1], viewpoints[1:])]
+    for aim, normal, _ in placed:
+        angles = np.radians(np.linspace(-scan_arc_deg, scan_arc_deg, 9))
+        rotated = np.column_stack([np.cos(angles) * normal[0] - np.sin(angles) * normal[1],
+                                   np.sin(angles) * normal[0] + np.cos(angles) * normal[1]])
+        path.append(aim[:2] + scan_distance_m * rotated)
+    path_xy = np.vstack(path)
+    scene = scene.without_boxes_near(np.column_stack([path_xy, np.full(len(path_xy), 1.2)]), PATH_CLEARANCE_M)
+    corners = np.array([[x, y, z] for _, _, b in placed for x in (b.lo[0], b.hi[0]) for y in (b.lo[1], b.hi[1])
+                        for z in (0.0, b.hi[2])])
+    scene = scene.without_boxes_near(corners, OBJECT_CLEARANCE_M)
+    clutter = list(scene.boxes)
+    scene = with_boxes(scene, [b for _, _, b in placed], rng)
+
+    lights = np.array([_light_at(scene, aim) for aim, _, _ in placed])
+    objects = []
+    for k, ((aim, normal, _), light) in enumerate(zip(placed, lights), start=1):
+        regions = []
+        if _bare_wall_behind(scene, aim, normal):
+            regions.append("bare wall")
+        share = float(light / lights.max())
+        if share < task.dark_light_share:
+            regions.append("dark")
+        near = sum(1 for b in clutter
+                   if np.linalg.norm((b.lo[:2] + b.hi[:2]) / 2 - aim[:2]) < task.clutter_radius_m)
+        if near >= task.clutter_boxes:
+            regions.append("clutter")
+        objects.append(TaskObject(k, aim, normal, tuple(regions), share))
+    return ScanTask(scene, tuple(objects))

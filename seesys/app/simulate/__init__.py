@@ -1,0 +1,1 @@
+"""The closed-loop simulated study (``seesys study simulate``): simulated operators through the real pipeline."""

@@ -1,0 +1,94 @@
+"""``seesys study simulate``: a thin wrapper over :mod:`seesys.app.simulate.study`."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from seesys.app.simulate.config import CONDITIONS, DESIGNS
+
+
+def _positive(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
+    return int(text)
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
+def _conditions(text: str) -> list[str]:
+    names = [c.strip() for c in text.split(",") if c.strip()]
+    unknown = [c for c in names if c not in CONDITIONS]
+    if unknown or len(names) < 2:
+        raise argparse.ArgumentTypeError(f"two or more of {', '.join(CONDITIONS)}, comma-separated; got {text}")
+    return names
+
+
+def simulate_command(args: argparse.Namespace) -> int:
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from estimator.service.broker import default_model
+    from estimator.service.config import load_service_config
+    from seesys.app.simulate.config import load_simulate_config
+    from seesys.app.simulate.study import run_study
+
+    cfg = load_simulate_config()
+    study = replace(cfg.study, **{k: v for k, v in (
+        ("participants_per_condition", args.participants), ("conditions", args.conditions),
+        ("design", args.design), ("processes", args.processes)) if v is not None})
+    task = replace(cfg.task, **{k: v for k, v in (("objects", args.objects), ("max_task_s", args.max_task_s))
+                                if v is not None})
+    cfg = replace(cfg, study=study, task=task)
+    model = default_model(load_service_config(), args.model)
+    started = time.monotonic()
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.0f} s"),
+                  TimeElapsedColumn(), transient=True) as progress:
+        bars: dict[str, int] = {}
+
+        def show(name: str, seconds: float, note: str) -> None:
+            if name not in bars:
+                bars[name] = progress.add_task(name, total=cfg.task.max_task_s)
+            elif not note:
+                progress.update(bars[name], completed=seconds)
+            else:
+                progress.console.print(f"{name}: {note}")
+                progress.remove_task(bars.pop(name))
+
+        outcome = run_study(args.out, cfg, model, show=show)
+    minutes = (time.monotonic() - started) / 60
+    print(f"{outcome.study}: {outcome.done} of {outcome.sessions} sessions done ({minutes:.1f} min); "
+          f"next: seesys analyze {outcome.study}")
+    for line in outcome.failed:
+        print(f"  failed: {line}")
+    return 0 if outcome.done == outcome.sessions else 1
+
+
+def register(study_commands: argparse._SubParsersAction) -> None:
+    """Add ``simulate`` to ``seesys study``."""
+    p = study_commands.add_parser(
+        "simulate", help="a closed-loop simulated study: simulated operators through SLAM, model and advisory",
+        description="Simulated operators scan objects in a rendered room; every frame goes through ORB-SLAM3, the "
+                    "RTS monitor, the shipped DeepSEE model and the advisory, and the pulses change how the "
+                    "operator moves. Writes a study folder that `seesys analyze` reads; run it again to resume. "
+                    "Defaults: configs/simulate.toml.")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the study folder (new, or one to resume)")
+    p.add_argument("--participants", type=_positive, metavar="N", help="simulated participants per condition")
+    p.add_argument("--conditions", type=_conditions, metavar="A,B,...", help="conditions (none, rotation, seesys)")
+    p.add_argument("--design", choices=DESIGNS,
+                   help="between: one condition per participant; within: the same simulated operator in every "
+                        "condition (paired)")
+    p.add_argument("--objects", type=_positive, metavar="N", help="objects to scan")
+    p.add_argument("--max-task-s", type=_seconds, metavar="S", help="end a session that has not finished by then")
+    p.add_argument("--processes", type=_positive, metavar="P", help="sessions simulated at once")
+    p.add_argument("--model", type=Path, help="the ONNX model (default: configs/service.toml)")
+    p.set_defaults(func=simulate_command)

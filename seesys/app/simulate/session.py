@@ -1,0 +1,278 @@
+"""One simulated participant's session, frame by frame in simulated time.
+
+For every frame: the operator moves on to the frame's exposure (hearing only buffers emitted before it), the
+renderer draws the frame through the device's camera model, ORB-SLAM3 tracks it, the RTS monitor turns it into a
+feature frame, the estimator's window assembler and the shipped model make an estimate at every window end, and the
+advisory's pulse rule (Equation 2 or the model's head, the rotation rule, or none) decides the buffers that the
+operator hears next. Simulated time is the camera's clock: a frame's timestamp, an estimate's arrival (its frame's
+time plus ``estimate_latency_s``) and a buffer's sound (its time plus ``audio_latency_s``) are all on it, and every
+log's wall-clock column holds it too.
+
+The attempt folder is written as ``seesys study run`` writes one (docs/study.md): the device session (``frames.csv``,
+``trajectory.tum``, ``rts.csv``, ``psd/``, ``session.json``, ``orbslam3.yaml``), ``estimates.csv``, ``advisory.csv``,
+``events.csv`` (``initialised`` at the first tracked frame, ``object`` k when the operator finished scanning it),
+``run.json``, and the renderer's ground truth as ``groundtruth.tum`` (the motion capture of a real study), so that
+``seesys analyze`` reads it unchanged. ``operator.json`` records the simulated participant, ``task.json`` the room.
+Every row is flushed as written; on Ctrl-C the session ends ``interrupted`` with its files final.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from advisory.conditions import Condition, estimate_reading, pulse_rule
+from advisory.config import load_advisory_config
+from advisory.rotation import RotationSpeed
+from advisory.scheduler import CueClock, Decision, PulseScheduler
+from estimator.service.model import ServedModel, model_version
+from estimator.synth.camera_effects import LensDistortion
+from estimator.synth.config import load_synth_config
+from estimator.synth.lenses import model_camera
+from estimator.synth.operator import Goal, SimulatedOperator, draw_traits
+from estimator.synth.renderer import RayGrid
+from estimator.synth.scan_task import build_scan_task
+from estimator.synth.sequence import SequenceSpec, depth_png, plan_frames, render_images
+from seesys.app.simulate.config import SimulateConfig
+from seesys.core.errors import SeesysError
+from seesys.core.messages import Estimate
+from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV, GROUND_TRUTH, SETTINGS
+from seesys.core.trajectory import Poses
+from seesys.core.windows import WindowAssembler
+from seesys.io.config import as_dict, replace_fields
+from seesys.io.core_settings import load_device_settings
+from seesys.io.logfiles import CsvLog, write_json_atomically
+from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
+from seesys.io.session_files import utc_now
+from seesys.io.trajectory_files import write_tum
+from slam_monitor.frame import Frame
+from slam_monitor.monitor import FeatureExtractor, MonitorInput
+from slam_monitor.monitor_config import load_monitor_config
+from slam_monitor.orbslam_settings import SlamMode, build_settings, load_slam_config, vocabulary_path, write_settings
+from slam_monitor.session import SessionWriter, prepare_session_folder
+from slam_monitor.sources.settings import load_camera_config
+from slam_monitor.tracker import Tracker
+from study.estimates import ESTIMATE_COLUMNS, ESTIMATES_CSV
+from study.runner import EVENT_COLUMNS
+from study.sessions import EVENTS_CSV, RUN_JSON
+
+OPERATOR_JSON = "operator.json"
+TASK_JSON = "task.json"
+DEVICE_ID = "simulated"
+
+
+@dataclass(frozen=True)
+class Participant:
+    """A simulated participant: its id, the number its operator is drawn from, and the condition of this session."""
+
+    id: str
+    number: int
+    condition: str
+
+
+@dataclass(frozen=True)
+class SessionOutcome:
+    folder: Path
+    status: str  # completed (every object scanned), timed_out (max_task_s reached), interrupted
+    frames: int
+    estimates: int
+    objects_reached: int
+
+
+@dataclass
+class _Advice:
+    """The advisory in simulated time: its scheduler, the cue clock, and the log of its buffers."""
+
+    condition: Condition
+    scheduler: PulseScheduler
+    cues: CueClock
+    log: CsvLog
+    audio_latency_s: float
+    hear: Callable[[float, int], None]
+    buffers: int = 0
+
+    def emit(self, d: Decision) -> None:
+        played = d.n_pulses if self.condition.audible else 0
+        trigger = self.cues.trigger(d)
+        play_at = d.time + self.audio_latency_s
+        self.log.write(d.time, d.time, self.condition.value, d.status, trigger, d.value, d.n_pulses, played,
+                       self.buffers, d.arrival, play_at, d.pulses_from)
+        self.buffers += 1
+        # The cue is not a warning: the operator does not slow down for it.
+        self.hear(play_at, played if trigger != "cue" else 0)
+
+    def until(self, t: float) -> None:
+        """Emit every tick due by ``t``."""
+        while self.scheduler.next_tick <= t:
+            self.emit(self.scheduler.tick(self.scheduler.next_tick))
+
+    def sample(self, arrival: float, value: float, head: tuple[float, ...] | None = None) -> None:
+        self.until(arrival)
+        decision = self.scheduler.add(arrival, value, head)
+        if decision is not None:
+            self.emit(decision)
+
+
+def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path, model_path: Path,
+                     config_dir: Path | None = None, on_frame: Callable[[int, float], None] | None = None,
+                     ) -> SessionOutcome:
+    """Run one session into ``folder`` (created; an earlier session's files in it are replaced).
+
+    ``on_frame(frame_index, simulated_time)`` is called after every frame. Raises :class:`SeesysError` for a model
+    made for another device (camera, resolution, features) or settings that cannot work."""
+    synth = load_synth_config(config_dir)
+    task_cfg, ranges, response = cfg.task, cfg.operator, cfg.response
+    camera_model = synth.camera_model(task_cfg.camera_model)
+    camera = model_camera(synth.camera, camera_model)
+    mode = SlamMode(task_cfg.mode)
+    task = build_scan_task(synth.preset(task_cfg.environment), synth.sensor, task_cfg, ranges.scan_distance_m[1],
+                           ranges.scan_arc_deg[1])
+    seed = cfg.study.operator_seed * 100_003 + participant.number
+    traits = draw_traits(np.random.default_rng([cfg.study.operator_seed, participant.number]), ranges, response)
+    goals = [Goal(o.aim, task.viewpoint(o.number, traits.scan_distance_m)) for o in task.objects]
+    first = task.objects[0]
+    start = np.append(goals[0].stand + first.facing * task_cfg.start_offset_m, first.aim[2] + 0.15)
+    operator = SimulatedOperator(traits, goals, start, task_cfg.settle_s, task_cfg.max_task_s,
+                                 getattr(synth.motion, traits.motion_group), ranges, response, seed)
+    margin = 2 * synth.sensor.exposure_max_ms / 1000.0
+    operator.advance(margin)
+    count = int(np.ceil(task_cfg.max_task_s * camera.fps))
+    spec = SequenceSpec(task_cfg.environment, "closed-loop", seed)
+    plan = plan_frames(spec, synth, camera, camera_model, task.scene, operator.trajectory(), traits.motion_group,
+                       f"scan-{participant.id}", count, np.random.default_rng([seed, 0x7A7]), camera.lens.width)
+    grid = RayGrid.for_camera(plan.camera)
+    lens = LensDistortion.for_lens(plan.lens) if camera_model.radial_k1 != 0 else None
+
+    slam_config = load_slam_config(config_dir)
+    monitor_config = load_monitor_config(config_dir)
+    monitor_config = replace_fields(monitor_config, device_id=DEVICE_ID)
+    settings = load_device_settings(mode.value, camera.fps, config_dir)
+    model = ServedModel.load(model_path, monitor_config.windows)
+    refused = model.settings_differences(settings)
+    if refused:
+        raise SeesysError(f"{model_path} was made for another device: {'; '.join(refused)}")
+    advisory_cfg = load_advisory_config(config_dir)
+    depth_correction = np.float32(load_camera_config(config_dir).scale.depth_correction)
+    intrinsics = plan.told
+    condition = Condition(participant.condition)
+
+    folder = prepare_session_folder(folder)
+    for name in (ESTIMATES_CSV, ADVISORY_CSV, EVENTS_CSV, RTS_CSV):
+        (folder / name).unlink(missing_ok=True)
+    write_json_atomically(folder / OPERATOR_JSON, {"participant": participant.id, "number": participant.number,
+                                                   "seed": seed, **traits.record()})
+    write_json_atomically(folder / TASK_JSON, {"environment": task_cfg.environment, "layout_seed": task_cfg.layout_seed,
+                                               "camera_model": task_cfg.camera_model,
+                                               "objects": [o.record() for o in task.objects]})
+    write_json_atomically(folder / RUN_JSON, {
+        "participant": participant.id, "phase": "task", "condition": condition.value, "status": "running",
+        "simulated": True, "started": utc_now(), "model_version": model_version(model_path),
+        "source": f"simulated:{task_cfg.environment}/{task_cfg.camera_model}"})
+    writer = SessionWriter(folder, {"source": f"simulated:{task_cfg.environment}", "mode": mode.value,
+                                    "max_frames": count, "vocabulary": str(vocabulary_path(slam_config)),
+                                    "settings_file": SETTINGS, "config": {"slam": as_dict(slam_config)}})
+    writer.describe_source(f"simulated operator {participant.id} in {task_cfg.environment} "
+                           f"({task_cfg.camera_model} camera)", as_dict(intrinsics), camera.fps)
+    events = CsvLog(folder / EVENTS_CSV, EVENT_COLUMNS)
+    estimates_log = CsvLog(folder / ESTIMATES_CSV, ESTIMATE_COLUMNS)
+    rts_log = RtsCsvWriter(folder / RTS_CSV, settings)
+    psd_log = PsdLogWriter(folder / PSD_DIR, monitor_config.log.psd_chunk_records)
+    start_time = synth.start_time_s
+    timing = advisory_cfg.timing
+    advice = _Advice(condition,
+                     PulseScheduler(pulse_rule(condition, advisory_cfg), timing.window_s, timing.cadence_s,
+                                    timing.stale_after_s, float(start_time + plan.frame_times[0]),
+                                    "rotation" if condition is Condition.ROTATION else "estimate"),
+                     CueClock(condition.audible, advisory_cfg.no_information.no_information_cue,
+                              advisory_cfg.no_information.cue_every_s),
+                     CsvLog(folder / ADVISORY_CSV, ADVISORY_COLUMNS), cfg.loop.audio_latency_s,
+                     lambda at, pulses: operator.hear(at - start_time, pulses))
+    reading = estimate_reading(advisory_cfg)
+    rotation = RotationSpeed(advisory_cfg.rotation)
+    assembler = WindowAssembler(monitor_config.windows)
+    extractor = FeatureExtractor(monitor_config, settings=settings)
+    version = model_version(model_path)
+    events.write(start_time, "start", f"simulated {condition.value}")
+
+    settings_file = write_settings(folder / SETTINGS, build_settings(intrinsics, camera.fps, mode, slam_config))
+    tracker = Tracker(vocabulary_path(slam_config), settings_file, mode, intrinsics)
+    status, frames, estimates, initialised, reported = "interrupted", 0, 0, False, 0
+    previous: tuple[int, np.ndarray | None] = (-1, None)
+    try:
+        for k in range(count):
+            t = float(plan.frame_times[k])
+            stamp = start_time + t
+            operator.advance(t + margin)
+            images = render_images(plan, grid, lens, synth.sensor.blur_max_samples, k,
+                                   operator.trajectory(since=t - margin))
+            depth = None
+            if mode is SlamMode.RGBD:
+                depth = depth_png(images.depth_m, synth.camera.depth_factor).astype(np.float32)
+                depth /= np.float32(synth.camera.depth_factor)
+                if depth_correction != 1:
+                    depth *= depth_correction
+            frame = Frame(k, stamp, images.gray, intrinsics, depth)
+            output = tracker.track(frame)
+            writer.write_frame(output)
+            frames += 1
+            tracked = output.tracked
+            if tracked and not initialised:
+                events.write(stamp, "initialised", "first tracked frame")
+                initialised = True
+            prev = previous[1] if previous[0] == k - 1 else None
+            item = MonitorInput(frame, output.state, output.pose_cw, output.pose_wc if tracked else None, prev,
+                                output.num_tracked_points, output.keypoints, output.map_points, output.map_changed, 0)
+            previous = (k, output.pose_wc if tracked else None)
+            features = extractor.extract(item)
+            rts_log.write(features)
+            if features.psd is not None:
+                psd_log.write(k, stamp, features.psd)
+            arrival = stamp + cfg.loop.estimate_latency_s
+            if condition is Condition.ROTATION:
+                speed = rotation.update(features)
+                if speed is not None:
+                    advice.sample(arrival, speed)
+            window = assembler.add(features)
+            if window is not None and model.accepts(window):
+                batch = model.estimate_batch([window])
+                estimate = Estimate(DEVICE_ID, k, stamp, float(batch.errors_m[0]), version, head=batch.head(0))
+                estimates_log.write(arrival, DEVICE_ID, k, stamp, estimate.error_m, version)
+                estimates += 1
+                if condition is not Condition.ROTATION:
+                    sample = reading(estimate)
+                    if sample is not None and np.isfinite(sample.value):
+                        advice.sample(arrival, sample.value, sample.head)
+            advice.until(stamp)
+            for number, at in operator.reached[reported:]:
+                events.write(start_time + at, "object", str(number))
+            reported = len(operator.reached)
+            if on_frame is not None:
+                on_frame(k, t)
+            if operator.done:
+                break
+        status = "completed" if operator.done else "timed_out"
+    finally:
+        tracker.shutdown()
+        for log in (rts_log, psd_log):
+            log.close()
+        last_time = max([float(plan.frame_times[max(frames - 1, 0)])] + [at for _, at in operator.reached])
+        events.write(start_time + last_time, "stop", status)
+        for log in (events, estimates_log, advice.log):
+            log.close()
+        truth = operator.trajectory()
+        times = plan.frame_times[:frames]
+        positions, rotations = truth.interpolate(times)
+        write_tum(folder / GROUND_TRUTH, Poses(start_time + times, positions, rotations.as_quat()))
+        writer.finish("completed" if status != "interrupted" else "interrupted")
+        run = json.loads((folder / RUN_JSON).read_text())
+        run.update(status="completed" if status != "interrupted" else "interrupted", ended=utc_now(),
+                   outcome=status, frames=frames, estimates=estimates, buffers=advice.buffers,
+                   objects_reached=len(operator.reached), warnings_heeded=operator.warnings_heeded,
+                   calibration="the source's ground truth kept")
+        write_json_atomically(folder / RUN_JSON, run)
+    return SessionOutcome(folder, status, frames, estimates, len(operator.reached))
+

@@ -1,0 +1,149 @@
+"""The closed-loop simulated study: a reduced study end to end (simulate, resume, analyze), the loop's causality, and
+the operator's response, on the real renderer, ORB-SLAM3, monitor, shipped model and advisory rules."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from estimator.service.broker import default_model
+from estimator.service.config import load_service_config
+from estimator.synth.config import load_synth_config
+from estimator.synth.operator import Goal, SimulatedOperator, draw_traits
+from estimator.synth.scan_task import build_scan_task
+from seesys.app.simulate.config import load_simulate_config
+from seesys.app.simulate.session import OPERATOR_JSON, Participant, simulate_session
+from seesys.cli import main
+from seesys.core.errors import ConfigError
+from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from seesys.io.trajectory_files import read_tum
+from study.protocol import read_protocol
+from study.sessions import RUN_JSON, attempt_folders
+
+SHORT = ["--objects", "1", "--max-task-s", "4"]
+
+
+def _operator(cfg, number: int, seed: int) -> SimulatedOperator:
+    synth = load_synth_config()
+    task = build_scan_task(synth.preset(cfg.task.environment), synth.sensor, cfg.task, cfg.operator.scan_distance_m[1],
+                           cfg.operator.scan_arc_deg[1])
+    traits = draw_traits(np.random.default_rng([1, number]), cfg.operator, cfg.response)
+    traits = dataclasses.replace(traits, compliance=1.0)
+    goals = [Goal(o.aim, task.viewpoint(o.number, traits.scan_distance_m)) for o in task.objects]
+    start = np.append(goals[0].stand + task.objects[0].facing, goals[0].aim[2] + 0.15)
+    return SimulatedOperator(traits, goals, start, cfg.task.settle_s, 60.0,
+                             getattr(synth.motion, traits.motion_group), cfg.operator, cfg.response, seed)
+
+
+def test_an_operator_moves_as_in_silence_until_it_reacts_to_a_warning_and_slows_down_after():
+    cfg = load_simulate_config()
+    quiet, warned = _operator(cfg, 1, 7), _operator(cfg, 1, 7)
+    warned.hear(5.0, 2)  # two pulses from 5 s on, a buffer every 1/3 s
+    for k in range(1, 30):
+        warned.hear(5.0 + k / 3, 2)
+    for op in (quiet, warned):
+        op.advance(20.0)
+    react = 5.0 + warned.traits.reaction_delay_s
+    a, b = quiet.trajectory(), warned.trajectory()
+    before = a.times < react - 1e-6
+    assert np.array_equal(a.positions[before], b.positions[before])
+    after = (a.times > react + 0.5) & (a.times < 15.0)
+    assert np.abs(a.positions[after] - b.positions[after]).max() > 0.05
+
+    def speed(t) -> float:
+        inside = (t.times > react + 1.0) & (t.times < 14.0)
+        return float(np.linalg.norm(np.diff(t.positions[inside], axis=0), axis=1).sum())
+
+    assert speed(b) < 0.85 * speed(a)
+    assert warned.warnings_heeded == 1
+
+
+def test_settings_that_cannot_work_are_refused_by_name(tmp_path):
+    folder = write_config_dir(tmp_path / "c", {"reaction_delay_s": [0.05, 0.3]})
+    with pytest.raises(ConfigError, match="reaction_delay_s"):
+        load_simulate_config(folder)
+    folder = write_config_dir(tmp_path / "d", {"design": "crossover"})
+    with pytest.raises(ConfigError, match="crossover"):
+        load_simulate_config(folder)
+
+
+@pytest.fixture(scope="module")
+def reduced_study(tmp_path_factory):
+    """2 simulated participants per condition, one object, at most 4 s each: 6 sessions."""
+    study = tmp_path_factory.mktemp("simulated") / "study"
+    assert main(["study", "simulate", "--out", str(study), "--participants", "2", *SHORT]) == 0
+    return study
+
+
+def test_a_reduced_study_runs_end_to_end_and_analyses_as_a_real_one(reduced_study, capsys):
+    protocol = read_protocol(reduced_study)
+    assert protocol.phases == ["task"] and len(protocol.participants) == 6
+    for person in protocol.participants:
+        attempt = attempt_folders(protocol.phase_folder(reduced_study, person.id, "task", person.conditions[0]))[-1]
+        run = json.loads((attempt / RUN_JSON).read_text())
+        assert run["status"] == "completed" and run["simulated"] and run["frames"] > 60
+        frames = pd.read_csv(attempt / "frames.csv")
+        assert (frames.state == "OK").mean() > 0.9
+        assert len(read_tum(attempt / "groundtruth.tum")) == run["frames"]
+        assert len(read_tum(attempt / "trajectory.tum")) > 60
+        events = pd.read_csv(attempt / "events.csv")
+        assert "initialised" in set(events.kind)
+        assert json.loads((attempt / OPERATOR_JSON).read_text())["participant"] == person.id
+        estimates = pd.read_csv(attempt / "estimates.csv")
+        assert len(estimates) > 5
+        # Causal: an estimate is of a frame already tracked, and arrives after that frame.
+        tracked = frames.set_index("frame_index")
+        assert (tracked.loc[estimates.frame_index, "state"] == "OK").all()
+        assert (estimates.receipt_time > estimates.timestamp).all()
+        advisory = pd.read_csv(attempt / "advisory.csv")
+        live = advisory.dropna(subset=["arrival_mono"])
+        assert (live.arrival_mono <= live.wall_time + 1e-9).all()
+        assert set(advisory.condition) == {person.conditions[0]}
+        if person.conditions[0] == "none":
+            assert (advisory.played_pulses == 0).all()
+    capsys.readouterr()
+    assert main(["analyze", str(reduced_study)]) == 0
+    out = reduced_study / "analysis"
+    table = pd.read_csv(out / "participants.csv")
+    assert table.rpe_mean_m.notna().all() and table.mean_speed_mps.between(0.05, 2.0).all()
+    changes = pd.read_csv(out / "changes.csv")
+    assert {("seesys", "none"), ("seesys", "rotation")} <= set(zip(changes.condition, changes.against))
+    report = (out / "report.md").read_text()
+    assert "Relative change of the means" in report and "Mean speed" in report
+
+
+def test_running_the_study_again_resumes_and_other_settings_are_refused(reduced_study, capsys):
+    before = sorted(p for p in reduced_study.rglob("attempt-*"))
+    assert main(["study", "simulate", "--out", str(reduced_study), "--participants", "2", *SHORT]) == 0
+    assert sorted(p for p in reduced_study.rglob("attempt-*")) == before
+    assert "6 of 6 sessions done" in capsys.readouterr().out
+    assert main(["study", "simulate", "--out", str(reduced_study), "--participants", "2", "--objects", "2",
+                 "--max-task-s", "4"]) == 2
+    assert "task.objects" in capsys.readouterr().err
+
+
+def test_the_same_operator_moves_differently_after_a_warning_than_in_silence(tmp_path, monkeypatch):
+    """The loop is closed: pulses the advisory played (all windows warn: alpha is set very low) change the
+    participant's motion from the moment it reacts, and not before."""
+    configs = write_config_dir(tmp_path / "configs", {"alpha_m": 0.0002, "compliance": [1.0, 1.0],
+                                                      "pulses_from": "estimate"})
+    monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
+    cfg = load_simulate_config(configs)
+    cfg = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, objects=2, max_task_s=5.0))
+    model = default_model(load_service_config(configs), None)
+    runs = {c: simulate_session(cfg, Participant("P01", 1, c), tmp_path / c, model, configs)
+            for c in ("none", "seesys")}
+    quiet, warned = (read_tum(runs[c].folder / "groundtruth.tum") for c in ("none", "seesys"))
+    advisory = pd.read_csv(runs["seesys"].folder / "advisory.csv")
+    first = float(advisory.loc[advisory.played_pulses > 0, "play_at_mono"].min())
+    delay = json.loads((runs["seesys"].folder / OPERATOR_JSON).read_text())["reaction_delay_s"]
+    n = min(len(quiet), len(warned))
+    moved = np.linalg.norm(quiet.positions[:n] - warned.positions[:n], axis=1)
+    t = quiet.timestamps[:n]
+    assert moved[t < first + delay - 0.05].max() < 1e-9
+    assert first + delay + 0.5 < t[-1]
+    assert moved[t > first + delay + 0.5].max() > 0.01
