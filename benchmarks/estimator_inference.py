@@ -37,13 +37,11 @@ from slam_monitor.monitor_config import load_monitor_config
 WARMUP = 20
 
 
-IMAGE = (640, 480)  # the dataset's camera: PSD 96 x 128 with the monitor's cells and expansion
-
-
 def untrained_model(seed: int) -> DeepSEE:
     windows = load_window_config()
-    psd = load_monitor_config().psd
-    rows, cols, _ = PsdGeometry(*IMAGE, psd.patch_px, psd.expansion).shape
+    monitor = load_monitor_config()
+    camera, psd = monitor.reference_camera, monitor.psd  # every camera's PSD is on the reference camera's grid
+    rows, cols, _ = PsdGeometry(camera.width, camera.height, psd.patch_px, psd.expansion).shape
     torch.manual_seed(seed)
     shape = InputShape(windows.rts_length, rts_schema.NUM_CHANNELS, windows.psd_samples, rows, cols)
     return DeepSEE(load_estimator_config().model, shape).eval()

@@ -76,10 +76,10 @@ def _untrained_model(args: argparse.Namespace) -> int:
     from seesys.core.psd import PsdGeometry
     from seesys.io.core_settings import load_window_config
     from slam_monitor.monitor_config import load_monitor_config
-    from slam_monitor.sources import load_camera_config
 
-    camera = load_camera_config().files.intrinsics
-    psd = load_monitor_config().psd
+    # Camera normalisation puts every camera's PSD on the reference camera's grid.
+    monitor = load_monitor_config()
+    camera, psd = monitor.reference_camera, monitor.psd
     height, width, _ = PsdGeometry(camera.width, camera.height, psd.patch_px, psd.expansion).shape
     path = export_untrained(args.out, load_window_config(), (height, width), args.seed)
     print(f"wrote {path} ({model_version(path)}): DeepSEE of the configured size for {height}x{width} PSD "

@@ -1,13 +1,19 @@
 """Sensor-input RTS channels of the gray frame SLAM tracked, and the keypoint response used by the PSD.
 
-All four channels are computed on the full-resolution 8-bit gray frame handed to ORB-SLAM3 (the authors
-downscale by 0.2 first and apply CLAHE in their dataset runner; see docs/rts-features.md):
+The first three channels are computed on the full-resolution 8-bit gray frame handed to ORB-SLAM3 (the authors
+downscale by 0.2 first and apply CLAHE in their dataset runner; see docs/rts-features.md); they are shares of the
+image and do not depend on its resolution:
 
 - brightness = mean gray level / 255;
 - contrast   = population standard deviation of the gray level / 255 (RMS contrast);
-- entropy    = Shannon entropy, in bits, of the 256-bin gray-level histogram;
-- laplacian  = variance of the 3×3 Laplacian ``[[0,1,0],[1,-4,1],[0,1,0]]`` of the 8-bit frame, borders
-  reflected without repeating the edge pixel (OpenCV's default), in (gray level)².
+- entropy    = Shannon entropy, in bits, of the 256-bin gray-level histogram.
+
+The Laplacian and the keypoint responses measure detail per pixel, so they are computed on the frame resampled to
+the reference camera's pixel size (:func:`reference_scale`; camera normalisation,
+:mod:`seesys.core.camera_normalisation`); for the reference camera that is the frame itself:
+
+- laplacian  = variance of the 3×3 Laplacian ``[[0,1,0],[1,-4,1],[0,1,0]]`` of the 8-bit frame at the reference
+  scale, borders reflected without repeating the edge pixel (OpenCV's default), in (gray level)².
 """
 
 from __future__ import annotations
@@ -16,6 +22,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from seesys.core.camera_normalisation import CameraNormalisation
 
 #: The 16 pixels of the radius-3 Bresenham circle FAST (and ORB) tests around a corner candidate, as (dx, dy).
 FAST_CIRCLE: np.ndarray = np.array(
@@ -37,14 +45,30 @@ def _check_gray(gray: np.ndarray) -> None:
         raise ValueError(f"expected an (H, W) uint8 gray frame, got {gray.dtype} {gray.shape}")
 
 
-def image_features(gray: np.ndarray) -> ImageFeatures:
-    """The four sensor-input channels of one gray frame."""
+def reference_scale(gray: np.ndarray, normalisation: CameraNormalisation) -> np.ndarray:
+    """The gray frame resampled to the reference camera's pixel size: area-averaged when the camera's pixels are
+    finer (each reference pixel the mean of the camera pixels it covers, as a coarser sensor integrates them),
+    bilinear when they are coarser (no detail is invented). The frame itself for a camera of the reference's focal
+    lengths."""
     _check_gray(gray)
+    if normalisation.identity:
+        return gray
+    size = normalisation.resampled_size()
+    finer = size[0] * size[1] < gray.shape[0] * gray.shape[1]
+    return cv2.resize(gray, size, interpolation=cv2.INTER_AREA if finer else cv2.INTER_LINEAR)
+
+
+def image_features(gray: np.ndarray, reference_gray: np.ndarray | None = None) -> ImageFeatures:
+    """The four sensor-input channels of one gray frame; ``reference_gray``: the frame at the reference scale
+    (:func:`reference_scale`), by default the frame itself (a frame of the reference camera)."""
+    _check_gray(gray)
+    reference_gray = gray if reference_gray is None else reference_gray
+    _check_gray(reference_gray)
     mean, std = cv2.meanStdDev(gray)
     hist = cv2.calcHist([gray], [0], None, [256], [0, 256]).ravel()
     p = hist[hist > 0] / gray.size
     # int16 holds the 3x3 Laplacian of 8-bit values exactly (|value| <= 4 * 255) and is faster than float32.
-    _, lap_std = cv2.meanStdDev(cv2.Laplacian(gray, cv2.CV_16S, ksize=1))
+    _, lap_std = cv2.meanStdDev(cv2.Laplacian(reference_gray, cv2.CV_16S, ksize=1))
     return ImageFeatures(
         brightness=float(mean[0, 0]) / 255.0,
         contrast=float(std[0, 0]) / 255.0,
@@ -57,7 +81,8 @@ def keypoint_responses(gray: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
     """FAST-circle contrast of each keypoint: mean |I(circle pixel) − I(centre)| over the 16 FAST circle pixels.
 
     pyorbslam3 does not expose ORB-SLAM3's keypoint responses, so they are recomputed from the image at the
-    keypoint positions (rounded to the nearest pixel, edge pixels replicated). The value is in gray levels
+    keypoint positions (rounded to the nearest pixel, edge pixels replicated). The monitor passes the frame at the
+    reference scale and the keypoints as positions in it, so that the circle spans the same angle on any camera. The value is in gray levels
     (0–255), like the FAST scores ORB-SLAM3 stores, and higher means a more distinctive corner.
     """
     _check_gray(gray)

@@ -29,6 +29,8 @@ from typing import Any
 import numpy as np
 
 from seesys.core import rts_schema
+from seesys.core.camera import Intrinsics
+from seesys.core.camera_normalisation import CameraNormalisation
 from seesys.core.device_settings import DeviceSettings
 from seesys.core.messages import FeatureFrame
 from seesys.core.psd import PsdGeometry, build_psd
@@ -39,7 +41,7 @@ from seesys.io.network import load_network_config
 from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from slam_monitor.depth_features import depth_features
 from slam_monitor.frame import Frame
-from slam_monitor.image_features import image_features, keypoint_responses
+from slam_monitor.image_features import image_features, keypoint_responses, reference_scale
 from slam_monitor.local_map import LocalMap
 from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
 from slam_monitor.slam_features import RelativeMotion, SlamFeatures, project, relative_motion, slam_features, to_camera
@@ -68,7 +70,9 @@ class FeatureExtractor:
     """Single-threaded core of the monitor: one :class:`MonitorInput` in, one :class:`FeatureFrame` out.
 
     Holds the monitor's local map, so inputs must come in frame order. Every frame carries ``stream_session`` and
-    ``settings`` (the device's settings a model depends on; see :mod:`seesys.core.device_settings`).
+    ``settings`` (the device's settings a model depends on; see :mod:`seesys.core.device_settings`). Pixel-valued
+    channels, the Laplacian and the PSD are camera-normalised to ``config.reference_camera``
+    (:mod:`seesys.core.camera_normalisation`): the PSD grid is always the reference camera's.
     """
 
     def __init__(self, config: MonitorConfig, stream_session: int = 0, settings: DeviceSettings | None = None):
@@ -76,20 +80,24 @@ class FeatureExtractor:
         self.stream_session, self.settings = stream_session, settings
         lm = config.local_map
         self.local_map = LocalMap(lm.voxel, lm.max_age_frames, lm.max_points)
-        self._geometry: PsdGeometry | None = None
+        reference = config.reference_camera
+        self._geometry = PsdGeometry(reference.width, reference.height, config.psd.patch_px, config.psd.expansion)
+        self._normalisation: CameraNormalisation | None = None
 
-    def _psd_geometry(self, width: int, height: int) -> PsdGeometry:
-        if self._geometry is None or (self._geometry.width, self._geometry.height) != (width, height):
-            self._geometry = PsdGeometry(width, height, self.config.psd.patch_px, self.config.psd.expansion)
-        return self._geometry
+    def _normalised(self, intrinsics: Intrinsics) -> CameraNormalisation:
+        if self._normalisation is None or self._normalisation.camera != intrinsics:
+            self._normalisation = CameraNormalisation(self.config.reference_camera, intrinsics)
+        return self._normalisation
 
     def extract(self, item: MonitorInput) -> FeatureFrame:
         frame, cfg = item.frame, self.config
         index = frame.index
         intr = frame.intrinsics
+        normalisation = self._normalised(intr)
+        reference_gray = reference_scale(frame.gray, normalisation)
         channels: dict[str, float] = dict.fromkeys(rts_schema.CHANNEL_NAMES, float("nan"))
         # vars, not asdict: the fields are floats, and asdict's deep copy cost 0.2 ms a frame.
-        channels.update(vars(image_features(frame.gray)))
+        channels.update(vars(image_features(frame.gray, reference_gray)))
 
         slam: SlamFeatures | None = None
         if item.state.tracked and item.pose_cw is not None and item.pose_wc is not None:
@@ -106,15 +114,16 @@ class FeatureExtractor:
                 lost_points_w=self.local_map.lost_points(), camera_matrix=intr.matrix(),
                 width=intr.width, height=intr.height, match_gate_px=cfg.features.match_gate_px,
                 min_depth=cfg.features.min_depth)
-            channels.update(_slam_channels(slam))
+            channels.update(_slam_channels(slam, normalisation))
         channels.update(vars(depth_features(frame.depth, frame.gray, intr.fx, intr.fy, cfg.depth)))
 
-        psd = self._psd(item, slam) if cfg.windows.is_psd_frame(index) else None
+        psd = self._psd(item, slam, normalisation, reference_gray) if cfg.windows.is_psd_frame(index) else None
         rts = np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32)
         return FeatureFrame(cfg.device_id, index, frame.timestamp, item.state, rts, psd, item.frames_skipped,
                             stream_session=self.stream_session, settings=self.settings)
 
-    def _psd(self, item: MonitorInput, slam: SlamFeatures | None) -> np.ndarray:
+    def _psd(self, item: MonitorInput, slam: SlamFeatures | None, normalisation: CameraNormalisation,
+             reference_gray: np.ndarray) -> np.ndarray:
         intr, cfg = item.frame.intrinsics, self.config
         keypoints = np.asarray(item.keypoints, dtype=np.float64).reshape(-1, 2)
         map_uv, map_z = np.zeros((0, 2)), np.zeros(0)
@@ -123,13 +132,13 @@ class FeatureExtractor:
             points_c = points_c[points_c[:, 2] > cfg.features.min_depth]
             map_uv, map_z = project(points_c, intr.matrix()), points_c[:, 2]
         return build_psd(
-            self._psd_geometry(intr.width, intr.height), keypoints=keypoints,
-            responses=keypoint_responses(item.frame.gray, keypoints),
+            self._geometry, keypoints=normalisation.reference_px(keypoints),
+            responses=keypoint_responses(reference_gray, normalisation.resampled_px(keypoints)),
             inliers=slam.inlier_keypoints if slam is not None else np.zeros(len(keypoints), dtype=bool),
-            map_points_uv=map_uv, map_points_depth=map_z, near_depth=cfg.psd.near_depth)
+            map_points_uv=normalisation.reference_px(map_uv), map_points_depth=map_z, near_depth=cfg.psd.near_depth)
 
 
-def _slam_channels(slam: SlamFeatures) -> dict[str, float]:
+def _slam_channels(slam: SlamFeatures, normalisation: CameraNormalisation) -> dict[str, float]:
     m = slam.motion
     return {
         "matched_inliers": slam.matched_inliers, "outliers": slam.outliers,
@@ -137,7 +146,7 @@ def _slam_channels(slam: SlamFeatures) -> dict[str, float]:
         "rel_tx": m.translation[0], "rel_ty": m.translation[1], "rel_tz": m.translation[2],
         "rel_roll": m.roll, "rel_pitch": m.pitch, "rel_yaw": m.yaw,
         "avg_mp_depth": slam.avg_mp_depth, "var_mp_depth": slam.var_mp_depth,
-        "local_mapping_visual_error": slam.reprojection_error_px,
+        "local_mapping_visual_error": slam.reprojection_error_px / normalisation.pixel_ratio,
     }
 
 

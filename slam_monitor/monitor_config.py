@@ -6,6 +6,7 @@ import socket
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from seesys.core.camera_normalisation import ReferenceCamera
 from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
 from seesys.io.config import build, config_dir, read_toml
@@ -59,6 +60,7 @@ def resolve_device_id(configured: str, source: str, host: str | None = None) -> 
 class MonitorConfig:
     device_id: str
     queue_size: int
+    reference_camera: ReferenceCamera
     features: FeatureConfig
     psd: PsdConfig
     local_map: LocalMapConfig

@@ -26,7 +26,7 @@ from estimator.dataset.config import load_dataset_config
 from estimator.dataset.splits import SplitRound, Splits
 from estimator.dataset.store import COMPLETED, DatasetReader, RunInfo, write_run
 from estimator.deepsee.data import read_splits, session_windows, split_windows
-from seesys.core import rts_schema, session_layout
+from seesys.core import camera_normalisation, rts_schema, session_layout
 from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
 from seesys.core.trajectory import Poses
@@ -127,7 +127,8 @@ def build_tiny_dataset(base: Path) -> TinyDataset:
         folder = write_session(sessions / name, seed=k)
         arrays = label_run(folder, SlamMode.RGBD, load_label_config(), windows)
         info = RunInfo(name, f"{environment}__{trajectory}__s0", environment, group, trajectory, "rgbd", 0,
-                       COMPLETED, frames=240, frames_tracked=240, samples=len(arrays.samples))
+                       COMPLETED, frames=240, frames_tracked=240, samples=len(arrays.samples),
+                       camera_normalisation=camera_normalisation.VERSION)
         write_run(root, info, arrays)
         names.append(name)
     split_round = SplitRound(["traj_d"], ["traj_e", "traj_f"], [names[0], names[1], names[2]], [names[3]],

@@ -25,9 +25,13 @@ from seesys.io.core_settings import load_device_settings, load_window_config
 from seesys.core import rts_schema
 from seesys.io.resources import resolve
 
-# What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now).
+# What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now). It
+# was trained on the ideal camera, the reference camera of camera normalisation v1, whose inputs v1 leaves as they
+# were: its record states v1 (its metadata was updated, its weights and graph were not).
 SHIPPED_DEVICE = {"slam_modes": ["rgbd"], "fps": 30, "orb_features": 1000, "psd_patch_px": 10, "psd_expansion": 2,
-                  "near_depth": 0.5}
+                  "near_depth": 0.5, "camera_normalisation": 1,
+                  "reference_camera": {"width": 640, "height": 480, "fx": 525.0, "fy": 525.0, "cx": 319.5,
+                                       "cy": 239.5}}
 
 
 def test_the_shipped_model_carries_the_full_record_in_both_files():
@@ -77,12 +81,14 @@ def test_serve_refuses_a_model_whose_near_depth_differs_from_monitor_toml(tiny_m
 def test_a_device_is_compared_with_the_model_setting_by_setting():
     model = SHIPPED_DEVICE
     device = load_device_settings("rgbd", 29.97)
-    assert device == DeviceSettings("rgbd", 30, 1000, 10, 2, 0.5)
+    assert device == DeviceSettings("rgbd", 30, 1000, 10, 2, 0.5, 1)
     assert settings_differences(model, device) == []
     assert settings_differences(model, dataclasses.replace(device, slam_mode="mono")) == [
         "slam_mode: device mono, model rgbd"]
     assert settings_differences(model, dataclasses.replace(device, fps=15, orb_features=1500)) == [
         "fps: device 15, model 30", "orb_features: device 1500, model 1000"]
+    assert settings_differences(model, dataclasses.replace(device, camera_normalisation=0)) == [
+        "camera_normalisation: device 0, model 1"]
 
 
 def test_a_logged_session_replays_with_the_settings_its_device_stated(tmp_path):

@@ -47,9 +47,8 @@ from estimator.dataset.store import (
 from estimator.jobs import Job, JobEnv, LocalExecutor, RayExecutor, load_ray_settings
 from estimator.synth.batch import CameraDraw, expand_environments, expand_motions, plan_batch, render_into
 from estimator.synth.config import SynthConfig
-from estimator.synth.lenses import model_camera
 from estimator.synth.sequence import SequenceSpec
-from seesys.core import rts_schema, session_layout
+from seesys.core import camera_normalisation, rts_schema, session_layout
 from seesys.core.errors import SeesysError
 from seesys.core.labels import LabelConfig, LabelStatus
 from seesys.core.windows import WindowConfig, assemble_windows
@@ -115,10 +114,8 @@ def plan_from_config(config: DatasetConfig, synth: SynthConfig, template: Sequen
     except ValueError as e:
         raise SeesysError(f"unknown SLAM mode: {e}") from None
     draw = config.cameras if cameras is None else CameraDraw(tuple(cameras), (1.0,) * len(cameras))
-    sizes = {name: model_camera(synth.camera, synth.camera_model(name)).lens for name in draw.models}
-    if len({(lens.width, lens.height) for lens in sizes.values()}) > 1:
-        listed = ", ".join(f"{name} {lens.width}x{lens.height}" for name, lens in sizes.items())
-        raise SeesysError(f"the camera draw mixes image sizes ({listed}): a dataset's windows need one PSD size")
+    for name in draw.models:  # refuses an unknown model by name, before any work
+        synth.camera_model(name)
     return BuildPlan(template, expand_environments(list(environments or config.environments), synth),
                      expand_motions(list(motions or config.motions), synth), list(seeds or config.seeds),
                      slam_modes, trials, render_processes, draw if draw.models else None)
@@ -295,7 +292,8 @@ class DatasetBuilder:
         name = run_name(sequence.name, mode.value, trial)
         info = RunInfo(name, sequence.name, meta["environment"], meta["motion_group"], meta["trajectory"],
                        mode.value, trial, COMPLETED,
-                       camera_model=meta.get("camera_model", {}).get("name", "ideal"))  # ideal: not recorded
+                       camera_model=meta.get("camera_model", {}).get("name", "ideal"),  # ideal: not recorded
+                       camera_normalisation=camera_normalisation.VERSION)  # what this process's monitor applies
         session_dir = self.root / SESSIONS_DIR / name
         shutil.rmtree(session_dir, ignore_errors=True)
         options = SessionOptions(f"tum:{sequence}", mode, session_dir, pace=self.config.pace,

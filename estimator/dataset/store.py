@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from seesys.core.camera_normalisation import BEFORE_NORMALISATION
 from seesys.core.errors import SeesysError
 
 RUNS_DIR = "runs"
@@ -88,6 +89,9 @@ class RunInfo:
     slam_seconds: float = 0.0  # the SLAM session (ORB-SLAM3 + monitor at camera pace)
     seconds: float = 0.0  # the whole run: SLAM session, labelling and windowing
     camera_model: str = "ideal"  # the renderer's camera model of the sequence (configs/synth.toml)
+    # The camera normalisation version of its features (seesys.core.camera_normalisation); a run.json without one
+    # was built before camera normalisation.
+    camera_normalisation: int = BEFORE_NORMALISATION
 
 
 @dataclass(frozen=True)
@@ -247,7 +251,7 @@ class DatasetReader:
                     raise DatasetError(f"{folder / SAMPLES_CSV}: missing columns {sorted(missing)}")
                 meta = asdict(info)
                 for key in ("run", "sequence", "environment", "motion_group", "trajectory", "mode", "trial",
-                            "camera_model"):
+                            "camera_model", "camera_normalisation"):
                     table[key] = meta[key]
                 tables.append(table)
         if runs is not None:

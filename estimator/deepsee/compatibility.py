@@ -6,7 +6,8 @@ version they were made with: a model takes the rows of any later schema that sti
 :func:`rts_columns`), the windows (T, K_L, tau and the missing-row
 rule ``max_missing_rts``), the label transform, the label's Δ (``delta_frames``) and the device settings the
 training data was made with (:func:`seesys.core.device_settings.model_settings_record`: SLAM modes, frame rate,
-ORB feature count, PSD cell size, expansion and ``near_depth``) and, for a model with an ordinal head, the head's
+ORB feature count, PSD cell size, expansion and ``near_depth``, the camera normalisation version and its reference
+camera, :mod:`seesys.core.camera_normalisation`) and, for a model with an ordinal head, the head's
 thresholds (``ordinal_head``: ``{"thresholds_m": [...]}``; absent without a head, so the record of a model without
 one is what it always was). The thresholds are recorded, not compared: they say which threshold each of the head's
 probabilities is for, and the advisory uses the head only where they are Equation 2's class boundaries. Loading a
@@ -22,14 +23,15 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from estimator.deepsee.transforms import LabelTransform
-from seesys.core import rts_schema
+from seesys.core import camera_normalisation, rts_schema
 from seesys.core.errors import SeesysError
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_label_config, load_model_device_record
@@ -37,9 +39,11 @@ from seesys.io.core_settings import load_label_config, load_model_device_record
 # The fields of the window definition that decide what a window holds and which windows a model sees (end_stride
 # only says how often one is formed).
 WINDOW_FIELDS = ("rts_length", "psd_samples", "psd_stride", "max_missing_rts")
-# The device settings every device of an installation shares (its configs); the SLAM mode and the frame rate are a
-# device's own and are checked on its frames (seesys.core.device_settings).
-INSTALLATION_DEVICE_FIELDS = ("orb_features", "psd_patch_px", "psd_expansion", "near_depth")
+# The device settings every device of an installation shares (its configs), with the camera normalisation's version
+# and reference camera; the SLAM mode and the frame rate are a device's own and are checked on its frames
+# (seesys.core.device_settings).
+INSTALLATION_DEVICE_FIELDS = ("orb_features", "psd_patch_px", "psd_expansion", "near_depth", "camera_normalisation",
+                              "reference_camera")
 ORDINAL_HEAD = "ordinal_head"
 
 
@@ -135,6 +139,24 @@ def differences(record: dict, here: dict) -> list[str]:
         if model_value != here_value:
             out.append(f"{part}.{name}: model {_show(model_value)}, here {_show(here_value)}")
     return out
+
+
+def model_normalisation(record: dict) -> int:
+    """The camera normalisation version a model of ``record`` takes (0: made before camera normalisation)."""
+    return int((record.get("device") or {}).get("camera_normalisation", camera_normalisation.BEFORE_NORMALISATION))
+
+
+def check_normalisation(record: dict, versions: Iterable[object], source: str) -> None:
+    """Raise :class:`ModelMismatch`, in one line naming both versions, when any of ``versions`` (the camera
+    normalisation versions of windows from ``source``; NA/None where a source states none, which is not
+    checked) is not the one a model of ``record`` takes."""
+    stated = sorted({int(v) for v in versions if v is not None and not pd.isna(v)})
+    expected = model_normalisation(record)
+    for version in stated:
+        try:
+            camera_normalisation.check_version(expected, version, source)
+        except camera_normalisation.CameraNormalisationMismatch as e:
+            raise ModelMismatch(str(e)) from None
 
 
 def check_compatible(record: dict, source: str, windows: WindowConfig, transform: LabelTransform,

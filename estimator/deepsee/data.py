@@ -31,6 +31,8 @@ from seesys.io.rts_log import read_feature_frames
 from seesys.io.session_labels import label_session
 
 PARTS = ("train", "validation", "test")
+#: The ``meta`` column of each window's camera normalisation version (NA where its source states none).
+NORMALISATION_COLUMN = "camera_normalisation"
 
 
 class DataError(SeesysError):
@@ -134,12 +136,16 @@ def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Wind
     mode = session_mode(folder)
     # Form a window wherever the PSDs were logged: every frame in a dataset build, every end_stride-th on a device.
     every_frame = dataclasses.replace(windows, end_stride=1)
+    frames = list(read_feature_frames(folder, folder.name))
+    # The camera normalisation its monitor stated (rts.json); unknown (NA) for a log that states no settings.
+    settings = frames[0].settings if frames else None
+    normalisation = settings.camera_normalisation if settings is not None else pd.NA
     rts, psd, rows = [], [], []
-    for window in assemble_windows(read_feature_frames(folder, folder.name), every_frame):
+    for window in assemble_windows(frames, every_frame):
         rts.append(window.rts)
         psd.append(window.psd)
-        rows.append((folder.name, window.frame_index, window.timestamp, window.missing_rts))
-    meta = pd.DataFrame(rows, columns=["run", "frame_index", "timestamp", "missing_rts"])
+        rows.append((folder.name, window.frame_index, window.timestamp, window.missing_rts, normalisation))
+    meta = pd.DataFrame(rows, columns=["run", "frame_index", "timestamp", "missing_rts", NORMALISATION_COLUMN])
     error = np.full(len(rows), np.nan)
     if labelled and rows:
         labels = label_session(folder, mode == "mono", load_label_config()).to_frame()

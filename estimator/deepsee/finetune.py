@@ -21,9 +21,9 @@ import numpy as np
 import torch
 
 from estimator.deepsee.checkpoint import load_model, save_model
-from estimator.deepsee.compatibility import rts_columns
+from estimator.deepsee.compatibility import check_normalisation, rts_columns
 from estimator.deepsee.config import EstimatorConfig
-from estimator.deepsee.data import DataError, Windows, concat, session_windows
+from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows, concat, session_windows
 from estimator.deepsee.inference import predict, predict_outputs
 from estimator.deepsee.metrics import CM_PER_M, Scores, equation2_head, score
 from estimator.deepsee.ordinal import model_thresholds
@@ -83,6 +83,9 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     transform = ctx.transform
     model, payload = load_model(base, transform, windows)
     model = model.to(device)
+    check_normalisation(payload["compatibility"], train.meta[NORMALISATION_COLUMN], "the fine-tuning sessions")
+    if test is not None:
+        check_normalisation(payload["compatibility"], test.meta[NORMALISATION_COLUMN], "the held-out sessions")
     # The base model takes the RTS channels it was trained with; a later schema's rows hold them among others.
     columns = rts_columns(payload["compatibility"], str(base))
     train, val = train.select_rts(columns), val.select_rts(columns)

@@ -15,8 +15,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimator.deepsee.compatibility import InputShape, ModelMismatch, check_compatible, rts_columns
-from estimator.deepsee.data import DataError, Windows
+from estimator.deepsee.compatibility import (
+    InputShape,
+    ModelMismatch,
+    check_compatible,
+    check_normalisation,
+    rts_columns,
+)
+from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows
 from estimator.deepsee.onnx_model import OnnxModel
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.windows import WindowConfig
@@ -39,8 +45,8 @@ class Predictor:
     """``transformed(windows)``: outputs on the transformed scale; ``metres(windows)``: estimates in metres;
     ``estimates(windows)``: both the metres and the head's probabilities from one run. ``shape``: the window the
     model was made for (PSD sizes 0: a model of the RTS window only); ``columns``: the RTS channels it takes, as
-    columns of this schema's rows; ``thresholds_m``: its head's thresholds, one per column of the probabilities
-    (empty: no head)."""
+    columns of this schema's rows; ``record``: its compatibility record; ``thresholds_m``: its head's thresholds,
+    one per column of the probabilities (empty: no head)."""
 
     path: Path
     kind: str
@@ -48,11 +54,15 @@ class Predictor:
     _run: object  # windows → (transformed outputs, head probabilities or None)
     shape: InputShape
     columns: np.ndarray
+    record: dict
     thresholds_m: tuple[float, ...] = ()
 
     def outputs(self, windows: Windows) -> tuple[np.ndarray, np.ndarray | None]:
         """Transformed-scale outputs and head probabilities (None without a head); raises ``DataError`` for
-        windows of another shape than the model's."""
+        windows of another shape than the model's and ``ModelMismatch`` for windows of another camera
+        normalisation."""
+        if NORMALISATION_COLUMN in windows.meta:
+            check_normalisation(self.record, windows.meta[NORMALISATION_COLUMN], f"windows of {_runs(windows)}")
         windows = windows.select_rts(self.columns)
         if len(windows):
             self.check(windows.input_shape())
@@ -78,6 +88,12 @@ class Predictor:
         return self.transform.inverse(self.transformed(windows))
 
 
+def _runs(windows: Windows) -> str:
+    """The runs or sessions ``windows`` come from, for a message."""
+    runs = sorted(set(windows.meta.get("run", [])))
+    return ", ".join(runs[:3]) + (f" and {len(runs) - 3} more" if len(runs) > 3 else "")
+
+
 def _onnx_runner(model: OnnxModel, batch_size: int):
     def run(windows: Windows) -> tuple[np.ndarray, np.ndarray | None]:
         out = [model.outputs(windows.rts[s:s + batch_size],
@@ -99,7 +115,7 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
     if path.suffix == ".onnx":
         model = OnnxModel(path, transform, windows)
         return Predictor(path, "onnx", transform, _onnx_runner(model, batch_size), model.shape, model.rts_columns,
-                         model.thresholds_m)
+                         model.record, model.thresholds_m)
     if path.suffix == ".pkl":
         from estimator.deepsee.baselines import window_statistics
 
@@ -114,7 +130,7 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
         columns = rts_columns(record["compatibility"], str(path))
         return Predictor(path, "random_forest", transform,
                          lambda w: (forest.predict(window_statistics(w.rts)).astype(np.float32), None),
-                         InputShape(windows.rts_length, len(columns), 0, 0, 0), columns)
+                         InputShape(windows.rts_length, len(columns), 0, 0, 0), columns, record["compatibility"])
     import torch
 
     from estimator.deepsee.checkpoint import load_model
@@ -127,4 +143,5 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
     shape = model.shape if hasattr(model, "shape") else InputShape(windows.rts_length, model.channels, 0, 0, 0)
     return Predictor(path, payload["model"]["kind"], transform,
                      lambda w: predict_outputs(model, w, batch_size, device), shape,
-                     rts_columns(payload["compatibility"], str(path)), model_thresholds(model))
+                     rts_columns(payload["compatibility"], str(path)), payload["compatibility"],
+                     model_thresholds(model))

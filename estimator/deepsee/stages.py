@@ -38,7 +38,8 @@ from estimator.deepsee.augment import Augmenter
 from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
 from estimator.deepsee.config import EstimatorConfig, Schedule, StageSchedule
-from estimator.deepsee.data import Windows, limit
+from estimator.deepsee.compatibility import check_normalisation
+from estimator.deepsee.data import NORMALISATION_COLUMN, Windows, limit
 from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
 from estimator.deepsee.loop import run_stage, stage_seed
 from estimator.deepsee.model import DeepSEE, exceedance_probabilities
@@ -293,6 +294,9 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
               pretrained: Path | None = None) -> Path:
     """Train ``row`` on ``data['train']`` (early stopping on ``data['validation']``) into the run folder ``out``;
     returns the model file. ``pretrained``: a DeepSEE run folder whose encoders an ablation row starts from."""
+    record = compatibility(ctx.windows, ctx.transform)
+    for part in ("train", "validation"):  # the model records this SEESys's normalisation: its data must have it
+        check_normalisation(record, data[part].meta.get(NORMALISATION_COLUMN, ()), f"the {part} runs")
     run = RunFolder(out, _run_config(row, ctx, pretrained), ctx.device)
     schedule, seed = ctx.schedule, ctx.config.seed
     train = limit(data["train"], schedule.max_train_samples, seed)

@@ -12,7 +12,7 @@ i64 frame index | f64 timestamp`` followed by the kind's payload:
 - :class:`FeatureFrame`: ``u16 RTS schema version | u32 RTS schema fingerprint | u32 frames skipped |
   i8 tracking state | u16 C + C × f32 RTS row | u8 has_settings`` and, when has_settings, the device's settings
   (:class:`~seesys.core.device_settings.DeviceSettings`: ``u8 SLAM mode | u16 fps | u16 ORB features |
-  u16 PSD patch px | u16 PSD expansion | f64 near depth``), then ``u8 has_psd`` and, when has_psd, the PSD as
+  u16 PSD patch px | u16 PSD expansion | f64 near depth | u16 camera normalisation version``), then ``u8 has_psd`` and, when has_psd, the PSD as
   :func:`pack_psd` writes it (``u16 H | u16 W | u16 L | u32 n + n bytes``). "Frames skipped" is the device's
   running count of frames it tracked but did not publish (its monitor fell behind): a receiver that sees a gap in
   frame indices can tell those from frames lost on the way.
@@ -47,7 +47,7 @@ from seesys.core.errors import SeesysError
 from seesys.core.tracking_state import TrackingState
 
 # 4: estimates carry the ordinal head's thresholds and probabilities (3 had none).
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
 MAGIC = b"SEES"
 #: Topic prefixes of the two kinds; subscribe to one alone to receive every device's messages of that kind.
 FEATURE_TOPIC = b"F/"
@@ -62,7 +62,7 @@ _PSD_HEAD = struct.Struct("<HHHI")
 _ESTIMATE = struct.Struct("<dd")
 _EXCEEDANCE = struct.Struct("<ff")
 _FEATURE_HEAD = struct.Struct("<HIIbH")
-_SETTINGS = struct.Struct("<BHHHHd")
+_SETTINGS = struct.Struct("<BHHHHdH")
 _PSD_LEVEL = 6
 
 
@@ -171,7 +171,8 @@ def _pack_settings(settings: DeviceSettings | None) -> bytes:
     if settings is None:
         return b"\x00"
     return b"\x01" + _SETTINGS.pack(SLAM_MODES.index(settings.slam_mode), settings.fps, settings.orb_features,
-                                    settings.psd_patch_px, settings.psd_expansion, settings.near_depth)
+                                    settings.psd_patch_px, settings.psd_expansion, settings.near_depth,
+                                    settings.camera_normalisation)
 
 
 def _read_settings(r: _Reader) -> DeviceSettings | None:
@@ -180,12 +181,12 @@ def _read_settings(r: _Reader) -> DeviceSettings | None:
         return None
     if flag != 1:
         raise MessageError(f"bad settings flag {flag}")
-    mode, fps, features, patch_px, expansion, near_depth = r.unpack(_SETTINGS, "device settings")
+    mode, fps, features, patch_px, expansion, near_depth, normalisation = r.unpack(_SETTINGS, "device settings")
     if mode >= len(SLAM_MODES):
         raise MessageError(f"unknown SLAM mode {mode} in the device settings")
     if not math.isfinite(near_depth):
         raise MessageError(f"near depth is not finite: {near_depth}")
-    return DeviceSettings(SLAM_MODES[mode], fps, features, patch_px, expansion, near_depth)
+    return DeviceSettings(SLAM_MODES[mode], fps, features, patch_px, expansion, near_depth, normalisation)
 
 
 class _Reader:

@@ -5,9 +5,10 @@ device settings a model depends on (``monitor.toml``, ``slam.toml``; for a model
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from seesys.core.camera_normalisation import ReferenceCamera
 from seesys.core.device_settings import DeviceSettings, model_settings_record
 from seesys.core.equation2 import Equation2Config, PulseSettings
 from seesys.core.labels import LabelConfig
@@ -62,10 +63,17 @@ def load_device_settings(slam_mode: str, fps: float, directory: Path | None = No
                              _value(directory, "monitor.toml", "psd", "near_depth"))
 
 
+def load_reference_camera(directory: Path | None = None) -> ReferenceCamera:
+    """The camera normalisation's reference camera, ``[reference_camera]`` of monitor.toml."""
+    return build(ReferenceCamera, _value(directory, "monitor.toml", "reference_camera"),
+                 f"{(directory or config_dir()) / 'monitor.toml'} [reference_camera]")
+
+
 def load_model_device_record(directory: Path | None = None) -> dict:
-    """The device part of the compatibility record of a model trained here: the configured device settings, the
-    SLAM modes the dataset builder runs (``modes`` of dataset.toml) and the frame rate of its rendered sequences
-    (``[camera] fps`` of synth.toml)."""
+    """The device part of the compatibility record of a model trained here: the configured device settings (with
+    this SEESys's camera normalisation version), the reference camera of the camera normalisation
+    (``reference_camera``), the SLAM modes the dataset builder runs (``modes`` of dataset.toml) and the frame rate
+    of its rendered sequences (``[camera] fps`` of synth.toml)."""
     modes = _value(directory, "dataset.toml", "modes")
     settings = load_device_settings(modes[0], _value(directory, "synth.toml", "camera", "fps"), directory)
-    return model_settings_record(settings, modes)
+    return {**model_settings_record(settings, modes), "reference_camera": asdict(load_reference_camera(directory))}

@@ -158,7 +158,7 @@ def check_rts_schema(session: Path) -> DeviceSettings | None:
     except rts_schema.SchemaMismatch as e:
         raise MonitorLogError(str(e)) from None
     try:
-        return DeviceSettings(**meta["device_settings"]) if "device_settings" in meta else None
+        return DeviceSettings.from_record(meta["device_settings"]) if "device_settings" in meta else None
     except (TypeError, ValueError) as e:
         raise MonitorLogError(f"{path}: malformed device_settings ({e})") from None
 
