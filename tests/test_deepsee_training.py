@@ -185,8 +185,9 @@ def _random_windows(seed: int, count: int):
 def test_the_encoder_cache_is_reused_only_for_the_same_encoders_and_windows(tmp_path):
     """Stage (c)'s cache of the frozen encoders' outputs: the same windows and encoders read it back without encoding
     again; other windows of the same count, or encoders trained again, are encoded afresh."""
-    from estimator.deepsee.stages import _cached_encodings
+    from estimator.deepsee.stages import _cached_encodings, _Views
 
+    as_is = _Views(1)
     first, other = _random_windows(1, 40), _random_windows(2, 40)
     with Progress(disable=True) as progress:
         ctx = _context(progress)
@@ -203,13 +204,13 @@ def test_the_encoder_cache_is_reused_only_for_the_same_encoders_and_windows(tmp_
                 model.train()
             return r.numpy().astype(np.float16), p.numpy().astype(np.float16)
 
-        r1 = np.array(_cached_encodings(run, model, first, "train", ctx)[0])
+        r1 = np.array(_cached_encodings(run, model, first, "train", ctx, as_is)[0][0])
         encoded = len(calls)
         assert encoded > 0
-        again = _cached_encodings(run, model, first, "train", ctx)
+        again = _cached_encodings(run, model, first, "train", ctx, as_is)
         assert len(calls) == encoded  # read back, not encoded again
-        np.testing.assert_array_equal(again[0], r1)
-        r2, p2 = map(np.array, _cached_encodings(run, model, other, "train", ctx))
+        np.testing.assert_array_equal(again[0][0], r1)
+        r2, p2 = (np.array(a[0]) for a in _cached_encodings(run, model, other, "train", ctx, as_is))
         assert len(calls) > encoded
         np.testing.assert_allclose(r2, fresh(other)[0], atol=1e-3)
         np.testing.assert_allclose(p2, fresh(other)[1], atol=1e-3)
@@ -217,6 +218,35 @@ def test_the_encoder_cache_is_reused_only_for_the_same_encoders_and_windows(tmp_
         with torch.no_grad():  # the encoders trained again (e.g. another pretrained run folder)
             for parameter in model.rts_encoder.parameters():
                 parameter.add_(0.05)
-        r3, _ = _cached_encodings(run, model, other, "train", ctx)
+        r3 = np.array(_cached_encodings(run, model, other, "train", ctx, as_is)[0][0])
         np.testing.assert_allclose(r3, fresh(other)[0], atol=1e-3)
         assert not np.allclose(np.asarray(r3, np.float32), np.asarray(r2, np.float32))
+
+
+def test_augmentation_reaches_every_training_stage(tmp_path, monkeypatch):
+    """The PSD reconstruction (a), TS2Vec (b), the frozen-encoder stage (c) through its cache of augmented draws, and
+    stage (d) all train on augmented windows; validation sees the windows as they are."""
+    import sys
+
+    from estimator.deepsee import stages
+    from estimator.deepsee.augment import Augmenter
+
+    callers = []
+
+    class Recording(Augmenter):
+        def __call__(self, rts, psd, generator):
+            callers.append(sys._getframe(1).f_code.co_qualname)
+            return super().__call__(rts, psd, generator)
+
+    monkeypatch.setattr(stages, "Augmenter", Recording)
+    with Progress(disable=True) as progress:
+        ctx = _context(progress)
+        train_row(tmp_path / "run", row("deepsee"), {"train": _random_windows(1, 48),
+                                                      "validation": _random_windows(2, 16)}, ctx)
+    assert {"_psd_ssl.<locals>.step", "_rts_ssl.<locals>.step", "_cached_encodings",
+            "supervised.<locals>.step"} <= set(callers), set(callers)
+    views = ctx.config.augmentation.frozen_stage_views
+    cached = np.load(tmp_path / "run" / "state" / "cache_train_rts.npy")
+    assert views > 1 and cached.shape[:2] == (views, 48)
+    assert not np.array_equal(cached[0], cached[1])  # each view another draw
+    assert np.load(tmp_path / "run" / "state" / "cache_validation_rts.npy").shape[0] == 1  # as it is

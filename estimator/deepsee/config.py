@@ -155,6 +155,11 @@ class AugmentationConfig:
     laplacian_gain: tuple[float, float]  # sharpness: variance of the Laplacian
     count_gain: tuple[float, float]  # matched inliers, outliers, matches before pose optimisation
     keypoint_response_gain: tuple[float, float]  # the PSD keypoint layer (FAST response, i.e. local contrast)
+    frozen_stage_views: int  # stage (c): augmented draws of every training window whose encodings are cached
+
+    def __post_init__(self) -> None:
+        if self.frozen_stage_views < 1:
+            raise ValueError(f"frozen_stage_views must be at least 1, got {self.frozen_stage_views}")
 
 
 @dataclass(frozen=True)

@@ -4,13 +4,14 @@ DeepSEE (paper §5.4, here on the training runs of a cross-validation round):
 
 (a) PSD masked reconstruction (:mod:`estimator.deepsee.ssl`), early stopping on the validation runs' loss;
 (b) TS2Vec on the RTS encoder, in epochs of :data:`TS2VEC_EPOCH` iterations;
-(c) supervised, both encoders frozen: their outputs for the training and validation windows are computed once
-    and cached in the run folder (``state/cache_*.npy``, reused only for the same encoders and windows), and only
-    the fusion and the output layers are trained;
+(c) supervised, both encoders frozen: their outputs for augmented draws of the training windows and for the
+    validation windows are computed once and cached in the run folder (``state/cache_*.npy``, reused only for the
+    same encoders, windows and draws), and only the fusion and the output layers are trained;
 (d) supervised fine-tuning of the whole model on the training runs (the paper's real-data stage; on a lab's real
     sessions, ``seesys estimator finetune``).
 
-Stages (c) and (d) minimise MSE of the transformed error plus λ × the ordinal head's BCE where the model has the
+Every stage trains on windows augmented as ``[augmentation]`` of configs/estimator.toml says
+(:mod:`estimator.deepsee.augment`). Stages (c) and (d) minimise MSE of the transformed error plus λ × the ordinal head's BCE where the model has the
 head (:mod:`estimator.deepsee.ordinal`; new DeepSEE rows get it when ``[ordinal_head] enabled``), the MSE alone
 otherwise (the LSTM).
 
@@ -37,7 +38,7 @@ from torch import nn
 from estimator.deepsee.augment import Augmenter
 from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
-from estimator.deepsee.config import EstimatorConfig, Schedule, StageSchedule
+from estimator.deepsee.config import AugmentationConfig, EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.compatibility import check_normalisation
 from estimator.deepsee.data import NORMALISATION_COLUMN, Windows, limit
 from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
@@ -103,13 +104,14 @@ def _batch_targets(y: torch.Tensor, exceeds: np.ndarray | None, index: np.ndarra
 
 
 def _psd_ssl(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, ctx: TrainContext) -> None:
-    """Stage (a): masked reconstruction of the PSD window."""
+    """Stage (a): masked reconstruction of the PSD window, its training batches augmented."""
     seed, ratio = ctx.config.seed, ctx.schedule.psd_mask_ratio
     task = PsdReconstruction(model.psd_encoder, model.config.dim).to(ctx.device)
     val_index = np.arange(min(len(val), SSL_VALIDATION_WINDOWS))
+    augment = Augmenter(ctx.config.augmentation)
 
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
-        _, psd = batch_tensors(train, index, ctx.device)
+        _, psd = augment(*batch_tensors(train, index, ctx.device), generator)
         return task.loss(model.psd_input(psd), ratio, generator)
 
     @torch.no_grad()
@@ -126,17 +128,18 @@ def _psd_ssl(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, ctx: 
 
 
 def _rts_ssl(run: RunFolder, model: DeepSEE, train: Windows, ctx: TrainContext) -> None:
-    """Stage (b): TS2Vec on the RTS encoder (no validation: the contrastive loss does not rank encoders)."""
+    """Stage (b): TS2Vec on the RTS encoder (no validation: the contrastive loss does not rank encoders), each
+    window augmented by one draw that both of its crops share."""
     s = ctx.schedule.rts_ssl
     per_epoch = min(TS2VEC_EPOCH, s.iterations)
     epochs = max(1, math.ceil(s.iterations / per_epoch))
     schedule = StageSchedule(epochs, per_epoch, s.batch_size, s.lr, 0.0, epochs)
-    rts = torch.from_numpy(train.rts)
     encoder = model.rts_encoder
+    augment = Augmenter(ctx.config.augmentation)
 
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
-        x = (rts[index].to(ctx.device)) * model.rts_mask
-        return ts2vec_loss(encoder, x, s.alpha, s.mask_probability, generator)
+        rts, _ = augment(*batch_tensors(train, index, ctx.device, with_psd=False), generator)
+        return ts2vec_loss(encoder, rts * model.rts_mask, s.alpha, s.mask_probability, generator)
 
     run_stage(run, "b_rts_ssl", encoder, encoder.parameters(), schedule, len(train), step, None, ctx.config.seed,
               ctx.progress)
@@ -158,11 +161,25 @@ def _load_encoders(model: DeepSEE, path: Path) -> None:
         model.psd_encoder.load_state_dict(state["psd_encoder"])
 
 
-def _encodings_key(model: DeepSEE, windows: Windows) -> str:
-    """What the cached encodings were computed from: the encoders (architecture and weights) and every window's
-    content (RTS, PSD when the model reads it, and which run and frame it is). Two sets of windows of the same
-    count, or encoders trained again, give another key."""
+@dataclass(frozen=True)
+class _Views:
+    """What :func:`_cached_encodings` caches of each window: ``count`` encodings, of the window augmented by
+    ``augmentation`` (seeded per view by ``seed``), or of the window as it is when ``augmentation`` is None."""
+
+    count: int
+    augmentation: AugmentationConfig | None = None
+    seed: int = 0
+
+    def describe(self) -> str:
+        return repr((self.count, self.augmentation, self.seed))
+
+
+def _encodings_key(model: DeepSEE, windows: Windows, views: _Views) -> str:
+    """What the cached encodings were computed from: the encoders (architecture and weights), every window's
+    content (RTS, PSD when the model reads it, and which run and frame it is) and the views of it. Two sets of
+    windows of the same count, encoders trained again, or other augmentation give another key."""
     digest = hashlib.sha256()
+    digest.update(views.describe().encode())
     for module in model.encoder_modules():
         digest.update(repr(module).encode())
         for name, tensor in module.state_dict().items():
@@ -178,14 +195,14 @@ def _encodings_key(model: DeepSEE, windows: Windows) -> str:
 
 
 @torch.no_grad()
-def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: str,
-                      ctx: TrainContext) -> tuple[np.ndarray, np.ndarray | None]:
-    """The frozen encoders' tokens of every window (float16 on disk), computed once per run folder for the same
-    encoders and windows: ``state/cache_<part>.json`` holds the key of what the arrays were computed from
-    (:func:`_encodings_key`), and any other key computes them again."""
+def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: str, ctx: TrainContext,
+                      views: _Views) -> tuple[np.ndarray, np.ndarray | None]:
+    """The frozen encoders' tokens of every view of every window (``views``), (V, N, ...) float16 on disk,
+    computed once per run folder for the same encoders, windows and views: ``state/cache_<part>.json`` holds the
+    key of what the arrays were computed from (:func:`_encodings_key`), and any other key computes them again."""
     paths = (run.state / f"cache_{part}_rts.npy", run.state / f"cache_{part}_psd.npy")
     key_path = run.state / f"cache_{part}.json"
-    key = _encodings_key(model, windows)
+    key = _encodings_key(model, windows, views)
 
     def cached() -> tuple[np.ndarray, np.ndarray | None]:
         return (np.load(paths[0], mmap_mode="r"),
@@ -200,49 +217,63 @@ def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: st
     model.eval()
     rs, ps = [], []
     batch = ctx.config.evaluation.batch_size
-    for start in range(0, len(windows), batch):
-        index = np.arange(start, min(start + batch, len(windows)))
-        r, p = model.encode(*batch_tensors(windows, index, ctx.device, uses_psd(model)))
-        rs.append(r.cpu().numpy().astype(np.float16))
-        if p is not None:
-            ps.append(p.cpu().numpy().astype(np.float16))
+    augment = Augmenter(views.augmentation) if views.augmentation is not None else None
+    for view in range(views.count):
+        generator = torch.Generator().manual_seed(stage_seed(views.seed, f"cache_{part}", view))
+        r_view, p_view = [], []
+        for start in range(0, len(windows), batch):
+            index = np.arange(start, min(start + batch, len(windows)))
+            inputs = batch_tensors(windows, index, ctx.device, uses_psd(model))
+            r, p = model.encode(*(augment(*inputs, generator) if augment is not None else inputs))
+            r_view.append(r.cpu().numpy().astype(np.float16))
+            if p is not None:
+                p_view.append(p.cpu().numpy().astype(np.float16))
+        rs.append(np.concatenate(r_view))
+        if p_view:
+            ps.append(np.concatenate(p_view))
     model.train()
     for path, arrays in zip(paths, (rs, ps)):
         if arrays:  # a new file, not the old one rewritten: arrays mapped from the old one keep their content
             temporary = path.with_name(path.stem + ".tmp.npy")
-            np.save(temporary, np.concatenate(arrays))
+            np.save(temporary, np.stack(arrays))
             os.replace(temporary, path)
-    key_path.write_text(json.dumps({"key": key, "windows": len(windows)}) + "\n")
+    key_path.write_text(json.dumps({"key": key, "windows": len(windows), "views": views.count}) + "\n")
     return cached()
 
 
 def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedule: StageSchedule,
             ctx: TrainContext) -> None:
-    """Stage (c): the fusion and head on the cached outputs of the frozen encoders."""
+    """Stage (c): the fusion and head on the cached outputs of the frozen encoders: of augmented draws of the
+    training windows (each step takes one of a window's draws at random), of the validation windows as they
+    are."""
     encoders = {id(p) for m in model.encoder_modules() for p in m.parameters()}
     for m in model.encoder_modules():
         m.requires_grad_(False)
-    r_train, p_train = _cached_encodings(run, model, train, "train", ctx)
-    r_val, p_val = _cached_encodings(run, model, val, "validation", ctx)
+    augmentation = ctx.config.augmentation
+    train_views = (_Views(augmentation.frozen_stage_views, augmentation, ctx.config.seed) if augmentation.enabled
+                   else _Views(1))
+    r_train, p_train = _cached_encodings(run, model, train, "train", ctx, train_views)
+    r_val, p_val = _cached_encodings(run, model, val, "validation", ctx, _Views(1))
     y_train = torch.from_numpy(_targets(train, ctx.transform))
     y_val = _targets(val, ctx.transform)
     exceeds_train, exceeds_val = _head_targets(model, train), _head_targets(model, val)
     weight = ctx.config.ordinal_head.bce_weight
 
-    def tokens(r: np.ndarray, p: np.ndarray | None, index: np.ndarray):
-        as_tensor = lambda a: torch.from_numpy(np.asarray(a[index], np.float32)).to(ctx.device)  # noqa: E731
+    def tokens(r: np.ndarray, p: np.ndarray | None, view: np.ndarray, index: np.ndarray):
+        as_tensor = lambda a: torch.from_numpy(np.asarray(a[view, index], np.float32)).to(ctx.device)  # noqa: E731
         return as_tensor(r), (as_tensor(p) if p is not None else None)
 
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
         index = np.sort(index)  # memory maps read faster in order
-        return training_loss(model.head(*tokens(r_train, p_train, index)),
+        view = torch.randint(train_views.count, (len(index),), generator=generator).numpy()
+        return training_loss(model.head(*tokens(r_train, p_train, view, index)),
                              *_batch_targets(y_train, exceeds_train, index, ctx.device), weight)
 
     @torch.no_grad()
     def validate() -> float:
         model.eval()
         batch = ctx.config.evaluation.batch_size
-        outputs = [model.head(*tokens(r_val, p_val, np.arange(s, min(s + batch, len(val)))))
+        outputs = [model.head(*tokens(r_val, p_val, np.zeros(1, int), np.arange(s, min(s + batch, len(val)))))
                    for s in range(0, len(val), batch)]
         model.train()
         if model.ordinal is None:
