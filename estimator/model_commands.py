@@ -165,7 +165,7 @@ def _finetune(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from estimator.deepsee.checkpoint import load_model
+    from estimator.deepsee.checkpoint import load_model, payload_standardisation
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity, training_cameras
     from estimator.deepsee.ordinal import model_thresholds
@@ -175,7 +175,7 @@ def _export(args: argparse.Namespace) -> int:
     windows = load_window_config()
     model, payload = load_model(args.model, transform, windows)
     path = export_onnx(model, args.out, windows, transform, payload["compatibility"],
-                       training_cameras(payload.get("training", {})))
+                       training_cameras(payload.get("training", {})), payload_standardisation(payload, args.model))
     difference = parity(model, OnnxModel(path, transform, windows))
     if difference > PARITY_TOLERANCE:
         raise SeesysError(f"{path}: ONNX Runtime differs from PyTorch by {difference:.2e} (> {PARITY_TOLERANCE:g})")

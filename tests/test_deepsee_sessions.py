@@ -59,9 +59,11 @@ def single_thread():
         yield
 
 
-def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float = 1.0, t0: float = 0.0) -> Path:
+def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float = 1.0, t0: float = 0.0,
+                  camera_gain: float = 1.0) -> Path:
     """A labelled RGB-D session folder whose errors follow a hidden per-segment difficulty (module docstring); its
-    times start at ``t0`` (an epoch time, as a RealSense or TUM recording has)."""
+    times start at ``t0`` (an epoch time, as a RealSense or TUM recording has); ``camera_gain``: another camera's
+    image, its contrast that many times and its Laplacian variance the square of it."""
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True, exist_ok=True)
     elapsed = np.arange(frames) / FPS
@@ -85,8 +87,9 @@ def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float
     for k in range(frames):
         d = difficulty[k]
         row = np.zeros(rts_schema.NUM_CHANNELS, np.float32)
-        values = {"brightness": 0.5 + 0.05 * rng.normal(), "contrast": 0.25 - 0.15 * d, "entropy": 7.2 - 1.5 * d,
-                  "laplacian": 300 - 200 * d, "matched_inliers": 400 - 300 * d + 10 * rng.normal(),
+        values = {"brightness": 0.5 + 0.05 * rng.normal(), "contrast": camera_gain * (0.25 - 0.15 * d),
+                  "entropy": 7.2 - 1.5 * d, "laplacian": camera_gain ** 2 * (300 - 200 * d),
+                  "matched_inliers": 400 - 300 * d + 10 * rng.normal(),
                   "outliers": 20 + 60 * d + 3 * rng.normal(), "matches_before_po": 420 - 240 * d,
                   "rel_tx": velocity[k, 0], "rel_ty": velocity[k, 1], "rel_tz": velocity[k, 2],
                   "rel_roll": 0.0, "rel_pitch": 0.0, "rel_yaw": 0.01, "avg_mp_depth": 2.0 + d,

@@ -159,7 +159,7 @@ def test_windows_of_another_camera_are_refused_with_a_clear_error(trained_runs, 
     wide = dataclasses.replace(windows, psd=np.zeros((len(windows), 4, 64, 96, 3), np.uint8))
     predictor = load_predictor(_model(trained_runs), TRANSFORM, 64)
     assert len(predictor.metres(windows)) == len(windows)
-    with pytest.raises(DataError, match="psd_height=64, psd_width=96.*camera resolution"):
+    with pytest.raises(DataError, match="psd_height=64, psd_width=96.*another PSD grid"):
         predictor.metres(wide)
     forest = load_predictor(trained_runs / "round_0" / "random_forest" / "model.pkl", TRANSFORM, 64)
     assert len(forest.metres(wide)) == len(windows)  # the forest reads the RTS window only

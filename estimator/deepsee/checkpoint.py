@@ -15,7 +15,9 @@ A checkpoint (``torch.save`` of a dict) holds:
 - ``model``: the kind (``deepsee`` or the ``lstm`` baseline) and what rebuilds the network (configuration, input
   shape, variant, the ordinal head's thresholds ``ordinal_thresholds_m``: absent in a model without a head, such
   as every model made before the head); ``state_dict``: the weights;
-- ``training``: how it was made (command, data, schedule, round, metrics), for the record.
+- ``training``: how it was made (command, data, schedule, round, metrics), for the record;
+- ``input_standardisation``: the per-camera statistics of its camera-dependent channels
+  (:mod:`estimator.deepsee.standardisation`); absent in a model made before them, which reads its input as it is.
 
 The same hash is written into the exported ONNX model's metadata and checked when it is loaded.
 """
@@ -40,6 +42,7 @@ from estimator.deepsee.compatibility import (
 from estimator.deepsee.config import FusionConfig, LstmConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
 from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant
+from estimator.deepsee.standardisation import CHECKPOINT_KEY, InputStandardisation
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_window_config
@@ -79,15 +82,24 @@ def save_atomic(obj: object, path: Path) -> Path:
 
 
 def save_model(path: Path, model: nn.Module, windows: WindowConfig, transform: LabelTransform,
-               training: dict, rts_channels: list[str] | None = None) -> Path:
-    """Save ``model`` with its compatibility record; ``rts_channels``: the RTS channels it takes (a fine-tuned
-    model keeps its base's), every channel of the schema by default."""
+               training: dict, rts_channels: list[str] | None = None,
+               standardisation: InputStandardisation | None = None) -> Path:
+    """Save ``model`` with its compatibility record and its input ``standardisation`` (none: its input as it is);
+    ``rts_channels``: the RTS channels it takes (a fine-tuned model keeps its base's), every channel of the schema
+    by default."""
     record = compatibility(windows, transform, rts_channels=rts_channels,
                            head_thresholds_m=getattr(model, "thresholds_m", ()))
     payload = {"format": FORMAT_VERSION, "compatibility": record, "compatibility_hash": compatibility_hash(record),
                "model": _spec(model),
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "training": training}
+    if standardisation is not None:
+        payload[CHECKPOINT_KEY] = standardisation.as_record()
     return save_atomic(payload, path)
+
+
+def payload_standardisation(payload: dict, source: str) -> InputStandardisation:
+    """The input standardisation a model file's ``payload`` records (the identity where it records none)."""
+    return InputStandardisation.from_record(payload.get(CHECKPOINT_KEY), source)
 
 
 def _model_config(data: dict) -> ModelConfig:

@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from seesys.core import rts_schema
 from seesys.core.errors import ConfigError
 from seesys.io.config import load_section
 
@@ -163,6 +164,14 @@ class AugmentationConfig:
 
 
 @dataclass(frozen=True)
+class InputStandardisationConfig:
+    """The camera-dependent RTS channels whose per-camera statistics a model stores and fine-tuning refits
+    (estimator/deepsee/standardisation.py)."""
+
+    channels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class FinetuneConfig:
     """Stage (d) on labelled session folders (``seesys estimator finetune``)."""
 
@@ -183,6 +192,7 @@ class EstimatorConfig:
     evaluation: EvaluationConfig
     finetune: FinetuneConfig
     augmentation: AugmentationConfig
+    input_standardisation: InputStandardisationConfig
 
 
 def load_estimator_config(directory: Path | None = None) -> EstimatorConfig:
@@ -192,6 +202,10 @@ def load_estimator_config(directory: Path | None = None) -> EstimatorConfig:
     if config.ordinal_head.bce_weight < 0:
         raise ConfigError(f"configs/estimator.toml: ordinal_head.bce_weight must not be negative, got "
                           f"{config.ordinal_head.bce_weight}")
+    unknown = sorted(set(config.input_standardisation.channels) - set(rts_schema.CHANNEL_NAMES))
+    if unknown:
+        raise ConfigError(f"configs/estimator.toml: input_standardisation.channels names unknown RTS channels "
+                          f"{', '.join(unknown)}")
     return config
 
 

@@ -64,7 +64,11 @@ class Windows:
     def select_rts(self, columns: np.ndarray) -> Windows:
         """The same windows with only the RTS ``columns`` a model takes
         (:func:`estimator.deepsee.compatibility.rts_columns`), in its order."""
-        return Windows(self.rts[..., columns], self.psd, self.error_m, self.meta)
+        return self.with_rts(self.rts[..., columns])
+
+    def with_rts(self, rts: np.ndarray) -> Windows:
+        """The same windows with the RTS windows ``rts`` in place of theirs (e.g. standardised for a model)."""
+        return Windows(rts, self.psd, self.error_m, self.meta)
 
     def input_shape(self) -> InputShape:
         if not len(self):

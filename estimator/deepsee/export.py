@@ -24,6 +24,7 @@ from torch import nn
 from estimator.deepsee.compatibility import compatibility, compatibility_hash
 from estimator.deepsee.model import exceedance_probabilities
 from estimator.deepsee.onnx_model import CAMERAS_KEY, COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, Y, OnnxModel
+from estimator.deepsee.standardisation import METADATA_KEY, InputStandardisation
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.windows import WindowConfig
 
@@ -59,10 +60,12 @@ def _served(model: nn.Module) -> tuple[nn.Module, list[str]]:
 
 
 def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: LabelTransform,
-                record: dict | None = None, cameras: list[str] | None = None) -> Path:
+                record: dict | None = None, cameras: list[str] | None = None,
+                standardisation: InputStandardisation | None = None) -> Path:
     """Write ``model`` (a DeepSEE) as one self-contained ONNX file with its compatibility record: ``record`` (a
     checkpoint's, which loading it has checked against this installation), or this installation's; and, when
-    given, the ``cameras`` it was trained and fine-tuned on (:func:`training_cameras`)."""
+    given, the ``cameras`` it was trained and fine-tuned on (:func:`training_cameras`) and its input
+    ``standardisation`` (a checkpoint's)."""
     model = model.eval().cpu()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -78,6 +81,8 @@ def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: 
     metadata = [(COMPATIBILITY_KEY, json.dumps(record, sort_keys=True)), (HASH_KEY, compatibility_hash(record))]
     if cameras is not None:
         metadata.append((CAMERAS_KEY, json.dumps(list(cameras))))
+    if standardisation is not None:
+        metadata.append((METADATA_KEY, json.dumps(standardisation.as_record())))
     for key, value in metadata:
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value

@@ -10,6 +10,11 @@ with an ordinal head is fine-tuned on MSE + λ·BCE, its head with the rest; a m
 trained before the head) stays without one. Whole held-out sessions, never trained on, are judged before and after with
 the scores of the Table 3 report (:func:`estimator.deepsee.metrics.score`): the in-session validation tail is correlated
 with the training part and flatters the model.
+
+The per-camera input standardisation (:mod:`estimator.deepsee.standardisation`) is refitted first: the camera's
+statistics of the camera-dependent channels come from the training part of the sessions, the base's reference
+statistics are kept, and the model is fine-tuned, judged after and stored with the refitted values (the before figures
+are the base's, served as it is).
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from estimator.deepsee.checkpoint import load_model, save_model
+from estimator.deepsee.checkpoint import load_model, payload_standardisation, save_model
 from estimator.deepsee.compatibility import check_normalisation, rts_columns
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows, concat, session_windows
@@ -29,6 +34,7 @@ from estimator.deepsee.metrics import CM_PER_M, Scores, equation2_head, score
 from estimator.deepsee.ordinal import model_thresholds
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
+from estimator.deepsee.standardisation import InputStandardisation
 from seesys.core.equation2 import PulseSettings
 from seesys.io.session_files import read_manifest
 from seesys.core.windows import WindowConfig
@@ -88,27 +94,37 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
         check_normalisation(payload["compatibility"], test.meta[NORMALISATION_COLUMN], "the held-out sessions")
     # The base model takes the RTS channels it was trained with; a later schema's rows hold them among others.
     columns = rts_columns(payload["compatibility"], str(base))
+    channels = payload["compatibility"]["rts_channels"]
     train, val = train.select_rts(columns), val.select_rts(columns)
     test = test.select_rts(columns) if test is not None else None
+    # Before: the base as it would serve these sessions. Then the camera's statistics refitted on the sessions it
+    # trains on, and everything after seen through them, as the fine-tuned model will serve this camera.
+    base_standardisation = payload_standardisation(payload, str(base))
+    if not base_standardisation.channels:  # a model file made before standardisation: the configured channels
+        base_standardisation = InputStandardisation(config.input_standardisation.channels, None, None)
+    standardisation = base_standardisation.refitted(train.rts, channels)
 
-    def estimate_m(data: Windows) -> np.ndarray:
-        return transform.inverse(predict(model, data, config.evaluation.batch_size, device))
+    def estimate_m(data: Windows, through: InputStandardisation) -> np.ndarray:
+        return transform.inverse(predict(model, data.with_rts(through.apply(data.rts, channels)),
+                                         config.evaluation.batch_size, device))
 
-    def rmse_cm() -> float:
-        return CM_PER_M * float(np.sqrt(np.mean((estimate_m(val) - val.error_m) ** 2)))
+    def rmse_cm(through: InputStandardisation) -> float:
+        return CM_PER_M * float(np.sqrt(np.mean((estimate_m(val, through) - val.error_m) ** 2)))
 
-    def judge() -> Scores | None:
+    def judge(through: InputStandardisation) -> Scores | None:
         if not test:
             return None
-        y, probabilities = predict_outputs(model, test, config.evaluation.batch_size, device)
+        y, probabilities = predict_outputs(model, test.with_rts(through.apply(test.rts, channels)),
+                                           config.evaluation.batch_size, device)
         return score(test.meta, transform.inverse(y), test.error_m, config.evaluation, pulses,
                      equation2_head(probabilities, model_thresholds(model), pulses))
 
-    before, held_out_before = rmse_cm(), judge()
+    before, held_out_before = rmse_cm(base_standardisation), judge(base_standardisation)
     run = RunFolder(run_dir, {"finetune": asdict(config.finetune),
                               "base_compatibility_hash": payload["compatibility_hash"], **ctx.provenance}, device)
-    supervised(run, "finetune_sessions", model, train, val, config.finetune.schedule, ctx)
-    after, held_out_after = rmse_cm(), judge()
+    supervised(run, "finetune_sessions", model, train.with_rts(standardisation.apply(train.rts, channels)),
+               val.with_rts(standardisation.apply(val.rts, channels)), config.finetune.schedule, ctx)
+    after, held_out_after = rmse_cm(standardisation), judge(standardisation)
     cameras = list(dict.fromkeys(payload["training"].get("finetuned_cameras", []) + [_camera_of(s) for s in sessions]))
     training = {**payload["training"], "finetuned_on": [str(s) for s in sessions], "finetuned_cameras": cameras,
                 "train_windows": len(train),
@@ -116,5 +132,6 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
                 "held_out": [str(s) for s in held_out],
                 "held_out_before": asdict(held_out_before) if held_out_before else None,
                 "held_out_after": asdict(held_out_after) if held_out_after else None}
-    save_model(out, model.cpu(), windows, transform, training, payload["compatibility"]["rts_channels"])
+    save_model(out, model.cpu(), windows, transform, training, channels, standardisation)
     return FinetuneResult(Path(out), len(train), len(val), before, after, held_out_before, held_out_after)
+

@@ -28,6 +28,7 @@ from estimator.deepsee.compatibility import (
     head_thresholds_of,
     rts_columns,
 )
+from estimator.deepsee.standardisation import METADATA_KEY, InputStandardisation
 from estimator.deepsee.transforms import LabelTransform
 from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
@@ -114,6 +115,9 @@ class OnnxModel:
         check_compatible(self.record, str(path), windows or load_window_config(), transform, setup)
         #: The columns of this schema's RTS rows the model takes: select them before :meth:`__call__`.
         self.rts_columns: np.ndarray = rts_columns(self.record, str(path))
+        #: The per-camera input standardisation to apply to the selected columns before :meth:`__call__`.
+        self.standardisation = InputStandardisation.from_record(
+            json.loads(meta[METADATA_KEY]) if METADATA_KEY in meta else None, str(path))
         self.session = session
         self.provider: str = session.get_providers()[0]
         rts, psd = (i.shape[1:] for i in session.get_inputs())
@@ -126,8 +130,13 @@ class OnnxModel:
             raise ModelMismatch(f"{path} records {len(self.thresholds_m)} head threshold(s) but its graph gives "
                                 f"{head_columns} head probabilities")
 
+    def standardised(self, rts: np.ndarray) -> np.ndarray:
+        """Normalised RTS windows of the model's columns as the model takes them (its input standardisation)."""
+        return self.standardisation.apply(rts, self.record["rts_channels"])
+
     def outputs(self, rts: np.ndarray, psd: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """The transformed errors (B,) and the head's probabilities (B, K), None for a model without a head."""
+        """The transformed errors (B,) and the head's probabilities (B, K), None for a model without a head;
+        ``rts``: the model's input, standardised (:meth:`standardised`)."""
         names = [Y, PROBABILITIES] if self.thresholds_m else [Y]
         out = self.session.run(names, {"rts": np.ascontiguousarray(rts, np.float32),
                                        "psd": np.ascontiguousarray(psd, np.uint8)})

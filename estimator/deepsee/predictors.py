@@ -81,8 +81,9 @@ class Predictor:
         expected = self.shape if self.shape.psd_samples else InputShape(
             self.shape.rts_length, self.shape.channels, shape.psd_samples, shape.psd_height, shape.psd_width)
         if shape != expected:
-            raise DataError(f"{self.path} takes windows of {expected}, these are {shape}: the PSD size follows the "
-                            f"camera resolution; fine-tune or train a model for this camera")
+            raise DataError(f"{self.path} takes windows of {expected}, these are {shape}: another PSD grid (another "
+                            f"reference camera or PSD cell size, or made before camera normalisation at the camera "
+                            f"resolution); record them again, or train a model for them")
 
     def metres(self, windows: Windows) -> np.ndarray:
         return self.transform.inverse(self.transformed(windows))
@@ -96,7 +97,7 @@ def _runs(windows: Windows) -> str:
 
 def _onnx_runner(model: OnnxModel, batch_size: int):
     def run(windows: Windows) -> tuple[np.ndarray, np.ndarray | None]:
-        out = [model.outputs(windows.rts[s:s + batch_size],
+        out = [model.outputs(model.standardised(windows.rts[s:s + batch_size]),
                              np.stack([windows.psd_at(i) for i in range(s, min(s + batch_size, len(windows)))]))
                for s in range(0, len(windows), batch_size)]
         y = np.concatenate([o[0] for o in out]) if out else np.zeros(0, np.float32)
@@ -133,7 +134,7 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
                          InputShape(windows.rts_length, len(columns), 0, 0, 0), columns, record["compatibility"])
     import torch
 
-    from estimator.deepsee.checkpoint import load_model
+    from estimator.deepsee.checkpoint import load_model, payload_standardisation
     from estimator.deepsee.inference import predict_outputs
     from estimator.deepsee.ordinal import model_thresholds
 
@@ -141,7 +142,10 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
     model, payload = load_model(path, transform, windows)
     model = model.to(device)
     shape = model.shape if hasattr(model, "shape") else InputShape(windows.rts_length, model.channels, 0, 0, 0)
+    standardisation = payload_standardisation(payload, str(path))
+    channels = payload["compatibility"]["rts_channels"]
     return Predictor(path, payload["model"]["kind"], transform,
-                     lambda w: predict_outputs(model, w, batch_size, device), shape,
+                     lambda w: predict_outputs(model, w.with_rts(standardisation.apply(w.rts, channels)), batch_size,
+                                               device), shape,
                      rts_columns(payload["compatibility"], str(path)), payload["compatibility"],
                      model_thresholds(model))

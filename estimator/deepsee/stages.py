@@ -11,9 +11,9 @@ DeepSEE (paper §5.4, here on the training runs of a cross-validation round):
     sessions, ``seesys estimator finetune``).
 
 Every stage trains on windows augmented as ``[augmentation]`` of configs/estimator.toml says
-(:mod:`estimator.deepsee.augment`). Stages (c) and (d) minimise MSE of the transformed error plus λ × the ordinal head's BCE where the model has the
-head (:mod:`estimator.deepsee.ordinal`; new DeepSEE rows get it when ``[ordinal_head] enabled``), the MSE alone
-otherwise (the LSTM).
+(:mod:`estimator.deepsee.augment`). Stages (c) and (d) minimise MSE of the transformed error plus λ × the ordinal
+head's BCE where the model has the head (:mod:`estimator.deepsee.ordinal`; new DeepSEE rows get it when
+``[ordinal_head] enabled``), the MSE alone otherwise (the LSTM).
 
 Every stage checkpoints after every epoch (:mod:`estimator.deepsee.loop`), so the same command resumes an
 interrupted run. The encoders after (b) are saved as ``state/encoders.pt``; an ablation row given a DeepSEE run
@@ -48,7 +48,9 @@ from estimator.deepsee.ordinal import exceeded, head_thresholds, model_threshold
 from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
 from estimator.deepsee.run_folder import MODEL_PT, RunFolder
 from estimator.deepsee.ssl import PsdReconstruction, ts2vec_loss
+from estimator.deepsee.standardisation import InputStandardisation
 from estimator.deepsee.transforms import LabelTransform
+from seesys.core import rts_schema
 from seesys.core.errors import SeesysError
 from seesys.core.windows import WindowConfig
 
@@ -353,8 +355,11 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
                             else (schedule.supervised_frozen, schedule.finetune))
         _frozen(run, model, train, val, frozen, ctx)
         supervised(run, "d_finetune", model, train, val, finetune, ctx)
+    # Fitted on the windows it was trained on: it serves its training cameras as they are (the identity).
+    standardisation = InputStandardisation.fitted(train.rts, rts_schema.CHANNEL_NAMES,
+                                                  ctx.config.input_standardisation.channels)
     return save_model(run.path / MODEL_PT, model.cpu(), ctx.windows, ctx.transform,
-                      {**training, "metrics": run.metrics().to_dict("list")})
+                      {**training, "metrics": run.metrics().to_dict("list")}, standardisation=standardisation)
 
 
 def _train_forest(run: RunFolder, train: Windows, ctx: TrainContext, training: dict) -> Path:

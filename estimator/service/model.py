@@ -93,7 +93,7 @@ class ServedModel:
         """The errors and head probabilities of ``samples``, and how many of each one's RTS values became 0."""
         rts, replaced = prepare_rts_counted(np.stack([s.rts for s in samples]), self._model.rts_columns)
         psd = np.stack([s.psd for s in samples])
-        y, probabilities = self._model.outputs(rts, psd)
+        y, probabilities = self._model.outputs(self._model.standardised(rts), psd)
         return BatchEstimates(self._transform.inverse(y), probabilities, replaced, self.thresholds_m)
 
 
