@@ -1,5 +1,5 @@
-"""``seesys estimator train | train-table | evaluate | finetune | export | estimate``: thin wrappers over
-:mod:`estimator.deepsee`."""
+"""``seesys estimator train | train-table | evaluate | finetune | finetune-curve | export | estimate``: thin
+wrappers over :mod:`estimator.deepsee`."""
 
 from __future__ import annotations
 
@@ -136,6 +136,35 @@ def _default_model(args: argparse.Namespace) -> Path:
     return shipped
 
 
+def _positive_minutes(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"minutes must be a number, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"minutes must be above 0, got {text}")
+    return value
+
+
+def _minutes_list(text: str) -> list[float]:
+    return [_positive_minutes(part) for part in text.split(",")]
+
+
+def _finetune_curve(args: argparse.Namespace) -> int:
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.finetune import learning_curve
+    from estimator.deepsee.loop import progress_bar
+    from seesys.io.core_settings import load_pulse_settings, load_window_config
+    progress = progress_bar()
+    with progress:
+        table = learning_curve(_default_model(args), args.sessions, args.held_out, args.minutes, args.out,
+                               load_estimator_config(), load_window_config(), _device(args.device, args.threads),
+                               progress, load_pulse_settings())
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    print(f"-> {args.out / 'learning_curve.csv'}")
+    return 0
+
+
 def _finetune(args: argparse.Namespace) -> int:
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.finetune import finetune
@@ -149,7 +178,7 @@ def _finetune(args: argparse.Namespace) -> int:
     with progress:
         result = finetune(_default_model(args), args.sessions, args.out, run_dir, config, load_window_config(),
                           device, progress, {"command": " ".join(sys.argv)}, args.held_out or [],
-                          load_pulse_settings())
+                          load_pulse_settings(), None if args.minutes is None else 60.0 * args.minutes)
     print(f"fine-tuned on {len(args.sessions)} sessions ({result.train_windows} training windows, "
           f"{result.validation_windows} validation windows, the last "
           f"{100 * config.finetune.validation_fraction:.0f} % of each session): validation RMSE "
@@ -256,7 +285,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--run", type=Path, help="run folder for its metrics and checkpoints (default: next to --out)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--minutes", type=_positive_minutes,
+                   help="fine-tune on the first MINUTES of the sessions only, in their order (default: all)")
     p.set_defaults(func=_finetune)
+
+    p = sub.add_parser("finetune-curve", help="the fine-tuning learning curve: fine-tune on the first 0.5, 1, 2, 5 "
+                                              "minutes of an unseen camera's sessions, judge each on held-out ones")
+    p.add_argument("--sessions", type=Path, nargs="+", required=True, help="the camera's labelled sessions, in order")
+    p.add_argument("--held-out", type=Path, nargs="+", required=True, help="its sessions that judge every budget")
+    p.add_argument("--minutes", type=_minutes_list, default=[0.5, 1.0, 2.0, 5.0],
+                   help="comma-separated budgets in minutes (default: 0.5,1,2,5)")
+    p.add_argument("--model", type=Path, help="model to start from (default: the shipped model)")
+    p.add_argument("--out", type=Path, required=True, help="folder: learning_curve.csv, each budget's model and run")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+    p.set_defaults(func=_finetune_curve)
 
     p = sub.add_parser("export", help="export a model to one ONNX file and check it against PyTorch")
     p.add_argument("model", type=Path, help="model file (model.pt)")

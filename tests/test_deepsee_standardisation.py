@@ -98,3 +98,20 @@ def test_a_malformed_record_is_refused_in_one_line():
         InputStandardisation.from_record({"channels": ["contrast"], "reference": {"median": [1, 2], "iqr": [1]},
                                           "camera": None}, "m.onnx")
 
+
+def test_the_learning_curve_fine_tunes_each_budget_from_the_base_and_judges_it_on_held_out_sessions(trained_runs,
+                                                                                                     tmp_path):
+    """A smoke test on tiny sessions (5 s each): budgets of 3 and 6 seconds, the base as 0 minutes."""
+    from estimator.deepsee.finetune import CURVE_COLUMNS, learning_curve
+    from seesys.io.core_settings import load_pulse_settings
+
+    sessions = [write_session(tmp_path / "cam" / f"s{k}", seed=400 + k, frames=150, camera_gain=1.6)
+                for k in range(3)]
+    base = trained_runs / "round_0" / "deepsee" / "model.pt"
+    with Progress(disable=True) as progress:
+        table = learning_curve(base, sessions[:2], sessions[2:], [0.1, 0.05], tmp_path / "curve", tiny_config(),
+                               load_window_config(), torch.device("cpu"), progress, load_pulse_settings())
+    assert list(table.columns) == list(CURVE_COLUMNS) and list(table.minutes) == [0.0, 0.05, 0.1]
+    assert table.train_windows.iloc[0] == 0 and 0 < table.train_windows.iloc[1] < table.train_windows.iloc[2]
+    assert table[["agreement", "median_ratio"]].notna().all().all()
+    assert (tmp_path / "curve" / "learning_curve.csv").is_file() and (tmp_path / "curve" / "0.1min.pt").is_file()

@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import torch
 
 from estimator.deepsee.checkpoint import load_model, payload_standardisation, save_model
@@ -58,6 +59,20 @@ def split_in_time(windows: Windows, validation_fraction: float) -> tuple[Windows
     return windows.subset(order[:cut]), windows.subset(order[cut:])
 
 
+def first_seconds(sessions: list[Windows], seconds: float) -> list[Windows]:
+    """The windows of the first ``seconds`` of recording of ``sessions``, taken in their order: whole sessions while
+    they fit, the next one cut in time, the rest left out."""
+    out, left = [], float(seconds)
+    for windows in sessions:
+        if left < 0 or not len(windows):
+            break
+        elapsed = windows.meta.timestamp.to_numpy(np.float64)
+        elapsed = elapsed - elapsed.min()
+        out.append(windows.subset(np.flatnonzero(elapsed <= left)))
+        left -= float(elapsed.max()) + 1.0 / len(elapsed)  # the span the session's windows cover, about
+    return out
+
+
 def _camera_of(session: Path) -> str:
     """The camera a session was recorded with, as its manifest describes the source (``session.json``)."""
     try:
@@ -69,17 +84,20 @@ def _camera_of(session: Path) -> str:
 
 def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config: EstimatorConfig,
              windows: WindowConfig, device: torch.device, progress, provenance: dict,
-             held_out: list[Path] = (), pulses: PulseSettings | None = None) -> FinetuneResult:
-    """Fine-tune ``base`` on ``sessions`` into ``out``; ``held_out`` sessions (scored with ``advisory``'s
-    Equation 2) are only judged."""
+             held_out: list[Path] = (), pulses: PulseSettings | None = None,
+             budget_s: float | None = None) -> FinetuneResult:
+    """Fine-tune ``base`` on ``sessions`` into ``out`` (on their first ``budget_s`` seconds only, when given:
+    :func:`first_seconds`); ``held_out`` sessions (scored with ``advisory``'s Equation 2) are only judged."""
     overlap = sorted({Path(s).resolve() for s in sessions} & {Path(s).resolve() for s in held_out})
     if overlap:
         raise DataError(f"sessions both fine-tuned on and held out: {', '.join(map(str, overlap))}")
     if held_out and pulses is None:
         raise ValueError("held-out sessions are scored with the advisory's Equation 2: pass pulses")
     test = concat([session_windows(s, windows, labelled=True) for s in held_out]) if held_out else None
-    parts = [split_in_time(session_windows(s, windows, labelled=True), config.finetune.validation_fraction)
-             for s in sessions]
+    labelled = [session_windows(s, windows, labelled=True) for s in sessions]
+    if budget_s is not None:
+        labelled = first_seconds(labelled, budget_s)
+    parts = [split_in_time(w, config.finetune.validation_fraction) for w in labelled]
     train, val = concat([p[0] for p in parts]), concat([p[1] for p in parts])
     if not len(val):
         raise DataError("the sessions leave no validation windows: record longer sessions or raise "
@@ -135,3 +153,34 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     save_model(out, model.cpu(), windows, transform, training, channels, standardisation)
     return FinetuneResult(Path(out), len(train), len(val), before, after, held_out_before, held_out_after)
 
+
+#: The columns of :func:`learning_curve`'s table.
+CURVE_COLUMNS = ("minutes", "train_windows", "agreement", "median_ratio", "rmse_cm", "spearman")
+
+
+def learning_curve(base: Path, sessions: list[Path], held_out: list[Path], minutes: list[float], out: Path,
+                   config: EstimatorConfig, windows: WindowConfig, device: torch.device, progress,
+                   pulses: PulseSettings) -> pd.DataFrame:
+    """Fine-tune ``base`` on the first ``minutes`` of ``sessions`` (an unseen camera's), each budget from the base
+    again, and judge every result on the ``held_out`` sessions: one row per budget (:data:`CURVE_COLUMNS`), the base
+    itself as 0 minutes; written to ``out/learning_curve.csv``, the models and run folders beside it."""
+    if not held_out:
+        raise DataError("a learning curve is judged on held-out sessions: give some")
+    rows = []
+    for budget in sorted(minutes):
+        if budget <= 0:
+            raise DataError(f"fine-tuning budgets are minutes above 0, got {budget:g}")
+        name = f"{budget:g}min"
+        result = finetune(base, sessions, out / f"{name}.pt", out / f"{name}_run", config, windows, device, progress,
+                          {"learning_curve_minutes": budget}, held_out, pulses, budget * 60.0)
+        if not rows:
+            rows.append(_curve_row(0.0, 0, result.held_out_before))
+        rows.append(_curve_row(budget, result.train_windows, result.held_out_after))
+    table = pd.DataFrame(rows, columns=list(CURVE_COLUMNS))
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / "learning_curve.csv", index=False)
+    return table
+
+
+def _curve_row(minutes: float, train_windows: int, scores: Scores) -> tuple:
+    return (minutes, train_windows, scores.agreement, scores.median_ratio, scores.rmse_cm, scores.spearman)
