@@ -1,8 +1,9 @@
 """Diversity of the rendered environments (paper Fig. 8): per-environment medians and spread of brightness,
 contrast, entropy and Laplacian variance of the frames, as a table and a box-plot PNG.
 
-The four image features are THE sensor-input RTS channels (``slam_monitor.image_features``), so the report
-describes the data in the units the estimator sees.
+The four image features are THE sensor-input RTS channels (``slam_monitor.image_features``), the Laplacian at the
+reference camera's pixel size as the monitor computes it (camera normalisation, from each sequence's
+``calibration.yaml``), so the report describes the data in the units the estimator sees.
 """
 
 from __future__ import annotations
@@ -18,8 +19,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from seesys.core.camera_normalisation import CameraNormalisation  # noqa: E402
 from seesys.core.errors import SeesysError  # noqa: E402
-from slam_monitor.image_features import image_features  # noqa: E402
+from slam_monitor.image_features import image_features, reference_scale  # noqa: E402
+from slam_monitor.monitor_config import load_monitor_config  # noqa: E402
+from slam_monitor.sources import load_camera_config  # noqa: E402
+from slam_monitor.sources.settings import folder_calibration  # noqa: E402
 
 FEATURES = ("brightness", "contrast", "entropy", "laplacian")
 
@@ -46,13 +51,15 @@ def _rgb_files(folder: Path) -> list[Path]:
 def measure(folders: list[Path], stride: int) -> pd.DataFrame:
     """The image features of every ``stride``-th frame of each sequence."""
     rows = []
+    reference, defaults = load_monitor_config().reference_camera, load_camera_config().files
     for folder in folders:
         meta = json.loads((folder / "metadata.json").read_text())
+        normalisation = CameraNormalisation(reference, folder_calibration(folder, defaults).intrinsics)
         for path in _rgb_files(folder)[::stride]:
             gray = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if gray is None or gray.ndim != 2:
                 raise SeesysError(f"{path}: not an 8-bit gray image")
-            feats = image_features(gray)
+            feats = image_features(gray, reference_scale(gray, normalisation))
             rows.append({"environment": meta["environment"], "motion_group": meta["motion_group"],
                          "sequence": folder.name, **{k: getattr(feats, k) for k in FEATURES}})
     return pd.DataFrame(rows)

@@ -142,3 +142,38 @@ def test_a_model_refuses_windows_of_another_camera_normalisation_in_one_line_nam
     assert "\n" not in message and "session s1: made under camera normalisation v0, the model takes v1" in message
     with pytest.raises(ModelMismatch, match="made under camera normalisation v1, the model takes v0"):
         check_normalisation({"device": {}}, [1], "session s2")  # a model made before it records none: v0
+
+
+def test_the_shipped_model_refuses_a_session_logged_before_camera_normalisation(tmp_path):
+    """A session whose rts.json states device settings without a camera normalisation version (logged before it:
+    v0) is refused by the model in one line naming both versions; the same session stating v1 is served."""
+    import dataclasses
+    import json
+
+    from test_deepsee_sessions import write_session
+
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.data import DataError, session_windows
+    from estimator.deepsee.predictors import load_predictor
+    from estimator.deepsee.transforms import LabelTransform
+    from seesys.io.core_settings import load_device_settings, load_window_config
+    from seesys.io.resources import resolve
+    from seesys.io.rts_log import RTS_JSON, schema_metadata
+
+    session = write_session(tmp_path / "old", seed=5, frames=60)
+    settings = load_device_settings("rgbd", 30.0)
+    record = dataclasses.asdict(settings)
+    del record["camera_normalisation"]
+    (session / RTS_JSON).write_text(json.dumps({**schema_metadata(), "device_settings": record}))
+    windows = load_window_config()
+    transform = LabelTransform(load_estimator_config().label_transform.k)
+    predictor = load_predictor(resolve("data/models/deepsee.onnx"), transform, 8, windows=windows)
+    with pytest.raises(ModelMismatch) as refused:
+        predictor.metres(session_windows(session, windows, labelled=False))
+    assert "\n" not in str(refused.value)
+    assert "windows of old: made under camera normalisation v0, the model takes v1" in str(refused.value)
+    (session / RTS_JSON).write_text(json.dumps(schema_metadata(settings)))
+    stated = session_windows(session, windows, labelled=False)
+    assert set(stated.meta.camera_normalisation) == {1}
+    with pytest.raises(DataError, match="another PSD grid"):  # accepted, then refused for its tiny test PSD
+        predictor.metres(stated)
