@@ -76,8 +76,7 @@ class Predictor:
         return WindowEstimates(self.transform.inverse(y), probabilities)
 
     def check(self, shape: InputShape) -> None:
-        """Raise :class:`DataError` when windows of ``shape`` are not what the model takes (another camera
-        resolution gives another PSD size)."""
+        """Raise :class:`DataError` when windows of ``shape`` are not what the model takes (another PSD grid)."""
         expected = self.shape if self.shape.psd_samples else InputShape(
             self.shape.rts_length, self.shape.channels, shape.psd_samples, shape.psd_height, shape.psd_width)
         if shape != expected:

@@ -12,9 +12,9 @@ its counters to the broker.
 
 Drops, counted per device by reason and reported with every heartbeat: ``settings_mismatch`` (a frame whose
 device settings differ from the model's, or that states none: refused, and the difference logged once per stream
-session), ``shape_mismatch`` (a window whose PSD is of another shape than the model's: a camera of another
-resolution), ``missing_rts`` and ``missing_psd`` (a window end whose history arrived but with more than
-``max_missing_rts`` rows missing or untracked, or a PSD sample missing) and ``stale``. Non-finite RTS values
+session), ``shape_mismatch`` (a window whose PSD is of another shape than the model's: another PSD grid),
+``missing_rts`` and ``missing_psd`` (a window end whose history arrived but with more than ``max_missing_rts`` rows
+missing or untracked, or a PSD sample missing) and ``stale``. Non-finite RTS values
 (NaN, ±inf) the model sees as 0 are counted per device too (``nonfinite``).
 
 Order. Below capacity the queue is short and the order hardly matters. Overloaded, oldest first would serve every
