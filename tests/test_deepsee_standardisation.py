@@ -23,7 +23,7 @@ from seesys.io.core_settings import load_window_config
 from seesys.io.resources import resolve
 
 TRANSFORM = LabelTransform(load_estimator_config().label_transform.k)
-CHANNELS = load_estimator_config().input_standardisation.channels
+CHANNELS = load_estimator_config().input_standardisation.camera_channels
 
 
 def _windows(session):

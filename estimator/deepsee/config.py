@@ -168,7 +168,7 @@ class InputStandardisationConfig:
     """The camera-dependent RTS channels whose per-camera statistics a model stores and fine-tuning refits
     (estimator/deepsee/standardisation.py)."""
 
-    channels: tuple[str, ...]
+    camera_channels: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -202,10 +202,10 @@ def load_estimator_config(directory: Path | None = None) -> EstimatorConfig:
     if config.ordinal_head.bce_weight < 0:
         raise ConfigError(f"configs/estimator.toml: ordinal_head.bce_weight must not be negative, got "
                           f"{config.ordinal_head.bce_weight}")
-    unknown = sorted(set(config.input_standardisation.channels) - set(rts_schema.CHANNEL_NAMES))
+    unknown = sorted(set(config.input_standardisation.camera_channels) - set(rts_schema.CHANNEL_NAMES))
     if unknown:
-        raise ConfigError(f"configs/estimator.toml: input_standardisation.channels names unknown RTS channels "
-                          f"{', '.join(unknown)}")
+        raise ConfigError(f"configs/estimator.toml: input_standardisation.camera_channels names unknown RTS "
+                          f"channels {', '.join(unknown)}")
     return config
 
 

@@ -119,7 +119,7 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     # trains on, and everything after seen through them, as the fine-tuned model will serve this camera.
     base_standardisation = payload_standardisation(payload, str(base))
     if not base_standardisation.channels:  # a model file made before standardisation: the configured channels
-        base_standardisation = InputStandardisation(config.input_standardisation.channels, None, None)
+        base_standardisation = InputStandardisation(config.input_standardisation.camera_channels, None, None)
     standardisation = base_standardisation.refitted(train.rts, channels)
 
     def estimate_m(data: Windows, through: InputStandardisation) -> np.ndarray:

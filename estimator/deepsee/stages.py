@@ -38,8 +38,8 @@ from torch import nn
 from estimator.deepsee.augment import Augmenter
 from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
-from estimator.deepsee.config import AugmentationConfig, EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.compatibility import check_normalisation
+from estimator.deepsee.config import AugmentationConfig, EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.data import NORMALISATION_COLUMN, Windows, limit
 from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
 from estimator.deepsee.loop import run_stage, stage_seed
@@ -357,7 +357,7 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
         supervised(run, "d_finetune", model, train, val, finetune, ctx)
     # Fitted on the windows it was trained on: it serves its training cameras as they are (the identity).
     standardisation = InputStandardisation.fitted(train.rts, rts_schema.CHANNEL_NAMES,
-                                                  ctx.config.input_standardisation.channels)
+                                                  ctx.config.input_standardisation.camera_channels)
     return save_model(run.path / MODEL_PT, model.cpu(), ctx.windows, ctx.transform,
                       {**training, "metrics": run.metrics().to_dict("list")}, standardisation=standardisation)
 

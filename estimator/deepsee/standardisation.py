@@ -1,8 +1,8 @@
 """Per-camera input standardisation: the camera-dependent RTS channels a camera shifts (exposure, response curve,
 sharpness) moved onto the distribution the model was trained on, with statistics refitted for each camera.
 
-For each channel of ``[input_standardisation] channels`` (configs/estimator.toml) a model stores two sets of
-robust statistics of its normalised values (:func:`seesys.core.rts_schema.normalise`): the median and the
+For each channel of ``[input_standardisation] camera_channels`` (configs/estimator.toml) a model stores two sets
+of robust statistics of its normalised values (:func:`seesys.core.rts_schema.normalise`): the median and the
 interquartile range over the windows it was trained on (``reference``) and over the camera it serves
 (``camera``). Its input is ``x' = (x − median_camera) · iqr_reference / iqr_camera + median_reference``: the camera's
 spread of the channel onto the training data's.
