@@ -15,7 +15,7 @@ from rich.progress import Progress
 from test_deepsee_sessions import single_thread, tiny_config, tiny_dataset, trained_runs, write_session  # noqa: F401 (pytest fixtures among them)
 
 from advisory.estimate_log import read_estimate_log
-from estimator.deepsee.checkpoint import ModelMismatch, load_model
+from estimator.deepsee.checkpoint import ModelMismatch, load_model, payload_standardisation
 from estimator.deepsee.data import DataError, concat, session_windows
 from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity, training_cameras
 from estimator.deepsee.finetune import finetune
@@ -88,6 +88,9 @@ def test_export_to_onnx_then_estimate_a_session_for_the_advisory(tiny_dataset, t
     # The cameras of its training runs travel with it (what the app tells its user).
     cameras = payload["training"]["cameras"]
     assert cameras and OnnxModel(onnx_path, TRANSFORM).cameras == recorded_cameras(onnx_path) == cameras
+    # So does its input standardisation (fitted on its training windows).
+    standardisation = payload_standardisation(payload, "model.pt")
+    assert standardisation.reference is not None and OnnxModel(onnx_path, TRANSFORM).standardisation == standardisation
     with pytest.raises(ModelMismatch, match="label transform"):
         OnnxModel(onnx_path, LabelTransform(100.0))
     with pytest.raises(ModelMismatch, match="windows"):
