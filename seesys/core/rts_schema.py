@@ -10,7 +10,10 @@ order, units or meaning change so that old logs and models are recognised as inc
 
 Conventions (the authors' code differs; see docs/rts-features.md):
 
-- Image features are computed on the gray frame SLAM tracks, at full resolution, intensities scaled to [0, 1].
+- Image features are computed on the gray frame SLAM tracks, intensities scaled to [0, 1]; the Laplacian at the
+  reference camera's pixel size and pixel lengths in its pixels (camera normalisation,
+  :mod:`seesys.core.camera_normalisation`: versioned on its own, so that these definitions, the same as before for
+  the reference camera, keep the schema's fingerprint).
 - Every value of a row comes from the same frame index (see slam_monitor/monitor.py); channels without a value on
   a frame (tracking and mapping channels on a frame without a tracked pose) are NaN.
 - Relative motion is of the current frame t with respect to the previous tracked frame t−1:
@@ -59,7 +62,8 @@ CHANNELS: tuple[Channel, ...] = (
     Channel("entropy", "sensor_input", "bits",
             "Shannon entropy of the 256-bin gray-level histogram", "identity", 8.0),
     Channel("laplacian", "sensor_input", "(gray level)^2",
-            "variance of the 3x3 Laplacian of the 8-bit gray frame (low = blur)", "log1p", 10.0),
+            "variance of the 3x3 Laplacian of the 8-bit gray frame at the reference camera's pixel size (low = blur)",
+            "log1p", 10.0),
     Channel("matched_inliers", "tracking", "count",
             "map-point matches kept after pose optimisation", "identity", 500.0),
     Channel("outliers", "tracking", "count",
@@ -84,7 +88,7 @@ CHANNELS: tuple[Channel, ...] = (
     Channel("var_mp_depth", "mapping", "m^2 (map units^2 in monocular)",
             "variance of z of the matched map points in the current camera", "log1p", 2.0),
     Channel("local_mapping_visual_error", "mapping", "px",
-            "mean reprojection error of the matched map points in the current frame "
+            "mean reprojection error of the matched map points in the current frame, in the reference camera's pixels "
             "(pyorbslam3 does not expose local bundle adjustment residuals)", "log1p", 2.0),
     Channel("depth_holes", "depth", "fraction of pixels",
             "share of the depth image's pixels with no depth (RGB-D only)", "identity", 0.2),
