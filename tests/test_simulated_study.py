@@ -5,10 +5,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import REPO
+from polling import wait_for
 
 from estimator.service.broker import default_model
 from estimator.service.config import load_service_config
@@ -16,6 +22,7 @@ from estimator.synth.config import load_synth_config
 from estimator.synth.operator import Goal, SimulatedOperator, draw_traits
 from estimator.synth.scan_task import build_scan_task
 from seesys.app.simulate.config import load_simulate_config
+from seesys.app.simulate.study import pending_jobs
 from seesys.app.simulate.session import OPERATOR_JSON, Participant, simulate_session
 from seesys.cli import main
 from seesys.core.errors import ConfigError
@@ -147,3 +154,35 @@ def test_the_same_operator_moves_differently_after_a_warning_than_in_silence(tmp
     assert moved[t < first + delay - 0.05].max() < 1e-9
     assert first + delay + 0.5 < t[-1]
     assert moved[t > first + delay + 0.5].max() > 0.01
+
+
+def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
+    """Started as a shell script's background job (SIGINT ignored), stopped by SIGTERM once both sessions track:
+    each session ends `interrupted` with its logs whole, the command exits 130, both sessions are still to do, and
+    the folder refuses a run with other settings."""
+    study = tmp_path / "study"
+    command = [sys.executable, "-m", "seesys", "study", "simulate", "--out", str(study), "--participants", "1",
+               "--conditions", "none,seesys", "--objects", "3", "--max-task-s", "60"]
+    process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+
+    def tracking() -> list[Path]:
+        frames = list(study.glob("participants/*/task/attempt-1/frames.csv"))
+        return frames if len(frames) == 2 and all(len(f.read_text().splitlines()) > 10 for f in frames) else []
+
+    wait_for(tracking, what="both sessions tracking")
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    for attempt in study.glob("participants/*/task/attempt-1"):
+        run = json.loads((attempt / RUN_JSON).read_text())
+        assert run["status"] == "interrupted" and run["frames"] >= 10
+        frames = pd.read_csv(attempt / "frames.csv")
+        assert len(frames) == run["frames"] and len(read_tum(attempt / "groundtruth.tum")) == run["frames"]
+        assert json.loads((attempt / "session.json").read_text())["status"] == "interrupted"
+        assert pd.read_csv(attempt / "events.csv").kind.iloc[-1] == "stop"
+    jobs, total = pending_jobs(study, read_protocol(study))
+    assert total == 2 and len(jobs) == 2
+    again = subprocess.run(command[:-4] + ["--objects", "3", "--max-task-s", "3"], cwd=REPO, capture_output=True,
+                           text=True)
+    assert again.returncode == 2 and "task.max_task_s" in again.stderr

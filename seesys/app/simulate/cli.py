@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -42,6 +43,9 @@ def simulate_command(args: argparse.Namespace) -> int:
     from seesys.app.simulate.config import load_simulate_config
     from seesys.app.simulate.study import run_study
 
+    # SIGTERM stops the study as Ctrl-C does; SIGINT is restored where a shell started the command with it ignored.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     cfg = load_simulate_config()
     study = replace(cfg.study, **{k: v for k, v in (
         ("participants_per_condition", args.participants), ("conditions", args.conditions),

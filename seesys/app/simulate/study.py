@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import signal
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -107,6 +108,13 @@ def pending_jobs(study: Path, protocol: Protocol) -> tuple[list[Job], int]:
 def _session_process(cfg: SimulateConfig, participant: Participant, attempt: Path, model: Path,
                      config_dir: Path | None, progress) -> None:
     """A session's process: ORB-SLAM3's console output into the attempt's log, progress to the parent."""
+    import cv2
+
+    # Ctrl-C and SIGTERM end the session with its files final, even where the process was started with SIGINT
+    # ignored (a background job of a shell script).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    cv2.setNumThreads(1)  # parallelism is across sessions: OpenCV's own threads would only contend with them
     attempt.mkdir(parents=True, exist_ok=True)
     log = os.open(attempt / "orbslam3.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     sys.stdout.flush()
@@ -142,7 +150,9 @@ def _mark_crashed(attempt: Path, exitcode: int | None) -> str:
 
 def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | None = None,
               show: Callable[[str, float, str], None] | None = None) -> StudyOutcome:
-    """Simulate every session of ``study`` not done yet, ``cfg.study.processes`` at a time.
+    """Simulate every session of ``study`` not done yet, ``cfg.study.processes`` at a time. A
+    ``KeyboardInterrupt`` (Ctrl-C; SIGTERM where the caller maps it so, as the command does) stops every session
+    (``interrupted``, files final) and is raised again.
 
     ``show(session, simulated_seconds, note)`` reports each session ("P03 seesys"): its start (0 s, note
     "attempt-1"), its progress (note "") and its end (note "completed", "timed_out", "failed: why", ...)."""
@@ -194,6 +204,11 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
                     report(name, 0.0, f"{reason}; once more")
                     queue.append(job)
     except KeyboardInterrupt:
+        # A terminal's Ctrl-C reaches every session already; SIGTERM to this process, or a Ctrl-C it alone got,
+        # does not: each session is told, then given STOP_GRACE_S to close its files.
+        for job, attempt, process, name in running.values():
+            if process.is_alive():
+                os.kill(process.pid, signal.SIGINT)
         for job, attempt, process, name in running.values():
             process.join(STOP_GRACE_S)
             if process.is_alive():
