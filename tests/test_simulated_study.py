@@ -31,7 +31,7 @@ from seesys.io.trajectory_files import read_tum
 from study.protocol import read_protocol
 from study.sessions import RUN_JSON, attempt_folders
 
-SHORT = ["--objects", "1", "--max-task-s", "4"]
+SHORT = ["--objects", "1", "--max-task-s", "2.5"]
 
 
 def _operator(cfg, number: int, seed: int) -> SimulatedOperator:
@@ -80,7 +80,7 @@ def test_settings_that_cannot_work_are_refused_by_name(tmp_path):
 
 @pytest.fixture(scope="module")
 def reduced_study(tmp_path_factory):
-    """2 simulated participants per condition, one object, at most 4 s each: 6 sessions."""
+    """2 simulated participants per condition, one object, at most 2.5 s each: 6 sessions."""
     study = tmp_path_factory.mktemp("simulated") / "study"
     assert main(["study", "simulate", "--out", str(study), "--participants", "2", *SHORT]) == 0
     return study
@@ -129,7 +129,7 @@ def test_running_the_study_again_resumes_and_other_settings_are_refused(reduced_
     assert sorted(p for p in reduced_study.rglob("attempt-*")) == before
     assert "6 of 6 sessions done" in capsys.readouterr().out
     assert main(["study", "simulate", "--out", str(reduced_study), "--participants", "2", "--objects", "2",
-                 "--max-task-s", "4"]) == 2
+                 "--max-task-s", "2.5"]) == 2
     assert "task.objects" in capsys.readouterr().err
 
 
@@ -140,7 +140,7 @@ def test_the_same_operator_moves_differently_after_a_warning_than_in_silence(tmp
                                                       "pulses_from": "estimate"})
     monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
     cfg = load_simulate_config(configs)
-    cfg = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, objects=2, max_task_s=5.0))
+    cfg = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, objects=2, max_task_s=3.5))
     model = default_model(load_service_config(configs), None)
     runs = {c: simulate_session(cfg, Participant("P01", 1, c), tmp_path / c, model, configs)
             for c in ("none", "seesys")}
