@@ -13,7 +13,8 @@ The attempt folder is written as ``seesys study run`` writes one (docs/study.md)
 ``events.csv`` (``initialised`` at the first tracked frame, ``object`` k when the operator finished scanning it),
 ``run.json``, and the renderer's ground truth as ``groundtruth.tum`` (the motion capture of a real study), so that
 ``seesys analyze`` reads it unchanged. ``operator.json`` records the simulated participant, ``task.json`` the room.
-Every row is flushed as written; on Ctrl-C the session ends ``interrupted`` with its files final.
+Every row is flushed as written; on Ctrl-C the session ends ``interrupted``, on an error ``failed`` (with the error in
+``run.json`` and ``session.json``), its files final either way.
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ class Participant:
 @dataclass(frozen=True)
 class SessionOutcome:
     folder: Path
-    status: str  # completed (every object scanned), timed_out (max_task_s reached), interrupted
+    status: str  # completed (every object scanned) or timed_out (max_task_s reached)
     frames: int
     estimates: int
     objects_reached: int
@@ -201,6 +202,7 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
     settings_file = write_settings(folder / SETTINGS, build_settings(intrinsics, camera.fps, mode, slam_config))
     tracker = Tracker(vocabulary_path(slam_config), settings_file, mode, intrinsics)
     status, frames, estimates, initialised, reported = "interrupted", 0, 0, False, 0
+    error: str | None = None
     previous: tuple[int, np.ndarray | None] = (-1, None)
     try:
         for k in range(count):
@@ -255,6 +257,11 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
             if operator.done:
                 break
         status = "completed" if operator.done else "timed_out"
+    except KeyboardInterrupt:
+        raise
+    except BaseException as e:  # recorded as the device and the study record a failure, then passed on
+        status, error = "failed", str(e) if isinstance(e, SeesysError) else f"{type(e).__name__}: {e}"
+        raise
     finally:
         tracker.shutdown()
         for log in (rts_log, psd_log):
@@ -267,9 +274,10 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
         times = plan.frame_times[:frames]
         positions, rotations = truth.interpolate(times)
         write_tum(folder / GROUND_TRUTH, Poses(start_time + times, positions, rotations.as_quat()))
-        writer.finish("completed" if status != "interrupted" else "interrupted")
+        ended = status if status in ("interrupted", "failed") else "completed"
+        writer.finish(ended, **({"error": error} if error else {}))
         run = json.loads((folder / RUN_JSON).read_text())
-        run.update(status="completed" if status != "interrupted" else "interrupted", ended=utc_now(),
+        run.update(status=ended, error=error, ended=utc_now(),
                    outcome=status, frames=frames, estimates=estimates, buffers=advice.buffers,
                    objects_reached=len(operator.reached), warnings_heeded=operator.warnings_heeded,
                    calibration="the source's ground truth kept")
