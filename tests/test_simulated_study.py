@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -186,3 +187,20 @@ def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
     again = subprocess.run(command[:-4] + ["--objects", "3", "--max-task-s", "3"], cwd=REPO, capture_output=True,
                            text=True)
     assert again.returncode == 2 and "task.max_task_s" in again.stderr
+
+
+def test_a_session_that_reports_no_frame_is_killed_as_hung_and_the_study_says_so(tmp_path):
+    """A stall timeout shorter than a session's start-up stands in for ORB-SLAM3 hanging: every session is killed,
+    its attempt says why, and the study ends with status 1 naming each one."""
+    configs = write_config_dir(tmp_path / "configs", {"stall_timeout_s": 0.2, "retries": 0})
+    study = tmp_path / "study"
+    done = subprocess.run([sys.executable, "-m", "seesys", "study", "simulate", "--out", str(study),
+                           "--participants", "1", "--conditions", "none,seesys", *SHORT], cwd=REPO,
+                          capture_output=True, text=True, env={**os.environ, CONFIG_DIR_ENV: str(configs)})
+    assert done.returncode == 1, done.stderr
+    said = " ".join(done.stdout.split())
+    assert "0 of 2 sessions done" in said
+    assert said.count("failed: P01 none: no frame") == said.count("failed: P02 seesys: no frame") == 1
+    for attempt in study.glob("participants/*/task/attempt-1"):
+        run = json.loads((attempt / RUN_JSON).read_text())
+        assert run["status"] == "failed" and "hung" in run["error"]

@@ -65,7 +65,7 @@ def simulate_command(args: argparse.Namespace) -> int:
             elif not note:
                 progress.update(bars[name], completed=seconds)
             else:
-                progress.console.print(f"{name}: {note}")
+                progress.console.print(f"{name}: {note}", soft_wrap=True)
                 progress.remove_task(bars.pop(name))
 
         outcome = run_study(args.out, cfg, model, show=show)

@@ -22,6 +22,7 @@ class StudyDefaults:
     operator_seed: int
     processes: int
     retries: int
+    stall_timeout_s: float
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ Every row is flushed as written; on Ctrl-C the session ends ``interrupted``, on 
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -171,7 +172,7 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
                                                "objects": [o.record() for o in task.objects]})
     write_json_atomically(folder / RUN_JSON, {
         "participant": participant.id, "phase": "task", "condition": condition.value, "status": "running",
-        "simulated": True, "started": utc_now(), "model_version": model_version(model_path),
+        "simulated": True, "pid": os.getpid(), "started": utc_now(), "model_version": model_version(model_path),
         "source": f"simulated:{task_cfg.environment}/{task_cfg.camera_model}"})
     writer = SessionWriter(folder, {"source": f"simulated:{task_cfg.environment}", "mode": mode.value,
                                     "max_frames": count, "vocabulary": str(vocabulary_path(slam_config)),

@@ -8,7 +8,8 @@ attempt, which supersedes it, starts from the beginning: a session is a few minu
 or another model is refused, naming what differs.
 
 Each session runs in its own process (spawned), so that a crash of ORB-SLAM3 (it aborts on rare degenerate frames)
-costs one attempt, which is retried up to ``retries`` times, and ORB-SLAM3's console output goes to the attempt's
+or a hang (a session that reports no frame for ``stall_timeout_s`` is killed) costs one attempt, which is retried
+up to ``retries`` times, and ORB-SLAM3's console output goes to the attempt's
 ``orbslam3.log`` (with anything else the process prints). Ctrl-C stops every session: each ends ``interrupted`` with its files final.
 """
 
@@ -19,6 +20,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from multiprocessing.connection import wait
@@ -32,12 +34,14 @@ from seesys.io.config import as_dict
 from seesys.io.logfiles import write_json_atomically
 from study.config import load_study_config
 from study.protocol import Protocol, make_protocol, read_protocol, write_protocol
-from study.sessions import DONE, RUN_JSON, next_attempt_folder, phase_status, read_run, supersede_attempts
+from study.sessions import DONE, RUN_JSON, next_attempt_folder, phase_status, supersede_attempts
 
 SIMULATION_JSON = "simulation.json"
 PHASE = "task"
 # Seconds a session process gets to finish its files after Ctrl-C before it is terminated.
 STOP_GRACE_S = 2.0
+# How often (s) the study looks for a hung session while none reports.
+WATCH_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -74,7 +78,7 @@ def prepare_study(study: Path, cfg: SimulateConfig, model: Path) -> Protocol:
     study = Path(study)
     record = simulation_record(cfg, model)
     # The session count, process count and retries do not change what a session is.
-    ignored = ("processes", "retries")
+    ignored = ("processes", "retries", "stall_timeout_s")
     record["settings"]["study"] = {k: v for k, v in record["settings"]["study"].items() if k not in ignored}
     path = study / SIMULATION_JSON
     if path.exists():
@@ -138,10 +142,12 @@ def _session_process(cfg: SimulateConfig, participant: Participant, attempt: Pat
         raise SystemExit(2) from None
 
 
-def _mark_crashed(attempt: Path, exitcode: int | None) -> str:
-    """Record in ``run.json`` that an attempt's process died; the reason for the study's outcome."""
-    reason = f"its process ended with exit code {exitcode}"
-    run = read_run(attempt) if (attempt / RUN_JSON).exists() else {}
+def _mark_crashed(attempt: Path, reason: str) -> str:
+    """Record in ``run.json`` that an attempt's process died (``reason``), and return the reason."""
+    try:
+        run = json.loads((attempt / RUN_JSON).read_text())
+    except (OSError, ValueError):
+        run = {}
     if run.get("status") in (None, "running"):
         run.update(status="failed", error=reason)
         write_json_atomically(attempt / RUN_JSON, run)
@@ -162,6 +168,10 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
     queue = list(jobs)
     tries: dict[str, int] = {}
     running: dict[object, tuple[Job, Path, multiprocessing.Process, object]] = {}
+    # A session reports every simulated second; one silent for stall_timeout_s is hung (ORB-SLAM3 has been seen to
+    # hang in a map reset after a loss): it is killed and counts as a crash.
+    last_heard: dict[object, float] = {}
+    stalled: set[object] = set()
     failed: list[str] = []
     report = show or (lambda name, seconds, note: None)
     try:
@@ -179,9 +189,17 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
                 process.start()
                 sender.close()
                 running[receiver] = (job, attempt, process, name)
+                last_heard[receiver] = time.monotonic()
                 report(name, 0.0, attempt.name)
-            for receiver in wait(list(running)):
+            ready = wait(list(running), timeout=WATCH_S)
+            now = time.monotonic()
+            for receiver, (_, _, process, _) in running.items():
+                if receiver not in ready and now - last_heard[receiver] > cfg.study.stall_timeout_s:
+                    stalled.add(receiver)
+                    process.kill()  # its pipe closes: handled as a crash on the next look
+            for receiver in ready:
                 job, attempt, process, name = running[receiver]
+                last_heard[receiver] = now
                 try:
                     message = receiver.recv()
                 except EOFError:
@@ -191,12 +209,15 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
                     continue
                 process.join()
                 receiver.close()
-                del running[receiver]
+                del running[receiver], last_heard[receiver]
                 if message == ("done", "completed") or message == ("done", "timed_out"):
                     report(name, 0.0, message[1])
                     continue
-                reason = message[1] if isinstance(message, tuple) and message[0] == "error" else \
-                    _mark_crashed(attempt, process.exitcode)
+                hung = receiver in stalled
+                stalled.discard(receiver)
+                reason = message[1] if isinstance(message, tuple) and message[0] == "error" else _mark_crashed(
+                    attempt, f"no frame for {cfg.study.stall_timeout_s:g} s: hung, killed" if hung
+                    else f"its process ended with exit code {process.exitcode}")
                 if isinstance(message, tuple) and message[0] == "error" or tries[name] > cfg.study.retries:
                     failed.append(f"{name}: {reason}")
                     report(name, 0.0, f"failed: {reason}")
@@ -214,7 +235,7 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
             if process.is_alive():
                 process.terminate()
                 process.join()
-                _mark_crashed(attempt, process.exitcode)
+                _mark_crashed(attempt, f"stopped: terminated after {STOP_GRACE_S:g} s")
         raise
     done = sum(1 for person in protocol.participants for condition in person.conditions
                if phase_status(protocol.phase_folder(study, person.id, PHASE, condition)) == DONE)
