@@ -159,8 +159,7 @@ def test_the_same_operator_moves_differently_after_a_warning_than_in_silence(tmp
 
 def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
     """Started as a shell script's background job (SIGINT ignored), stopped by SIGTERM once both sessions track:
-    each session ends `interrupted` with its logs whole, the command exits 130, both sessions are still to do, and
-    the folder refuses a run with other settings."""
+    each session ends `interrupted` with its logs whole, the command exits 130, and both sessions are still to do."""
     study = tmp_path / "study"
     command = [sys.executable, "-m", "seesys", "study", "simulate", "--out", str(study), "--participants", "1",
                "--conditions", "none,seesys", "--objects", "3", "--max-task-s", "60"]
@@ -184,9 +183,6 @@ def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
         assert pd.read_csv(attempt / "events.csv").kind.iloc[-1] == "stop"
     jobs, total = pending_jobs(study, read_protocol(study))
     assert total == 2 and len(jobs) == 2
-    again = subprocess.run(command[:-4] + ["--objects", "3", "--max-task-s", "3"], cwd=REPO, capture_output=True,
-                           text=True)
-    assert again.returncode == 2 and "task.max_task_s" in again.stderr
 
 
 def test_a_session_that_reports_no_frame_is_killed_as_hung_and_the_study_says_so(tmp_path):
