@@ -308,8 +308,10 @@ def _mixed_model(data: pd.DataFrame) -> dict:
 
 
 def _ratio_minus_one(b: np.ndarray, a: np.ndarray, axis: int = -1) -> np.ndarray:
+    """mean(b) / mean(a) − 1; NaN where mean(a) is 0 (no relative change from nothing)."""
+    reference = np.mean(a, axis=axis)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.mean(b, axis=axis) / np.mean(a, axis=axis) - 1.0
+        return np.where(reference == 0, np.nan, np.mean(b, axis=axis) / reference - 1.0)
 
 
 def relative_changes(table: pd.DataFrame, variable: Variable, conditions: list[str], design: str, of: list[str],
