@@ -186,8 +186,9 @@ def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
 
 
 def test_a_session_that_reports_no_frame_is_killed_as_hung_and_the_study_says_so(tmp_path):
-    """A stall timeout shorter than a session's start-up stands in for ORB-SLAM3 hanging: every session is killed,
-    its attempt says why, and the study ends with status 1 naming each one."""
+    """A stall timeout far shorter than a session's start-up (its first report comes after a simulated second: 30
+    rendered and tracked frames) stands in for ORB-SLAM3 hanging: every session is killed, its attempt says why, and
+    the study ends with status 1 naming each one."""
     configs = write_config_dir(tmp_path / "configs", {"stall_timeout_s": 0.2, "retries": 0})
     study = tmp_path / "study"
     done = subprocess.run([sys.executable, "-m", "seesys", "study", "simulate", "--out", str(study),

@@ -191,7 +191,7 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
                 running[receiver] = (job, attempt, process, name)
                 last_heard[receiver] = time.monotonic()
                 report(name, 0.0, attempt.name)
-            ready = wait(list(running), timeout=WATCH_S)
+            ready = wait(list(running), timeout=min(WATCH_S, cfg.study.stall_timeout_s))
             now = time.monotonic()
             for receiver, (_, _, process, _) in running.items():
                 if receiver not in ready and now - last_heard[receiver] > cfg.study.stall_timeout_s:
