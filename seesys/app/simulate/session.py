@@ -31,7 +31,7 @@ from advisory.conditions import Condition, estimate_reading, pulse_rule
 from advisory.config import load_advisory_config
 from advisory.rotation import RotationSpeed
 from advisory.scheduler import CueClock, Decision, PulseScheduler
-from estimator.service.model import ServedModel, model_version
+from estimator.service.model import ServedModel
 from estimator.synth.camera_effects import LensDistortion
 from estimator.synth.config import load_synth_config
 from estimator.synth.lenses import model_camera
@@ -172,7 +172,7 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
                                                "objects": [o.record() for o in task.objects]})
     write_json_atomically(folder / RUN_JSON, {
         "participant": participant.id, "phase": "task", "condition": condition.value, "status": "running",
-        "simulated": True, "pid": os.getpid(), "started": utc_now(), "model_version": model_version(model_path),
+        "simulated": True, "pid": os.getpid(), "started": utc_now(), "model_version": model.version,
         "source": f"simulated:{task_cfg.environment}/{task_cfg.camera_model}"})
     writer = SessionWriter(folder, {"source": f"simulated:{task_cfg.environment}", "mode": mode.value,
                                     "max_frames": count, "vocabulary": str(vocabulary_path(slam_config)),
@@ -197,7 +197,7 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
     rotation = RotationSpeed(advisory_cfg.rotation)
     assembler = WindowAssembler(monitor_config.windows)
     extractor = FeatureExtractor(monitor_config, settings=settings)
-    version = model_version(model_path)
+    version = model.version
     events.write(start_time, "start", f"simulated {condition.value}")
 
     settings_file = write_settings(folder / SETTINGS, build_settings(intrinsics, camera.fps, mode, slam_config))
