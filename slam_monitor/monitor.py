@@ -65,6 +65,30 @@ class MonitorInput:
     map_changed: bool
     frames_skipped: int  # frames dropped before this one was queued: it travels with the frame's features
 
+    @classmethod
+    def of(cls, frame: Frame, result: Any, previous: PreviousPose, frames_skipped: int = 0) -> MonitorInput:
+        """The input for ``frame`` and its :class:`slam_monitor.tracker.TrackOutput` ``result``; ``previous``
+        follows the session's frames (called once per frame, in order)."""
+        state = TrackingState(int(result.state))
+        pose_wc = result.pose_wc if state.tracked else None
+        return cls(frame, state, result.pose_cw, pose_wc, previous.step(frame.index, pose_wc),
+                   int(result.num_tracked_points), result.keypoints, result.map_points, bool(result.map_changed),
+                   frames_skipped)
+
+
+class PreviousPose:
+    """The tracked pose of the frame before each frame, so that the relative motion never spans two frames: None
+    when frame index − 1 was not tracked or never seen (dropped)."""
+
+    def __init__(self) -> None:
+        self._last: tuple[int, np.ndarray | None] = (-2, None)
+
+    def step(self, index: int, pose_wc: np.ndarray | None) -> np.ndarray | None:
+        """Record frame ``index``'s pose (None: not tracked) and return that of frame ``index`` − 1."""
+        last_index, last_pose = self._last
+        self._last = (index, pose_wc)
+        return last_pose if last_index == index - 1 else None
+
 
 class FeatureExtractor:
     """Single-threaded core of the monitor: one :class:`MonitorInput` in, one :class:`FeatureFrame` out.
@@ -195,7 +219,7 @@ class RtsMonitor:
         self._psd_log = (PsdLogWriter(session_dir / PSD_DIR, config.log.psd_chunk_records)
                          if session_dir is not None else None)
         self._queue: queue.Queue = queue.Queue(maxsize=config.queue_size)
-        self._last_pose: tuple[int, np.ndarray | None] = (-2, None)
+        self._previous = PreviousPose()
         self._thread = threading.Thread(target=self._run, name="rts-monitor", daemon=True)
         self._thread.start()
 
@@ -205,13 +229,7 @@ class RtsMonitor:
         ``result`` is the worker's :class:`slam_monitor.tracker.TrackOutput`.
         """
         self.stats.frames_seen += 1
-        state = TrackingState(int(result.state))
-        pose_wc = result.pose_wc if state.tracked else None
-        last_index, last_pose = self._last_pose
-        prev = last_pose if last_index == frame.index - 1 else None
-        self._last_pose = (frame.index, pose_wc)
-        item = MonitorInput(frame, state, result.pose_cw, pose_wc, prev, int(result.num_tracked_points),
-                            result.keypoints, result.map_points, bool(result.map_changed), self.stats.frames_dropped)
+        item = MonitorInput.of(frame, result, self._previous, self.stats.frames_dropped)
         try:
             self._queue.put_nowait(item)
         except queue.Full:

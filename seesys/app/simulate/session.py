@@ -52,7 +52,7 @@ from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from seesys.io.session_files import utc_now
 from seesys.io.trajectory_files import write_tum
 from slam_monitor.frame import Frame
-from slam_monitor.monitor import FeatureExtractor, MonitorInput
+from slam_monitor.monitor import FeatureExtractor, MonitorInput, PreviousPose
 from slam_monitor.monitor_config import load_monitor_config
 from slam_monitor.orbslam_settings import SlamMode, build_settings, load_slam_config, vocabulary_path, write_settings
 from slam_monitor.session import SessionWriter, prepare_session_folder
@@ -204,7 +204,7 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
     tracker = Tracker(vocabulary_path(slam_config), settings_file, mode, intrinsics)
     status, frames, estimates, initialised, reported = "interrupted", 0, 0, False, 0
     error: str | None = None
-    previous: tuple[int, np.ndarray | None] = (-1, None)
+    previous = PreviousPose()
     try:
         for k in range(count):
             t = float(plan.frame_times[k])
@@ -222,15 +222,10 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
             output = tracker.track(frame)
             writer.write_frame(output)
             frames += 1
-            tracked = output.tracked
-            if tracked and not initialised:
+            if output.tracked and not initialised:
                 events.write(stamp, "initialised", "first tracked frame")
                 initialised = True
-            prev = previous[1] if previous[0] == k - 1 else None
-            item = MonitorInput(frame, output.state, output.pose_cw, output.pose_wc if tracked else None, prev,
-                                output.num_tracked_points, output.keypoints, output.map_points, output.map_changed, 0)
-            previous = (k, output.pose_wc if tracked else None)
-            features = extractor.extract(item)
+            features = extractor.extract(MonitorInput.of(frame, output, previous))
             rts_log.write(features)
             if features.psd is not None:
                 psd_log.write(k, stamp, features.psd)
