@@ -183,7 +183,7 @@ def test_each_process_survives_the_others_restart(jack, make_sandbox):
 
 
 def test_supervisor_restarts_a_killed_process_and_stops_cleanly(jack, make_sandbox):
-    sandbox = make_sandbox(jack, restart_delay_s=0.3)
+    sandbox = make_sandbox(jack, **{"advisory.restart_delay_s": 0.3})
     run = sandbox.start("run", "--condition", "seesys", "--out", str(sandbox.session), name="run")
     wait_started(sandbox, "player")
     wait_started(sandbox, "generator")

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -65,11 +64,9 @@ def root():
 
 def start_app(root: Path, stretch: int, restart_delay_s: float | None = None,
               **overrides: object) -> tuple[subprocess.Popen, Path, Path]:
+    if restart_delay_s is not None:  # the app's own (advisory.toml has a key of the same name)
+        overrides["app.restart_delay_s"] = restart_delay_s
     config_dir, _ = private_configs(root, endpoint=f"ipc://{root}/handoff", stale_after_ms=60000.0, **overrides)
-    if restart_delay_s is not None:  # the app's own (advisory.toml has a key of the same name, found first)
-        app_toml = config_dir / "app.toml"
-        app_toml.write_text(re.sub(r"^restart_delay_s = .*$", f"restart_delay_s = {restart_delay_s}",
-                                   app_toml.read_text(), flags=re.MULTILINE))
     out = root / "session"
     command = [sys.executable, "-m", "seesys", "run", "--source", f"tum:{stretched_sample(root / 'source', stretch)}",
                "--local", "--condition", "seesys", "--out", str(out), "--wav"]

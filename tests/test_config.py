@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from seesys.io.config import ConfigError, load_section
+from seesys.io.config import ConfigError, load_section, write_config_dir
 from seesys.io.network import load_network_config
 
 
@@ -80,3 +80,17 @@ def test_no_two_shipped_endpoints_share_a_port():
             assert port not in seen, f"port {port} of {where} is also {seen[port]}"
             seen[port] = where
     assert len(seen) >= 6
+
+
+def test_an_override_key_must_exist_and_name_one_file(tmp_path):
+    with pytest.raises(KeyError, match="no such configuration key: no_such_key"):
+        write_config_dir(tmp_path / "a", {"no_such_key": 1})
+    # stall_timeout_s is a key of slam.toml and of simulate.toml: by name alone it would change one silently
+    with pytest.raises(KeyError, match="stall_timeout_s is in simulate.toml, slam.toml: name it as simulate"):
+        write_config_dir(tmp_path / "b", {"stall_timeout_s": 9.0})
+    with pytest.raises(KeyError, match="no such configuration key: camera.stall_timeout_s"):
+        write_config_dir(tmp_path / "c", {"camera.stall_timeout_s": 9.0})
+    folder = write_config_dir(tmp_path / "d", {"slam.stall_timeout_s": 9.0, "slam_cpus": 1})
+    assert "stall_timeout_s = 9.0" in (folder / "slam.toml").read_text()
+    assert "stall_timeout_s = 9.0" not in (folder / "simulate.toml").read_text()
+    assert "slam_cpus = 1" in (folder / "ray.toml").read_text()  # by name: one file has it

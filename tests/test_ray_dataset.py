@@ -45,7 +45,7 @@ def _files(root: Path) -> list[str]:
 def builds(local_ray, tmp_path_factory):  # noqa: F811
     """The tiny dataset built here and on Ray (one SLAM CPU per run, so that both runs share the 2 CPUs)."""
     base = tmp_path_factory.mktemp("ray_dataset")
-    configs = write_config_dir(base / "configs", {"stall_timeout_s": STALL_TIMEOUT_S, "slam_cpus": 1})
+    configs = write_config_dir(base / "configs", {"slam.stall_timeout_s": STALL_TIMEOUT_S, "slam_cpus": 1})
     local = _build(base / "local", configs)
     remote = _build(base / "ray", configs, RayExecutor(local_ray))
     return base, configs, local, remote

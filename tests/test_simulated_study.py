@@ -74,7 +74,7 @@ def test_settings_that_cannot_work_are_refused_by_name(tmp_path):
     folder = write_config_dir(tmp_path / "c", {"reaction_delay_s": [0.05, 0.3]})
     with pytest.raises(ConfigError, match="reaction_delay_s"):
         load_simulate_config(folder)
-    folder = write_config_dir(tmp_path / "d", {"design": "crossover"})
+    folder = write_config_dir(tmp_path / "d", {"simulate.design": "crossover"})
     with pytest.raises(ConfigError, match="crossover"):
         load_simulate_config(folder)
 
@@ -189,7 +189,7 @@ def test_a_session_that_reports_no_frame_is_killed_as_hung_and_the_study_says_so
     """A stall timeout far shorter than a session's start-up (its first report comes after a simulated second: 30
     rendered and tracked frames) stands in for ORB-SLAM3 hanging: every session is killed, its attempt says why, and
     the study ends with status 1 naming each one."""
-    configs = write_config_dir(tmp_path / "configs", {"stall_timeout_s": 0.2, "retries": 0})
+    configs = write_config_dir(tmp_path / "configs", {"simulate.stall_timeout_s": 0.2, "retries": 0})
     study = tmp_path / "study"
     done = subprocess.run([sys.executable, "-m", "seesys", "study", "simulate", "--out", str(study),
                            "--participants", "1", "--conditions", "none,seesys", *SHORT], cwd=REPO,

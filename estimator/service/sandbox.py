@@ -20,7 +20,7 @@ ENDPOINT_KEYS = {"ingest": "ingest_endpoint", "workers": "worker_endpoint", "sta
 
 def private_configs(folder: Path, **overrides: object) -> tuple[Path, dict[str, str]]:
     """``folder/configs`` with ipc endpoints in ``folder`` (keep it short: ipc paths are at most 107 bytes) and
-    ``overrides`` (config keys by name); returns it and the endpoints by name."""
+    ``overrides`` (config keys by name or as ``file.key``); returns it and the endpoints by name."""
     endpoints = {name: f"ipc://{Path(folder).resolve()}/{name}" for name in ENDPOINT_KEYS}
     values = {key: endpoints[name] for name, key in ENDPOINT_KEYS.items()}
     return write_config_dir(Path(folder) / "configs", {**values, **overrides}), endpoints

@@ -134,18 +134,27 @@ def as_dict(obj: Any) -> dict[str, Any]:
 def write_config_dir(destination: Path, overrides: dict[str, object]) -> Path:
     """Copy ``configs/*.toml`` into ``destination`` with each ``key = value`` of ``overrides`` replaced.
 
-    Keys are found by name (keys are unique across the files' tables); an unknown key is an error, so a
-    renamed key cannot silently leave a test on the defaults.
+    A key is found by name, or as ``file.key`` (``slam.stall_timeout_s`` for ``slam.toml``) where the name is used
+    in more than one file; within a file the first ``key =`` line is replaced. An unknown key, or an unqualified
+    one that more than one file uses, is an error: a renamed key, or one added to another file, cannot silently
+    leave a caller on the defaults or change the wrong setting.
     """
+    sources = sorted(config_dir().glob("*.toml"))
+    texts = {source.stem: source.read_text() for source in sources}
+    for name, value in overrides.items():
+        stem, _, key = name.rpartition(".")
+        where = [s for s in ([stem] if stem else texts) if s in texts and _key_line(key).search(texts[s])]
+        if not where:
+            raise KeyError(f"no such configuration key: {name}")
+        if len(where) > 1:
+            raise KeyError(f"configuration key {key} is in {', '.join(f'{s}.toml' for s in where)}: "
+                           f"name it as {where[0]}.{key} (file.key)")
+        texts[where[0]] = _key_line(key).sub(lambda _: f"{key} = {json.dumps(value)}", texts[where[0]], count=1)
     destination.mkdir(parents=True, exist_ok=True)
-    left = dict(overrides)
-    for source in sorted(config_dir().glob("*.toml")):
-        text = source.read_text()
-        for key in list(left):
-            pattern = re.compile(rf"^{re.escape(key)} = .*$", re.MULTILINE)
-            if pattern.search(text):
-                text = pattern.sub(lambda _: f"{key} = {json.dumps(left.pop(key))}", text, count=1)
-        (destination / source.name).write_text(text)
-    if left:
-        raise KeyError(f"no such configuration key(s): {', '.join(left)}")
+    for source in sources:
+        (destination / source.name).write_text(texts[source.stem])
     return destination
+
+
+def _key_line(key: str) -> re.Pattern[str]:
+    return re.compile(rf"^{re.escape(key)} = .*$", re.MULTILINE)
