@@ -146,7 +146,6 @@ def checked_frames(source: FrameSource, mode: SlamMode, depth_correction: float 
     """The source's frames, checked against its intrinsics so that ORB-SLAM3 never sees a mismatched image, their
     depth multiplied by ``depth_correction`` (``[scale]`` of camera.toml: a camera's measured depth scale error)."""
     size = (source.intrinsics.height, source.intrinsics.width)
-    correction = np.float32(depth_correction)
     for frame in source.frames():
         if frame.gray.shape != size:
             raise SourceError(
@@ -156,8 +155,13 @@ def checked_frames(source: FrameSource, mode: SlamMode, depth_correction: float 
         if mode is SlamMode.RGBD and frame.depth is None:
             raise SourceError(f"frame {frame.index} has no depth (needed for RGB-D)")
         if frame.depth is not None and depth_correction != 1.0:
-            frame = dataclasses.replace(frame, depth=frame.depth * correction)
+            frame = dataclasses.replace(frame, depth=corrected_depth(frame.depth, depth_correction))
         yield frame
+
+
+def corrected_depth(depth_m: np.ndarray, depth_correction: float) -> np.ndarray:
+    """Metric depth multiplied by the camera's ``depth_correction`` (``[scale]`` of camera.toml)."""
+    return depth_m if depth_correction == 1.0 else depth_m * np.float32(depth_correction)
 
 
 def _read_user_settings(options: SessionOptions) -> bytes | None:

@@ -122,6 +122,11 @@ def read_depth_png(path: Path, units_per_metre: float) -> np.ndarray:
         raise SourceError(f"cannot read depth image {path} (missing, truncated or not an image)")
     if raw.dtype != np.uint16 or raw.ndim != 2:
         raise SourceError(f"depth image {path} is {raw.dtype} {raw.shape}, expected a 16-bit single-channel PNG")
+    return depth_metres(raw, units_per_metre)
+
+
+def depth_metres(raw: np.ndarray, units_per_metre: float) -> np.ndarray:
+    """A 16-bit depth image (``units_per_metre`` units per metre, 0 = no depth) as float32 metres."""
     return raw.astype(np.float32) / np.float32(units_per_metre)
 
 

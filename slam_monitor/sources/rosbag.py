@@ -18,7 +18,15 @@ import numpy as np
 from seesys.core.camera import Intrinsics
 from seesys.core.trajectory import Poses
 from slam_monitor.frame import Frame
-from slam_monitor.sources.base import DepthLimits, FrameSource, SourceError, check_depth, nominal_fps, to_gray
+from slam_monitor.sources.base import (
+    DepthLimits,
+    FrameSource,
+    SourceError,
+    check_depth,
+    depth_metres,
+    nominal_fps,
+    to_gray,
+)
 from slam_monitor.sources.settings import FileSourceDefaults, RosbagSettings, folder_calibration
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -168,9 +176,7 @@ def decode_depth(message, where: str) -> np.ndarray:
     dtype = np.dtype(dtypes[message.encoding]).newbyteorder(">" if message.is_bigendian else "<")
     raw = np.frombuffer(np.asarray(message.data, np.uint8).tobytes(), dtype)
     rows = raw.reshape(message.height, message.step // dtype.itemsize)[:, : message.width]
-    depth = rows.astype(np.float32)
-    if dtype.kind == "u":
-        depth /= np.float32(MM_PER_M)
+    depth = depth_metres(rows, MM_PER_M) if dtype.kind == "u" else rows.astype(np.float32)
     return np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
 
 

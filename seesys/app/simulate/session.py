@@ -51,11 +51,13 @@ from seesys.io.logfiles import CsvLog, write_json_atomically
 from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from seesys.io.session_files import utc_now
 from seesys.io.trajectory_files import write_tum
+from slam_monitor.device_worker import corrected_depth
 from slam_monitor.frame import Frame
 from slam_monitor.monitor import FeatureExtractor, MonitorInput, PreviousPose
 from slam_monitor.monitor_config import load_monitor_config
 from slam_monitor.orbslam_settings import SlamMode, build_settings, load_slam_config, vocabulary_path, write_settings
 from slam_monitor.session import SessionWriter, prepare_session_folder
+from slam_monitor.sources.base import depth_metres
 from slam_monitor.sources.settings import load_camera_config
 from slam_monitor.tracker import Tracker
 from study.estimates import ESTIMATE_COLUMNS, ESTIMATES_CSV
@@ -158,7 +160,7 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
     if refused:
         raise SeesysError(f"{model_path} was made for another device: {'; '.join(refused)}")
     advisory_cfg = load_advisory_config(config_dir)
-    depth_correction = np.float32(load_camera_config(config_dir).scale.depth_correction)
+    depth_correction = load_camera_config(config_dir).scale.depth_correction
     intrinsics = plan.told
     condition = Condition(participant.condition)
 
@@ -214,10 +216,9 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
                                    operator.trajectory(since=t - margin))
             depth = None
             if mode is SlamMode.RGBD:
-                depth = depth_png(images.depth_m, synth.camera.depth_factor).astype(np.float32)
-                depth /= np.float32(synth.camera.depth_factor)
-                if depth_correction != 1:
-                    depth *= depth_correction
+                # as the device reads the sequence's depth PNG, with the camera's correction
+                depth = corrected_depth(depth_metres(depth_png(images.depth_m, synth.camera.depth_factor),
+                                                     synth.camera.depth_factor), depth_correction)
             frame = Frame(k, stamp, images.gray, intrinsics, depth)
             output = tracker.track(frame)
             writer.write_frame(output)
