@@ -13,8 +13,9 @@ The attempt folder is written as ``seesys study run`` writes one (docs/study.md)
 ``events.csv`` (``initialised`` at the first tracked frame, ``object`` k when the operator finished scanning it),
 ``run.json``, and the renderer's ground truth as ``groundtruth.tum`` (the motion capture of a real study), so that
 ``seesys analyze`` reads it unchanged. ``operator.json`` records the simulated participant, ``task.json`` the room.
-Every row is flushed as written; on Ctrl-C the session ends ``interrupted``, on an error ``failed`` (with the error in
-``run.json`` and ``session.json``), its files final either way.
+Every row is flushed as written; told to stop (``stop``, checked before every frame, so that a stop never falls
+between a frame's rows and its count) or on Ctrl-C the session ends ``interrupted``, on an error ``failed`` (with
+the error in ``run.json`` and ``session.json``), its files final either way.
 """
 
 from __future__ import annotations
@@ -123,10 +124,11 @@ class _Advice:
 
 def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path, model_path: Path,
                      config_dir: Path | None = None, on_frame: Callable[[int, float], None] | None = None,
-                     ) -> SessionOutcome:
+                     stop: Callable[[], bool] | None = None) -> SessionOutcome:
     """Run one session into ``folder`` (created; an earlier session's files in it are replaced).
 
-    ``on_frame(frame_index, simulated_time)`` is called after every frame. Raises :class:`SeesysError` for a model
+    ``on_frame(frame_index, simulated_time)`` is called after every frame; the session ends ``interrupted`` before
+    the first frame at which ``stop()`` is true. Raises :class:`SeesysError` for a model
     made for another device (camera, resolution, features) or settings that cannot work."""
     synth = load_synth_config(config_dir)
     task_cfg, ranges, response = cfg.task, cfg.operator, cfg.response
@@ -207,8 +209,12 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
     status, frames, estimates, initialised, reported = "interrupted", 0, 0, False, 0
     error: str | None = None
     previous = PreviousPose()
+    stopped = False
     try:
         for k in range(count):
+            if stop is not None and stop():
+                stopped = True
+                break
             t = float(plan.frame_times[k])
             stamp = start_time + t
             operator.advance(t + margin)
@@ -253,7 +259,7 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
                 on_frame(k, t)
             if operator.done:
                 break
-        status = "completed" if operator.done else "timed_out"
+        status = "interrupted" if stopped else "completed" if operator.done else "timed_out"
     except KeyboardInterrupt:
         raise
     except BaseException as e:  # recorded as the device and the study record a failure, then passed on

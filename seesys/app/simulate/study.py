@@ -20,6 +20,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -114,10 +115,12 @@ def _session_process(cfg: SimulateConfig, participant: Participant, attempt: Pat
     """A session's process: ORB-SLAM3's console output into the attempt's log, progress to the parent."""
     import cv2
 
-    # Ctrl-C and SIGTERM end the session with its files final, even where the process was started with SIGINT
-    # ignored (a background job of a shell script).
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    # Ctrl-C and SIGTERM end the session at its next frame with its files final, even where the process was
+    # started with SIGINT ignored (a background job of a shell script). A flag, not KeyboardInterrupt: an exception
+    # could land between a frame's rows and its count, or in the closing of the files.
+    stop = threading.Event()
+    for number in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(number, lambda *_: stop.set())
     cv2.setNumThreads(1)  # parallelism is across sessions: OpenCV's own threads would only contend with them
     attempt.mkdir(parents=True, exist_ok=True)
     log = os.open(attempt / "orbslam3.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
@@ -133,10 +136,8 @@ def _session_process(cfg: SimulateConfig, participant: Participant, attempt: Pat
             progress.send(t)
 
     try:
-        outcome = simulate_session(cfg, participant, attempt, model, config_dir, on_frame)
+        outcome = simulate_session(cfg, participant, attempt, model, config_dir, on_frame, stop.is_set)
         progress.send(("done", outcome.status))
-    except KeyboardInterrupt:
-        progress.send(("done", "interrupted"))
     except SeesysError as e:
         progress.send(("error", str(e)))
         raise SystemExit(2) from None
