@@ -125,3 +125,7 @@ def test_sigint_ends_the_device_with_its_files_final(root):
     device_end = datetime.fromisoformat(manifest["end_time"]).timestamp()
     assert device_end - interrupted < 2.0, (device_end - interrupted, manifest)
     assert events.query("part == 'app' and event == 'stopped'").detail.iloc[0] == "interrupted"
+    # Until the first estimate the status lines say there is none (the advisory plays its cue meanwhile).
+    lines = [line for line in (root / "app.log").read_text().splitlines() if "| information " in line]
+    before = [line for line in lines if "| estimate – |" in line]
+    assert before and all("information NONE: " in line for line in before), before[:3]

@@ -50,6 +50,7 @@ from seesys.app.summary import TRACKED_STATES, write_summary
 from seesys.app.view import LiveView, ViewSetup
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
+from seesys.core.tracking_state import TrackingState
 from seesys.io.children import LOGS, Child, CsvTail, RowCounter
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.logfiles import CsvLog
@@ -334,7 +335,9 @@ class App:
 
     def _state_now(self) -> RunState:
         drops = self._drops(self.watcher) if self.watcher is not None else StreamDrops()
-        lacking = self.information.lacking(time.monotonic())
+        # Before the first input there is no information, whatever start-up allowance the clock gives the summary:
+        # the view must not say "fresh estimates" while the advisory plays its no-information cue.
+        lacking = not self._inputs_seen or self.information.lacking(time.monotonic())
         return RunState(self._parts_now(), drops, self._why_no_information() if lacking else "")
 
     def _why_no_information(self) -> str:
@@ -352,7 +355,7 @@ class App:
             if grown:
                 return "estimator dropped " + ", ".join(f"{r} {n}" for r, n in grown.items())
         state = self.view.snapshot.state if self.view is not None else ""
-        if state and state not in TRACKED_STATES:
+        if state in TrackingState.__members__ and state not in TRACKED_STATES:  # not the view's "starting"
             return f"tracking {state}"
         if self.o.condition is Condition.ROTATION:
             return "no tracked frames from the device"
