@@ -143,18 +143,15 @@ def write_config_dir(destination: Path, overrides: dict[str, object]) -> Path:
     texts = {source.stem: source.read_text() for source in sources}
     for name, value in overrides.items():
         stem, _, key = name.rpartition(".")
-        where = [s for s in ([stem] if stem else texts) if s in texts and _key_line(key).search(texts[s])]
+        line = re.compile(rf"^{re.escape(key)} = .*$", re.MULTILINE)
+        where = [s for s in ([stem] if stem else texts) if s in texts and line.search(texts[s])]
         if not where:
             raise KeyError(f"no such configuration key: {name}")
         if len(where) > 1:
             raise KeyError(f"configuration key {key} is in {', '.join(f'{s}.toml' for s in where)}: "
                            f"name it as {where[0]}.{key} (file.key)")
-        texts[where[0]] = _key_line(key).sub(lambda _: f"{key} = {json.dumps(value)}", texts[where[0]], count=1)
+        texts[where[0]] = line.sub(lambda _: f"{key} = {json.dumps(value)}", texts[where[0]], count=1)
     destination.mkdir(parents=True, exist_ok=True)
     for source in sources:
         (destination / source.name).write_text(texts[source.stem])
     return destination
-
-
-def _key_line(key: str) -> re.Pattern[str]:
-    return re.compile(rf"^{re.escape(key)} = .*$", re.MULTILINE)
