@@ -9,9 +9,10 @@ with other work, CPU % and latency differences between runs are dominated by tha
 thread's CPU time per frame is the figure that stays put. Configurations alternate run by run so that slow drifts in
 machine load hit all of them alike.
 
-In RGB-D mode it also times the depth-quality channels alone (``slam_monitor.depth_features``, schema v2) on every
-frame of the source, in this process: wall and thread CPU time per frame, the part of the monitor's per-frame cost
-they add.
+In RGB-D mode it also times the depth-quality channels alone (``slam_monitor.depth_features``, schema v3) on every
+frame of the source, in this process, fed the source's ground-truth motion as the tracked motion (a source without
+ground truth: none, so ``depth_registration`` does not fit): wall and thread CPU time per frame, the part of the
+monitor's per-frame cost they add.
 
     .venv/bin/python benchmarks/monitor_overhead.py [--source tum:data/sample] [--mode rgbd] [--runs 3]
 """
@@ -37,7 +38,8 @@ from rich.table import Table
 
 from seesys.core.session_layout import FRAMES_CSV
 from seesys.io.network import load_network_config
-from slam_monitor.depth_features import depth_features
+from seesys.io.trajectory_files import read_tum
+from slam_monitor.depth_features import DepthQuality
 from slam_monitor.device_worker import ObserverSpec, SessionOptions, run_device_session
 from slam_monitor.monitor import MONITOR_STATS_JSON
 from slam_monitor.monitor_commands import MONITOR_FACTORY
@@ -180,16 +182,31 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
     return figures
 
 
+def _ground_truth_poses(source: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """Timestamps and 4×4 T_world_camera of a TUM folder's ``groundtruth.txt``; None without one."""
+    path = Path(source.split(":", 1)[1]) / "groundtruth.txt"
+    if not path.is_file():
+        return None
+    poses = read_tum(path)
+    return poses.timestamps, poses.matrices
+
+
 def depth_channel_cost(source: str, repeats: int, console: Console) -> dict:
-    """Wall and thread CPU ms per frame of the depth-quality channels on every frame of ``source``."""
+    """Wall and thread CPU ms per frame of the depth-quality channels on every frame of ``source``: ``repeats``
+    sessions' channels side by side (each its own registration fit), every frame once to each."""
     cfg = load_monitor_config().depth
-    wall, cpu = [], []
+    sessions = [DepthQuality(cfg) for _ in range(repeats)]
+    truth = _ground_truth_poses(source)
+    wall, cpu, previous = [], [], None
     with open_source(parse_source_spec(source), load_camera_config(), with_depth=True) as frames:
         for frame in frames.frames():
             intr = frame.intrinsics
-            for _ in range(repeats):
+            pose = truth[1][np.argmin(np.abs(truth[0] - frame.timestamp))] if truth is not None else None
+            moved = np.linalg.inv(previous) @ pose if pose is not None and previous is not None else None
+            previous = pose
+            for session in sessions:
                 start, start_cpu = time.perf_counter(), time.thread_time()
-                depth_features(frame.depth, frame.gray, intr.fx, intr.fy, cfg)
+                session.frame(frame.depth, frame.gray, intr, moved)
                 wall.append((time.perf_counter() - start) * 1000.0)
                 cpu.append((time.thread_time() - start_cpu) * 1000.0)
     figures = {"depth_channels_ms_median": float(np.median(wall)), "depth_channels_ms_p90": float(np.percentile(wall, 90)),

@@ -16,14 +16,24 @@ placed to the pixel, on short full-resolution segments around the edges found th
   leaving out those that span a depth edge (|Δ²w| above ``edge_jump`` of w); curved surfaces, a minority, do not
   move a median. Active-stereo noise (σ_z ∝ z²) gives the same value at every distance; disparity quantisation
   (steps constant in disparity, so in w) shows here too.
-- ``depth_edge_offset``: how far depth discontinuities sit from the colour edges they coincide with in the
-  scene, in focal lengths (pixels / f, i.e. radians). Where neighbours of the subsampled grid differ in depth by
-  more than ``edge_jump`` (relative), the jump is placed on the full-resolution depth row (or column) and the
-  strongest gray-level step within ``search_px`` of it on the gray image (to a sub-pixel by a parabola); the
-  channel is the length of the median signed offset (median along x over row crossings, along y over column
-  crossings, divided by fx and fy). A misregistration, an unregistered depth camera or depth captured later than
-  colour moves every depth edge the same way; texture beside an edge scatters both ways and cancels in the
-  median. NaN with fewer than ``min_edges`` crossings.
+- ``depth_registration``: how far depth discontinuities sit from the colour edges they coincide with in the
+  scene, in focal lengths (pixels / f, i.e. radians), once the camera's motion is accounted for. Where neighbours of
+  the subsampled grid differ in depth by more than ``edge_jump`` (relative) and the full-resolution depth row (or
+  column) between them makes that change in one sharp step (at least ``edge_sharpness`` of it: noise on a far
+  surface spreads its change over several pixels), the jump is placed there and the strongest gray-level step
+  within ``search_px`` of it on the gray image (to a sub-pixel by a parabola); each crossing's signed offset is the
+  depth edge's position minus the colour edge's. Two things move a depth edge off its colour edge: a
+  misregistration (a calibration error, an unregistered depth camera: the same shift on every frame) and depth
+  captured at another moment than colour (unsynchronised streams, a rolling colour shutter: a shift along the
+  image motion, so it swings with every turn of the camera and cancels a misregistration on some frames). The
+  channel separates them with a robust fit over the last ``registration_frames`` frames: offset = m_axis +
+  flow · (a + b · row), with flow the crossing's image motion since the previous frame (px/frame, from the
+  tracked relative pose and the crossing's depth), a the streams' time offset and b a rolling shutter's readout,
+  both in frames; the channel is |m| over the focal lengths. Texture beside an edge scatters both ways and a Huber
+  weight (``registration_huber_px``) keeps it from the fit; crossings moving faster than
+  ``registration_max_flow_px`` are left out (their depth edge may lie beyond the colour edge search, and blur
+  smears the colour edge). NaN until the window holds ``min_registration_crossings`` crossings along each axis
+  on tracked frames.
 
 In monocular mode there is no depth image and every channel is NaN.
 
@@ -40,8 +50,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from seesys.core.camera import Intrinsics
+
 # median(|x|) = 0.6745 σ for a normal x; a second difference of independent noise of σ has σ·√6.
 _SECOND_DIFFERENCE_MAD = 0.6745 * np.sqrt(6.0)
+# Added to the fit's time-offset terms (px², i.e. one crossing moving 1 px a frame): it keeps the system solvable
+# while the camera holds still (no flow), where the offsets are the misregistration alone; any motion outweighs it.
+_TIME_TERM_RIDGE = 1.0
 
 
 @dataclass(frozen=True)
@@ -50,28 +65,58 @@ class DepthQualityConfig:
 
     stride: int
     edge_jump: float
+    edge_sharpness: float
     search_px: int
     max_edges: int
-    min_edges: int
+    registration_frames: int
+    registration_huber_px: float
+    registration_max_flow_px: float
+    min_registration_crossings: int
 
     def __post_init__(self) -> None:
-        if self.stride < 1 or self.search_px < 1 or self.max_edges < 1 or self.min_edges < 1:
-            raise ValueError(f"stride, search_px, max_edges and min_edges must be at least 1: {self}")
+        if min(self.stride, self.search_px, self.max_edges, self.registration_frames,
+               self.min_registration_crossings) < 1:
+            raise ValueError("stride, search_px, max_edges, registration_frames and min_registration_crossings must "
+                             f"be at least 1: {self}")
         if not 0 < self.edge_jump < 1:
             raise ValueError(f"edge_jump is a relative depth jump in (0, 1): {self}")
+        if not 0 <= self.edge_sharpness <= 1:
+            raise ValueError(f"edge_sharpness is a share of a jump's depth change in [0, 1]: {self}")
+        if not (self.registration_huber_px > 0 and self.registration_max_flow_px > 0):
+            raise ValueError(f"registration_huber_px and registration_max_flow_px must be positive: {self}")
 
 
 @dataclass(frozen=True)
 class DepthFeatures:
     depth_holes: float
     depth_noise: float
-    depth_edge_offset: float
+    depth_registration: float
 
     @classmethod
     def absent(cls) -> DepthFeatures:
         """No depth image (monocular): every channel unknown."""
         nan = float("nan")
         return cls(nan, nan, nan)
+
+
+@dataclass(frozen=True)
+class EdgeCrossings:
+    """The depth edges of one frame placed against their colour edges, one entry per crossing.
+
+    ``offset_px``: depth edge minus colour edge along the crossing's axis (x for a crossing found along a row,
+    y along a column); ``u``, ``v``: the depth edge's pixel position; ``z``: the nearer side's depth (m), the
+    surface whose outline the edge is; ``along_y``: True for crossings found along a column."""
+
+    offset_px: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    z: np.ndarray
+    along_y: np.ndarray
+
+    @classmethod
+    def none(cls) -> EdgeCrossings:
+        empty = np.zeros(0)
+        return cls(empty, empty, empty, empty, np.zeros(0, dtype=bool))
 
 
 def _inverse_depth(depth: np.ndarray) -> np.ndarray:
@@ -116,15 +161,15 @@ def _evenly(index: tuple[np.ndarray, np.ndarray], most: int) -> tuple[np.ndarray
     return rows, cols
 
 
-def edge_offsets(depth: np.ndarray, gray: np.ndarray, w_sub: np.ndarray,
-                 cfg: DepthQualityConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Signed offsets, in pixels, from each depth jump to the strongest gray step near it: of the jumps between
-    horizontal neighbours of ``w_sub`` (the inverse depth subsampled by ``cfg.stride``) along the rows, and of those
-    between vertical neighbours along the columns; positive = the depth edge lies right of (below) the colour edge.
+def edge_crossings(depth: np.ndarray, gray: np.ndarray, w_sub: np.ndarray, cfg: DepthQualityConfig) -> EdgeCrossings:
+    """Each sharp depth jump between horizontal neighbours of ``w_sub`` (the inverse depth subsampled by
+    ``cfg.stride``), placed along its full-resolution row, and each between vertical neighbours, along its column,
+    with the strongest gray step near it.
 
-    Each jump is a short line through the full-resolution images (a row or a column), handled in one pass through
-    flat indices: the largest depth step between the two subsampled pixels is the depth edge, at its middle; the
-    largest gray-level step within ``search_px`` of it is the colour edge."""
+    Each jump is a short line through the full-resolution images, handled in one pass through flat indices: the
+    largest depth step between the two subsampled pixels is the depth edge, at its middle, kept only where it makes
+    ``cfg.edge_sharpness`` of the line's whole change; the largest gray-level step within ``search_px`` of it is the
+    colour edge."""
     s, r = cfg.stride, cfg.search_px
     height, width = depth.shape
     first = s // 2  # the subsampled grid's first full-resolution pixel
@@ -135,45 +180,121 @@ def edge_offsets(depth: np.ndarray, gray: np.ndarray, w_sub: np.ndarray,
     rows_y, cols_y = _evenly(np.nonzero(across_y), cfg.max_edges)
     n_x = rows_x.size
     if n_x + rows_y.size == 0:
-        return np.zeros(0), np.zeros(0)
+        return EdgeCrossings.none()
     # Per line: where the subsampled pair starts along it, its flat offset across, one pixel's flat step, its length.
     start = first + np.concatenate([cols_x, rows_y]) * s
-    across = np.concatenate([(first + rows_x * s) * width, first + cols_y * s])
+    fixed = np.concatenate([first + rows_x * s, first + cols_y * s])  # the row (column) the line runs along
+    across = np.concatenate([fixed[:n_x] * width, fixed[n_x:]])
     step = np.concatenate([np.ones(n_x, np.intp), np.full(rows_y.size, width, np.intp)])[:, None]
     last = np.concatenate([np.full(n_x, width - 1), np.full(rows_y.size, height - 1)])[:, None]
     flat_depth, flat_gray = depth.ravel(), gray.ravel()
     segment = flat_depth[across[:, None] + np.minimum(start[:, None] + np.arange(s + 1), last) * step]
     steps = np.abs(np.diff(segment, axis=1))
     steps[(segment[:, :-1] <= 0) | (segment[:, 1:] <= 0)] = 0.0  # a hole is not an edge position
-    at_depth = start + np.argmax(steps, axis=1) + 0.5
+    k = np.argmax(steps, axis=1)
+    lines = np.arange(k.size)
+    jump = steps[lines, k]
+    near = np.minimum(segment[lines, k], segment[lines, k + 1])
+    sharp = (jump > 0) & (jump >= cfg.edge_sharpness * np.abs(segment[:, -1] - segment[:, 0]))
+    at_depth = start + k + 0.5
     base = np.floor(at_depth).astype(np.intp)
     around = base[:, None] + np.arange(-r, r + 1)
     inside = (around >= 0) & (around < last)
     index = across[:, None] + np.clip(around, 0, last - 1) * step
     strength = np.where(inside, np.abs(flat_gray[index + step].astype(np.float32) - flat_gray[index]), 0.0)
     offsets = at_depth - (base - r + _peak(strength) + 0.5)
-    return offsets[:n_x], offsets[n_x:]
+    along_y = np.arange(k.size) >= n_x
+    u = np.where(along_y, fixed, at_depth)
+    v = np.where(along_y, at_depth, fixed)
+    return EdgeCrossings(offsets[sharp], u[sharp], v[sharp], near[sharp].astype(np.float64), along_y[sharp])
 
 
-def depth_features(depth: np.ndarray | None, gray: np.ndarray, fx: float, fy: float,
-                   cfg: DepthQualityConfig) -> DepthFeatures:
-    """The depth-quality channels of one frame.
+def image_motion_px(crossings: EdgeCrossings, intrinsics: Intrinsics, previous_from_current: np.ndarray) -> np.ndarray:
+    """Each crossing's image motion since the previous frame along its axis (px/frame): its point (pixel and
+    depth) moved into the previous camera by ``previous_from_current`` (4×4, T_prev_cur = T_w_prev⁻¹ · T_w_cur)
+    and projected there."""
+    k = intrinsics
+    points = np.stack([(crossings.u - k.cx) / k.fx * crossings.z, (crossings.v - k.cy) / k.fy * crossings.z,
+                       crossings.z])
+    before = previous_from_current[:3, :3] @ points + previous_from_current[:3, 3:4]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u_before = k.fx * before[0] / before[2] + k.cx
+        v_before = k.fy * before[1] / before[2] + k.cy
+    motion = np.where(crossings.along_y, crossings.v - v_before, crossings.u - u_before)
+    return np.where(before[2] > 0, motion, np.nan)
 
-    ``depth``: (H, W) float32 metres aligned to ``gray`` (0 = unknown), or None (monocular: all NaN)."""
-    if depth is None:
-        return DepthFeatures.absent()
-    if depth.shape != gray.shape:
-        raise ValueError(f"depth {depth.shape} is not aligned to the gray frame {gray.shape}")
-    s = cfg.stride
-    w_sub = _inverse_depth(depth[s // 2::s, s // 2::s])
-    # Sources write 0 where there is no depth (Frame); counting non-zero pixels is the cheapest full-frame pass.
-    holes = 1.0 - cv2.countNonZero(depth) / depth.size
-    noise = noise_over_z2(w_sub, cfg.edge_jump)
-    along_x, along_y = edge_offsets(depth, gray, w_sub, cfg)
-    if along_x.size + along_y.size < cfg.min_edges:
-        edge_offset = float("nan")
-    else:
-        mx = float(np.median(along_x)) / fx if along_x.size else 0.0
-        my = float(np.median(along_y)) / fy if along_y.size else 0.0
-        edge_offset = float(np.hypot(mx, my))
-    return DepthFeatures(holes, noise, edge_offset)
+
+class RegistrationFit:
+    """The robust fit behind ``depth_registration`` over the last ``registration_frames`` frames (see the module
+    docstring): offset = m_x · [along x] + m_y · [along y] + flow · (a + b · (row / height − ½)).
+
+    Each frame adds its crossings' normal equations, weighted by a Huber weight of their residuals to the fit so
+    far, so a frame costs one pass over its own crossings, a sum of the window's 4×4 matrices and a 4×4 solve."""
+
+    def __init__(self, cfg: DepthQualityConfig) -> None:
+        self._cfg = cfg
+        # Per frame of the window (a ring, slot = frame count mod window): its normal equations and its crossings
+        # along x and along y.
+        self._normal = np.zeros((cfg.registration_frames, 4, 4))
+        self._rhs = np.zeros((cfg.registration_frames, 4))
+        self._counts = np.zeros((cfg.registration_frames, 2), dtype=np.int64)
+        self._slot = 0
+        self._params = np.zeros(4)
+
+    def update(self, crossings: EdgeCrossings, motion_px: np.ndarray | None, height: int) -> tuple[float, float]:
+        """Add one frame (``motion_px`` None: no tracked pose, the frame adds nothing but still counts in the
+        window) and return the misregistration (m_x, m_y) in pixels, NaN while the window holds too few crossings
+        along either axis."""
+        slot = self._slot
+        self._slot = (slot + 1) % self._cfg.registration_frames
+        self._normal[slot], self._rhs[slot], self._counts[slot] = 0.0, 0.0, 0
+        if motion_px is not None and crossings.offset_px.size:
+            # A crossing moving fast may have its colour edge outside the search (and blurred): left out.
+            known = np.abs(motion_px) <= self._cfg.registration_max_flow_px
+            along_y, flow = crossings.along_y[known], motion_px[known]
+            design = np.stack([~along_y, along_y, flow, flow * (crossings.v[known] / height - 0.5)], axis=1)
+            design = design.astype(np.float64)
+            offsets = crossings.offset_px[known]
+            residual = np.abs(offsets - design @ self._params)
+            huber = self._cfg.registration_huber_px
+            weight = np.where(residual <= huber, 1.0, huber / np.maximum(residual, huber))
+            weighted = design * weight[:, None]
+            self._normal[slot], self._rhs[slot] = weighted.T @ design, weighted.T @ offsets
+            self._counts[slot] = (along_y.size - int(along_y.sum()), int(along_y.sum()))
+        if (self._counts.sum(axis=0) < self._cfg.min_registration_crossings).any():
+            return float("nan"), float("nan")
+        normal = self._normal.sum(axis=0)
+        normal[2:, 2:] += _TIME_TERM_RIDGE * np.eye(2)
+        self._params = np.linalg.solve(normal, self._rhs.sum(axis=0))
+        return float(self._params[0]), float(self._params[1])
+
+
+class DepthQuality:
+    """The depth-quality channels of one session's frames, in frame order (``depth_registration`` fits over the
+    recent frames: one instance per session)."""
+
+    def __init__(self, cfg: DepthQualityConfig) -> None:
+        self._cfg = cfg
+        self._registration = RegistrationFit(cfg)
+
+    def frame(self, depth: np.ndarray | None, gray: np.ndarray, intrinsics: Intrinsics,
+              previous_from_current: np.ndarray | None) -> DepthFeatures:
+        """The channels of one frame.
+
+        ``depth``: (H, W) float32 metres aligned to ``gray`` (0 = unknown), or None (monocular: all NaN);
+        ``previous_from_current``: the tracked motion since the previous frame (4×4 T_prev_cur), None when either
+        frame has no tracked pose. Raises ValueError when ``depth`` is not the shape of ``gray``."""
+        if depth is None:
+            return DepthFeatures.absent()
+        if depth.shape != gray.shape:
+            raise ValueError(f"depth {depth.shape} is not aligned to the gray frame {gray.shape}")
+        s = self._cfg.stride
+        w_sub = _inverse_depth(depth[s // 2::s, s // 2::s])
+        # Sources write 0 where there is no depth (Frame); counting non-zero pixels is the cheapest full-frame pass.
+        holes = 1.0 - cv2.countNonZero(depth) / depth.size
+        noise = noise_over_z2(w_sub, self._cfg.edge_jump)
+        crossings = edge_crossings(depth, gray, w_sub, self._cfg)
+        motion = (image_motion_px(crossings, intrinsics, previous_from_current)
+                  if previous_from_current is not None else None)
+        m_x, m_y = self._registration.update(crossings, motion, depth.shape[0])
+        return DepthFeatures(holes, noise, float(np.hypot(m_x / intrinsics.fx, m_y / intrinsics.fy)))

@@ -39,7 +39,7 @@ from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_device_settings
 from seesys.io.network import load_network_config
 from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
-from slam_monitor.depth_features import depth_features
+from slam_monitor.depth_features import DepthQuality
 from slam_monitor.frame import Frame
 from slam_monitor.image_features import image_features, keypoint_responses, reference_scale
 from slam_monitor.local_map import LocalMap
@@ -107,6 +107,7 @@ class FeatureExtractor:
         reference = config.reference_camera
         self._geometry = PsdGeometry(reference.width, reference.height, config.psd.patch_px, config.psd.expansion)
         self._normalisation: CameraNormalisation | None = None
+        self._depth_quality = DepthQuality(config.depth)
 
     def _normalised(self, intrinsics: Intrinsics) -> CameraNormalisation:
         if self._normalisation is None or self._normalisation.camera != intrinsics:
@@ -139,7 +140,9 @@ class FeatureExtractor:
                 width=intr.width, height=intr.height, match_gate_px=cfg.features.match_gate_px,
                 min_depth=cfg.features.min_depth)
             channels.update(_slam_channels(slam, normalisation))
-        channels.update(vars(depth_features(frame.depth, frame.gray, intr.fx, intr.fy, cfg.depth)))
+        moved = (np.linalg.inv(item.prev_pose_wc) @ item.pose_wc
+                 if item.pose_wc is not None and item.prev_pose_wc is not None and not item.map_changed else None)
+        channels.update(vars(self._depth_quality.frame(frame.depth, frame.gray, intr, moved)))
 
         psd = self._psd(item, slam, normalisation, reference_gray) if cfg.windows.is_psd_frame(index) else None
         rts = np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32)

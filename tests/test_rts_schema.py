@@ -76,6 +76,10 @@ def test_a_model_takes_its_own_channels_from_a_later_schemas_rows():
     with pytest.raises(rts_schema.SchemaMismatch, match="model.onnx takes RTS channels this SEESys does not have: "
                                                         "sonar_range"):
         rts_schema.columns_of([*names, "sonar_range"], 0, "model.onnx")
+    # Schema v3 replaced v2's per-frame depth_edge_offset: a model that took it is refused, not fed the new channel.
+    v2_names = [*names, "depth_holes", "depth_noise", "depth_edge_offset"]
+    with pytest.raises(rts_schema.SchemaMismatch, match="does not have: depth_edge_offset"):
+        rts_schema.columns_of(v2_names, 0xC231583F, "v2.onnx")
     with pytest.raises(rts_schema.SchemaMismatch, match="model.onnx takes RTS channels brightness, contrast "
                                                         "defined otherwise"):
         rts_schema.columns_of(names[:2], 0x1234, "model.onnx")

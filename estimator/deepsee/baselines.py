@@ -27,14 +27,20 @@ def window_statistics(rts: np.ndarray) -> np.ndarray:
 
 def fit_random_forest(rts: np.ndarray, targets: np.ndarray, config: RandomForestConfig, seed: int,
                       jobs: int) -> RandomForestRegressor:
-    """Fit on at most ``max_train_samples`` windows (a seeded subset). Serve with ``n_jobs=1``: at batch 1 the
-    joblib dispatch of more jobs costs more than the trees."""
-    index = np.arange(len(rts))
-    if 0 < config.max_train_samples < len(rts):
-        index = np.sort(np.random.default_rng(seed).choice(len(rts), config.max_train_samples, replace=False))
+    """The forest on the :func:`window_statistics` of (N, T, C) normalised windows (:func:`fit_forest`)."""
+    return fit_forest(window_statistics(rts), targets, config, seed, jobs)
+
+
+def fit_forest(features: np.ndarray, targets: np.ndarray, config: RandomForestConfig, seed: int,
+               jobs: int) -> RandomForestRegressor:
+    """Fit on the (N, F) ``features`` of at most ``max_train_samples`` windows (a seeded subset). Serve with
+    ``n_jobs=1``: at batch 1 the joblib dispatch of more jobs costs more than the trees."""
+    index = np.arange(len(features))
+    if 0 < config.max_train_samples < len(features):
+        index = np.sort(np.random.default_rng(seed).choice(len(features), config.max_train_samples, replace=False))
     forest = RandomForestRegressor(n_estimators=config.trees, min_samples_leaf=config.min_samples_leaf,
                                    max_features=config.max_features, n_jobs=jobs, random_state=seed)
-    forest.fit(window_statistics(rts[index]), targets[index])
+    forest.fit(features[index], targets[index])
     forest.set_params(n_jobs=1)
     return forest
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from seesys.core.errors import SeesysError
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -94,9 +94,9 @@ CHANNELS: tuple[Channel, ...] = (
             "share of the depth image's pixels with no depth (RGB-D only)", "identity", 0.2),
     Channel("depth_noise", "depth", "1/m",
             "depth noise sigma_z / z^2, from second differences of inverse depth (RGB-D only)", "identity", 0.005),
-    Channel("depth_edge_offset", "depth", "rad (px / focal length)",
-            "median offset of depth edges from the nearest strong colour edge, over the focal length (RGB-D only)",
-            "identity", 0.005),
+    Channel("depth_registration", "depth", "rad (px / focal length)",
+            "offset of depth edges from the colour edges they outline that does not follow the image motion, over "
+            "the focal length: a fit over the recent frames (RGB-D only)", "identity", 0.005),
 )
 
 
@@ -107,7 +107,7 @@ def fingerprint(channels: tuple[Channel, ...]) -> int:
 
 
 #: The fingerprint of each released schema version.
-_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F}
+_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F, 3: 0x8490F111}
 FINGERPRINT = fingerprint(CHANNELS)
 if _FINGERPRINTS.get(SCHEMA_VERSION) != FINGERPRINT:
     raise RuntimeError(f"the RTS channel list changed (fingerprint {FINGERPRINT:#010x}) but SCHEMA_VERSION is still "

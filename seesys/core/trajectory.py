@@ -58,6 +58,14 @@ class Poses:
         """R_world_camera of every pose (scipy)."""
         return Rotation.from_quat(self.quaternions_xyzw)
 
+    @property
+    def matrices(self) -> np.ndarray:
+        """T_world_camera of every pose as a 4×4 matrix (N, 4, 4)."""
+        m = np.tile(np.eye(4), (len(self), 1, 1))
+        m[:, :3, :3] = self.rotations.as_matrix()
+        m[:, :3, 3] = self.positions
+        return m
+
     def take(self, index: np.ndarray | slice) -> Poses:
         """The poses at ``index`` (an index array, a boolean mask or a slice)."""
         return Poses(self.timestamps[index], self.positions[index], self.quaternions_xyzw[index])

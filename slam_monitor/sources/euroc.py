@@ -57,10 +57,7 @@ class EurocSource(FrameSource):
         if not path.is_file():
             return None
         body = read_euroc_groundtruth(path)
-        world_body = np.tile(np.eye(4), (len(body), 1, 1))
-        world_body[:, :3, :3] = body.rotations.as_matrix()
-        world_body[:, :3, 3] = body.positions
-        world_camera = world_body @ self._body_from_camera
+        world_camera = body.matrices @ self._body_from_camera
         return Poses.from_rotations(body.timestamps, world_camera[:, :3, 3],
                                     Rotation.from_matrix(world_camera[:, :3, :3]))
 

@@ -57,14 +57,6 @@ def to_matrix(rotation: Rotation, translation: np.ndarray) -> np.ndarray:
     return m
 
 
-def matrices(poses: Poses) -> np.ndarray:
-    """The 4x4 matrices (N, 4, 4) of ``poses``."""
-    m = np.tile(np.eye(4), (len(poses), 1, 1))
-    m[:, :3, :3] = poses.rotations.as_matrix()
-    m[:, :3, 3] = poses.positions
-    return m
-
-
 def stations(camera: Poses, mocap_on_camera_clock: Poses, cfg: CalibrationConfig) -> tuple[Poses, Poses]:
     """Camera poses every ``station_step_s`` inside the mocap's span, and the mocap poses at the same times."""
     camera = camera.sorted_unique()
@@ -86,7 +78,7 @@ def stations(camera: Poses, mocap_on_camera_clock: Poses, cfg: CalibrationConfig
 def calibrate_hand_eye(camera: Poses, mocap_on_camera_clock: Poses, cfg: CalibrationConfig) -> HandEye:
     """X = T_marker_camera from SLAM poses and time-aligned mocap poses (see the module docstring)."""
     cam, moc = stations(camera, mocap_on_camera_clock, cfg)
-    t_world_cam, t_vicon_marker = matrices(cam), matrices(moc)
+    t_world_cam, t_vicon_marker = cam.matrices, moc.matrices
     i, j = np.triu_indices(len(cam), k=1)
     keep = cam.timestamps[j] - cam.timestamps[i] <= cfg.max_pair_span_s
     i, j = i[keep], j[keep]
@@ -114,5 +106,5 @@ def calibrate_hand_eye(camera: Poses, mocap_on_camera_clock: Poses, cfg: Calibra
 def camera_ground_truth(mocap: Poses, marker_camera: np.ndarray, offset_s: float) -> Poses:
     """The mocap trajectory as camera poses on the camera clock: T_vicon_camera = T_vicon_marker X at
     ``t_mocap + offset_s``."""
-    m = matrices(mocap) @ marker_camera
+    m = mocap.matrices @ marker_camera
     return Poses.from_rotations(mocap.timestamps + offset_s, m[:, :3, 3], Rotation.from_matrix(m[:, :3, :3]))
