@@ -192,10 +192,11 @@ def edge_crossings(depth: np.ndarray, gray: np.ndarray, w_sub: np.ndarray, cfg: 
     steps = np.abs(np.diff(segment, axis=1))
     steps[(segment[:, :-1] <= 0) | (segment[:, 1:] <= 0)] = 0.0  # a hole is not an edge position
     k = np.argmax(steps, axis=1)
-    lines = np.arange(k.size)
-    jump = steps[lines, k]
-    near = np.minimum(segment[lines, k], segment[lines, k + 1])
-    sharp = (jump > 0) & (jump >= cfg.edge_sharpness * np.abs(segment[:, -1] - segment[:, 0]))
+    jump = steps[np.arange(k.size), k]
+    # Only sharp jumps go on to the colour search.
+    sharp = np.flatnonzero((jump > 0) & (jump >= cfg.edge_sharpness * np.abs(segment[:, -1] - segment[:, 0])))
+    k, start, across, fixed, step, last = k[sharp], start[sharp], across[sharp], fixed[sharp], step[sharp], last[sharp]
+    near = np.minimum(segment[sharp, k], segment[sharp, k + 1])
     at_depth = start + k + 0.5
     base = np.floor(at_depth).astype(np.intp)
     around = base[:, None] + np.arange(-r, r + 1)
@@ -203,10 +204,10 @@ def edge_crossings(depth: np.ndarray, gray: np.ndarray, w_sub: np.ndarray, cfg: 
     index = across[:, None] + np.clip(around, 0, last - 1) * step
     strength = np.where(inside, np.abs(flat_gray[index + step].astype(np.float32) - flat_gray[index]), 0.0)
     offsets = at_depth - (base - r + _peak(strength) + 0.5)
-    along_y = np.arange(k.size) >= n_x
+    along_y = sharp >= n_x
     u = np.where(along_y, fixed, at_depth)
     v = np.where(along_y, at_depth, fixed)
-    return EdgeCrossings(offsets[sharp], u[sharp], v[sharp], near[sharp].astype(np.float64), along_y[sharp])
+    return EdgeCrossings(offsets, u, v, near.astype(np.float64), along_y)
 
 
 def image_motion_px(crossings: EdgeCrossings, intrinsics: Intrinsics, previous_from_current: np.ndarray) -> np.ndarray:
@@ -252,15 +253,16 @@ class RegistrationFit:
             # A crossing moving fast may have its colour edge outside the search (and blurred): left out.
             known = np.abs(motion_px) <= self._cfg.registration_max_flow_px
             along_y, flow = crossings.along_y[known], motion_px[known]
-            design = np.stack([~along_y, along_y, flow, flow * (crossings.v[known] / height - 0.5)], axis=1)
-            design = design.astype(np.float64)
+            design = np.empty((flow.size, 4))
+            design[:, 0], design[:, 1], design[:, 2] = ~along_y, along_y, flow
+            np.multiply(flow, crossings.v[known] / height - 0.5, out=design[:, 3])
             offsets = crossings.offset_px[known]
-            residual = np.abs(offsets - design @ self._params)
+            # Huber: weight 1 within registration_huber_px of the fit so far, falling as 1/residual beyond.
             huber = self._cfg.registration_huber_px
-            weight = np.where(residual <= huber, 1.0, huber / np.maximum(residual, huber))
-            weighted = design * weight[:, None]
-            self._normal[slot], self._rhs[slot] = weighted.T @ design, weighted.T @ offsets
-            self._counts[slot] = (along_y.size - int(along_y.sum()), int(along_y.sum()))
+            weighted = design.T * (huber / np.maximum(np.abs(offsets - design @ self._params), huber))
+            self._normal[slot], self._rhs[slot] = weighted @ design, weighted @ offsets
+            along = int(np.count_nonzero(along_y))
+            self._counts[slot] = (along_y.size - along, along)
         if (self._counts.sum(axis=0) < self._cfg.min_registration_crossings).any():
             return float("nan"), float("nan")
         normal = self._normal.sum(axis=0)
@@ -290,8 +292,9 @@ class DepthQuality:
             raise ValueError(f"depth {depth.shape} is not aligned to the gray frame {gray.shape}")
         s = self._cfg.stride
         w_sub = _inverse_depth(depth[s // 2::s, s // 2::s])
-        # Sources write 0 where there is no depth (Frame); counting non-zero pixels is the cheapest full-frame pass.
-        holes = 1.0 - cv2.countNonZero(depth) / depth.size
+        # Sources write 0 where there is no depth (Frame); counting non-zero pixels is the cheapest full-frame pass,
+        # and counting them on the float32 image's bits (+0.0 is all zero bits) is 2-4 times faster than on floats.
+        holes = 1.0 - cv2.countNonZero(depth.view(np.int32)) / depth.size
         noise = noise_over_z2(w_sub, self._cfg.edge_jump)
         crossings = edge_crossings(depth, gray, w_sub, self._cfg)
         motion = (image_motion_px(crossings, intrinsics, previous_from_current)
