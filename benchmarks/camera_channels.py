@@ -44,7 +44,7 @@ from seesys.io.core_settings import load_label_config, load_pulse_settings, load
 from seesys.io.rts_log import read_rts_csv
 from seesys.io.session_files import read_manifest
 from seesys.io.session_labels import label_session
-from slam_monitor.depth_features import noise_over_z2
+from slam_monitor.depth_features import inverse_depth, noise_over_z2
 from slam_monitor.device_worker import ObserverSpec, SessionOptions
 from slam_monitor.monitor_commands import MONITOR_FACTORY
 from slam_monitor.monitor_config import load_monitor_config
@@ -113,9 +113,7 @@ def depth_grid(sequence: Path) -> np.ndarray:
         cells = []
         for band in np.array_split(depth, GRID[0], axis=0):
             for cell in np.array_split(band, GRID[1], axis=1):
-                sub = cell[s // 2::s, s // 2::s]
-                with np.errstate(divide="ignore"):
-                    w = np.where(sub > 0, 1.0 / sub, np.nan)
+                w = inverse_depth(cell[s // 2::s, s // 2::s])
                 cells += [float(np.mean(cell == 0)), noise_over_z2(w, depth_cfg.edge_jump)]
         rows.append(cells)
     return np.nan_to_num(np.array(rows))

@@ -38,7 +38,6 @@ from rich.table import Table
 
 from seesys.core.session_layout import FRAMES_CSV
 from seesys.io.network import load_network_config
-from seesys.io.trajectory_files import read_tum
 from slam_monitor.depth_features import DepthQuality
 from slam_monitor.device_worker import ObserverSpec, SessionOptions, run_device_session
 from slam_monitor.monitor import MONITOR_STATS_JSON
@@ -182,26 +181,18 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
     return figures
 
 
-def _ground_truth_poses(source: str) -> tuple[np.ndarray, np.ndarray] | None:
-    """Timestamps and 4×4 T_world_camera of a TUM folder's ``groundtruth.txt``; None without one."""
-    path = Path(source.split(":", 1)[1]) / "groundtruth.txt"
-    if not path.is_file():
-        return None
-    poses = read_tum(path)
-    return poses.timestamps, poses.matrices
-
-
 def depth_channel_cost(source: str, repeats: int, console: Console) -> dict:
     """Wall and thread CPU ms per frame of the depth-quality channels on every frame of ``source``: ``repeats``
     sessions' channels side by side (each its own registration fit), every frame once to each."""
     cfg = load_monitor_config().depth
     sessions = [DepthQuality(cfg) for _ in range(repeats)]
-    truth = _ground_truth_poses(source)
     wall, cpu, previous = [], [], None
     with open_source(parse_source_spec(source), load_camera_config(), with_depth=True) as frames:
+        truth = frames.ground_truth()
+        poses = truth.matrices if truth is not None else None
         for frame in frames.frames():
             intr = frame.intrinsics
-            pose = truth[1][np.argmin(np.abs(truth[0] - frame.timestamp))] if truth is not None else None
+            pose = poses[np.argmin(np.abs(truth.timestamps - frame.timestamp))] if poses is not None else None
             moved = np.linalg.inv(previous) @ pose if pose is not None and previous is not None else None
             previous = pose
             for session in sessions:

@@ -51,6 +51,7 @@ import cv2
 import numpy as np
 
 from seesys.core.camera import Intrinsics
+from slam_monitor.slam_features import project
 
 # median(|x|) = 0.6745 σ for a normal x; a second difference of independent noise of σ has σ·√6.
 _SECOND_DIFFERENCE_MAD = 0.6745 * np.sqrt(6.0)
@@ -119,7 +120,7 @@ class EdgeCrossings:
         return cls(empty, empty, empty, empty, np.zeros(0, dtype=bool))
 
 
-def _inverse_depth(depth: np.ndarray) -> np.ndarray:
+def inverse_depth(depth: np.ndarray) -> np.ndarray:
     """1/z, NaN where there is no depth."""
     with np.errstate(divide="ignore", invalid="ignore"):
         w = 1.0 / depth.astype(np.float32, copy=False)
@@ -217,12 +218,11 @@ def image_motion_px(crossings: EdgeCrossings, intrinsics: Intrinsics, previous_f
     k = intrinsics
     points = np.stack([(crossings.u - k.cx) / k.fx * crossings.z, (crossings.v - k.cy) / k.fy * crossings.z,
                        crossings.z])
-    before = previous_from_current[:3, :3] @ points + previous_from_current[:3, 3:4]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u_before = k.fx * before[0] / before[2] + k.cx
-        v_before = k.fy * before[1] / before[2] + k.cy
-    motion = np.where(crossings.along_y, crossings.v - v_before, crossings.u - u_before)
-    return np.where(before[2] > 0, motion, np.nan)
+    before = (previous_from_current[:3, :3] @ points + previous_from_current[:3, 3:4]).T
+    with np.errstate(divide="ignore", invalid="ignore"):  # a point behind the previous camera: NaN below
+        uv_before = project(before, k.matrix())
+    motion = np.where(crossings.along_y, crossings.v - uv_before[:, 1], crossings.u - uv_before[:, 0])
+    return np.where(before[:, 2] > 0, motion, np.nan)
 
 
 class RegistrationFit:
@@ -291,7 +291,7 @@ class DepthQuality:
         if depth.shape != gray.shape:
             raise ValueError(f"depth {depth.shape} is not aligned to the gray frame {gray.shape}")
         s = self._cfg.stride
-        w_sub = _inverse_depth(depth[s // 2::s, s // 2::s])
+        w_sub = inverse_depth(depth[s // 2::s, s // 2::s])
         # Sources write 0 where there is no depth (Frame); counting non-zero pixels is the cheapest full-frame pass,
         # and counting them on the float32 image's bits (+0.0 is all zero bits) is 2-4 times faster than on floats.
         holes = 1.0 - cv2.countNonZero(depth.view(np.int32)) / depth.size
