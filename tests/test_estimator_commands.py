@@ -41,7 +41,9 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
                  "--runs", str(trained_runs), "--rounds", "0", "--sessions", *map(str, other),
                  "--out", str(out)]) == 0
     report = (out / REPORT_MD).read_text()
-    for heading in ("## test trajectories", "## held-out environments", "## out-of-domain sessions"):
+    # The two sessions pooled, and each alone.
+    for heading in ("## test trajectories", "## held-out environments", "## out-of-domain sessions",
+                    "## session s0", "## session s1"):
         assert heading in report
     for label in ("| Baseline | Random Forest |", "| Baseline | LSTM |", "| Model Study | DeepSEE-w/o-PSD |",
                   "| DeepSEE | DeepSEE |"):
@@ -51,6 +53,9 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
         assert (out / png).stat().st_size > 5000 and f"]({png})" in report
     scores = pd.read_csv(out / "scores.csv")
     assert set(scores.row) == {"deepsee", "wo_psd", "lstm", "random_forest"}
+    by_session = scores[(scores.row == "deepsee") & scores.set.str.startswith("session ")].set_index("set").windows
+    pooled = scores[(scores.row == "deepsee") & (scores.set == "out-of-domain sessions")].windows.iloc[0]
+    assert set(by_session.index) == {"session s0", "session s1"} and by_session.sum() == pooled > 0
     deepsee = scores[(scores.row == "deepsee") & (scores.set == "test trajectories")].iloc[0]
     assert deepsee.windows > 100 and 0 < deepsee.rmse_cm < 2 and deepsee.spearman > 0.3
     assert 0 <= deepsee.agreement <= 1 and deepsee.bins > 10
@@ -59,6 +64,14 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     assert 0 <= deepsee.head_agreement <= 1
     assert scores[scores.row.isin(["lstm", "random_forest"])].head_agreement.isna().all()
     assert "head agreement | head recall ≥ 12 mm |" in report
+
+
+def test_two_out_of_domain_sessions_of_one_folder_name_are_refused(tmp_path):
+    from estimator.deepsee.evaluate import session_sets
+    from seesys.core.errors import SeesysError
+
+    with pytest.raises(SeesysError, match=r"two out-of-domain sessions share a folder name \(s, s\)"):
+        session_sets([tmp_path / "a" / "s", tmp_path / "b" / "s"], load_window_config())
 
 
 def test_ablation_rows_start_from_the_pretrained_encoders(trained_runs):

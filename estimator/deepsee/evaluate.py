@@ -4,8 +4,9 @@ Runs folder layout (``seesys estimator train-table``): ``RUNS/round_<r>/<row>/``
 ablations, the LSTM) or ``model.pkl`` (random forest). The test runs of a round are judged in two sets, never
 mixed: the *test trajectories* in the training environments, and the *held-out environments* (scenes no model
 saw); with held-out camera models (leave-one-camera-out splits), each held-out camera is a set of its own,
-``held-out camera NAME``, taken out of the other two. Labelled session folders given as out-of-domain data (another renderer, a real camera) are a third set,
-judged by every round's model.
+``held-out camera NAME``, taken out of the other two. Labelled session folders given as out-of-domain data (another
+renderer, a real camera) are a third set, judged by every round's model; with more than one session, each is also a
+set of its own, ``session NAME`` (its folder's name), so sessions of different cameras are not only seen pooled.
 """
 
 from __future__ import annotations
@@ -57,6 +58,21 @@ def heldout_camera_set(camera: str) -> str:
     return f"held-out camera {camera}"
 
 
+def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windows]:
+    """The out-of-domain sets of labelled session folders: all pooled, and each alone when there are several."""
+    if not sessions:
+        return {}
+    names = [Path(s).name for s in sessions]
+    if len(set(names)) != len(names):
+        raise SeesysError(f"two out-of-domain sessions share a folder name ({', '.join(names)}): each is reported "
+                          "under its folder's name, give folders with distinct names")
+    each = [session_windows(s, windows, labelled=True) for s in sessions]
+    sets = {OUT_OF_DOMAIN: concat(each)}
+    if len(each) > 1:
+        sets.update({f"session {name}": data for name, data in zip(names, each)})
+    return sets
+
+
 def _sets(test: Windows, splits: Splits) -> dict[str, Windows]:
     """The test windows of a round by set: the test trajectories, the held-out environments and each held-out
     camera (through which a held-out environment's run counts for its camera)."""
@@ -74,7 +90,7 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
              config: EstimatorConfig, pulses: PulseSettings, windows: WindowConfig,
              device: torch.device) -> Evaluation:
     transform = LabelTransform(config.label_transform.k)
-    other = concat([session_windows(s, windows, labelled=True) for s in sessions]) if sessions else None
+    other = session_sets(sessions, windows)
     scores, predictions = [], []
     for r in rounds:
         folder = round_folder(runs, r)
@@ -83,8 +99,7 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
         if not trained:
             raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
         sets = _sets(split_windows(roots, splits, r, ("test",))["test"], splits)
-        if other is not None:
-            sets[OUT_OF_DOMAIN] = other
+        sets.update(other)
         for row, path in trained:
             predictor = load_predictor(path, transform, config.evaluation.batch_size, device, windows)
             for name, data in sets.items():
