@@ -223,7 +223,9 @@ def test_the_app_says_at_start_the_camera_scale_error_and_the_cameras_its_model_
     manifest = json.loads((out / "session.json").read_text())
     assert manifest["config"]["camera"]["scale"]["depth_correction"] == CORRECTION  # the device applied it
     model = events(out).query("part == 'app' and event == 'model'").detail
-    assert len(model) == 1 and "deepsee.onnx was trained or fine-tuned on the cameras: ideal;" in model.iloc[0]
+    assert len(model) == 1, model
+    assert "deepsee.onnx was trained or fine-tuned on the cameras: d435, d435_unaligned, ideal, kinect_v1;" in \
+        model.iloc[0]
     assert "seesys estimator finetune --sessions" in model.iloc[0]
 
 

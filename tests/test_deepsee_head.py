@@ -1,5 +1,5 @@
 """DeepSEE's ordinal head: Equation 2's class boundaries, monotone probabilities, its training, the record, the ONNX
-export and the predictor; and a model without a head (the shipped one) as it always was."""
+export and the predictor; the shipped model's head in both its files."""
 
 from __future__ import annotations
 
@@ -141,26 +141,26 @@ def test_onnx_export_has_the_probabilities_and_matches_pytorch(trained_runs, tin
     np.testing.assert_allclose(from_onnx.metres, from_torch.metres, rtol=1e-3, atol=1e-7)
 
 
-def test_the_shipped_model_has_no_head_and_gives_what_it_always_gave():
-    """data/models/deepsee.pt and .onnx were trained before the head: no thresholds in either file, one output, no
-    probabilities, and the same transformed errors as the graph's single output."""
+def test_the_shipped_model_has_the_head_in_both_files_and_they_agree():
+    """data/models/deepsee.pt and .onnx carry the ordinal head at Equation 2's boundaries: the same thresholds in
+    both records, the probabilities as the graph's second output (monotone over the thresholds), and the checkpoint
+    (what finetune starts from) gives the exported graph's outputs on every channel of the RTS schema."""
     from estimator.deepsee.export import example_inputs
 
     payload = torch.load(resolve("data/models/deepsee.pt"), map_location="cpu", weights_only=False)
-    assert "ordinal_thresholds_m" not in payload["model"] and "ordinal_head" not in payload["compatibility"]
+    assert tuple(payload["model"]["ordinal_thresholds_m"]) == BOUNDS
+    assert tuple(payload["compatibility"]["ordinal_head"]["thresholds_m"]) == BOUNDS
     onnx_model = OnnxModel(resolve("data/models/deepsee.onnx"), TRANSFORM)
-    assert onnx_model.thresholds_m == () and [o.name for o in onnx_model.session.get_outputs()] == ["y"]
+    assert onnx_model.thresholds_m == BOUNDS
+    assert [o.name for o in onnx_model.session.get_outputs()] == ["y", "probabilities"]
+    assert load_predictor(resolve("data/models/deepsee.onnx"), TRANSFORM, 64).thresholds_m == BOUNDS
+    model, _ = load_model(resolve("data/models/deepsee.pt"), TRANSFORM)
+    assert model.rts_mask.shape == (onnx_model.shape.channels,) == (len(rts_schema.CHANNEL_NAMES),)
+    assert parity(model, onnx_model) <= PARITY_TOLERANCE
     rts, psd = example_inputs(onnx_model.shape, 3)
     y, probabilities = onnx_model.outputs(rts.numpy(), psd.numpy())
-    assert probabilities is None and y.shape == (3,)
-    np.testing.assert_array_equal(y, onnx_model.session.run(None, {"rts": rts.numpy(), "psd": psd.numpy()})[0])
-    assert load_predictor(resolve("data/models/deepsee.onnx"), TRANSFORM, 64).thresholds_m == ()
-    # The checkpoint (what finetune starts from) loads: its 16 channels of the first RTS schema, not the schema's
-    # 19, and the same outputs as the ONNX graph exported from it.
-    model, _ = load_model(resolve("data/models/deepsee.pt"), TRANSFORM)
-    assert model.rts_mask.shape == (onnx_model.shape.channels,) == (16,)
-    with torch.no_grad():
-        np.testing.assert_allclose(model(rts, psd).numpy(), y, rtol=1e-4, atol=1e-4)
+    assert y.shape == (3,) and probabilities.shape == (3, len(BOUNDS))
+    assert (np.diff(probabilities, axis=1) <= 1e-6).all()  # P(e ≥ 4 mm) ≥ P(e ≥ 8 mm) ≥ P(e ≥ 12 mm)
 
 
 def test_scores_judge_the_heads_class_beside_the_estimates():

@@ -1,6 +1,6 @@
 """Per-camera input standardisation: a model trained here reads its input as it is, fine-tuning refits the camera's
 statistics on the new camera's sessions and stores them in the model file and its ONNX export, and the shipped model
-records values that leave today's inputs exactly as they are."""
+carries its training data's statistics in both its files."""
 
 from __future__ import annotations
 
@@ -76,19 +76,20 @@ def test_finetune_refits_the_camera_statistics_and_stores_them_in_the_model_and_
                                                                                       rts_schema.CHANNEL_NAMES))
 
 
-def test_the_shipped_model_records_a_standardisation_that_leaves_its_input_as_it_is():
+def test_the_shipped_model_records_its_training_datas_statistics_in_both_files():
     import torch as _torch
 
     payload = _torch.load(resolve("data/models/deepsee.pt"), map_location="cpu", weights_only=False)
     stored = payload_standardisation(payload, "deepsee.pt")
     served = OnnxModel(resolve("data/models/deepsee.onnx"), TRANSFORM).standardisation
-    # Trained before standardisation, on data that is not here: its reference is unknown, so nothing is mapped.
-    assert stored == served == InputStandardisation(CHANNELS, None, None)
-    rts = np.random.default_rng(1).normal(size=(2, 30, 16)).astype(np.float32)
+    # Trained here: the training data's statistics are both its reference and its camera, so it reads its input as
+    # it is until fine-tuning refits the camera's.
+    assert stored == served and stored.channels == CHANNELS
+    assert stored.reference is not None and stored.reference == stored.camera
+    rts = np.random.default_rng(1).normal(size=(2, 30, rts_schema.NUM_CHANNELS)).astype(np.float32)
     assert stored.apply(rts, payload["compatibility"]["rts_channels"]) is rts
-    # Fine-tuning it makes the sessions' statistics its reference and camera: the map stays the identity.
     refitted = stored.refitted(rts, payload["compatibility"]["rts_channels"])
-    assert refitted.reference == refitted.camera is not None
+    assert refitted.reference == stored.reference and refitted.camera != stored.camera
 
 
 def test_a_malformed_record_is_refused_in_one_line():

@@ -25,9 +25,8 @@ from seesys.io.core_settings import load_device_settings, load_window_config
 from seesys.core import rts_schema
 from seesys.io.resources import resolve
 
-# What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now). It
-# was trained on the ideal camera, the reference camera of camera normalisation v1, whose inputs v1 leaves as they
-# were: its record states v1 (its metadata was updated, its weights and graph were not).
+# What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now):
+# camera normalisation v1 with the ideal camera as its reference.
 SHIPPED_DEVICE = {"slam_modes": ["rgbd"], "fps": 30, "orb_features": 1000, "psd_patch_px": 10, "psd_expansion": 2,
                   "near_depth": 0.5, "camera_normalisation": 1,
                   "reference_camera": {"width": 640, "height": 480, "fx": 525.0, "fy": 525.0, "cx": 319.5,
@@ -39,12 +38,10 @@ def test_the_shipped_model_carries_the_full_record_in_both_files():
     import torch
 
     transform = LabelTransform(load_estimator_config().label_transform.k)
-    # It takes the 16 channels of RTS schema v1, which later schemas keep as their first 16.
-    v1_channels = list(rts_schema.CHANNEL_NAMES[:16])
-    expected = {**compatibility(load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE), v1_channels),
-                "rts_schema_version": 1}
-    here = compatibility(load_window_config(), transform, rts_channels=v1_channels)
-    assert expected == {**here, "rts_schema_version": 1}  # the configs still describe it
+    # Every channel of today's RTS schema, and the ordinal head at Equation 2's boundaries.
+    expected = compatibility(load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE),
+                             head_thresholds_m=(0.004, 0.008, 0.012))
+    assert expected == compatibility(load_window_config(), transform, head_thresholds_m=(0.004, 0.008, 0.012))
     assert expected["windows"]["max_missing_rts"] == 0
     meta = {p.key: p.value for p in onnx.load(str(resolve("data/models/deepsee.onnx"))).metadata_props}
     assert json.loads(meta[COMPATIBILITY_KEY]) == expected
@@ -52,7 +49,7 @@ def test_the_shipped_model_carries_the_full_record_in_both_files():
     assert payload["compatibility"] == expected
     served = ServedModel.load(resolve("data/models/deepsee.onnx"), load_window_config())
     assert served.device_record == SHIPPED_DEVICE
-    assert list(served._model.rts_columns) == list(range(16))
+    assert list(served._model.rts_columns) == list(range(rts_schema.NUM_CHANNELS))
 
 
 def test_a_model_made_for_other_settings_is_refused_naming_each_field(tiny_model):
