@@ -39,9 +39,9 @@ def test_the_shipped_model_carries_the_full_record_in_both_files():
 
     transform = LabelTransform(load_estimator_config().label_transform.k)
     # Every channel of today's RTS schema, and the ordinal head at Equation 2's boundaries.
-    expected = compatibility(load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE),
-                             head_thresholds_m=(0.004, 0.008, 0.012))
-    assert expected == compatibility(load_window_config(), transform, head_thresholds_m=(0.004, 0.008, 0.012))
+    head = (0.004, 0.008, 0.012)
+    expected = compatibility(load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE), head_thresholds_m=head)
+    assert expected == compatibility(load_window_config(), transform, head_thresholds_m=head)
     assert expected["windows"]["max_missing_rts"] == 0
     meta = {p.key: p.value for p in onnx.load(str(resolve("data/models/deepsee.onnx"))).metadata_props}
     assert json.loads(meta[COMPATIBILITY_KEY]) == expected

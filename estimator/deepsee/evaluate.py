@@ -58,6 +58,10 @@ def heldout_camera_set(camera: str) -> str:
     return f"held-out camera {camera}"
 
 
+def session_set(name: str) -> str:
+    return f"session {name}"
+
+
 def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windows]:
     """The out-of-domain sets of labelled session folders: all pooled, and each alone when there are several."""
     if not sessions:
@@ -69,7 +73,7 @@ def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windo
     each = [session_windows(s, windows, labelled=True) for s in sessions]
     sets = {OUT_OF_DOMAIN: concat(each)}
     if len(each) > 1:
-        sets.update({f"session {name}": data for name, data in zip(names, each)})
+        sets.update({session_set(name): data for name, data in zip(names, each)})
     return sets
 
 
