@@ -22,7 +22,7 @@ from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity, traini
 from estimator.deepsee.finetune import finetune
 from estimator.deepsee.onnx_model import recorded_cameras
 from estimator.deepsee.predictors import WindowEstimates, load_predictor
-from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIMESERIES_PNG
+from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIMESERIES_PNG, improvements
 from estimator.deepsee.transforms import LabelTransform
 from seesys.cli import main
 from seesys.io.core_settings import load_pulse_settings, load_window_config
@@ -49,7 +49,7 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     for label in ("| Baseline | Random Forest |", "| Baseline | LSTM |", "| Model Study | DeepSEE-w/o-PSD |",
                   "| DeepSEE | DeepSEE |"):
         assert label in report
-    assert "DeepSEE vs random_forest: RMSE" in report and "reduced, cpu" in report
+    assert "DeepSEE vs random_forest, RMSE 1 mm–2 cm:" in report and "reduced, cpu" in report
     for png in (TIMESERIES_PNG, SCATTER_PNG, CONFUSION_PNG):
         assert (out / png).stat().st_size > 5000 and f"]({png})" in report
     scores = pd.read_csv(out / "scores.csv")
@@ -65,6 +65,22 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     assert 0 <= deepsee.head_agreement <= 1
     assert scores[scores.row.isin(["lstm", "random_forest"])].head_agreement.isna().all()
     assert "head agreement | head recall ≥ 12 mm |" in report
+
+
+def test_the_report_gives_deepsees_gain_on_both_rmses_per_round_and_in_the_mean():
+    rows = []
+    for r, (deepsee, forest) in enumerate([(0.8, 1.0), (0.95, 1.0), (0.6, 1.0)]):
+        for row, range_rmse in (("deepsee", deepsee), ("random_forest", forest)):
+            rows.append({"set": "test trajectories", "round": r, "row": row, "rmse_cm": 10.0,
+                         "rmse_paper_range_cm": range_rmse})
+    lines = improvements(pd.DataFrame(rows), "test trajectories")
+    # No LSTM in these scores: one line per RMSE, against the forest only.
+    assert lines == [
+        "- DeepSEE vs random_forest, RMSE: +0.0 % lower (mean over 3 rounds; target ≥ 15 %: NOT reached; "
+        "per round +0 %, +0 %, +0 %, 0 of 3 reach it)",
+        "- DeepSEE vs random_forest, RMSE 1 mm–2 cm: +21.7 % lower (mean over 3 rounds; target ≥ 15 %: reached; "
+        "per round +20 %, +5 %, +40 %, 2 of 3 reach it)"]
+    assert improvements(pd.DataFrame(rows), "held-out environments") == []
 
 
 def test_two_out_of_domain_sessions_of_one_folder_name_are_refused(tmp_path):
