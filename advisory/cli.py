@@ -87,7 +87,7 @@ def _non_negative(text: str) -> float:
     return value
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubParsersAction]:
     """Add this part's commands to the ``seesys`` command line."""
     parser = subparsers.add_parser("advisory", help="the audio error advisory (Equation 2, the study conditions)")
     commands = parser.add_subparsers(dest="advisory_command", metavar="COMMAND", required=True)
@@ -123,3 +123,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sent-log", metavar="CSV",
                    help="also write each estimate's send time to this CSV (frame_index,timestamp,sent_mono)")
     p.set_defaults(func=_replay)
+    return {}

@@ -37,7 +37,7 @@ def analyze_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubParsersAction]:
     """Add ``seesys analyze``."""
     p = subparsers.add_parser(
         "analyze", help="statistics, Table 5, figures and report of a study",
@@ -50,3 +50,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="analyse a tidy participants table (participant, condition, metric columns) instead")
     p.add_argument("--design", choices=("between", "within"), default="between", help="design of --table")
     p.set_defaults(func=analyze_command)
+    return {}

@@ -36,8 +36,8 @@ from estimator.deepsee.baselines import fit_forest, window_statistics
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import session_windows
 from estimator.deepsee.metrics import pulse_classes
-from estimator.synth.config import load_synth_config
-from estimator.synth.sequence import SequenceSpec, render_sequence
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec, render_sequence
 from seesys.core import rts_schema
 from seesys.core.labels import LabelStatus
 from seesys.io.core_settings import load_label_config, load_pulse_settings, load_window_config

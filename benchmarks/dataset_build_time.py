@@ -18,8 +18,8 @@ from pathlib import Path
 from estimator.dataset.build import BUILD_LOG
 from estimator.dataset.config import load_dataset_config
 from estimator.dataset.store import COMPLETED, list_runs
-from estimator.synth.batch import expand_environments, expand_motions
-from estimator.synth.config import load_synth_config
+from synth.batch import expand_environments, expand_motions
+from synth.config import load_synth_config
 
 
 def main() -> None:

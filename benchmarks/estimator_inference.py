@@ -27,7 +27,7 @@ from estimator.deepsee.checkpoint import load_model
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.export import OnnxModel, example_inputs, export_onnx, parity
 from estimator.deepsee.model import DeepSEE, InputShape
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.core.psd import PsdGeometry
 from seesys.io import resources

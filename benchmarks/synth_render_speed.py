@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.synth.config import load_synth_config
-from estimator.synth.sequence import SequenceSpec, render_sequence
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec, render_sequence
 
 
 def main() -> None:

@@ -43,7 +43,7 @@ import pandas as pd
 
 from advisory.config import AdvisoryConfig, load_advisory_config
 from estimator.service.sandbox import private_configs
-from seesys.app.summary import true_error
+from seesys_app.summary import true_error
 from seesys.core.equation2 import max_pulses
 from seesys.core.session_layout import ESTIMATES_CSV, PLAYBACK_CSV
 from seesys.io.config import CONFIG_DIR_ENV

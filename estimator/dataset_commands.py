@@ -15,8 +15,8 @@ from estimator.dataset.sample import make_sample
 from estimator.dataset.splits import write_splits
 from estimator.dataset.store import WITH_SAMPLES
 from estimator.jobs import add_ray_argument, ray_executor
-from estimator.synth.config import load_synth_config
-from estimator.synth.sequence import SequenceSpec
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec
 from seesys.core import session_layout
 from seesys.core.errors import SeesysError
 from seesys.io import session_files

@@ -198,7 +198,7 @@ def _export(args: argparse.Namespace) -> int:
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity, training_cameras
     from estimator.deepsee.ordinal import model_thresholds
-    from estimator.deepsee.transforms import LabelTransform
+    from estimator.artefact.transforms import LabelTransform
     from seesys.io.core_settings import load_window_config
     transform = LabelTransform(load_estimator_config().label_transform.k)
     windows = load_window_config()
@@ -218,7 +218,7 @@ def _estimate(args: argparse.Namespace) -> int:
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.estimate import estimate_session
     from estimator.deepsee.predictors import load_predictor
-    from estimator.deepsee.transforms import LabelTransform
+    from estimator.artefact.transforms import LabelTransform
     from seesys.io.core_settings import load_window_config
     config = load_estimator_config()
     windows = load_window_config()

@@ -72,7 +72,8 @@ def _keys(args: argparse.Namespace) -> int:
 
 
 def _untrained_model(args: argparse.Namespace) -> int:
-    from estimator.service.model import export_untrained, model_version
+    from estimator.deepsee.export import export_untrained
+    from estimator.service.model import model_version
     from seesys.core.psd import PsdGeometry
     from seesys.io.core_settings import load_window_config
     from slam_monitor.monitor_config import load_monitor_config

@@ -1,5 +1,5 @@
 import sys
 
-from seesys.cli import main
+from seesys_app.cli import main
 
 sys.exit(main())

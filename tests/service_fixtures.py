@@ -41,7 +41,7 @@ def tiny_model(tmp_path_factory) -> Path:
 
 def _tiny_export(tmp_path_factory, name: str, thresholds_m: tuple[float, ...]) -> Path:
     from estimator.deepsee.config import FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
-    from estimator.service.model import export_untrained
+    from estimator.deepsee.export import export_untrained
 
     if name not in _exported:
         config = ModelConfig(32, PsdEncoderConfig(16, 1, 2, 2.0, 0.0), RtsEncoderConfig(16, 2, 3, 0.0),

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import yaml
 
-from estimator.synth.config import SynthConfig
+from synth.config import SynthConfig
 
 
 def with_camera(config: SynthConfig, environment: str = "lab", **effects) -> SynthConfig:

@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 from conftest import SAMPLE, run_seesys
 
-from seesys.app.config import load_app_config
-from seesys.app.run import estimates_endpoint
+from seesys_app.config import load_app_config
+from seesys_app.run import estimates_endpoint
 from seesys.core.errors import ConfigError, SeesysError
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 

@@ -13,12 +13,12 @@ from conftest import run_seesys
 from rich.console import Console
 
 from advisory.config import load_advisory_config
-from seesys.app.config import load_app_config
-from seesys.app.records import PartStatus, RunRecord, RunState, StreamDrops
-from seesys.app.cli import final_line
-from seesys.app.information import InformationClock
-from seesys.app.summary import broken_at_gaps, write_summary
-from seesys.app.view import LiveView, Snapshot, ViewSetup, dropped_text, plain_line
+from seesys_app.config import load_app_config
+from seesys_app.records import PartStatus, RunRecord, RunState, StreamDrops
+from seesys_app.run_cli import final_line
+from seesys_app.information import InformationClock
+from seesys_app.summary import broken_at_gaps, write_summary
+from seesys_app.view import LiveView, Snapshot, ViewSetup, dropped_text, plain_line
 from seesys.core.session_layout import (ADVISORY_COLUMNS, ADVISORY_CSV, ESTIMATE_COLUMNS, ESTIMATES_CSV, FRAMES_CSV,
                                         FRAMES_HEADER)
 from seesys.io.logfiles import CsvLog

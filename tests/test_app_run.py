@@ -40,7 +40,7 @@ from advisory.config import load_advisory_config
 from advisory.sandbox import JackDummy
 from advisory.wav import read_wav
 from estimator.service.sandbox import private_configs
-from seesys.app.view import SPARK, Snapshot, plain_line, sparkline
+from seesys_app.view import SPARK, Snapshot, plain_line, sparkline
 from seesys.core.equation2 import error_pulses
 
 REPO = Path(__file__).resolve().parent.parent

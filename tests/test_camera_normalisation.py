@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from estimator.deepsee.compatibility import ModelMismatch, check_normalisation
+from estimator.artefact.compatibility import ModelMismatch, check_normalisation
 from seesys.core import camera_normalisation, rts_schema
 from seesys.core.camera import Intrinsics
 from seesys.core.camera_normalisation import CameraNormalisation, ReferenceCamera
@@ -155,7 +155,7 @@ def test_the_shipped_model_refuses_a_session_logged_before_camera_normalisation(
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.data import DataError, session_windows
     from estimator.deepsee.predictors import load_predictor
-    from estimator.deepsee.transforms import LabelTransform
+    from estimator.artefact.transforms import LabelTransform
     from seesys.io.core_settings import load_device_settings, load_window_config
     from seesys.io.resources import resolve
     from seesys.io.rts_log import RTS_JSON, schema_metadata
@@ -189,9 +189,9 @@ def test_a_render_at_640x480_and_1280x720_gives_the_same_normalised_image_statis
     a fourteenth of what the augmentation's smallest Laplacian gain (x 0.5) moves it."""
     import dataclasses
 
-    from estimator.synth.config import load_synth_config
-    from estimator.synth.environments import build_scene
-    from estimator.synth.renderer import RayGrid, render
+    from synth.config import load_synth_config
+    from synth.environments import build_scene
+    from synth.renderer import RayGrid, render
 
     synth = load_synth_config()
     preset = synth.preset(environment)

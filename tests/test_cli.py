@@ -5,19 +5,20 @@ import sys
 
 import pytest
 
-from seesys import cli
+from seesys_app import cli
 
 # The commands a user finds in `seesys --help`, and the part that provides each.
 EXPECTED_COMMANDS = {
     "track": "slam_monitor", "vocab": "slam_monitor", "monitor": "slam_monitor",
-    "synth": "estimator", "dataset": "estimator", "estimator": "estimator",
+    "synth": "synth", "dataset": "estimator", "estimator": "estimator",
     "advisory": "advisory",
     "study": "study",
     "analyze": "analysis",
 }
-# Study commands the app provides: the simulated study runs the estimator in-process, which the study part never
-# imports (its import contract).
-APP_STUDY_COMMANDS = {"simulate"}
+# Commands a part above adds to a lower part's group, and the part that provides each: the diversity report reads
+# rendered frames through the device's image statistics, which the renderer never imports; the simulated study runs
+# the estimator in-process, which the study part never imports (their import contracts).
+EXTENSIONS = {("synth", "diversity"): "estimator", ("study", "simulate"): "seesys_app"}
 
 
 def _commands() -> dict[str, object]:
@@ -35,17 +36,20 @@ def _leaf_functions(parser) -> list:
     return [f for a in groups for sub in a.choices.values() for f in _leaf_functions(sub)]
 
 
+def _subcommands(parser) -> dict[str, object]:
+    return next(a for a in parser._actions if isinstance(a.choices, dict)).choices
+
+
 def test_every_part_registers_its_commands():
     commands = _commands()
     assert set(EXPECTED_COMMANDS) <= set(commands)
     for name, part in EXPECTED_COMMANDS.items():
-        funcs = _leaf_functions(commands[name])
-        assert funcs and all(f.__module__.split(".")[0] == part or
-                             f.__module__.startswith("seesys.app.") and f.__module__.split(".")[2] == "simulate"
-                             for f in funcs), (name, funcs)
-    study = next(a for a in commands["study"]._actions if isinstance(a.choices, dict)).choices
-    assert APP_STUDY_COMMANDS <= set(study)
-    assert all(study[c].get_default("func").__module__.startswith("seesys.app.") for c in APP_STUDY_COMMANDS)
+        subcommands = _subcommands(commands[name]) if commands[name].get_default("func") is None else {}
+        own = [f for sub, p in subcommands.items() if (name, sub) not in EXTENSIONS for f in _leaf_functions(p)]
+        funcs = own or _leaf_functions(commands[name])
+        assert funcs and all(f.__module__.split(".")[0] == part for f in funcs), (name, funcs)
+    for (group, name), part in EXTENSIONS.items():
+        assert _subcommands(commands[group])[name].get_default("func").__module__.split(".")[0] == part
 
 
 def test_help_lists_every_command_in_a_subprocess():

@@ -40,8 +40,8 @@ from estimator.dataset.store import (
     read_run_info,
     run_folder,
 )
-from estimator.synth.config import load_synth_config
-from estimator.synth.sequence import SequenceSpec
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec
 from seesys.core import rts_schema
 from seesys.core.errors import ConfigError, SeesysError
 from seesys.core.labels import LabelStatus

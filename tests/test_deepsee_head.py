@@ -12,16 +12,16 @@ import torch
 from test_deepsee_sessions import PSD_SHAPE, single_thread, tiny_config, tiny_dataset, trained_runs  # noqa: F401 (pytest fixtures among them)
 
 from estimator.deepsee.checkpoint import load_model, save_model
-from estimator.deepsee.compatibility import InputShape
+from estimator.artefact.compatibility import InputShape
 from estimator.deepsee.data import read_splits, split_windows
 from estimator.deepsee.export import PARITY_TOLERANCE, export_onnx, parity
 from estimator.deepsee.inference import predict_outputs
 from estimator.deepsee.metrics import equation2_head, score
 from estimator.deepsee.model import DeepSEE
-from estimator.deepsee.onnx_model import OnnxModel
+from estimator.artefact.onnx_model import OnnxModel
 from estimator.deepsee.ordinal import bce, exceeded, head_thresholds
 from estimator.deepsee.predictors import load_predictor
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.core.equation2 import PulseSettings
 from seesys.core.exceedance import class_boundaries_m, head_class, same_thresholds

@@ -15,9 +15,9 @@ from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import session_windows
 from estimator.deepsee.export import export_onnx
 from estimator.deepsee.finetune import finetune
-from estimator.deepsee.onnx_model import OnnxModel
-from estimator.deepsee.standardisation import InputStandardisation
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.onnx_model import OnnxModel
+from estimator.artefact.standardisation import InputStandardisation
+from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.io.core_settings import load_window_config
 from seesys.io.resources import resolve
@@ -93,7 +93,7 @@ def test_the_shipped_model_records_its_training_datas_statistics_in_both_files()
 
 
 def test_a_malformed_record_is_refused_in_one_line():
-    from estimator.deepsee.standardisation import StandardisationError
+    from estimator.artefact.standardisation import StandardisationError
 
     with pytest.raises(StandardisationError, match=r"^m\.onnx: malformed input standardisation record \(.*\)$"):
         InputStandardisation.from_record({"channels": ["contrast"], "reference": {"median": [1, 2], "iqr": [1]},

@@ -20,7 +20,7 @@ from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant, row
 from estimator.deepsee.run_folder import CONFIG_JSON, LOSS_PNG, METRICS_CSV, MODEL_PT, RunFolder
 from estimator.deepsee.stages import train_row
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.transforms import LabelTransform
 from seesys.io.core_settings import load_window_config
 
 _context = train_context

@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.synth.config import load_synth_config
-from estimator.synth.sequence import SequenceSpec, render_sequence
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec, render_sequence
 from seesys.io.trajectory_files import read_tum
 from slam_monitor.depth_features import DepthFeatures, DepthQuality, noise_over_z2
 from slam_monitor.monitor_config import load_monitor_config

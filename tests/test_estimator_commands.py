@@ -20,11 +20,11 @@ from estimator.deepsee.data import DataError, concat, session_windows
 from estimator.deepsee.evaluate import OUT_OF_DOMAIN, session_set
 from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity, training_cameras
 from estimator.deepsee.finetune import finetune
-from estimator.deepsee.onnx_model import recorded_cameras
+from estimator.artefact.onnx_model import recorded_cameras
 from estimator.deepsee.predictors import WindowEstimates, load_predictor
 from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIMESERIES_PNG, improvements
-from estimator.deepsee.transforms import LabelTransform
-from seesys.cli import main
+from estimator.artefact.transforms import LabelTransform
+from seesys_app.cli import main
 from seesys.io.core_settings import load_pulse_settings, load_window_config
 
 TRANSFORM = LabelTransform(10000.0)

@@ -10,8 +10,8 @@ import pytest
 from evo.core import metrics
 from scipy.spatial.transform import Rotation
 
-from estimator.synth.config import load_synth_config
-from estimator.synth.trajectories import load_tum
+from synth.config import load_synth_config
+from synth.trajectories import load_tum
 from seesys.core.labels import LabelConfig, LabelError, LabelStatus, LabelSummary, label_frames
 from seesys.core.tracking_state import TrackingState
 from seesys.core.trajectory import Poses

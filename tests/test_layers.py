@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("seesys", "slam_monitor", "estimator", "advisory", "study", "analysis")
+PACKAGES = ("seesys", "seesys_app", "slam_monitor", "synth", "estimator", "advisory", "study", "analysis")
 LINT = Path(sys.executable).with_name("lint-imports")
 
 
@@ -45,6 +45,15 @@ def test_the_contracts_hold_on_this_tree(tree: Path):
     ("slam_monitor/monitor.py", "advisory.generator", "know nothing of each other"),
     ("seesys/core/windows.py", "seesys.io.config", "Layers"),
     ("seesys/core/psd.py", "cv2", "The core does no I/O"),
+    ("study/metrics.py", "estimator.diversity", "never imports it"),
+    ("estimator/dataset/report.py", "study.sessions", "Layers"),
+    ("seesys/io/config.py", "seesys_app.records", "import nothing of the app"),
+    ("slam_monitor/monitor.py", "seesys_app.records", "import nothing of the app"),
+    ("synth/renderer.py", "slam_monitor.image_features", "The renderer (synth) imports no other part"),
+    ("synth/renderer.py", "estimator.diversity", "The renderer (synth) imports no other part"),
+    ("estimator/service/model.py", "torch", "without PyTorch"),
+    ("estimator/artefact/onnx_model.py", "torch", "without PyTorch"),
+    ("seesys_app/run.py", "estimator.deepsee.model", "without PyTorch"),
 ])
 def test_an_import_the_wrong_way_breaks_a_contract_and_is_named(tree: Path, module: str, imported: str,
                                                                 contract: str):

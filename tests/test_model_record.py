@@ -14,10 +14,10 @@ import sys
 import pytest
 from service_fixtures import tiny_model  # noqa: F401
 
-from estimator.deepsee.compatibility import ModelMismatch, ModelSetup, compatibility
+from estimator.artefact.compatibility import ModelMismatch, ModelSetup, compatibility
 from estimator.deepsee.config import load_estimator_config
-from estimator.deepsee.onnx_model import COMPATIBILITY_KEY
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.onnx_model import COMPATIBILITY_KEY
+from estimator.artefact.transforms import LabelTransform
 from estimator.service.model import ServedModel
 from seesys.core.device_settings import DeviceSettings, settings_differences
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir

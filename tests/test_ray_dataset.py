@@ -18,8 +18,8 @@ from estimator.dataset.build import DATASET_JSON, SEQUENCES_DIR, SESSIONS_DIR, D
 from estimator.dataset.config import load_dataset_config
 from estimator.dataset.store import RUN_JSON, RUNS_DIR
 from estimator.jobs import RayExecutor
-from estimator.synth.config import load_synth_config
-from estimator.synth.sequence import SequenceSpec
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec
 from seesys.core import session_layout
 from seesys.io.config import write_config_dir
 from seesys.io.core_settings import load_label_config, load_window_config

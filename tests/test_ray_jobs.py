@@ -172,7 +172,7 @@ def test_an_unreachable_or_malformed_address_is_a_one_line_error(tmp_path):
 
 
 def test_commands_import_ray_only_when_asked_to():
-    code = ("import sys; from seesys.cli import build_parser; build_parser(); "
+    code = ("import sys; from seesys_app.cli import build_parser; build_parser(); "
             "import estimator.dataset.build, estimator.deepsee.table, estimator.jobs; "
             "print('ray' in sys.modules)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300)

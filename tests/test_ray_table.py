@@ -21,7 +21,7 @@ from estimator.deepsee.data import read_splits
 from estimator.deepsee.run_folder import CONFIG_JSON, METRICS_CSV
 from estimator.deepsee.table import TrainSpec, table_jobs
 from estimator.jobs import RayExecutor
-from seesys.cli import main
+from seesys_app.cli import main
 from seesys.io.core_settings import load_window_config
 
 REPO_CONFIGS = REPO / "configs"

@@ -16,12 +16,12 @@ from conftest import run_seesys
 from evo.core.geometry import umeyama_alignment
 from synth_renders import calibration, depths, grays, png_bytes, with_camera
 
-from estimator.synth.batch import render_batch
-from estimator.synth.camera_effects import LensDistortion
-from estimator.synth.config import load_synth_config
-from estimator.synth.renderer import RayGrid, render
-from estimator.synth.sequence import SequenceSpec, plan_sequence, render_sequence
-from estimator.synth.structured_light import as_measured, projector_shadow
+from synth.batch import render_batch
+from synth.camera_effects import LensDistortion
+from synth.config import load_synth_config
+from synth.renderer import RayGrid, render
+from synth.sequence import SequenceSpec, plan_sequence, render_sequence
+from synth.structured_light import as_measured, projector_shadow
 from seesys.core.camera import Intrinsics
 from seesys.core.errors import ConfigError
 from seesys.io.config import CONFIG_DIR_ENV, config_dir, write_config_dir

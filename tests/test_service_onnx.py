@@ -12,7 +12,7 @@ import onnxruntime as ort
 import pytest
 from service_fixtures import ServiceProcess, ServiceSetup, tiny_model  # noqa: F401
 
-from estimator.deepsee.onnx_model import CPU, CUDA, choose_providers
+from estimator.artefact.onnx_model import CPU, CUDA, choose_providers
 from estimator.service.status import format_status
 from estimator.service.worker import batch_size
 from seesys.core.errors import ConfigError
@@ -22,7 +22,7 @@ import json, sys
 from pathlib import Path
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.predictors import load_predictor
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.transforms import LabelTransform
 from estimator.service.model import ServedModel
 from estimator.service.worker import Worker
 from seesys.io.core_settings import load_window_config

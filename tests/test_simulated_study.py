@@ -19,13 +19,13 @@ from polling import wait_for
 
 from estimator.service.broker import default_model
 from estimator.service.config import load_service_config
-from estimator.synth.config import load_synth_config
-from estimator.synth.operator import Goal, SimulatedOperator, draw_traits
-from estimator.synth.scan_task import build_scan_task
-from seesys.app.simulate.config import load_simulate_config
-from seesys.app.simulate.study import pending_jobs
-from seesys.app.simulate.session import OPERATOR_JSON, Participant, simulate_session
-from seesys.cli import main
+from synth.config import load_synth_config
+from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
+from seesys_app.simulate.scan_task import build_scan_task
+from seesys_app.simulate.config import load_simulate_config
+from seesys_app.simulate.study import pending_jobs
+from seesys_app.simulate.session import OPERATOR_JSON, Participant, simulate_session
+from seesys_app.cli import main
 from seesys.core.errors import ConfigError
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.trajectory_files import read_tum

@@ -13,15 +13,15 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.synth.batch import render_batch
-from estimator.synth.camera_effects import LensDistortion
-from estimator.synth.config import load_synth_config
-from estimator.synth.environments import build_scene
-from estimator.synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter
-from estimator.synth.renderer import RayGrid, render
-from estimator.synth.sequence import SequenceSpec, plan_sequence, render_sequence
-from estimator.synth.textures import make_tile
-from estimator.synth.trajectories import MOTION_GROUPS, generate_motion, load_euroc, load_tum, place_real
+from synth.batch import render_batch
+from synth.camera_effects import LensDistortion
+from synth.config import load_synth_config
+from synth.environments import build_scene
+from synth.real_camera import auto_exposure_response, depth_noise, rolling_shutter
+from synth.renderer import RayGrid, render
+from synth.sequence import SequenceSpec, plan_sequence, render_sequence
+from synth.textures import make_tile
+from synth.trajectories import MOTION_GROUPS, generate_motion, load_euroc, load_tum, place_real
 from synth_renders import depths, grays, png_bytes, with_camera
 
 

@@ -1,6 +1,6 @@
 """Build the labelled dataset: render, then play every sequence through ORB-SLAM3 + the RTS monitor, label, store.
 
-Order matters: every sequence is rendered first (one job per sequence, :func:`estimator.synth.batch.plan_batch`),
+Order matters: every sequence is rendered first (one job per sequence, :func:`synth.batch.plan_batch`),
 and only then are the SLAM runs made, one job per run, each in its own child process
 (:func:`run_supervised_session`), at camera pace. Rendering while SLAM runs would take the CPU from ORB-SLAM3's
 threads and change the errors being measured (monocular ORB-SLAM3 tracked 21 % of an easy sequence with two
@@ -45,9 +45,9 @@ from estimator.dataset.store import (
     write_run,
 )
 from estimator.jobs import Job, JobEnv, LocalExecutor, RayExecutor, load_ray_settings
-from estimator.synth.batch import CameraDraw, expand_environments, expand_motions, plan_batch, render_into
-from estimator.synth.config import SynthConfig
-from estimator.synth.sequence import SequenceSpec
+from synth.batch import CameraDraw, expand_environments, expand_motions, plan_batch, render_into
+from synth.config import SynthConfig
+from synth.sequence import SequenceSpec
 from seesys.core import camera_normalisation, rts_schema, session_layout
 from seesys.core.errors import SeesysError
 from seesys.core.labels import LabelConfig, LabelStatus

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from estimator.synth.batch import CameraDraw
+from synth.batch import CameraDraw
 from seesys.core.errors import ConfigError
 from seesys.io.config import load_section
 from slam_monitor.orbslam_settings import SlamMode

@@ -15,8 +15,8 @@ from pathlib import Path
 import cv2
 
 from estimator.dataset.config import SampleSequenceConfig
-from estimator.synth.config import SynthConfig
-from estimator.synth.sequence import SequenceSpec, render_sequence
+from synth.config import SynthConfig
+from synth.sequence import SequenceSpec, render_sequence
 from seesys.core.errors import SeesysError
 from slam_monitor.orbslam_settings import load_slam_config
 

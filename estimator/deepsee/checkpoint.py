@@ -7,7 +7,7 @@ A checkpoint (``torch.save`` of a dict) holds:
   tau and the missing-row rule ``max_missing_rts``: what a window contains and which windows a model sees; not how
   often one is formed), the label transform, the label's Δ and the device settings the training data was made with
   (SLAM modes, frame rate, ORB feature count, PSD cell size, expansion and ``near_depth``;
-  :mod:`estimator.deepsee.compatibility`), the ordinal head's thresholds where the model has one
+  :mod:`estimator.artefact.compatibility`), the ordinal head's thresholds where the model has one
   (``ordinal_head``), and ``compatibility_hash``, the SHA-256 of that record. A model is
   loaded only where every field matches this installation, and the service serves a device only where its own
   settings match: a model trained on other inputs reads different numbers and its estimates would be
@@ -17,7 +17,7 @@ A checkpoint (``torch.save`` of a dict) holds:
   as every model made before the head); ``state_dict``: the weights;
 - ``training``: how it was made (command, data, schedule, round, metrics), for the record;
 - ``input_standardisation``: the per-camera statistics of its camera-dependent channels
-  (:mod:`estimator.deepsee.standardisation`); absent in a model made before them, which reads its input as it is.
+  (:mod:`estimator.artefact.standardisation`); absent in a model made before them, which reads its input as it is.
 
 The same hash is written into the exported ONNX model's metadata and checked when it is loaded.
 """
@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from estimator.deepsee.baselines import LstmBaseline
-from estimator.deepsee.compatibility import (
+from estimator.artefact.compatibility import (
     InputShape,
     ModelMismatch,
     check_compatible,
@@ -42,8 +42,8 @@ from estimator.deepsee.compatibility import (
 from estimator.deepsee.config import FusionConfig, LstmConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
 from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant
-from estimator.deepsee.standardisation import CHECKPOINT_KEY, InputStandardisation
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.standardisation import CHECKPOINT_KEY, InputStandardisation
+from estimator.artefact.transforms import LabelTransform
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_window_config
 

@@ -166,7 +166,7 @@ class AugmentationConfig:
 @dataclass(frozen=True)
 class InputStandardisationConfig:
     """The camera-dependent RTS channels whose per-camera statistics a model stores and fine-tuning refits
-    (estimator/deepsee/standardisation.py)."""
+    (estimator/artefact/standardisation.py)."""
 
     camera_channels: tuple[str, ...]
 

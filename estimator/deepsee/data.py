@@ -19,8 +19,8 @@ import pandas as pd
 
 from estimator.dataset.splits import Splits
 from estimator.dataset.store import DatasetReader
-from estimator.deepsee.compatibility import InputShape
-from estimator.deepsee.transforms import prepare_rts
+from estimator.artefact.compatibility import InputShape
+from estimator.artefact.transforms import prepare_rts
 from seesys.core import rts_schema, session_layout
 from seesys.core.errors import SeesysError
 from seesys.core.labels import LabelStatus
@@ -63,7 +63,7 @@ class Windows:
 
     def select_rts(self, columns: np.ndarray) -> Windows:
         """The same windows with only the RTS ``columns`` a model takes
-        (:func:`estimator.deepsee.compatibility.rts_columns`), in its order."""
+        (:func:`estimator.artefact.compatibility.rts_columns`), in its order."""
         return self.with_rts(self.rts[..., columns])
 
     def with_rts(self, rts: np.ndarray) -> Windows:

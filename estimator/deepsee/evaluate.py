@@ -26,7 +26,7 @@ from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.rows import ROWS
 from estimator.deepsee.run_folder import MODEL_PT
 from estimator.deepsee.stages import FOREST_PICKLE
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.transforms import LabelTransform
 from seesys.core.equation2 import PulseSettings
 from seesys.core.errors import SeesysError
 from seesys.core.windows import WindowConfig

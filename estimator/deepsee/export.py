@@ -1,5 +1,5 @@
 """The served model: ONNX export with the weights inside the one file and a parity check against PyTorch. The
-ONNX Runtime session that serves it, without PyTorch, is :class:`estimator.deepsee.onnx_model.OnnxModel`.
+ONNX Runtime session that serves it, without PyTorch, is :class:`estimator.artefact.onnx_model.OnnxModel`.
 
 The exported graph takes ``rts`` (B, T, C) float32 (normalised) and ``psd`` (B, K_L, H, W, 3) uint8 and returns ``y``
 (B,), the transformed error, and, for a model with an ordinal head, a second output ``probabilities`` (B, K): P(error ≥
@@ -21,11 +21,13 @@ import onnx
 import torch
 from torch import nn
 
-from estimator.deepsee.compatibility import compatibility, compatibility_hash
-from estimator.deepsee.model import exceedance_probabilities
-from estimator.deepsee.onnx_model import CAMERAS_KEY, COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, Y, OnnxModel
-from estimator.deepsee.standardisation import METADATA_KEY, InputStandardisation
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.compatibility import compatibility, compatibility_hash
+from estimator.artefact.onnx_model import CAMERAS_KEY, COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, Y, OnnxModel
+from estimator.artefact.standardisation import METADATA_KEY, InputStandardisation
+from estimator.artefact.transforms import LabelTransform
+from estimator.deepsee.config import ModelConfig, load_estimator_config
+from estimator.deepsee.model import DeepSEE, InputShape, exceedance_probabilities
+from seesys.core import rts_schema
 from seesys.core.windows import WindowConfig
 
 PARITY_TOLERANCE = 1e-4
@@ -115,3 +117,16 @@ def parity(model: nn.Module, onnx_model: OnnxModel, batches: tuple[int, ...] = (
             if want is not None:
                 worst = max(worst, float(np.abs(have - want.numpy()).max()))
     return worst
+
+
+def export_untrained(path: Path, windows: WindowConfig, psd_size: tuple[int, int], seed: int,
+                     model_config: ModelConfig | None = None, thresholds_m: tuple[float, ...] = ()) -> Path:
+    """Export DeepSEE of the configured size (configs/estimator.toml, or ``model_config``) with untrained weights
+    (seeded), with an ordinal head of ``thresholds_m`` (none by default): the model of the right shape and cost to
+    serve until a trained one ships. Its estimates mean nothing."""
+    config = load_estimator_config()
+    torch.manual_seed(seed)
+    height, width = psd_size
+    shape = InputShape(windows.rts_length, rts_schema.NUM_CHANNELS, windows.psd_samples, height, width)
+    model = DeepSEE(model_config or config.model, shape, thresholds_m=thresholds_m)
+    return export_onnx(model, Path(path), windows, LabelTransform(config.label_transform.k))

@@ -11,7 +11,7 @@ trained before the head) stays without one. Whole held-out sessions, never train
 the scores of the Table 3 report (:func:`estimator.deepsee.metrics.score`): the in-session validation tail is correlated
 with the training part and flatters the model.
 
-The per-camera input standardisation (:mod:`estimator.deepsee.standardisation`) is refitted first: the camera's
+The per-camera input standardisation (:mod:`estimator.artefact.standardisation`) is refitted first: the camera's
 statistics of the camera-dependent channels come from the training part of the sessions, the base's reference
 statistics are kept, and the model is fine-tuned, judged after and stored with the refitted values (the before figures
 are the base's, served as it is).
@@ -27,7 +27,7 @@ import pandas as pd
 import torch
 
 from estimator.deepsee.checkpoint import load_model, payload_standardisation, save_model
-from estimator.deepsee.compatibility import check_normalisation, rts_columns
+from estimator.artefact.compatibility import check_normalisation, rts_columns
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows, concat, session_windows
 from estimator.deepsee.inference import predict, predict_outputs
@@ -35,7 +35,7 @@ from estimator.deepsee.metrics import CM_PER_M, Scores, equation2_head, score
 from estimator.deepsee.ordinal import model_thresholds
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
-from estimator.deepsee.standardisation import InputStandardisation
+from estimator.artefact.standardisation import InputStandardisation
 from seesys.core.equation2 import PulseSettings
 from seesys.io.session_files import read_manifest
 from seesys.core.windows import WindowConfig

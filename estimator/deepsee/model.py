@@ -22,10 +22,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from estimator.deepsee.compatibility import InputShape
+from estimator.artefact.compatibility import InputShape
 from estimator.deepsee.config import FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
 from estimator.deepsee.rows import Variant
-from estimator.deepsee.transforms import psd_layer_mask, rts_channel_mask
+from estimator.artefact.transforms import psd_layer_mask, rts_channel_mask
 
 
 class TokenLinear(nn.Linear):

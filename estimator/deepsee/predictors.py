@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimator.deepsee.compatibility import (
+from estimator.artefact.compatibility import (
     InputShape,
     ModelMismatch,
     check_compatible,
@@ -23,8 +23,8 @@ from estimator.deepsee.compatibility import (
     rts_columns,
 )
 from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows
-from estimator.deepsee.onnx_model import OnnxModel
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.onnx_model import OnnxModel
+from estimator.artefact.transforms import LabelTransform
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_window_config
 

@@ -38,7 +38,7 @@ from torch import nn
 from estimator.deepsee.augment import Augmenter
 from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
-from estimator.deepsee.compatibility import check_normalisation
+from estimator.artefact.compatibility import check_normalisation
 from estimator.deepsee.config import AugmentationConfig, EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.data import NORMALISATION_COLUMN, Windows, limit
 from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
@@ -48,8 +48,8 @@ from estimator.deepsee.ordinal import exceeded, head_thresholds, model_threshold
 from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
 from estimator.deepsee.run_folder import MODEL_PT, RunFolder
 from estimator.deepsee.ssl import PsdReconstruction, ts2vec_loss
-from estimator.deepsee.standardisation import InputStandardisation
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.standardisation import InputStandardisation
+from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.core.errors import SeesysError
 from seesys.core.windows import WindowConfig

@@ -1,11 +1,11 @@
 """The model a worker serves: an exported ONNX model (checked against this installation's RTS schema, windows,
 label and device settings when loaded), its version string, the window shape it accepts, the device settings it
 was made for (every device's frames are checked against them), its ordinal head's thresholds (none for a model
-without a head: its estimates carry no probabilities) and the ONNX Runtime execution provider that runs it; and the
-untrained stand-in served until a trained model ships.
+without a head: its estimates carry no probabilities) and the ONNX Runtime execution provider that runs it (an
+untrained stand-in of the right shape: :func:`estimator.deepsee.export.export_untrained`).
 
-Serving imports neither PyTorch nor the ``onnx`` package (:mod:`estimator.deepsee.onnx_model`): a worker starts in
-well under a second plus the model's load. Only :func:`export_untrained` needs PyTorch."""
+Serving imports neither PyTorch nor the ``onnx`` package (:mod:`estimator.artefact.onnx_model`): a worker starts in
+well under a second plus the model's load."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.deepsee.compatibility import ModelSetup
-from estimator.deepsee.config import ModelConfig, load_estimator_config
-from estimator.deepsee.onnx_model import OnnxModel
-from estimator.deepsee.transforms import LabelTransform, prepare_rts_counted
+from estimator.artefact.compatibility import ModelSetup
+from estimator.deepsee.config import load_estimator_config
+from estimator.artefact.onnx_model import OnnxModel
+from estimator.artefact.transforms import LabelTransform, prepare_rts_counted
 from seesys.core.device_settings import DeviceSettings, settings_differences
 from seesys.core.messages import Exceedance
 from seesys.core.windows import WindowConfig, WindowSample
@@ -62,7 +62,7 @@ class ServedModel:
     def load(cls, path: Path, windows: WindowConfig, threads: int = 1, providers: str = "auto",
              setup: ModelSetup | None = None) -> ServedModel:
         """Load ``path`` on ``threads`` intra-op threads and the execution providers of ``providers`` (``auto``,
-        ``cpu`` or ``cuda``: see :mod:`estimator.deepsee.onnx_model`); raises ``ModelMismatch`` for a model made
+        ``cpu`` or ``cuda``: see :mod:`estimator.artefact.onnx_model`); raises ``ModelMismatch`` for a model made
         for other inputs (naming each field that differs from ``windows`` and ``setup``, this installation's
         configs by default) or a file that is not one, ``ConfigError`` for a provider setting that cannot be
         met."""
@@ -95,22 +95,3 @@ class ServedModel:
         psd = np.stack([s.psd for s in samples])
         y, probabilities = self._model.outputs(self._model.standardised(rts), psd)
         return BatchEstimates(self._transform.inverse(y), probabilities, replaced, self.thresholds_m)
-
-
-def export_untrained(path: Path, windows: WindowConfig, psd_size: tuple[int, int], seed: int,
-                     model_config: ModelConfig | None = None, thresholds_m: tuple[float, ...] = ()) -> Path:
-    """Export DeepSEE of the configured size (configs/estimator.toml, or ``model_config``) with untrained weights
-    (seeded), with an ordinal head of ``thresholds_m`` (none by default): the model of the right shape and cost to
-    serve until a trained one ships. Its estimates mean nothing."""
-    import torch
-
-    from estimator.deepsee.export import export_onnx
-    from estimator.deepsee.model import DeepSEE, InputShape
-    from seesys.core import rts_schema
-
-    config = load_estimator_config()
-    torch.manual_seed(seed)
-    height, width = psd_size
-    shape = InputShape(windows.rts_length, rts_schema.NUM_CHANNELS, windows.psd_samples, height, width)
-    model = DeepSEE(model_config or config.model, shape, thresholds_m=thresholds_m)
-    return export_onnx(model, Path(path), windows, LabelTransform(config.label_transform.k))

@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from estimator.synth.operator import OperatorRanges, ResponseRanges
-from estimator.synth.scan_task import TaskConfig
+from seesys_app.simulate.operator import OperatorRanges, ResponseRanges
+from seesys_app.simulate.scan_task import TaskConfig
 from seesys.core.errors import ConfigError
 from seesys.io.config import load_section
 

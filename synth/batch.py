@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.synth.config import SynthConfig
-from estimator.synth.sequence import REAL_PREFIX, SequenceSpec, camera_record, preset_record, render_sequence
-from estimator.synth.trajectories import MOTION_GROUPS
+from synth.config import SynthConfig
+from synth.sequence import REAL_PREFIX, SequenceSpec, camera_record, preset_record, render_sequence
+from synth.trajectories import MOTION_GROUPS
 
 ALL = "all"
 REAL = "real"

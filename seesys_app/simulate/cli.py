@@ -1,4 +1,4 @@
-"""``seesys study simulate``: a thin wrapper over :mod:`seesys.app.simulate.study`."""
+"""``seesys study simulate``: a thin wrapper over :mod:`seesys_app.simulate.study`."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from seesys.app.simulate.config import CONDITIONS, DESIGNS
+from seesys_app.simulate.config import CONDITIONS, DESIGNS
 
 
 def _positive(text: str) -> int:
@@ -40,8 +40,8 @@ def simulate_command(args: argparse.Namespace) -> int:
 
     from estimator.service.broker import default_model
     from estimator.service.config import load_service_config
-    from seesys.app.simulate.config import load_simulate_config
-    from seesys.app.simulate.study import run_study
+    from seesys_app.simulate.config import load_simulate_config
+    from seesys_app.simulate.study import run_study
 
     # SIGTERM stops the study as Ctrl-C does; SIGINT is restored where a shell started the command with it ignored.
     signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.synth.config import EnvironmentPreset, SensorConfig
-from estimator.synth.textures import TexturePyramid, make_tile
+from synth.config import EnvironmentPreset, SensorConfig
+from synth.textures import TexturePyramid, make_tile
 
 # Tiles per scene: rich ones for clutter and textured walls, poor ones for bare walls, floor and ceiling variety.
 RICH_TILES = 8

@@ -29,20 +29,20 @@ import cv2
 import numpy as np
 from rich.progress import Progress
 
-from estimator.synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
-from estimator.synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
-from estimator.synth.environments import Scene, build_scene
-from estimator.synth.lenses import model_camera, told_lens, true_lens
-from estimator.synth.real_camera import (
+from synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
+from synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
+from synth.environments import Scene, build_scene
+from synth.lenses import model_camera, told_lens, true_lens
+from synth.real_camera import (
     auto_exposure_response,
     depth_noise,
     jpeg_roundtrip,
     rolling_shutter,
     shift_depth,
 )
-from estimator.synth.renderer import RayGrid, render
-from estimator.synth.structured_light import as_measured, without_unlit
-from estimator.synth.trajectories import (
+from synth.renderer import RayGrid, render
+from synth.structured_light import as_measured, without_unlit
+from synth.trajectories import (
     MOTION_GROUPS,
     Trajectory,
     TrajectoryError,

@@ -30,8 +30,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.synth.config import MotionGroupConfig
-from estimator.synth.trajectories import Trajectory, jerk_offsets, look_rotation, smooth_noise
+from synth.config import MotionGroupConfig
+from synth.trajectories import Trajectory, jerk_offsets, look_rotation, smooth_noise
 
 # Heard buffers older than this (s) no longer count: a stream of buffers that stopped is silence.
 HEARD_FOR_S = 0.5

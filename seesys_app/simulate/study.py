@@ -28,8 +28,8 @@ from multiprocessing.connection import wait
 from pathlib import Path
 
 from estimator.service.model import model_version
-from seesys.app.simulate.config import SimulateConfig
-from seesys.app.simulate.session import Participant, simulate_session
+from seesys_app.simulate.config import SimulateConfig
+from seesys_app.simulate.session import Participant, simulate_session
 from seesys.core.errors import SeesysError
 from seesys.io.config import as_dict
 from seesys.io.logfiles import write_json_atomically

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.synth.config import EnvironmentPreset, SensorConfig
-from estimator.synth.environments import RICH_TILES, Box, Scene, build_scene, with_boxes
+from synth.config import EnvironmentPreset, SensorConfig
+from synth.environments import RICH_TILES, Box, Scene, build_scene, with_boxes
 
 # Clearance (m) kept between the operator's path (walks and sweeps) and clutter boxes, and between objects and
 # clutter boxes.

@@ -81,8 +81,8 @@ class MotionConfig:
 
 @dataclass(frozen=True)
 class CameraModel:
-    """What a real RGB-D camera adds to the ideal rendered one (estimator/synth/real_camera.py,
-    estimator/synth/structured_light.py, estimator/synth/lenses.py); every effect is off at zero
+    """What a real RGB-D camera adds to the ideal rendered one (synth/real_camera.py,
+    synth/structured_light.py, synth/lenses.py); every effect is off at zero
     (``auto_exposure_damping`` and ``colour_noise_scale`` at 1). A value out of its range raises a
     :class:`ConfigError` naming the model and the key."""
 
@@ -133,7 +133,7 @@ class CameraModel:
 
     @property
     def structured_light(self) -> bool:
-        """True when the depth has any fault of a structured-light sensor (estimator/synth/structured_light.py)."""
+        """True when the depth has any fault of a structured-light sensor (synth/structured_light.py)."""
         return (self.projector_offset_m != 0 or self.disparity_step_px != 0 or self.dark_albedo != 0
                 or self.depth_min_m != 0 or self.depth_max_m != 0)
 

@@ -1,4 +1,4 @@
-"""``seesys run``: a thin wrapper over :mod:`seesys.app.run`."""
+"""``seesys run``: a thin wrapper over :mod:`seesys_app.run`."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def final_line(status: str, summary: dict, folder: Path) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from seesys.app.run import App, RunOptions
+    from seesys_app.run import App, RunOptions
 
     options = RunOptions(source=args.source, condition=Condition(args.condition), out=args.out, local=args.local,
                          estimator=args.estimator, model=args.model, wav=args.wav, mode=args.mode, pace=args.pace,
@@ -48,16 +48,8 @@ def _positive(text: str) -> int:
     return int(text)
 
 
-def _subcommands(parser: argparse.ArgumentParser) -> argparse._SubParsersAction:
-    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``seesys run`` to the command line, and ``simulate`` to ``seesys study`` (registered before the app: the
-    simulated study runs the estimator in-process, which the study's own commands never import)."""
-    from seesys.app.simulate import cli as simulate_cli
-
-    simulate_cli.register(_subcommands(subparsers.choices["study"]))
+def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubParsersAction]:
+    """Add ``seesys run`` to the command line."""
     p = subparsers.add_parser(
         "run", help="the handheld advisory as one app: device, estimator and advisory, supervised, with a live view",
         description="Start the device (ORB-SLAM3 + RTS monitor), the estimator (local, or a remote service's "
@@ -86,3 +78,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pacing.add_argument("--no-pace", dest="pace", action="store_false", help="feed frames as fast as SLAM takes them")
     p.add_argument("--max-frames", type=_positive, metavar="N", help="stop the device after N frames")
     p.set_defaults(func=_run)
+    return {}

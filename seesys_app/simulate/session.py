@@ -33,14 +33,14 @@ from advisory.config import load_advisory_config
 from advisory.rotation import RotationSpeed
 from advisory.scheduler import CueClock, Decision, PulseScheduler
 from estimator.service.model import ServedModel
-from estimator.synth.camera_effects import LensDistortion
-from estimator.synth.config import load_synth_config
-from estimator.synth.lenses import model_camera
-from estimator.synth.operator import Goal, SimulatedOperator, draw_traits
-from estimator.synth.renderer import RayGrid
-from estimator.synth.scan_task import build_scan_task
-from estimator.synth.sequence import SequenceSpec, depth_png, plan_frames, render_images
-from seesys.app.simulate.config import SimulateConfig
+from synth.camera_effects import LensDistortion
+from synth.config import load_synth_config
+from synth.lenses import model_camera
+from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
+from synth.renderer import RayGrid
+from seesys_app.simulate.scan_task import build_scan_task
+from synth.sequence import SequenceSpec, depth_png, plan_frames, render_images
+from seesys_app.simulate.config import SimulateConfig
 from seesys.core.errors import SeesysError
 from seesys.core.messages import Estimate
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV, GROUND_TRUTH, SETTINGS

@@ -3,7 +3,7 @@
 The exported graph (:mod:`estimator.deepsee.export`) takes ``rts`` (B, T, C) float32 (normalised) and ``psd``
 (B, K_L, H, W, 3) uint8 and returns ``y`` (B,), the transformed error, and for a model with an ordinal head
 ``probabilities`` (B, K), P(error ≥ t_k) for the thresholds its record states. Its metadata carries the
-compatibility record (:mod:`estimator.deepsee.compatibility`); a model made for other inputs is refused when it is
+compatibility record (:mod:`estimator.artefact.compatibility`); a model made for other inputs is refused when it is
 loaded.
 
 Execution providers: ``"cpu"`` runs on the CPU; ``"cuda"`` on an NVIDIA GPU (an error where this ONNX Runtime
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from estimator.deepsee.compatibility import (
+from estimator.artefact.compatibility import (
     InputShape,
     ModelMismatch,
     ModelSetup,
@@ -28,8 +28,8 @@ from estimator.deepsee.compatibility import (
     head_thresholds_of,
     rts_columns,
 )
-from estimator.deepsee.standardisation import METADATA_KEY, InputStandardisation
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.standardisation import METADATA_KEY, InputStandardisation
+from estimator.artefact.transforms import LabelTransform
 from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_window_config
@@ -108,7 +108,7 @@ class OnnxModel:
         meta = session.get_modelmeta().custom_metadata_map
         if COMPATIBILITY_KEY not in meta:
             raise ModelMismatch(f"{path} carries no SEESys compatibility record: not exported by seesys estimator")
-        #: The model's compatibility record (:mod:`estimator.deepsee.compatibility`).
+        #: The model's compatibility record (:mod:`estimator.artefact.compatibility`).
         self.record: dict = json.loads(meta[COMPATIBILITY_KEY])
         # None: a model exported before the cameras were recorded
         self.cameras: list[str] | None = json.loads(meta[CAMERAS_KEY]) if CAMERAS_KEY in meta else None

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from estimator.synth.renderer import RayGrid
+from synth.renderer import RayGrid
 from seesys.core.camera import Intrinsics
 
 

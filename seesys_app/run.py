@@ -11,7 +11,7 @@ One run writes one session folder (``--out``, new or empty):
   estimates as the app itself received them (``study.watch``);
 - ``app_events.csv``: what the app did and saw (starts, exits, restarts, the stop), one row each, flushed;
 - ``configs/``: the configuration every child ran with (a copy of the configs in use, with the run's changes);
-- at the end ``summary.json`` and the plot (``seesys.app.summary``).
+- at the end ``summary.json`` and the plot (``seesys_app.summary``).
 
 Children start in dependency order: the estimator (``--local``: ``seesys estimator serve``) until it answers its
 status endpoint, the advisory until the generator logs a buffer and the player has started, then the device, so
@@ -41,13 +41,13 @@ from advisory.config import load_advisory_config
 from advisory.process import stop_on_signals
 from advisory.output import AudioOutput, open_audio_output
 from advisory.supervisor import process_commands
-from estimator.deepsee.onnx_model import recorded_cameras
+from estimator.artefact.onnx_model import recorded_cameras
 from estimator.service.config import load_service_config
-from seesys.app.config import AppConfig, load_app_config
-from seesys.app.information import InformationClock
-from seesys.app.records import PartStatus, RunRecord, RunState, StreamDrops
-from seesys.app.summary import TRACKED_STATES, write_summary
-from seesys.app.view import LiveView, ViewSetup
+from seesys_app.config import AppConfig, load_app_config
+from seesys_app.information import InformationClock
+from seesys_app.records import PartStatus, RunRecord, RunState, StreamDrops
+from seesys_app.summary import TRACKED_STATES, write_summary
+from seesys_app.view import LiveView, ViewSetup
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
 from seesys.core.tracking_state import TrackingState

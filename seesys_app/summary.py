@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seesys.app.config import OutputConfig
-from seesys.app.records import RunRecord
+from seesys_app.config import OutputConfig
+from seesys_app.records import RunRecord
 from seesys.core.equation2 import Equation2Config
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, ESTIMATES_CSV, FRAMES_CSV, GROUND_TRUTH, PLAYBACK_CSV

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.synth.config import CameraConfig
-from estimator.synth.environments import Scene
+from synth.config import CameraConfig
+from synth.environments import Scene
 from seesys.core.camera import Intrinsics
 
 

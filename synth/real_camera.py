@@ -24,7 +24,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from estimator.synth.renderer import RayGrid
+from synth.renderer import RayGrid
 from seesys.core.errors import SeesysError
 
 # Sub-steps per frame of the auto-exposure loop's integration (stable for time constants down to ~1 frame).

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from estimator.synth.config import MotionGroupConfig, TrajectoryConfig
+from synth.config import MotionGroupConfig, TrajectoryConfig
 from seesys.core.trajectory import Poses, TrajectoryError
 from seesys.io.trajectory_files import read_euroc_groundtruth, read_tum
 

@@ -29,8 +29,8 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
-from seesys.app.config import ViewConfig
-from seesys.app.records import RunState
+from seesys_app.config import ViewConfig
+from seesys_app.records import RunState
 from seesys.core.session_layout import ADVISORY_CSV, ESTIMATES_CSV, FRAMES_CSV
 from seesys.io.children import CsvTail, RowCounter, last_line
 

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.synth.config import CameraModel
-from estimator.synth.renderer import Render
+from synth.config import CameraModel
+from synth.renderer import Render
 
 
 def quantise_inverse_depth(depth: np.ndarray, step_per_m: float) -> np.ndarray:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from estimator.synth.config import CameraConfig, CameraModel
+from synth.config import CameraConfig, CameraModel
 from seesys.core.camera import Intrinsics
 
 

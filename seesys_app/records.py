@@ -54,5 +54,5 @@ class RunRecord:
     drops: StreamDrops | None = None  # None: the stream was never watched
     estimator_dropped: dict[str, int] | None = None  # what a local estimator last reported dropping, by reason
     # (None: remote, unknown)
-    seconds_without_information: float = 0.0  # the device ran, no fresh estimate (seesys.app.information)
+    seconds_without_information: float = 0.0  # the device ran, no fresh estimate (seesys_app.information)
     without_information_by_reason: dict[str, float] = field(default_factory=dict)

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator.deepsee.transforms import LabelTransform
+from estimator.artefact.transforms import LabelTransform
 from seesys.core import camera_normalisation, rts_schema
 from seesys.core.errors import SeesysError
 from seesys.core.windows import WindowConfig
