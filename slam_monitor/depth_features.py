@@ -128,6 +128,13 @@ def inverse_depth(depth: np.ndarray) -> np.ndarray:
     return w
 
 
+def hole_share(depth: np.ndarray) -> float:
+    """``depth_holes``: the share of the pixels of a float32 depth image that are 0 (no depth)."""
+    # Sources write 0 where there is no depth (Frame); counting non-zero pixels is the cheapest full-frame pass,
+    # and counting them on the float32 image's bits (+0.0 is all zero bits) is 2-4 times faster than on floats.
+    return 1.0 - cv2.countNonZero(depth.view(np.int32)) / depth.size
+
+
 def noise_over_z2(w: np.ndarray, edge_jump: float) -> float:
     """σ_z / z² (1/m) from the second differences of inverse depth ``w`` (NaN: no depth) along its rows; a second
     difference above ``edge_jump`` of its middle value spans a depth edge and is left out (edges, a tenth of the
@@ -292,9 +299,7 @@ class DepthQuality:
             raise ValueError(f"depth {depth.shape} is not aligned to the gray frame {gray.shape}")
         s = self._cfg.stride
         w_sub = inverse_depth(depth[s // 2::s, s // 2::s])
-        # Sources write 0 where there is no depth (Frame); counting non-zero pixels is the cheapest full-frame pass,
-        # and counting them on the float32 image's bits (+0.0 is all zero bits) is 2-4 times faster than on floats.
-        holes = 1.0 - cv2.countNonZero(depth.view(np.int32)) / depth.size
+        holes = hole_share(depth)
         noise = noise_over_z2(w_sub, self._cfg.edge_jump)
         crossings = edge_crossings(depth, gray, w_sub, self._cfg)
         motion = (image_motion_px(crossings, intrinsics, previous_from_current)

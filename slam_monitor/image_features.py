@@ -58,23 +58,31 @@ def reference_scale(gray: np.ndarray, normalisation: CameraNormalisation) -> np.
     return cv2.resize(gray, size, interpolation=cv2.INTER_AREA if finer else cv2.INTER_LINEAR)
 
 
-def image_features(gray: np.ndarray, reference_gray: np.ndarray | None = None) -> ImageFeatures:
-    """The four sensor-input channels of one gray frame; ``reference_gray``: the frame at the reference scale
-    (:func:`reference_scale`), by default the frame itself (a frame of the reference camera)."""
+def intensity_statistics(gray: np.ndarray) -> tuple[float, float, float]:
+    """Brightness, contrast and entropy of a gray frame (see the module docstring). Raises ValueError for a frame
+    that is not (H, W) uint8."""
     _check_gray(gray)
-    reference_gray = gray if reference_gray is None else reference_gray
-    _check_gray(reference_gray)
     mean, std = cv2.meanStdDev(gray)
     hist = cv2.calcHist([gray], [0], None, [256], [0, 256]).ravel()
     p = hist[hist > 0] / gray.size
+    return float(mean[0, 0]) / 255.0, float(std[0, 0]) / 255.0, float(-(p * np.log2(p)).sum())
+
+
+def laplacian_variance(reference_gray: np.ndarray) -> float:
+    """The ``laplacian`` channel of a gray frame at the reference scale (:func:`reference_scale`). Raises
+    ValueError for a frame that is not (H, W) uint8."""
+    _check_gray(reference_gray)
     # int16 holds the 3x3 Laplacian of 8-bit values exactly (|value| <= 4 * 255) and is faster than float32.
     _, lap_std = cv2.meanStdDev(cv2.Laplacian(reference_gray, cv2.CV_16S, ksize=1))
-    return ImageFeatures(
-        brightness=float(mean[0, 0]) / 255.0,
-        contrast=float(std[0, 0]) / 255.0,
-        entropy=float(-(p * np.log2(p)).sum()),
-        laplacian=float(lap_std[0, 0]) ** 2,
-    )
+    return float(lap_std[0, 0]) ** 2
+
+
+def image_features(gray: np.ndarray, reference_gray: np.ndarray | None = None) -> ImageFeatures:
+    """The four sensor-input channels of one gray frame; ``reference_gray``: the frame at the reference scale
+    (:func:`reference_scale`), by default the frame itself (a frame of the reference camera)."""
+    brightness, contrast, entropy = intensity_statistics(gray)
+    laplacian = laplacian_variance(gray if reference_gray is None else reference_gray)
+    return ImageFeatures(brightness=brightness, contrast=contrast, entropy=entropy, laplacian=laplacian)
 
 
 def keypoint_responses(gray: np.ndarray, keypoints: np.ndarray) -> np.ndarray:

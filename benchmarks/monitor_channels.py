@@ -1,0 +1,249 @@
+"""The RTS monitor's cost per channel: each channel (or group of channels computed in one pass) timed alone on
+every frame of a source, in thread CPU time, and the whole monitor beside them.
+
+ORB-SLAM3 tracks the source once, unpaced, in this process (``slam_monitor.replay``); the monitor's inputs of
+every frame are kept, and the monitor's intermediate results (the local map's lost points, the relative motion, the
+inlier keypoints) are prepared once, so that each row below times only its own work. Each row runs over every
+frame ``--repeats`` times and reports the median pass's mean thread CPU ms per frame (``time.thread_time``: not
+inflated by waiting for a core on a loaded machine). Rows marked "per PSD frame" run only on the frames that end a
+model window (every ``end_stride``-th, as on a device); their "per frame" figure is amortised over all frames.
+"monitor thread, whole" is the monitor thread's own work per frame: features, PSD, the stream message's encoding
+and both logs (``RtsMonitor._process`` without the socket send).
+
+    .venv/bin/python benchmarks/monitor_channels.py [--source tum:data/sample] [--mode rgbd] [--repeats 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seesys.core import messages
+from seesys.core.camera_normalisation import CameraNormalisation
+from seesys.io.core_settings import load_device_settings
+from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
+from slam_monitor.depth_features import (
+    RegistrationFit,
+    edge_crossings,
+    hole_share,
+    image_motion_px,
+    inverse_depth,
+    noise_over_z2,
+)
+from slam_monitor.image_features import (
+    intensity_statistics,
+    laplacian_variance,
+    reference_scale,
+)
+from slam_monitor.local_map import LocalMap
+from slam_monitor.monitor import FeatureExtractor, MonitorInput
+from slam_monitor.monitor_config import MonitorConfig, load_monitor_config
+from slam_monitor.orbslam_settings import SlamMode
+from slam_monitor.replay import record_inputs
+from slam_monitor.slam_features import (
+    RelativeMotion,
+    SlamFeatures,
+    relative_motion,
+    slam_features,
+)
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """One frame's monitor input and the intermediate results the channels after the local map take."""
+
+    item: MonitorInput
+    normalisation: CameraNormalisation
+    reference_gray: np.ndarray
+    lost_points_w: np.ndarray | None  # None: no tracked pose
+    motion: RelativeMotion | None
+    moved: np.ndarray | None  # T_prev_cur for the depth registration, None without both poses
+    slam: SlamFeatures | None  # the tracking channels and inlier keypoints the PSD takes
+
+
+def prepare(inputs: Sequence[MonitorInput], config: MonitorConfig) -> list[Prepared]:
+    """Replay the monitor's local map over ``inputs`` (as :class:`FeatureExtractor` does) and keep each frame's
+    intermediate results."""
+    lm = config.local_map
+    local_map = LocalMap(lm.voxel, lm.max_age_frames, lm.max_points)
+    prepared = []
+    for item in inputs:
+        normalisation = CameraNormalisation(config.reference_camera, item.frame.intrinsics)
+        lost, motion = None, None
+        if item.state.tracked and item.pose_cw is not None and item.pose_wc is not None:
+            if item.map_changed or item.prev_pose_wc is None:
+                local_map.clear()
+            local_map.update(item.map_points, item.frame.index)
+            lost = local_map.lost_points()
+            motion = (relative_motion(item.prev_pose_wc, item.pose_wc) if item.prev_pose_wc is not None
+                      else RelativeMotion.still())
+        moved = (np.linalg.inv(item.prev_pose_wc) @ item.pose_wc
+                 if item.pose_wc is not None and item.prev_pose_wc is not None and not item.map_changed else None)
+        prepared.append(Prepared(item, normalisation, reference_scale(item.frame.gray, normalisation), lost, motion,
+                                 moved, _slam(item, lost, motion, config) if motion is not None else None))
+    return prepared
+
+
+def _local_map_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], None]:
+    lm = config.local_map
+
+    def run(frames: Sequence[Prepared]) -> None:
+        local_map = LocalMap(lm.voxel, lm.max_age_frames, lm.max_points)
+        for p in frames:
+            item = p.item
+            if p.motion is None:
+                continue
+            if item.map_changed or item.prev_pose_wc is None:
+                local_map.clear()
+            local_map.update(item.map_points, item.frame.index)
+            local_map.lost_points()
+    return run
+
+
+def _registration_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], None]:
+    cfg = config.depth
+
+    def run(frames: Sequence[Prepared]) -> None:
+        fit = RegistrationFit(cfg)
+        s = cfg.stride
+        for p in frames:
+            frame = p.item.frame
+            if frame.depth is None:
+                continue
+            w_sub = inverse_depth(frame.depth[s // 2::s, s // 2::s])
+            crossings = edge_crossings(frame.depth, frame.gray, w_sub, cfg)
+            motion = image_motion_px(crossings, frame.intrinsics, p.moved) if p.moved is not None else None
+            fit.update(crossings, motion, frame.depth.shape[0])
+    return run
+
+
+def _slam(item: MonitorInput, lost_points_w: np.ndarray, motion: RelativeMotion, config: MonitorConfig
+          ) -> SlamFeatures:
+    intr, features = item.frame.intrinsics, config.features
+    return slam_features(pose_cw=item.pose_cw, motion=motion, matched_inliers=item.num_tracked_points,
+                         keypoints=item.keypoints, matched_points_w=item.map_points, lost_points_w=lost_points_w,
+                         camera_matrix=intr.matrix(), width=intr.width, height=intr.height,
+                         match_gate_px=features.match_gate_px, min_depth=features.min_depth)
+
+
+def _whole_monitor(config: MonitorConfig, with_logs: bool) -> Callable[[Sequence[Prepared]], None]:
+    settings = load_device_settings(SlamMode.RGBD.value, 30.0)
+
+    def run(frames: Sequence[Prepared]) -> None:
+        extractor = FeatureExtractor(config, 1, settings)
+        with tempfile.TemporaryDirectory() as tmp:
+            rts_log = RtsCsvWriter(Path(tmp) / RTS_CSV, settings) if with_logs else None
+            psd_log = PsdLogWriter(Path(tmp) / PSD_DIR, config.log.psd_chunk_records) if with_logs else None
+            for p in frames:
+                features = extractor.extract(p.item)
+                if not with_logs:
+                    continue
+                messages.encode(features)
+                rts_log.write(features)
+                if features.psd is not None:
+                    psd_log.write(features.frame_index, features.timestamp, features.psd)
+            if with_logs:
+                rts_log.close()
+                psd_log.close()
+    return run
+
+
+def _each(step: Callable[[Prepared], object]) -> Callable[[Sequence[Prepared]], None]:
+    def run(frames: Sequence[Prepared]) -> None:
+        for p in frames:
+            step(p)
+    return run
+
+
+def _depth_only(step: Callable[[np.ndarray], object]) -> Callable[[Prepared], object]:
+    return lambda p: step(p.item.frame.depth) if p.item.frame.depth is not None else None
+
+
+def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> dict[str, tuple[Callable, bool]]:
+    """Row label → (a pass over the frames, whether it runs on PSD frames only)."""
+    s = config.depth.stride
+    edge_jump = config.depth.edge_jump
+    extractor = FeatureExtractor(config)
+    return {
+        "brightness, contrast, entropy": (_each(lambda p: intensity_statistics(p.item.frame.gray)), False),
+        "laplacian (with the reference-scale resampling)": (
+            _each(lambda p: laplacian_variance(reference_scale(p.item.frame.gray, p.normalisation))), False),
+        "local map (update, lost points)": (_local_map_pass(config), False),
+        "matched_inliers, outliers, matches_before_po, avg/var_mp_depth, local_mapping_visual_error":
+            (_each(lambda p: _slam(p.item, p.lost_points_w, p.motion, config) if p.motion is not None else None),
+             False),
+        "rel_tx/ty/tz, rel_roll/pitch/yaw": (
+            _each(lambda p: relative_motion(p.item.prev_pose_wc, p.item.pose_wc)
+                  if p.motion is not None and p.item.prev_pose_wc is not None else None), False),
+        "depth_holes": (_each(_depth_only(hole_share)), False),
+        "depth_noise": (_each(_depth_only(lambda d: noise_over_z2(inverse_depth(d[s // 2::s, s // 2::s]), edge_jump))),
+                        False),
+        "depth_registration": (_registration_pass(config), False),
+        "PSD matrix": (_each(lambda p: extractor._psd(p.item, p.slam, p.normalisation,
+                                                      p.reference_gray)), True),
+        "FeatureFrame encoding (stream)": (_each(lambda p: messages.encode(encoded[p.item.frame.index])), False),
+    }
+
+
+def thread_ms_per_call(run: Callable[[Sequence[Prepared]], None], frames: Sequence[Prepared], repeats: int) -> float:
+    """Median over ``repeats`` passes of the thread CPU ms per frame of ``frames``."""
+    passes = []
+    for _ in range(repeats):
+        start = time.thread_time()
+        run(frames)
+        passes.append((time.thread_time() - start) * 1000.0 / max(len(frames), 1))
+    return statistics.median(passes)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--source", default=f"tum:{REPO / 'data' / 'sample'}", help="KIND:PATH (default the sample)")
+    parser.add_argument("--mode", choices=[m.value for m in SlamMode], default=SlamMode.RGBD.value)
+    parser.add_argument("--repeats", type=int, default=5, help="passes over the frames per row (median reported)")
+    parser.add_argument("--json", type=Path, help="also write the figures to this file")
+    args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, got {args.repeats}")
+    config = load_monitor_config()
+    inputs = record_inputs(args.source, SlamMode(args.mode))
+    frames = prepare(inputs, config)
+    psd_frames = [p for p in frames if config.windows.is_psd_frame(p.item.frame.index)]
+    extractor = FeatureExtractor(config, 1, load_device_settings(args.mode, 30.0))
+    encoded = {item.frame.index: extractor.extract(item) for item in inputs}
+    rows: dict[str, dict[str, float]] = {}
+    for label, (run, psd_only) in stages(config, encoded).items():
+        subset = psd_frames if psd_only else frames
+        per_call = thread_ms_per_call(run, subset, args.repeats)
+        rows[label] = {"per_call_ms": per_call, "per_frame_ms": per_call * len(subset) / len(frames)}
+    for label, with_logs in (("monitor features, whole (FeatureExtractor.extract)", False),
+                             ("monitor thread, whole (features, PSD, encoding, logs)", True)):
+        per_frame = thread_ms_per_call(_whole_monitor(config, with_logs), frames, args.repeats)
+        rows[label] = {"per_call_ms": per_frame, "per_frame_ms": per_frame}
+    tracked = sum(p.motion is not None for p in frames)
+    print(f"{len(frames)} frames ({tracked} tracked, {len(psd_frames)} PSD frames), {args.mode}, "
+          f"{args.repeats} passes per row, load average {os.getloadavg()[0]:.2f} (1 min)")
+    print("| channel(s) | thread CPU ms per frame | per PSD frame |")
+    print("|---|---|---|")
+    psd_labels = {label for label, (_, psd_only) in stages(config, encoded).items() if psd_only}
+    for label, row in rows.items():
+        per_psd = f"{row['per_call_ms']:.3f}" if label in psd_labels else ""
+        print(f"| {label} | {row['per_frame_ms']:.3f} | {per_psd} |")
+    whole = rows["monitor thread, whole (features, PSD, encoding, logs)"]["per_frame_ms"]
+    print(f"monitor thread: {whole:.2f} ms per frame = {whole * 30 / 10:.1f} % of a core at 30 Hz")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
