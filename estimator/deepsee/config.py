@@ -142,6 +142,14 @@ class EvaluationConfig:
     large_error_m: float  # recall of windows whose true error is at least this
     batch_size: int
     plot_runs: int  # test runs drawn as estimate-vs-truth time series
+    bootstrap_resamples: int  # draws of runs with replacement for the intervals (0: none)
+    confidence: float  # of the bootstrap intervals
+    bootstrap_seed: int
+
+    def __post_init__(self) -> None:
+        if self.bootstrap_resamples < 0 or not 0 < self.confidence < 1:
+            raise ValueError(f"evaluation: bootstrap_resamples must be >= 0 and confidence in (0, 1), got "
+                             f"{self.bootstrap_resamples} and {self.confidence}")
 
 
 @dataclass(frozen=True)

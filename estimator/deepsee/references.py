@@ -1,0 +1,133 @@
+"""Reference rows: what an estimate must beat, judged on exactly the windows and bins the models are judged on.
+
+- ``constant``: the Equation 2 class most frequent among the training data's 1/3 s bins, estimated everywhere as
+  the median of those bins' mean errors (a value inside that class). Its agreement is the base rate; its κ is 0.
+- ``always_top``: every window at the top class boundary (12 mm with the paper's values): "always 3 pulses".
+- ``motion_isotonic``: the motion alone. The window's motion statistic (:func:`motion_statistic`: the standard
+  deviation over the window of the camera's displacement per frame, sqrt(var(rel_tx) + var(rel_ty) +
+  var(rel_tz)), in m/frame) mapped to an error by scikit-learn's ``IsotonicRegression`` (its direction chosen by the
+  sign of the training data's Spearman ρ, estimates clipped to the training range) fitted on the training windows.
+  The statistic is fixed here, not chosen on any data.
+- ``ceiling``: for a run of the dataset whose rendered sequence was tracked more than once (``trials`` of the
+  build), the estimate of a window is the true error of the other trials at the same frame (their mean where there
+  are several): how well one SLAM trial's error predicts another's. Windows whose frame no other trial labelled have
+  no ceiling estimate and are left out of the ceiling's row (its window count says how many remain).
+
+Everything is fitted on the training part of the round (or, for fine-tuning, on the sessions it trains on); test
+data and the lockbox are only judged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from sklearn.isotonic import IsotonicRegression
+
+from estimator.dataset.store import DatasetReader, list_runs
+from estimator.deepsee.data import Windows
+from estimator.deepsee.metrics import advisory_bins, pulse_classes
+from estimator.deepsee.yardsticks import spearman
+from seesys.core import rts_schema
+from seesys.core.equation2 import PulseSettings
+from seesys.core.errors import SeesysError
+from seesys.core.exceedance import class_boundaries_m
+from seesys.core.labels import LabelStatus
+
+CONSTANT = "constant"
+ALWAYS_TOP = "always_top"
+MOTION_ISOTONIC = "motion_isotonic"
+CEILING = "ceiling"
+#: The channels of the motion statistic: the camera's displacement since the previous frame.
+MOTION_CHANNELS = ("rel_tx", "rel_ty", "rel_tz")
+
+
+@dataclass(frozen=True)
+class ReferenceRow:
+    name: str  # the row's name in scores.csv
+    label: str  # as in the report
+    category: str
+
+
+REFERENCE_ROWS = (ReferenceRow(CONSTANT, "constant (training's most frequent class)", "Reference"),
+                  ReferenceRow(ALWAYS_TOP, "always the top class", "Reference"),
+                  ReferenceRow(MOTION_ISOTONIC, "motion only (isotonic)", "Reference"))
+CEILING_ROW = ReferenceRow(CEILING, "another SLAM trial of the same render", "Ceiling")
+
+
+def motion_statistic(rts: np.ndarray) -> np.ndarray:
+    """(N, T, C) windows normalised by :func:`seesys.core.rts_schema.normalise` (every channel of the schema) → (N,)
+    standard deviation over the window of the relative translation, sqrt(Σ var(rel_t·)), in m/frame."""
+    rts = np.asarray(rts, np.float64)
+    if rts.ndim != 3 or rts.shape[-1] != rts_schema.NUM_CHANNELS:
+        raise SeesysError(f"the motion statistic takes windows of every RTS channel ({rts_schema.NUM_CHANNELS}), "
+                          f"got shape {rts.shape}")
+    columns = [rts_schema.index_of(name) for name in MOTION_CHANNELS]
+    scales = np.array([rts_schema.CHANNELS[c].scale for c in columns])
+    return np.sqrt(np.sum(np.var(rts[..., columns] * scales, axis=1), axis=-1))
+
+
+@dataclass(frozen=True)
+class References:
+    """The reference estimators fitted on one training set."""
+
+    constant_m: float
+    constant_class: int
+    top_m: float
+    motion_fit: IsotonicRegression
+
+    def estimates(self, windows: Windows) -> dict[str, np.ndarray]:
+        """Each reference row's estimates (metres) of ``windows``."""
+        n = len(windows)
+        return {CONSTANT: np.full(n, self.constant_m), ALWAYS_TOP: np.full(n, self.top_m),
+                MOTION_ISOTONIC: self.motion_fit.predict(motion_statistic(windows.rts)) if n else np.zeros(0)}
+
+
+def fit_references(train: Windows, pulses: PulseSettings) -> References:
+    """The references of :data:`REFERENCE_ROWS`, fitted on ``train`` (module docstring); raises
+    :class:`SeesysError` without training windows."""
+    if not len(train):
+        raise SeesysError("no training windows to fit the reference rows on")
+    bins = advisory_bins(train.meta, train.error_m, train.error_m, pulses.window_s)
+    classes = pulse_classes(bins.truth.to_numpy(), pulses)
+    counts = np.bincount(classes, minlength=pulses.max_pulses + 1)
+    best = int(np.argmax(counts))
+    motion = motion_statistic(train.rts)
+    increasing = not spearman(motion, train.error_m) < 0
+    fit = IsotonicRegression(increasing=increasing, out_of_bounds="clip").fit(motion, train.error_m)
+    return References(float(np.median(bins.truth.to_numpy()[classes == best])), best,
+                      class_boundaries_m(pulses)[-1], fit)
+
+
+def other_trials(roots: list[Path]) -> dict[str, list[str]]:
+    """For every run with samples of the dataset folders, the runs of the same rendered sequence and mode with
+    another trial (empty where it was tracked once)."""
+    infos = [info for root in roots for info in list_runs(root) if info.frames]
+    by_sequence: dict[tuple[str, str], list[str]] = {}
+    for info in infos:
+        by_sequence.setdefault((info.sequence, info.mode), []).append(info.run)
+    return {info.run: [r for r in by_sequence[(info.sequence, info.mode)] if r != info.run] for info in infos}
+
+
+def ceiling_estimates(roots: list[Path], windows: Windows) -> np.ndarray:
+    """Per window of dataset runs, the mean true error of the other trials of its run's sequence at its end frame;
+    NaN where there is no other trial or none labelled that frame (module docstring)."""
+    estimate = np.full(len(windows), np.nan)
+    if not len(windows):
+        return estimate
+    others = other_trials(roots)
+    wanted = sorted({o for run in set(windows.meta.run) for o in others.get(run, [])})
+    if not wanted:
+        return estimate
+    labels = DatasetReader(roots, runs=wanted).frame_labels()
+    labels = labels[labels.status == LabelStatus.LABELLED.value].set_index(["run", "frame_index"]).error_m
+    for run, rows in windows.meta.groupby("run", sort=False).groups.items():
+        per_trial = [labels.loc[o].reindex(windows.meta.frame_index.to_numpy()[np.asarray(rows)]).to_numpy()
+                     for o in others.get(run, []) if o in labels.index.get_level_values(0)]
+        if per_trial:
+            stacked = np.vstack(per_trial)
+            finite = np.isfinite(stacked).any(axis=0)
+            estimate[np.asarray(rows)[finite]] = np.nanmean(stacked[:, finite], axis=0)
+    return estimate
+

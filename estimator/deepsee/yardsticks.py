@@ -1,0 +1,214 @@
+"""Yardsticks of estimate quality that do not reward the base rate, beside the Table 3 figures of
+:mod:`estimator.deepsee.metrics`. Pure: arrays in, numbers out.
+
+- **Quadratic-weighted Cohen's κ** of the Equation 2 classes of the 1/3 s bins (the advisory's unit), with
+  scikit-learn's ``cohen_kappa_score(weights="quadratic")`` over every class 0 … Equation 2's maximum: 1 when every
+  bin's class is right, 0 for any constant class (its agreement with the truth is what chance gives), below 0 when
+  worse than chance. Raw agreement rewards the most frequent class; κ does not.
+- **Sparsification** (per window): remove windows in order of decreasing estimate and follow the mean *true* error
+  of the windows kept; the oracle removes them in order of decreasing truth, a random order keeps the mean where it
+  started. Both curves are divided by the mean true error of all windows (so they start at 1) and sampled at the
+  removed fractions 0, 1/S, …, (S − 1)/S (S = :data:`SPARSIFICATION_STEPS`). AUSE is the mean gap between the
+  estimate's curve and the oracle's (0 for an estimate that orders the windows as their truths do), AURG the mean
+  gap between the random curve (1) and the estimate's (0 for a constant, above 0 when the order helps). Windows
+  with equal estimates are removed together: each counts at the mean truth of its tie, so a constant estimate's
+  curve is exactly flat.
+- **Partial Spearman ρ** of the estimate with the truth given the window's motion statistic
+  (:func:`estimator.deepsee.references.motion_statistic`), with pingouin's ``partial_corr(method="spearman")``:
+  how much of the ranking is not the motion's.
+- **Head calibration**: per threshold t_k of an ordinal head, the Brier score (scikit-learn's
+  ``brier_score_loss``) of P(error ≥ t_k) against 1[truth ≥ t_k] per window, the reliability diagram
+  (``calibration_curve``, :data:`RELIABILITY_BINS` equal-width bins of the probability) and its expected calibration
+  error, ECE = Σ_b (n_b / n) · |observed_b − mean probability_b|.
+- **Confidence intervals by bootstrap over runs**: the windows of one run are not independent (a run's errors
+  come in stretches), so the runs are resampled with replacement, all windows and bins of a drawn run together;
+  the interval is the percentile interval of the resampled values. The effective n is the number of runs.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+import pingouin
+from scipy.stats import spearmanr
+from sklearn.calibration import calibration_curve
+from sklearn.metrics import brier_score_loss, cohen_kappa_score
+
+#: Removed fractions at which a sparsification curve is sampled: 0, 1/S, …, (S − 1)/S.
+SPARSIFICATION_STEPS = 100
+#: Equal-width probability bins of a reliability diagram.
+RELIABILITY_BINS = 10
+
+
+def quadratic_kappa(true_class: np.ndarray, estimate_class: np.ndarray, classes: int) -> float:
+    """Quadratic-weighted κ of two class sequences over the classes 0 … ``classes`` − 1; NaN when there is nothing
+    to judge or the truth and the estimate are one and the same constant (κ is 0 / 0 there)."""
+    true_class, estimate_class = np.asarray(true_class, int), np.asarray(estimate_class, int)
+    if len(true_class) == 0 or (len(set(true_class)) == 1 and set(true_class) == set(estimate_class)):
+        return float("nan")
+    return float(cohen_kappa_score(true_class, estimate_class, labels=list(range(classes)), weights="quadratic"))
+
+
+def _kept_means(order_key: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Mean truth of the windows kept after removing the largest ``order_key`` first, at each sampled fraction;
+    windows of equal key count at their tie's mean truth."""
+    order = np.argsort(order_key, kind="stable")
+    key, values = order_key[order], truth[order].astype(float)
+    _, start, counts = np.unique(key, return_index=True, return_counts=True)
+    tie_means = np.add.reduceat(values, start) / counts
+    averaged = np.repeat(tie_means, counts)
+    kept = len(values) - np.floor(np.arange(SPARSIFICATION_STEPS) / SPARSIFICATION_STEPS * len(values)).astype(int)
+    return np.cumsum(averaged)[kept - 1] / kept
+
+
+def sparsification(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """(AUSE, AURG) of ``estimate`` against ``truth`` (module docstring); NaN without windows or with a zero mean
+    truth."""
+    estimate, truth = np.asarray(estimate, float), np.asarray(truth, float)
+    if len(truth) == 0 or not truth.mean() > 0:
+        return float("nan"), float("nan")
+    scale = truth.mean()
+    by_estimate = _kept_means(estimate, truth) / scale
+    oracle = _kept_means(truth, truth) / scale
+    return float(np.mean(by_estimate - oracle)), float(np.mean(1.0 - by_estimate))
+
+
+def spearman(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """Spearman ρ; NaN for fewer than 3 windows or a constant side."""
+    if len(truth) < 3 or np.ptp(estimate) == 0 or np.ptp(truth) == 0:
+        return float("nan")
+    return float(spearmanr(estimate, truth).statistic)
+
+
+def partial_spearman(estimate: np.ndarray, truth: np.ndarray, motion: np.ndarray) -> float:
+    """Spearman ρ of ``estimate`` with ``truth`` given ``motion``; NaN for fewer than 4 windows, a constant
+    variable or a motion statistic that is not finite everywhere."""
+    if len(truth) < 4 or not np.isfinite(motion).all() or min(np.ptp(estimate), np.ptp(truth), np.ptp(motion)) == 0:
+        return float("nan")
+    table = pd.DataFrame({"estimate": estimate, "truth": truth, "motion": motion})
+    with warnings.catch_warnings():
+        # An estimate equal to the truth (the ceiling's best case, a perfect model) makes the covariance singular:
+        # pingouin warns and still gives the right value, 1.
+        warnings.simplefilter("ignore")
+        result = pingouin.partial_corr(table, x="estimate", y="truth", covar="motion", method="spearman")
+    return float(result["r"].iloc[0])
+
+
+def median_ratio(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """Median estimate over median truth; NaN without windows or with a median truth of 0."""
+    if len(truth) == 0 or not np.median(truth) > 0:
+        return float("nan")
+    return float(np.median(estimate) / np.median(truth))
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """One head threshold on a set of windows: Brier score, ECE and the reliability diagram's non-empty bins."""
+
+    threshold_m: float
+    brier: float
+    ece: float
+    confidence: np.ndarray  # mean probability per bin
+    observed: np.ndarray  # share of windows at or above the threshold per bin
+    count: np.ndarray  # windows per bin
+
+
+def calibration(probability: np.ndarray, truth: np.ndarray, threshold_m: float) -> Calibration:
+    """Brier score, ECE and reliability diagram of P(error ≥ ``threshold_m``) against the windows' ``truth``."""
+    probability, truth = np.asarray(probability, float), np.asarray(truth, float)
+    if len(truth) == 0:
+        return Calibration(threshold_m, float("nan"), float("nan"), np.zeros(0), np.zeros(0), np.zeros(0, int))
+    outcome = (truth >= threshold_m).astype(int)
+    brier = float(brier_score_loss(outcome, probability, pos_label=1))
+    # calibration_curve drops empty bins; the counts come from the same bins (its edges and its searchsorted).
+    edges = np.linspace(0.0, 1.0, RELIABILITY_BINS + 1)
+    count = np.bincount(np.searchsorted(edges[1:-1], probability), minlength=RELIABILITY_BINS)
+    count = count[count > 0]
+    observed, confidence = calibration_curve(outcome, probability, n_bins=RELIABILITY_BINS, strategy="uniform",
+                                             pos_label=1)
+    ece = float(np.sum(count / count.sum() * np.abs(observed - confidence)))
+    return Calibration(threshold_m, brier, ece, confidence, observed, count)
+
+
+@dataclass(frozen=True)
+class Judged:
+    """One estimator's windows of one set and their advisory bins, as the yardsticks read them. Window arrays are
+    (N,), bin arrays (B,); ``*_run`` says which run each belongs to (the unit of the bootstrap)."""
+
+    window_run: np.ndarray
+    truth_m: np.ndarray
+    estimate_m: np.ndarray
+    motion: np.ndarray
+    bin_run: np.ndarray
+    bin_truth_m: np.ndarray
+    bin_estimate_m: np.ndarray
+    bin_true_class: np.ndarray
+    bin_estimate_class: np.ndarray
+
+    def take(self, windows: np.ndarray, bins: np.ndarray) -> Judged:
+        """The windows ``windows`` and the bins ``bins`` (indices, repeats allowed)."""
+        return Judged(self.window_run[windows], self.truth_m[windows], self.estimate_m[windows],
+                      self.motion[windows], self.bin_run[bins], self.bin_truth_m[bins], self.bin_estimate_m[bins],
+                      self.bin_true_class[bins], self.bin_estimate_class[bins])
+
+
+#: The yardsticks of :func:`yardsticks` that get a bootstrap interval (``<name>_low``, ``<name>_high``).
+WITH_INTERVALS = ("agreement", "kappa", "aurg", "spearman", "partial_spearman", "median_ratio", "recall_large")
+
+
+def yardsticks(judged: Judged, classes: int, large_error_m: float) -> dict[str, float]:
+    """Agreement, κ and recall of ≥ ``large_error_m`` bins (bins); Spearman ρ, partial ρ given motion, AUSE,
+    AURG and median ratio (windows)."""
+    large = judged.bin_truth_m >= large_error_m
+    ause, aurg = sparsification(judged.estimate_m, judged.truth_m)
+    return {
+        "agreement": float(np.mean(judged.bin_true_class == judged.bin_estimate_class))
+        if len(judged.bin_run) else float("nan"),
+        "kappa": quadratic_kappa(judged.bin_true_class, judged.bin_estimate_class, classes),
+        "recall_large": float(np.mean(judged.bin_estimate_m[large] >= large_error_m)) if large.any() else float("nan"),
+        "spearman": spearman(judged.estimate_m, judged.truth_m),
+        "partial_spearman": partial_spearman(judged.estimate_m, judged.truth_m, judged.motion),
+        "ause": ause, "aurg": aurg,
+        "median_ratio": median_ratio(judged.estimate_m, judged.truth_m)}
+
+
+@dataclass(frozen=True)
+class Bootstrap:
+    """Percentile intervals by resampling runs: ``resamples`` draws, ``confidence`` (e.g. 0.95), seeded."""
+
+    resamples: int
+    confidence: float
+    seed: int
+
+
+def bootstrap_over_runs(judged: Judged, statistic: Callable[[Judged], dict[str, float]], names: tuple[str, ...],
+                        settings: Bootstrap) -> tuple[dict[str, tuple[float, float]], int]:
+    """Percentile intervals of ``statistic``'s ``names`` over sets of runs drawn with replacement, and the
+    effective n (the number of runs). With fewer than 2 runs (or no resamples) every interval is NaN."""
+    runs, window_run = np.unique(judged.window_run, return_inverse=True)
+    nan = {name: (float("nan"), float("nan")) for name in names}
+    if len(runs) < 2 or settings.resamples < 1:
+        return nan, len(runs)
+    bin_run = np.searchsorted(runs, judged.bin_run)
+    windows_of = [np.flatnonzero(window_run == k) for k in range(len(runs))]
+    bins_of = [np.flatnonzero(bin_run == k) for k in range(len(runs))]
+    rng = np.random.default_rng(settings.seed)
+    values = {name: [] for name in names}
+    for _ in range(settings.resamples):
+        draw = rng.integers(len(runs), size=len(runs))
+        result = statistic(judged.take(np.concatenate([windows_of[k] for k in draw]),
+                                       np.concatenate([bins_of[k] for k in draw])))
+        for name in names:
+            values[name].append(result[name])
+    tail = 100.0 * (1.0 - settings.confidence) / 2.0
+    intervals = {}
+    for name in names:
+        finite = np.asarray(values[name], float)
+        finite = finite[np.isfinite(finite)]
+        intervals[name] = ((float(np.percentile(finite, tail)), float(np.percentile(finite, 100.0 - tail)))
+                           if len(finite) else (float("nan"), float("nan")))
+    return intervals, len(runs)

@@ -1,0 +1,164 @@
+"""The yardsticks that do not reward the base rate (estimator/deepsee/yardsticks.py) and the reference rows
+(estimator/deepsee/references.py), each against a hand computation on a few windows."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from estimator.deepsee.config import load_estimator_config
+from estimator.deepsee.data import Windows
+from estimator.deepsee.metrics import advisory_bins, score
+from estimator.deepsee.references import (
+    ALWAYS_TOP,
+    CONSTANT,
+    MOTION_ISOTONIC,
+    fit_references,
+    motion_statistic,
+)
+from estimator.deepsee.yardsticks import (
+    Bootstrap,
+    Judged,
+    bootstrap_over_runs,
+    calibration,
+    partial_spearman,
+    quadratic_kappa,
+    sparsification,
+    yardsticks,
+)
+from seesys.core import rts_schema
+from seesys.io.core_settings import load_pulse_settings
+
+PULSES = load_pulse_settings()
+EVALUATION = load_estimator_config().evaluation
+
+
+def test_quadratic_kappa_by_hand():
+    truth = np.array([0, 1, 2, 3])
+    assert quadratic_kappa(truth, truth, 4) == 1.0
+    # Every constant class is chance: κ 0, whatever its agreement.
+    for c in range(4):
+        assert quadratic_kappa(np.array([0, 3, 3, 3]), np.full(4, c), 4) == pytest.approx(0.0)
+    # truth 0,0,1,1 against 0,1,1,1 (2 classes, weights (i − j)²): observed disagreement 1/4; the marginals
+    # (1/2, 1/2) and (1/4, 3/4) expect 1/2 · 3/4 + 1/2 · 1/4 = 1/2; κ = 1 − (1/4) / (1/2) = 1/2.
+    assert quadratic_kappa(np.array([0, 0, 1, 1]), np.array([0, 1, 1, 1]), 2) == pytest.approx(0.5)
+    # Off by two classes costs four times off by one.
+    near = quadratic_kappa(np.array([0, 1, 2, 3]), np.array([1, 1, 2, 3]), 4)
+    far = quadratic_kappa(np.array([0, 1, 2, 3]), np.array([2, 1, 2, 3]), 4)
+    assert far < near < 1
+    assert np.isnan(quadratic_kappa(np.zeros(3, int), np.zeros(3, int), 4))
+
+
+def test_sparsification_by_hand():
+    truth = np.arange(1.0, 101.0)
+    # A perfect order (any increasing function of the truth): AUSE 0; it removes the largest errors first.
+    ause, aurg = sparsification(np.log(truth), truth)
+    assert ause == pytest.approx(0.0, abs=1e-12) and aurg > 0.4
+    # A constant: every window is one tie, the curve stays at 1: AURG exactly 0.
+    ause, aurg = sparsification(np.ones(100), truth)
+    assert aurg == pytest.approx(0.0, abs=1e-12) and ause > 0.4
+    # The reversed order is worse than random.
+    assert sparsification(-truth, truth)[1] < 0
+    # Four windows, truth 1, 2, 3, 6 (mean 3), with S = 100 removed fractions: the oracle keeps all 4 for the
+    # first 25 fractions (mean 3), 3 windows (1, 2, 3: mean 2), then 2 (1.5), then 1 (1); normalised by 3 its mean
+    # is (3 + 2 + 1.5 + 1) / 4 / 3 = 0.625. An estimate that swaps the two largest keeps 1, 2, 6 (mean 3) after the
+    # first removal, so its curve is (3 + 3 + 1.5 + 1) / 4 / 3 and AUSE = (3 − 2) / 4 / 3 = 1/12.
+    truth = np.array([1.0, 2.0, 3.0, 6.0])
+    ause, aurg = sparsification(np.array([1.0, 2.0, 6.0, 3.0]), truth)
+    assert ause == pytest.approx(1 / 12) and aurg == pytest.approx(1 - 8.5 / 12)
+
+
+def test_partial_spearman_removes_what_the_motion_explains():
+    rng = np.random.default_rng(0)
+    motion = rng.normal(size=2000)
+    truth = motion + 0.1 * rng.normal(size=2000)
+    copies_motion = motion + 0.01 * rng.normal(size=2000)
+    sees_the_rest = truth - motion
+    assert partial_spearman(copies_motion, truth, motion) < 0.15  # what it knows is the motion
+    assert partial_spearman(sees_the_rest, truth, motion) > 0.5
+
+
+def test_calibration_by_hand():
+    # Two windows at p = 0.2 (one above the threshold) and two at p = 0.9 (both above): bins 0.2 → observed 0.5,
+    # 0.9 → observed 1.0; ECE = 1/2 · |0.5 − 0.2| + 1/2 · |1.0 − 0.9| = 0.2;
+    # Brier = (0.04 + 0.64 + 0.01 + 0.01) / 4.
+    fit = calibration(np.array([0.2, 0.2, 0.9, 0.9]), np.array([0.001, 0.01, 0.02, 0.03]), 0.004)
+    assert fit.ece == pytest.approx(0.2) and fit.brier == pytest.approx(0.7 / 4)
+    np.testing.assert_allclose(fit.observed, [0.5, 1.0])
+    np.testing.assert_allclose(fit.confidence, [0.2, 0.9])
+    assert list(fit.count) == [2, 2]
+
+
+def _meta(runs: int, windows_per_run: int) -> pd.DataFrame:
+    """Windows 0.1 s apart in each run."""
+    return pd.DataFrame({"run": np.repeat([f"r{k}" for k in range(runs)], windows_per_run),
+                         "timestamp": np.tile(np.arange(windows_per_run) * 0.1, runs)})
+
+
+def test_score_of_a_perfect_and_of_a_constant_estimator():
+    rng = np.random.default_rng(1)
+    meta = _meta(6, 60)
+    truth = rng.lognormal(np.log(0.008), 0.8, 6 * 60)
+    motion = rng.normal(size=len(truth))
+    perfect = score(meta, truth, truth, EVALUATION, PULSES, motion=motion)
+    assert perfect.kappa == 1.0 and perfect.agreement == 1.0 and perfect.ause == pytest.approx(0.0, abs=1e-12)
+    assert perfect.aurg > 0 and perfect.runs == 6
+    assert perfect.kappa_low == perfect.kappa_high == 1.0  # every resample is perfect too
+    constant = score(meta, np.full(len(truth), 0.009), truth, EVALUATION, PULSES, motion=motion)
+    assert constant.kappa == pytest.approx(0.0) and constant.aurg == pytest.approx(0.0, abs=1e-12)
+    bins = advisory_bins(meta, truth, truth, PULSES.window_s)
+    assert constant.agreement == pytest.approx(np.mean([PULSES.pulses(t) == 2 for t in bins.truth]))
+    assert constant.agreement_low <= constant.agreement <= constant.agreement_high
+
+
+def test_bootstrap_over_runs_resamples_whole_runs():
+    # Two runs: all of run a right, all of run b wrong. A resample of runs draws a, b or both: agreement 0, 1/2 or
+    # 1 in whole runs' steps, never between (as a resample of bins would).
+    judged = Judged(np.array(["a", "a", "b", "b"]), np.ones(4), np.ones(4), np.zeros(4), np.array(["a", "b"]),
+                    np.ones(2), np.ones(2), np.array([1, 1]), np.array([1, 0]))
+    seen = set()
+
+    def statistic(j: Judged) -> dict[str, float]:
+        value = float(np.mean(j.bin_true_class == j.bin_estimate_class))
+        seen.add(value)
+        return {"agreement": value}
+
+    intervals, n = bootstrap_over_runs(judged, statistic, ("agreement",), Bootstrap(200, 0.95, 0))
+    assert n == 2 and seen == {0.0, 0.5, 1.0} and intervals["agreement"] == (0.0, 1.0)
+    single = dataclasses.replace(judged, window_run=np.array(["a"] * 4), bin_run=np.array(["a", "a"]))
+    intervals, n = bootstrap_over_runs(single, statistic, ("agreement",), Bootstrap(200, 0.95, 0))
+    assert n == 1 and all(np.isnan(intervals["agreement"]))
+
+
+def _windows(motion_per_run: list[float], truth_per_run: list[float], windows_per_run: int = 30) -> Windows:
+    """Windows whose relative translation alternates ±m along y (std m per frame) and whose truth is constant
+    per run."""
+    runs = len(motion_per_run)
+    rts = np.zeros((runs * windows_per_run, 30, rts_schema.NUM_CHANNELS), np.float32)
+    sign = np.where(np.arange(30) % 2 == 0, 1.0, -1.0)
+    scale = rts_schema.CHANNELS[rts_schema.index_of("rel_ty")].scale
+    for k, m in enumerate(motion_per_run):
+        rts[k * windows_per_run:(k + 1) * windows_per_run, :, rts_schema.index_of("rel_ty")] = m * sign / scale
+    truth = np.repeat(truth_per_run, windows_per_run).astype(float)
+    return Windows(rts, None, truth, _meta(runs, windows_per_run))
+
+
+def test_reference_rows_are_fitted_on_training_windows():
+    train = _windows([0.001, 0.002, 0.004, 0.008], [0.003, 0.005, 0.009, 0.02])
+    np.testing.assert_allclose(motion_statistic(train.rts)[::30], [0.001, 0.002, 0.004, 0.008], rtol=1e-5)
+    refs = fit_references(train, PULSES)
+    # Training bins' classes: 0, 1, 2, 3, one run each, ten bins each: a tie, the first (class 0) wins; its estimate
+    # is the median of those bins' means.
+    assert refs.constant_class == 0 and refs.constant_m == pytest.approx(0.003)
+    test = _windows([0.0015, 0.008, 0.02], [0.004, 0.02, 0.05])
+    estimates = refs.estimates(test)
+    assert set(estimates) == {CONSTANT, ALWAYS_TOP, MOTION_ISOTONIC}
+    np.testing.assert_allclose(estimates[ALWAYS_TOP], 0.012)
+    # Isotonic: between the training points it interpolates (0.0015 → 0.004), beyond them it clips (0.02 → 0.02).
+    np.testing.assert_allclose(estimates[MOTION_ISOTONIC][::30], [0.004, 0.02, 0.02], rtol=1e-6)
+    top = yardsticks(Judged(np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(0), np.zeros(0),
+                            np.zeros(0), np.zeros(0, int), np.zeros(0, int)), 4, 0.012)
+    assert np.isnan(top["agreement"]) and np.isnan(top["kappa"])
