@@ -1,8 +1,16 @@
-"""Estimator service throughput and latency: 1, 4, 16 and 64 simulated devices, 1 and 2 worker processes.
+"""Estimator service latency and throughput: one device's path against the model alone, then many simulated devices
+on 1 and 2 worker processes.
 
-Each simulated device replays a logged session's feature stream (``rts.csv`` + ``psd/``) at 30 Hz on its own
-connection to ``seesys estimator serve`` (a subprocess with a private configuration: ipc:// endpoints, the
-configured windows, stale limit and batching). The devices' window ends are spread evenly over one estimate period,
+First, one device's latency beside the model's own cost, in one run: the served model alone (ONNX Runtime, batch 1,
+one intra-op thread, as a worker runs it) on the session's windows, back to back and paced at one device's window
+rate; then one simulated device against a fresh service with one worker for ``--latency-seconds``, its latency at
+the device beside the model's, and where each millisecond goes: the service's stage breakdown
+(:mod:`estimator.service.stages`, p50 and p99 of each stage from ``seesys estimator status``) and the transit
+(device → broker and broker → device: the device's latency less the server's).
+
+Then the throughput rows. Each simulated device replays a logged session's feature stream (``rts.csv`` +
+``psd/``) at 30 Hz on its own connection to ``seesys estimator serve`` (a subprocess with a private configuration:
+ipc:// endpoints, the configured windows, stale limit and batching). The devices' window ends are spread evenly over one estimate period,
 as independent devices' are (``--bunched``: all in the same frame period, one burst per estimate period; see
 :mod:`estimator.service.simulate`). Per row it prints, over ``--seconds`` of replay:
 
@@ -18,8 +26,8 @@ Then, per worker count, the largest number of devices served with no drop at the
 records a session on the embedded sample (`seesys monitor run`, about a minute) unless ``--session`` is given,
 and exports the untrained model of the configured size unless the configured one exists or ``--model`` is given.
 
-Usage: ``.venv/bin/python benchmarks/estimator_service.py [--devices 1,4,16,64] [--workers 1,2] [--seconds 20]
-[--bunched]``
+Usage: ``.venv/bin/python benchmarks/estimator_service.py [--devices 1,16,40,64,80,96] [--workers 1,2]
+[--seconds 20] [--latency-seconds 30] [--bunched]`` (``--devices ''`` skips the throughput rows)
 (run it on a quiet machine: the figures are only as good as the CPU left to the service).
 """
 
@@ -34,18 +42,23 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import psutil
 
 from estimator.service.config import load_service_config
+from estimator.service.model import ServedModel
 from estimator.service.sandbox import private_configs, start_service, wait_ready
 from estimator.service.simulate import DeviceFleet
+from estimator.service.stages import STAGES
 from estimator.service.status import query_status
+from seesys.core.windows import assemble_windows
 from seesys.io.core_settings import load_window_config
 from seesys.io.resources import resolve
 from seesys.io.rts_log import read_feature_frames
 
 RATE_HZ = 30.0
 START_TIMEOUT_S = 300
+WARMUP = 20
 
 
 def _ints(text: str) -> list[int]:
@@ -116,11 +129,93 @@ def run_row(endpoints: dict, process: psutil.Process, frames, devices: int, seco
             **lost, "cores": cpu / wall}
 
 
+def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[str, np.ndarray]:
+    """Seconds per ONNX Runtime run of the served model at batch 1 on the session's windows (inputs prepared
+    beforehand, as the ``inference`` stage times it), back to back and one every ``period_s`` (one device's
+    window rate: the idle core's caches and clock make a lone run slower)."""
+    config, windows = load_service_config(), load_window_config()
+    model = ServedModel.load(model_path, windows, threads=1, providers=config.providers)
+    inputs = [model.prepare([w]) for w in assemble_windows(frames, windows)]
+    for k in range(WARMUP):
+        model.run(inputs[k % len(inputs)])
+    back_to_back = np.empty(runs)
+    for k in range(runs):
+        start = time.perf_counter()
+        model.run(inputs[k % len(inputs)])
+        back_to_back[k] = time.perf_counter() - start
+    paced_runs = max(20, int(runs * 0.2))
+    paced = np.empty(paced_runs)
+    due = time.perf_counter()
+    for k in range(paced_runs):
+        due += period_s
+        time.sleep(max(0.0, due - time.perf_counter()))  # pacing, as a device's windows are
+        start = time.perf_counter()
+        model.run(inputs[k % len(inputs)])
+        paced[k] = time.perf_counter() - start
+    return {"back_to_back": back_to_back * 1000.0, "paced": paced * 1000.0}
+
+
+def _p(values, q: float) -> float:
+    return float(np.percentile(values, q)) if len(values) else float("nan")
+
+
+def print_latency(model: dict[str, np.ndarray], row: dict, period_s: float) -> None:
+    """The one-device table: model alone and service path side by side, the path's excess, and the breakdown."""
+    device = np.asarray(row["latencies"], dtype=float)
+    print("\none device, window's last frame sent → estimate received, against the model alone (ONNX Runtime, "
+          "batch 1, 1 thread); ms")
+    print(f"{'':<46}{'p50':>8}{'p99':>8}{'n':>6}")
+    lines = [("model alone, back to back", model["back_to_back"]),
+             (f"model alone, one run every {period_s * 1000:.0f} ms", model["paced"]),
+             ("service path, one device", device)]
+    for name, values in lines:
+        print(f"{name:<46}{_p(values, 50):>8.2f}{_p(values, 99):>8.2f}{len(values):>6}")
+    for name, values in lines[:2]:
+        print(f"{'service path − ' + name.removeprefix('model alone, '):<46}"
+              f"{_p(device, 50) - _p(values, 50):>+8.2f}{_p(device, 99) - _p(values, 99):>+8.2f}")
+    stages_ms = row["status"]["stages_ms"]
+    if not stages_ms:
+        print("no stage times (no estimate reached the broker)")
+        return
+    server = stages_ms["server"]
+    print("\nwhere the time goes (each stage's own p50 and p99; p50s of parts need not add up to the total's)")
+    print(f"{'stage':<46}{'p50':>8}{'p99':>8}")
+    print(f"{'transit, device ⇄ broker (path − server)':<46}{_p(device, 50) - server['p50']:>8.2f}"
+          f"{_p(device, 99) - server['p99']:>8.2f}")
+    for stage in STAGES:
+        print(f"{stage:<46}{stages_ms[stage]['p50']:>8.2f}{stages_ms[stage]['p99']:>8.2f}")
+
+
+def latency_run(folder: Path, model: Path, frames, seconds: float) -> dict:
+    """One simulated device against a fresh service with one worker: its latencies and the service's status."""
+    config_dir, endpoints = private_configs(folder / "latency", connect_device_stream=False)
+    log = folder / "serve-latency.log"
+    serve = start_service(config_dir, model, "--workers", "1", log=log)
+    try:
+        wait_ready(serve, endpoints["status"], START_TIMEOUT_S, log)
+        windows = load_window_config()
+        fleet = DeviceFleet(endpoints["ingest"], endpoints["estimates"], ["latency-0"])
+        time.sleep(1.0)  # connections and subscriptions settle
+        try:
+            result = fleet.replay(frames, seconds, RATE_HZ, windows)
+            status = query_status(endpoints["status"], 5000)
+        finally:
+            fleet.close()
+    finally:
+        serve.terminate()
+        serve.wait(60)
+    return {"latencies": result.latency_ms, "status": status}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--devices", type=_ints, default=[1, 4, 16, 64])
+    parser.add_argument("--devices", type=_ints, default=[1, 16, 40, 64, 80, 96])
     parser.add_argument("--workers", type=_ints, default=[1, 2])
     parser.add_argument("--seconds", type=float, default=20.0, help="replay per row (default 20)")
+    parser.add_argument("--latency-seconds", type=float, default=30.0,
+                        help="one device's replay for the latency table (default 30; 0 skips it)")
+    parser.add_argument("--model-runs", type=int, default=600,
+                        help="back-to-back runs of the model alone (a fifth as many paced; default 600)")
     parser.add_argument("--session", type=Path, help="session folder to replay (default: record the sample)")
     parser.add_argument("--model", type=Path, help="ONNX model (default: configured, else an untrained stand-in)")
     parser.add_argument("--bunched", action="store_true",
@@ -138,6 +233,14 @@ def main() -> None:
               f"{session} ({len(frames)} frames), {RATE_HZ:g} Hz, end_stride {windows.end_stride}, "
               f"{'bunched' if args.bunched else 'spread'} phases, "
               f"{args.seconds:g} s per row; load average before: {os.getloadavg()[0]:.2f}")
+        if args.latency_seconds > 0:
+            period_s = windows.end_stride / RATE_HZ
+            alone = model_alone(model, frames, args.model_runs, period_s)
+            print_latency(alone, latency_run(folder, model, frames, args.latency_seconds), period_s)
+        if not args.devices:
+            print(f"load average after: {os.getloadavg()[0]:.2f}")
+            return
+        print()
         header = (f"{'workers':>7}{'devices':>8}{'p50 ms':>8}{'p90 ms':>8}{'p99 ms':>8}{'est/s':>8}{'expected':>9}"
                   f"{'missing':>8}{'stale':>7}{'q-full':>7}{'lost':>6}{'cores':>7}")
         print(header)

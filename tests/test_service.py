@@ -29,6 +29,7 @@ from service_fixtures import (  # noqa: F401
 from estimator.service.config import load_service_config
 from estimator.service.keys import ClientKeys, make_key_pair
 from estimator.service.model import ServedModel
+from estimator.service.stages import STAGES
 from seesys.core import messages
 from seesys.core.windows import assemble_windows
 from seesys.io.core_settings import load_window_config
@@ -90,11 +91,17 @@ def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exa
         status = service.status()
         assert status["devices"]["dev-1"]["estimates"] >= len(estimates)
         assert status["devices"]["dev-1"]["server_ms"]["p99"] is not None
+        stages_ms = status["stages_ms"]  # where each estimate's time went, stage by stage, in path order
+        assert list(stages_ms) == list(STAGES)
+        assert all(stages_ms[s]["p50"] >= 0 for s in STAGES if s != "hops") and stages_ms["inference"]["p50"] > 0
+        # Each stage is a part of every estimate's total, so none of its percentiles exceeds the total's.
+        assert all(stages_ms[s]["p99"] <= stages_ms["server"]["p99"] + 1e-3 for s in STAGES)
         shown = subprocess.run([sys.executable, "-m", "seesys", "estimator", "status"], env=setup.env,
                                capture_output=True, text=True, timeout=120)
         assert shown.returncode == 0, shown.stderr
         assert f"oversized {kinds['oversized']}, wrong_version {kinds['wrong_version']}" in shown.stdout
         assert any(line.startswith("dev-1 ") and "local-0" in line for line in shown.stdout.splitlines())
+        assert "where the time goes, p50 ms: ingest " in shown.stdout
         client.close()
         assert service.stop(signal.SIGTERM) == 0
         assert "stopped: 2 device(s)" in service.output()  # the probe and dev-1

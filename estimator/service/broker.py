@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import zmq
 
-from estimator.service import envelope, keys
+from estimator.service import envelope, keys, stages
 from estimator.service.config import ServiceConfig
 from estimator.service.worker import DROP_REASONS
 from seesys.core import messages
@@ -129,6 +129,7 @@ class Broker:
         self.refused_workers = 0
         self.rejected = {"oversized": 0, "wrong_version": 0, "malformed": 0}
         self.losses = LossCounter()
+        self.stages = stages.StageTimes(config.latency_window)
         self.started = time.monotonic()
         self._stopping = False
         self._authenticator = None
@@ -333,22 +334,25 @@ class Broker:
             worker.report = data
 
     def _publish(self, identity: bytes, parts: list[bytes]) -> None:
-        now = time.monotonic()
+        received = time.monotonic()
         for k in range(0, len(parts) - 2, 3):
             topic, body, meta = parts[k:k + 3]
             device_id = topic[len(messages.ESTIMATE_TOPIC):-len(messages.TOPIC_END)].decode("utf-8")
             device = self.devices.get(device_id)
-            token, frame_index, stream_session = envelope.unpack_meta(meta)
+            token, frame_index, stream_session, times = envelope.unpack_meta(meta)
             if (device is None or device.worker != identity or frame_index <= device.last_published
                     or stream_session != device.stream_session):
                 if device is not None:
                     device.out_of_order += 1
                 continue
             self._estimates.send_multipart([topic, body])
+            now = time.monotonic()
             device.last_published = frame_index
             device.estimates += 1
-            device.latency_ms.append((now - token) * 1000.0)
+            server_ms = (now - token) * 1000.0
+            device.latency_ms.append(server_ms)
             device.estimate_times.append(now)
+            self.stages.add(times, (now - received) * 1000.0, server_ms)
 
     def _remove_worker(self, identity: bytes) -> None:
         worker = self.workers.pop(identity, None)
@@ -404,7 +408,7 @@ class Broker:
                 "curve": self.config.curve.enabled, "rejected": dict(self.rejected),
                 "refused_workers": self.refused_workers, "workers": workers, "devices": devices,
                 "estimates_per_s": sum(v["estimates_per_s"] for v in devices.values()),
-                "server_ms": _percentiles(all_latency)}
+                "server_ms": _percentiles(all_latency), "stages_ms": self.stages.percentiles()}
 
 
 def _key_text(key: str) -> str:

@@ -5,7 +5,8 @@ f64 token + f64 age in ms: the token is the broker's monotonic second at which i
 worker only hands back, and the age is how long the frame had been at the broker when it was forwarded) and
 ``[b"Q"]`` stop. Worker → broker: ``[b"R", json]`` ready (name, pid, model version), ``[b"S", json]`` statistics
 (every heartbeat) and ``[b"E", (topic, body, meta)…]`` estimates, ``meta`` = f64 token of the window's last frame
-+ i64 its frame index + u64 its stream session.
++ i64 its frame index + u64 its stream session + the estimate's times in the service so far
+(:mod:`estimator.service.stages`).
 
 No clock is compared across processes: the worker measures a window's age on its own clock from the moment it
 received the last frame, plus the age the broker reported; the broker measures latency on its own clock from the
@@ -16,6 +17,8 @@ from __future__ import annotations
 
 import json
 import struct
+
+from estimator.service import stages
 
 FRAME = b"F"
 STOP = b"Q"
@@ -34,12 +37,14 @@ def unpack_forward(data: bytes) -> tuple[float, float]:
     return _FORWARD.unpack(data)
 
 
-def pack_meta(token: float, frame_index: int, stream_session: int) -> bytes:
-    return _META.pack(token, frame_index, stream_session)
+def pack_meta(token: float, frame_index: int, stream_session: int, times: stages.WorkerTimes) -> bytes:
+    return _META.pack(token, frame_index, stream_session) + stages.pack(times)
 
 
-def unpack_meta(data: bytes) -> tuple[float, int, int]:
-    return _META.unpack(data)
+def unpack_meta(data: bytes) -> tuple[float, int, int, stages.WorkerTimes]:
+    """Inverse of :func:`pack_meta`; ``struct.error`` for data of another length."""
+    token, frame_index, stream_session = _META.unpack_from(data)
+    return token, frame_index, stream_session, stages.unpack(data[_META.size:])
 
 
 def pack_json(data: dict) -> bytes:

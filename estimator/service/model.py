@@ -47,6 +47,16 @@ class BatchEstimates:
         return tuple(Exceedance(t, float(p)) for t, p in zip(self.thresholds_m, self.probabilities[sample]))
 
 
+@dataclass(frozen=True)
+class ModelInputs:
+    """A batch as the model takes it: RTS (B, T, C) float32 standardised, PSD (B, K_L, H, W, 3) uint8, and per
+    window how many RTS values were not finite and became 0."""
+
+    rts: np.ndarray
+    psd: np.ndarray
+    nonfinite: np.ndarray
+
+
 @dataclass
 class ServedModel:
     """``estimate(samples)``: errors in metres for windows of several devices, in one batched run."""
@@ -91,7 +101,15 @@ class ServedModel:
 
     def estimate_batch(self, samples: list[WindowSample]) -> BatchEstimates:
         """The errors and head probabilities of ``samples``, and how many of each one's RTS values became 0."""
+        return self.run(self.prepare(samples))
+
+    def prepare(self, samples: list[WindowSample]) -> ModelInputs:
+        """``samples`` as the model takes them: stacked, the RTS normalised and standardised (the worker times
+        this apart from :meth:`run`)."""
         rts, replaced = prepare_rts_counted(np.stack([s.rts for s in samples]), self._model.rts_columns)
-        psd = np.stack([s.psd for s in samples])
-        y, probabilities = self._model.outputs(self._model.standardised(rts), psd)
-        return BatchEstimates(self._transform.inverse(y), probabilities, replaced, self.thresholds_m)
+        return ModelInputs(self._model.standardised(rts), np.stack([s.psd for s in samples]), replaced)
+
+    def run(self, inputs: ModelInputs) -> BatchEstimates:
+        """One ONNX Runtime run of prepared inputs, its outputs mapped back to metres."""
+        y, probabilities = self._model.outputs(inputs.rts, inputs.psd)
+        return BatchEstimates(self._transform.inverse(y), probabilities, inputs.nonfinite, self.thresholds_m)

@@ -40,6 +40,8 @@ def format_status(status: dict) -> str:
              f"latency p50/p90/p99 {_ms(lat['p50'])}/{_ms(lat['p90'])}/{_ms(lat['p99'])} ms",
              "rejected messages: " + ", ".join(f"{k} {v}" for k, v in status["rejected"].items())
              + f"; refused workers {status['refused_workers']}",
+             "where the time goes, p50 ms: " + (", ".join(f"{stage} {_ms(t['p50'])}" for stage, t in
+                                                         status["stages_ms"].items()) or "-"),
              "", f"{'worker':<24}{'pid':>8}{'provider':>10}{'devices':>9}{'queue':>7}{'estimates':>11}{'batch p50':>11}"
              f"{'batch p99':>11}{'mean batch':>12}"]
     for w in status["workers"]:

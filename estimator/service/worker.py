@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 import zmq
 
-from estimator.service import envelope
+from estimator.service import envelope, stages
 from estimator.service.config import ServiceConfig
 from estimator.service.model import ServedModel
 from seesys.core import messages
@@ -112,6 +112,11 @@ class _Ready:
     token: float  # the broker's, handed back with the estimate
     received: float  # on the worker's clock: when its last frame reached the broker
     stream_session: int
+    ingest_ms: float  # the broker's time with its last frame (handed back for the stage breakdown)
+    arrived: float  # perf_counter: its last frame reached this worker
+    decode_ms: float
+    assemble_ms: float
+    formed: float  # perf_counter: the window was formed
 
 
 class Worker:
@@ -180,8 +185,9 @@ class Worker:
                 self._stopping = True
                 return
             if parts[0] == envelope.FRAME:
+                arrived = time.perf_counter()
                 token, age_ms = envelope.unpack_forward(parts[1])
-                self._add(token, self._clock() - age_ms / 1000.0, parts[2:])
+                self._add(token, age_ms, self._clock() - age_ms / 1000.0, arrived, parts[2:])
 
     def _settings_refused(self, frame: FeatureFrame) -> bool:
         """True (and logged once per stream session) when the frame's device settings differ from the model's."""
@@ -201,9 +207,10 @@ class Worker:
         self.counters.settings_refused.pop(device, None)
         return False
 
-    def _add(self, token: float, received: float, frames: list[bytes]) -> None:
+    def _add(self, token: float, ingest_ms: float, received: float, arrived: float, frames: list[bytes]) -> None:
         frame = messages.decode(frames)  # validated by the broker already
         assert isinstance(frame, FeatureFrame)
+        decoded = time.perf_counter()
         self.counters.frames += 1
         device = frame.device_id
         if self._settings_refused(frame):
@@ -231,7 +238,9 @@ class Worker:
             return
         if device in self._ready:
             self.counters.dropped["stale"][device] += 1  # superseded before it was served
-        self._ready[device] = _Ready(sample, token, received, frame.stream_session)
+        formed = time.perf_counter()
+        self._ready[device] = _Ready(sample, token, received, frame.stream_session, ingest_ms, arrived,
+                                     (decoded - arrived) * 1000.0, (formed - decoded) * 1000.0, formed)
 
     def _serve_batch(self) -> None:
         now = self._clock()
@@ -248,8 +257,11 @@ class Worker:
         for ready in batch:
             del self._ready[ready.sample.device_id]
         start = time.perf_counter()
-        estimates = self.model.estimate_batch([r.sample for r in batch])
-        elapsed_ms = (time.perf_counter() - start) * 1000.0
+        inputs = self.model.prepare([r.sample for r in batch])
+        prepared = time.perf_counter()
+        estimates = self.model.run(inputs)
+        done = time.perf_counter()
+        elapsed_ms = (done - start) * 1000.0
         per_window = elapsed_ms / len(batch)
         self._window_ms = per_window if not self._window_ms else (
             (1 - _COST_WEIGHT) * self._window_ms + _COST_WEIGHT * per_window)
@@ -258,13 +270,23 @@ class Worker:
         self.counters.batches += 1
         parts = [envelope.ESTIMATES]
         sent = self._clock()
+        encoded = []
         for i, (ready, error_m, nonfinite) in enumerate(zip(batch, estimates.errors_m, estimates.nonfinite)):
             s = ready.sample
             if nonfinite:
                 self.counters.nonfinite[s.device_id] += int(nonfinite)
             estimate = Estimate(s.device_id, s.frame_index, s.timestamp, float(error_m), self.model.version,
                                 (sent - ready.received) * 1000.0, ready.stream_session, estimates.head(i))
-            parts += [*messages.encode(estimate), envelope.pack_meta(ready.token, s.frame_index, ready.stream_session)]
+            encoded.append((ready, messages.encode(estimate)))
+        # The stages end where the message leaves: every estimate of the batch carries the batch's encoding time.
+        replied = time.perf_counter()
+        batch_times = ((prepared - start) * 1000.0, (done - prepared) * 1000.0, (replied - done) * 1000.0)
+        for ready, message in encoded:
+            times = stages.WorkerTimes(ready.ingest_ms, (replied - ready.arrived) * 1000.0,
+                                       (ready.decode_ms, ready.assemble_ms, (start - ready.formed) * 1000.0,
+                                        *batch_times))
+            parts += [*message, envelope.pack_meta(ready.token, ready.sample.frame_index, ready.stream_session,
+                                                   times)]
         self.counters.estimates += len(batch)
         self._send(parts)
 
