@@ -121,8 +121,12 @@ def _check(cfg: AdvisoryConfig, where: str) -> None:
         raise ConfigError(f"{where}: " + "; ".join(problems))
 
 
+#: The file of :class:`AdvisoryConfig` in the configuration folder.
+SECTION = "advisory"
+
+
 def load_advisory_config(directory: Path | None = None) -> AdvisoryConfig:
     """Load and check ``configs/advisory.toml`` (``directory`` overrides the config folder)."""
-    cfg = load_section("advisory", AdvisoryConfig, directory)
+    cfg = load_section(SECTION, AdvisoryConfig, directory)
     _check(cfg, "advisory.toml")
     return cfg

@@ -3,14 +3,14 @@ the configured output device (``configs/advisory.toml`` ``[audio]``; the default
 machine without one (or when asked), a private JACK dummy server started here (``advisory.sandbox.JackDummy``),
 paced in real time like a sound card and heard by nobody.
 
-The children then run with :attr:`AudioOutput.overrides` in their copy of the configs (``seesys.io.config.
-write_config_dir``) and :meth:`AudioOutput.env` in their environment; :meth:`AudioOutput.stop` stops the server
+The children then run with the audio settings of :meth:`AudioOutput.settings` in their copy of the configs
+(``seesys.io.config.ConfigSet``) and :meth:`AudioOutput.env` in their environment; :meth:`AudioOutput.stop` stops the server
 once the player has stopped.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 from advisory.config import AudioConfig
 from advisory.sandbox import JACK_HOST_API, JackDummy
@@ -20,9 +20,12 @@ from seesys.core.errors import SeesysError
 @dataclass
 class AudioOutput:
     description: str  # for the operator and the run's record
-    overrides: dict[str, object] = field(default_factory=dict)  # configuration keys the children run with
     jack: JackDummy | None = None
     unavailable: str | None = None  # why the configured output device was not used (None: it was, or not asked)
+
+    def settings(self, audio: AudioConfig) -> AudioConfig:
+        """The audio settings the children run with: ``audio``, or the JACK server's host API where it plays."""
+        return audio if self.jack is None else replace(audio, host_api=JACK_HOST_API, output_device="")
 
     def env(self) -> dict[str, str]:
         return self.jack.env() if self.jack is not None else {}
@@ -49,5 +52,4 @@ def open_audio_output(audio: AudioConfig, dummy: bool = False) -> AudioOutput:
                           f"sound card (apt package jackd2); or run the silent condition (none)")
     jack = JackDummy(audio.sample_rate, audio.blocksize)
     jack.start()
-    return AudioOutput(f"JACK dummy server {jack.name}, no sound card used",
-                       {"host_api": JACK_HOST_API, "output_device": ""}, jack, unavailable)
+    return AudioOutput(f"JACK dummy server {jack.name}, no sound card used", jack, unavailable)

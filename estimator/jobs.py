@@ -11,8 +11,8 @@ A job function is called as ``fn(*args, env)``; :class:`JobEnv` gives it
   ``console.log``). In a Ray task it is a :class:`ProgressRelay`, which sends the calls (batched) to the driver,
   where they are made on the command's ``Progress``: a cluster's jobs show in the same display as local ones.
 - ``config_dir``: the configs/ folder to load settings from. A task on another node must use the driver's settings,
-  not those of its own install: the driver's TOML files travel with the tasks as text, and each task writes them
-  to a temporary folder, its ``config_dir`` and ``$SEESYS_CONFIG_DIR`` while it runs.
+  not those of its own install: the driver's settings (a ``ConfigSet``) travel with the tasks, and each task writes
+  them to a temporary folder, its ``config_dir`` and ``$SEESYS_CONFIG_DIR`` while it runs.
 
 Paths among a job's values are the driver's: on a cluster they must be on a filesystem every node mounts at the
 same place (docs/ray.md). ``ray`` is imported by :func:`ray_executor` only, so that other commands do not pay for
@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from seesys.core.errors import ConfigError, SeesysError
-from seesys.io.config import CONFIG_DIR_ENV, config_dir, load_section
+from seesys.io.config import CONFIG_DIR_ENV, ConfigSet, load_section
 
 WAIT_S = 0.2  # how often the driver takes the relayed progress calls while it waits for tasks
 RELAY_INTERVAL_S = 0.25  # a task sends its progress calls at most this often (a frame bar updates 30 times a second)
@@ -192,22 +192,20 @@ class _ProgressMirror:
                     getattr(self._progress, method)(real, *args, **kwargs)
 
 
-def config_snapshot(directory: Path | None = None) -> dict[str, str]:
-    """The TOML files of ``directory`` (default: this process's configs/) as text, for tasks on other nodes."""
-    folder = Path(directory) if directory is not None else config_dir()
-    files = {path.name: path.read_text() for path in sorted(folder.glob("*.toml"))}
-    if not files:
-        raise SeesysError(f"no configuration files (*.toml) in {folder}")
-    return files
+def config_snapshot(directory: Path | None = None) -> ConfigSet:
+    """The settings of ``directory`` (default: this process's configs/), for tasks on other nodes."""
+    configs = ConfigSet.read(directory)
+    if not configs.sections:
+        raise SeesysError(f"no configuration files (*.toml) in {configs.folder}")
+    return configs
 
 
 @contextlib.contextmanager
-def materialised(snapshot: dict[str, str]) -> Iterator[Path]:
-    """The snapshot written to a temporary folder, which is ``$SEESYS_CONFIG_DIR`` until the block ends."""
+def materialised(snapshot: ConfigSet) -> Iterator[Path]:
+    """The settings written to a temporary folder, which is ``$SEESYS_CONFIG_DIR`` until the block ends."""
     before = os.environ.get(CONFIG_DIR_ENV)
     with tempfile.TemporaryDirectory(prefix="seesys-configs-") as folder:
-        for name, text in snapshot.items():
-            (Path(folder) / name).write_text(text)
+        snapshot.write(Path(folder))
         os.environ[CONFIG_DIR_ENV] = folder
         try:
             yield Path(folder)
@@ -218,7 +216,7 @@ def materialised(snapshot: dict[str, str]) -> Iterator[Path]:
                 os.environ[CONFIG_DIR_ENV] = before
 
 
-def _run_task(fn: Callable[..., Any], args: tuple, snapshot: dict[str, str], relay: ProgressRelay, *after) -> Any:
+def _run_task(fn: Callable[..., Any], args: tuple, snapshot: ConfigSet, relay: ProgressRelay, *after) -> Any:
     """A job in a Ray task (``after``: the results of the jobs it waited for, unused)."""
     with materialised(snapshot) as folder:
         try:

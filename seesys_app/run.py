@@ -10,7 +10,9 @@ One run writes one session folder (``--out``, new or empty):
 - ``logs/<part>.log``: each child's output (device, estimator, generator, player), and ``logs/estimates.csv``, the
   estimates as the app itself received them (``study.watch``);
 - ``app_events.csv``: what the app did and saw (starts, exits, restarts, the stop), one row each, flushed;
-- ``configs/``: the configuration every child ran with (a copy of the configs in use, with the run's changes);
+- ``configs/``: the configuration every child ran with (the settings in use, with the run's changes, written whole:
+  the advisory listens to this device and plays where the audio goes, the device publishes under the id decided
+  here, a remote estimator's estimates come from its endpoint);
 - at the end ``summary.json`` and the plot (``seesys_app.summary``).
 
 Children start in dependency order: the estimator (``--local``: ``seesys estimator serve``) until it answers its
@@ -33,10 +35,11 @@ from __future__ import annotations
 import os
 import signal
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from advisory.conditions import Condition
+from advisory import config as advisory_config
 from advisory.config import load_advisory_config
 from advisory.process import stop_on_signals
 from advisory.output import AudioOutput, open_audio_output
@@ -52,12 +55,14 @@ from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
 from seesys.core.tracking_state import TrackingState
 from seesys.io.children import LOGS, Child, CsvTail, RowCounter
-from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from seesys.io import network as network_config
+from seesys.io.config import CONFIG_DIR_ENV, ConfigSet
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
 from seesys.io.resources import resolve
 from seesys.io.session_files import utc_now
 from seesys.io.transport import peer_answers
+from slam_monitor import monitor_config
 from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
 from slam_monitor.sources import load_camera_config, open_source, parse_source_spec
 from study.watch import StreamWatcher
@@ -147,8 +152,10 @@ class App:
         self.mode = options.mode or self.cfg.device.mode
         self.pace = self.cfg.device.pace if options.pace is None else options.pace
         check_source(options.source, self.mode)
-        # The device's id on the feature stream and the estimator: the advisory and the app listen to it alone.
-        self.device_id = resolve_device_id(load_monitor_config().device_id, options.source)
+        # The device's id on the feature stream and the estimator, decided here and given to the device (its
+        # configs): the advisory and the app listen to it alone.
+        self.monitor = load_monitor_config()
+        self.device_id = resolve_device_id(self.monitor.device_id, options.source)
         self.folder = _new_folder(options.out)
         self.parts: dict[str, _Part] = {}
         self.output: AudioOutput | None = None  # where the player's audio goes (audible conditions)
@@ -163,23 +170,27 @@ class App:
 
     # -- set-up ---------------------------------------------------------------------------------------------------
 
-    def _audio_overrides(self) -> dict[str, object]:
+    def _open_audio(self) -> None:
         """Where the audio goes: the output device, or a JACK dummy server and the WAV (see the module doc)."""
         if not self.o.condition.audible:
-            return {}
+            return
         self.output = open_audio_output(self.advisory.audio, dummy=self.o.wav)
         if self.output.unavailable is not None:
             self.event("app", "no audio output", f"{self.output.unavailable}; playing into a WAV instead")
         self.audio = self.output.description if self.output.jack is None else f"WAV only ({self.output.description})"
-        return self.output.overrides
 
     def _configure(self) -> dict[str, str]:
-        """The run's config folder and the children's environment."""
-        overrides = dict(self._audio_overrides())
-        overrides["listen_to_device"] = self.device_id
+        """The run's settings, written whole into the session folder, and the children's environment."""
+        self._open_audio()
+        timing = replace(self.advisory.timing, listen_to_device=self.device_id)
+        audio = self.output.settings(self.advisory.audio) if self.output is not None else self.advisory.audio
+        configs = (ConfigSet.read()
+                   .replaced(advisory_config.SECTION, replace(self.advisory, timing=timing, audio=audio))
+                   .replaced(monitor_config.SECTION, replace(self.monitor, device_id=self.device_id)))
         if self.estimates_endpoint is not None:
-            overrides["estimates_endpoint"] = self.estimates_endpoint
-        self.config_dir = write_config_dir(self.folder / CONFIGS, overrides)
+            network = replace(load_network_config(), estimates_endpoint=self.estimates_endpoint)
+            configs = configs.replaced(network_config.SECTION, network)
+        self.config_dir = configs.write(self.folder / CONFIGS)
         env = {**os.environ, CONFIG_DIR_ENV: str(self.config_dir)}
         if self.output is not None:
             env.update(self.output.env())

@@ -9,7 +9,7 @@ from pathlib import Path
 from seesys.core.camera_normalisation import ReferenceCamera
 from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
-from seesys.io.config import build, config_dir, read_toml
+from seesys.io.config import ConfigSet, build
 from seesys.io.core_settings import load_window_config
 from slam_monitor.depth_features import DepthQualityConfig
 
@@ -56,6 +56,10 @@ def resolve_device_id(configured: str, source: str, host: str | None = None) -> 
     return device_id.encode("utf-8")[:255].decode("utf-8", "ignore")
 
 
+#: The file of :class:`MonitorConfig` in the configuration folder.
+SECTION = "monitor"
+
+
 @dataclass(frozen=True)
 class MonitorConfig:
     device_id: str
@@ -71,8 +75,8 @@ class MonitorConfig:
 
 def load_monitor_config(directory: Path | None = None) -> MonitorConfig:
     """``configs/monitor.toml``, with the shared model windows of ``configs/windows.toml``."""
-    path = (directory or config_dir()) / "monitor.toml"
-    data = read_toml(path)
+    configs = ConfigSet.read(directory)
+    path, data = configs.path(SECTION), configs.data(SECTION)
     if "windows" in data:
         raise ConfigError(f"{path}: [windows] belongs in windows.toml, the definition every part shares")
     windows = asdict(load_window_config(directory))

@@ -38,7 +38,7 @@ import queue
 import signal
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from rich.console import Console
@@ -46,6 +46,7 @@ from rich.live import Live
 from rich.text import Text
 
 from advisory.conditions import Condition
+from advisory import config as advisory_config
 from advisory.config import load_advisory_config
 from advisory.estimate_log import read_estimate_log
 from advisory.output import AudioOutput, open_audio_output
@@ -53,10 +54,11 @@ from advisory.process import stop_on_signals
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
 from seesys.io.children import Child, RowCounter, last_line
-from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from seesys.io.config import CONFIG_DIR_ENV, ConfigSet
 from seesys.io.logfiles import CsvLog, write_json_atomically
 from seesys.io.network import load_network_config
 from seesys.io.session_files import utc_now
+from slam_monitor import monitor_config
 from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
 from study.config import StudyConfig
 from study.mocap.calibrate import CALIBRATION_JSON, GROUND_TRUTH, MOCAP_LOG, calibrate_session
@@ -138,8 +140,10 @@ class Session:
                               f"({self.phase_folder}); pass --restart to record it again (the earlier attempts "
                               f"are kept, marked superseded)")
         self.source = options.source or cfg.runner.source
-        # The advisory and the watcher listen to this device alone (or to the replayed log's device id).
-        self.device_id = resolve_device_id(load_monitor_config().device_id, self.source)
+        # The advisory and the watcher listen to this device alone (or to the replayed log's device id); the id is
+        # decided here and given to the device (its configs).
+        self.monitor = load_monitor_config()
+        self.device_id = resolve_device_id(self.monitor.device_id, self.source)
         self.estimates_from = (load_advisory_config().replay.replay_device_id
                                if options.replay_estimates is not None else None)
         self.mode = options.mode or cfg.runner.mode
@@ -235,16 +239,20 @@ class Session:
         """The run's configs (``configs/``, what every child runs with) and environment; in an audible condition
         the sound goes to the output device or, without one, to a JACK dummy server started here, as ``seesys
         run`` does (``advisory.output``)."""
-        overrides: dict[str, object] = {"listen_to_device": self.estimates_from or self.device_id}
+        advisory = load_advisory_config()
+        timing = replace(advisory.timing, listen_to_device=self.estimates_from or self.device_id)
         if Condition(self.condition).audible:
-            self.output = open_audio_output(load_advisory_config().audio)
-            overrides.update(self.output.overrides)
+            self.output = open_audio_output(advisory.audio)
+            advisory = replace(advisory, audio=self.output.settings(advisory.audio))
             if self.output.unavailable is not None:
                 self.console.print(f"no audio output ({self.output.unavailable}): the advisory plays into a "
                                    f"{self.output.description}", markup=False, highlight=False)
             self._event(events, "audio", self.output.description)
             self._run_json(audio=self.output.description)
-        config_dir = write_config_dir(self.attempt / CONFIGS, overrides)
+        config_dir = (ConfigSet.read()
+                      .replaced(advisory_config.SECTION, replace(advisory, timing=timing))
+                      .replaced(monitor_config.SECTION, replace(self.monitor, device_id=self.device_id))
+                      .write(self.attempt / CONFIGS))
         self.env = {**os.environ, CONFIG_DIR_ENV: str(config_dir), **(self.output.env() if self.output else {})}
 
     def _wait_for_the_device(self, stop: threading.Event, watcher: StreamWatcher, events: CsvLog) -> str | None:

@@ -1,10 +1,14 @@
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import pytest
 
-from seesys.io.config import ConfigError, load_section, write_config_dir
+from advisory import config as advisory_config
+from advisory.config import load_advisory_config
+from seesys.io.config import ConfigError, ConfigSet, load_section, write_config_dir
 from seesys.io.network import load_network_config
+from slam_monitor import monitor_config
+from slam_monitor.monitor_config import load_monitor_config
 
 
 @dataclass(frozen=True)
@@ -91,6 +95,35 @@ def test_an_override_key_must_exist_and_name_one_file(tmp_path):
     with pytest.raises(KeyError, match="no such configuration key: camera.stall_timeout_s"):
         write_config_dir(tmp_path / "c", {"camera.stall_timeout_s": 9.0})
     folder = write_config_dir(tmp_path / "d", {"slam.stall_timeout_s": 9.0, "slam_cpus": 1})
-    assert "stall_timeout_s = 9.0" in (folder / "slam.toml").read_text()
-    assert "stall_timeout_s = 9.0" not in (folder / "simulate.toml").read_text()
-    assert "slam_cpus = 1" in (folder / "ray.toml").read_text()  # by name: one file has it
+    written = ConfigSet.read(folder)
+    assert written.data("slam")["supervisor"]["stall_timeout_s"] == 9.0
+    assert written.data("simulate") == ConfigSet.read().data("simulate")
+    assert written.data("ray")["slam_cpus"] == 1  # by name: one file has it
+
+
+def test_a_typed_change_for_a_child_is_written_whole_and_read_back_unchanged_elsewhere(tmp_path):
+    advisory, monitor = load_advisory_config(), load_monitor_config()
+    changed = replace(advisory, timing=replace(advisory.timing, listen_to_device="lab-pc:tum:office"))
+    folder = (ConfigSet.read()
+              .replaced(advisory_config.SECTION, changed)
+              .replaced(monitor_config.SECTION, replace(monitor, device_id="lab-pc:tum:office"))
+              .write(tmp_path / "configs"))
+    assert load_advisory_config(folder) == changed
+    # The monitor's settings carry the shared windows of windows.toml, which monitor.toml must not hold.
+    assert load_monitor_config(folder) == replace(monitor, device_id="lab-pc:tum:office")
+    assert load_network_config(folder) == load_network_config()
+    assert sorted(p.name for p in folder.iterdir()) == sorted(p.name for p in ConfigSet.read().folder.glob("*.toml"))
+
+
+def test_a_folder_is_parsed_once_until_one_of_its_files_changes(tmp_path):
+    folder = write_config_dir(tmp_path / "configs", {"slam_cpus": 1})
+    first = ConfigSet.read(folder)
+    assert ConfigSet.read(folder) is first
+    (folder / "ray.toml").write_text((folder / "ray.toml").read_text().replace("slam_cpus = 1", "slam_cpus = 2"))
+    again = ConfigSet.read(folder)
+    assert again is not first and again.data("ray")["slam_cpus"] == 2 and first.data("ray")["slam_cpus"] == 1
+
+
+def test_a_missing_file_of_the_set_is_named(tmp_path):
+    with pytest.raises(ConfigError, match=f"configuration file not found: {tmp_path}/advisory.toml"):
+        load_advisory_config(tmp_path)

@@ -56,5 +56,9 @@ class ServiceConfig:
             raise ConfigError("service.toml: worker_timeout_ms must exceed two heartbeats")
 
 
+#: The file of :class:`ServiceConfig` in the configuration folder.
+SECTION = "service"
+
+
 def load_service_config(directory: Path | None = None) -> ServiceConfig:
-    return load_section("service", ServiceConfig, directory)
+    return load_section(SECTION, ServiceConfig, directory)

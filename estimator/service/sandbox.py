@@ -8,22 +8,31 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
+from estimator.service import config as service_config
 from estimator.service.broker import ServiceError
 from estimator.service.status import query_status
-from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from seesys.io import network as network_config
+from seesys.io.config import CONFIG_DIR_ENV, ConfigSet
 
-ENDPOINT_KEYS = {"ingest": "ingest_endpoint", "workers": "worker_endpoint", "status": "status_endpoint",
-                 "estimates": "estimates_endpoint", "features": "features_endpoint"}
+ENDPOINTS = ("ingest", "workers", "status", "estimates", "features")
 
 
 def private_configs(folder: Path, **overrides: object) -> tuple[Path, dict[str, str]]:
     """``folder/configs`` with ipc endpoints in ``folder`` (keep it short: ipc paths are at most 107 bytes) and
     ``overrides`` (config keys by name or as ``file.key``); returns it and the endpoints by name."""
-    endpoints = {name: f"ipc://{Path(folder).resolve()}/{name}" for name in ENDPOINT_KEYS}
-    values = {key: endpoints[name] for name, key in ENDPOINT_KEYS.items()}
-    return write_config_dir(Path(folder) / "configs", {**values, **overrides}), endpoints
+    endpoints = {name: f"ipc://{Path(folder).resolve()}/{name}" for name in ENDPOINTS}
+    configs = ConfigSet.read()
+    network = replace(configs.section(network_config.SECTION, network_config.NetworkConfig),
+                      ingest_endpoint=endpoints["ingest"], estimates_endpoint=endpoints["estimates"],
+                      features_endpoint=endpoints["features"])
+    service = replace(service_config.load_service_config(), worker_endpoint=endpoints["workers"],
+                      status_endpoint=endpoints["status"])
+    configs = (configs.replaced(network_config.SECTION, network).replaced(service_config.SECTION, service)
+               .with_values(overrides))
+    return configs.write(Path(folder) / "configs"), endpoints
 
 
 def start_service(config_dir: Path, model: Path, *args: str, log: Path) -> subprocess.Popen:

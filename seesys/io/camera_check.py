@@ -10,7 +10,7 @@ from pathlib import Path
 from seesys.core import session_layout
 from seesys.core.camera_scale import ScaleCheckError, ScaleFit, ScaleSettings, describe, window_scales
 from seesys.core.labels import LabelError, tracked_states
-from seesys.io.config import build, config_dir, read_toml
+from seesys.io.config import ConfigSet, build
 from seesys.io.session_files import read_manifest
 from seesys.io.session_labels import read_session_track
 
@@ -25,8 +25,8 @@ class SessionScale:
 
 def load_scale_settings(directory: Path | None = None) -> ScaleSettings:
     """``[scale]`` of ``configs/camera.toml``."""
-    path = (directory or config_dir()) / "camera.toml"
-    return build(ScaleSettings, read_toml(path).get("scale", {}), f"{path} [scale]")
+    configs = ConfigSet.read(directory)
+    return build(ScaleSettings, dict(configs.data("camera").get("scale", {})), f"{configs.path('camera')} [scale]")
 
 
 def _manifest(folder: Path) -> dict:

@@ -6,19 +6,26 @@ dataclass's keys, with values of the declared types, and raises :class:`ConfigEr
 otherwise. Nested dataclasses map to TOML tables.
 
 The folder is ``$SEESYS_CONFIG_DIR`` when set, else ``configs/`` of the SEESys home (:mod:`seesys.io.resources`).
+A folder is read once per process (:class:`ConfigSet`, again only when one of its files changes). Settings reach a
+child process one way: the parent changes a section with ``dataclasses.replace`` (:meth:`ConfigSet.replaced`),
+writes the whole set into a folder of the session (:meth:`ConfigSet.write`) and points ``$SEESYS_CONFIG_DIR`` at it.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
+import enum
+import functools
 import os
-import re
 import tomllib
 import types
 import typing
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
+
+import tomli_w
 
 from seesys.core.errors import ConfigError
 from seesys.io import resources
@@ -115,10 +122,116 @@ def build(cls: type[T], data: dict[str, Any], where: str) -> T:
         raise ConfigError(f"{where}: {e}") from None
 
 
+def to_toml_data(value: Any) -> Any:
+    """A settings value as TOML data: a dataclass as a table of its fields, enums by value, tuples as lists."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: to_toml_data(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init}
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, (list, tuple)):
+        return [to_toml_data(v) for v in value]
+    if isinstance(value, Mapping):
+        return {k: to_toml_data(v) for k, v in value.items()}
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def _find_key(table: Mapping[str, Any], key: str) -> list[str] | None:
+    """The path of the first ``key`` in ``table`` or its sub-tables, in the file's order (None: not there)."""
+    for name, value in table.items():
+        if name == key:
+            return [name]
+        if isinstance(value, Mapping):
+            below = _find_key(value, key)
+            if below is not None:
+                return [name, *below]
+    return None
+
+
+def _set(table: Mapping[str, Any], path: list[str], value: Any) -> dict[str, Any]:
+    head, *rest = path
+    return {**table, head: _set(table[head], rest, value) if rest else value}
+
+
+@dataclass(frozen=True)
+class ConfigSet:
+    """Every ``*.toml`` of a configuration folder, parsed: ``sections`` by file name without ``.toml`` (shared by
+    every reader of the folder: never changed in place).
+
+    Read once (:meth:`read`), built into a part's typed settings (:meth:`section`), changed for a child process
+    with a typed value (:meth:`replaced`) and written out whole (:meth:`write`): no text of a file is edited."""
+
+    folder: Path
+    sections: Mapping[str, Mapping[str, Any]]
+
+    @classmethod
+    def read(cls, directory: Path | None = None) -> ConfigSet:
+        """The files of ``directory`` (default: :func:`config_dir`); a file it lacks is a ConfigError when asked
+        for (:meth:`data`)."""
+        folder = Path(directory) if directory is not None else config_dir()
+        paths = sorted(folder.glob("*.toml"))
+        stamp = tuple((p.name, p.stat().st_mtime_ns, p.stat().st_size) for p in paths)
+        return _read_folder(folder.resolve(), stamp)
+
+    def path(self, name: str) -> Path:
+        return self.folder / f"{name}.toml"
+
+    def data(self, name: str) -> Mapping[str, Any]:
+        """The parsed file ``name``; ConfigError when the folder has no such file."""
+        if name not in self.sections:
+            raise ConfigError(f"configuration file not found: {self.path(name)}")
+        return self.sections[name]
+
+    def section(self, name: str, cls: type[T]) -> T:
+        """File ``name`` built into ``cls`` (exactly its keys, of its types; ConfigError naming file and key)."""
+        return build(cls, dict(self.data(name)), str(self.path(name)))
+
+    def replaced(self, name: str, value: Any) -> ConfigSet:
+        """This set with file ``name`` holding the settings ``value`` (a dataclass built from it, changed with
+        ``dataclasses.replace``). A value that carries another file's settings too (the monitor's shared windows)
+        writes only the keys this file has."""
+        own = self.data(name)
+        data = {key: v for key, v in to_toml_data(value).items() if key in own}
+        return dataclasses.replace(self, sections={**self.sections, name: data})
+
+    def with_values(self, values: Mapping[str, object]) -> ConfigSet:
+        """This set with settings changed by key: ``key`` where one file has it, else ``file.key`` (the first
+        ``key`` of that file, at any depth). For tests and scripted experiments; code that starts a child changes
+        a typed section with :meth:`replaced` instead. KeyError naming an unknown or ambiguous key."""
+        sections = dict(self.sections)
+        for name, value in values.items():
+            stem, _, key = name.rpartition(".")
+            where = {s: path for s in ([stem] if stem else sections) if s in sections
+                     and (path := _find_key(sections[s], key)) is not None}
+            if not where:
+                raise KeyError(f"no such configuration key: {name}")
+            if len(where) > 1:
+                raise KeyError(f"configuration key {key} is in {', '.join(f'{s}.toml' for s in where)}: "
+                               f"name it as {next(iter(where))}.{key} (file.key)")
+            (file, path), = where.items()
+            sections[file] = _set(sections[file], path, value)
+        return dataclasses.replace(self, sections=sections)
+
+    def write(self, destination: Path) -> Path:
+        """Every file of the set into ``destination`` (created), for ``$SEESYS_CONFIG_DIR`` of a child."""
+        destination.mkdir(parents=True, exist_ok=True)
+        for name, data in self.sections.items():
+            with open(destination / f"{name}.toml", "wb") as f:
+                tomli_w.dump(data, f)
+        return destination
+
+
+@functools.lru_cache(maxsize=32)
+def _read_folder(folder: Path, stamp: tuple[tuple[str, int, int], ...]) -> ConfigSet:
+    """The files of ``folder`` as they were at ``stamp`` (names, modification times and sizes): a folder whose
+    files have not changed is parsed once per process."""
+    return ConfigSet(folder, {Path(name).stem: read_toml(folder / name) for name, _, _ in stamp})
+
+
 def load_section(name: str, cls: type[T], directory: Path | None = None) -> T:
     """Load ``configs/<name>.toml`` into ``cls``; ``directory`` overrides the config folder."""
-    path = (directory or config_dir()) / f"{name}.toml"
-    return build(cls, read_toml(path), str(path))
+    return ConfigSet.read(directory).section(name, cls)
 
 
 def replace_fields(obj: T, **changes: Any) -> T:
@@ -131,27 +244,7 @@ def as_dict(obj: Any) -> dict[str, Any]:
     return dataclasses.asdict(obj)
 
 
-def write_config_dir(destination: Path, overrides: dict[str, object]) -> Path:
-    """Copy ``configs/*.toml`` into ``destination`` with each ``key = value`` of ``overrides`` replaced.
-
-    A key is found by name, or as ``file.key`` (``slam.stall_timeout_s`` for ``slam.toml``) where the name is used
-    in more than one file; within a file the first ``key =`` line is replaced. An unknown key, or an unqualified
-    one that more than one file uses, is an error: a renamed key, or one added to another file, cannot silently
-    leave a caller on the defaults or change the wrong setting.
-    """
-    sources = sorted(config_dir().glob("*.toml"))
-    texts = {source.stem: source.read_text() for source in sources}
-    for name, value in overrides.items():
-        stem, _, key = name.rpartition(".")
-        line = re.compile(rf"^{re.escape(key)} = .*$", re.MULTILINE)
-        where = [s for s in ([stem] if stem else texts) if s in texts and line.search(texts[s])]
-        if not where:
-            raise KeyError(f"no such configuration key: {name}")
-        if len(where) > 1:
-            raise KeyError(f"configuration key {key} is in {', '.join(f'{s}.toml' for s in where)}: "
-                           f"name it as {where[0]}.{key} (file.key)")
-        texts[where[0]] = line.sub(lambda _: f"{key} = {json.dumps(value)}", texts[where[0]], count=1)
-    destination.mkdir(parents=True, exist_ok=True)
-    for source in sources:
-        (destination / source.name).write_text(texts[source.stem])
-    return destination
+def write_config_dir(destination: Path, values: Mapping[str, object]) -> Path:
+    """The configuration in use with ``values`` changed by key (:meth:`ConfigSet.with_values`), written into
+    ``destination``: a folder for ``$SEESYS_CONFIG_DIR`` in tests and scripted experiments."""
+    return ConfigSet.read().with_values(values).write(destination)

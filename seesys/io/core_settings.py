@@ -14,7 +14,7 @@ from seesys.core.equation2 import Equation2Config, PulseSettings
 from seesys.core.labels import LabelConfig
 from seesys.core.windows import WindowConfig
 from seesys.core.errors import ConfigError
-from seesys.io.config import build, config_dir, load_section, read_toml
+from seesys.io.config import ConfigSet, build, load_section
 
 
 def load_window_config(directory: Path | None = None) -> WindowConfig:
@@ -36,8 +36,8 @@ class _PulseTiming:
 def load_pulse_settings(directory: Path | None = None) -> PulseSettings:
     """Equation 2 and the two timings its pulse counts depend on, from ``configs/advisory.toml`` (the advisory
     itself loads and checks the whole file)."""
-    path = (directory or config_dir()) / "advisory.toml"
-    data = read_toml(path)
+    configs = ConfigSet.read(directory)
+    path, data = configs.path("advisory"), configs.data("advisory")
     equation2 = build(Equation2Config, data.get("equation2", {}), f"{path} [equation2]")
     timing = data.get("timing", {})
     picked = build(_PulseTiming, {k: timing[k] for k in ("buffer_s", "window_s") if k in timing}, f"{path} [timing]")
@@ -45,8 +45,8 @@ def load_pulse_settings(directory: Path | None = None) -> PulseSettings:
 
 
 def _value(directory: Path | None, file: str, *keys: str) -> object:
-    path = (directory or config_dir()) / file
-    data: object = read_toml(path)
+    configs = ConfigSet.read(directory)
+    path, data = configs.path(file), configs.data(file)
     for key in keys:
         if not isinstance(data, dict) or key not in data:
             raise ConfigError(f"{path}: missing {'.'.join(keys)}")
@@ -57,16 +57,16 @@ def _value(directory: Path | None, file: str, *keys: str) -> object:
 def load_device_settings(slam_mode: str, fps: float, directory: Path | None = None) -> DeviceSettings:
     """A device's settings (:class:`~seesys.core.device_settings.DeviceSettings`) running ``slam_mode`` at ``fps``
     with the configured PSD (``[psd]`` of monitor.toml) and ORB feature count (``[orb] features`` of slam.toml)."""
-    return DeviceSettings.of(slam_mode, fps, _value(directory, "slam.toml", "orb", "features"),
-                             _value(directory, "monitor.toml", "psd", "patch_px"),
-                             _value(directory, "monitor.toml", "psd", "expansion"),
-                             _value(directory, "monitor.toml", "psd", "near_depth"))
+    return DeviceSettings.of(slam_mode, fps, _value(directory, "slam", "orb", "features"),
+                             _value(directory, "monitor", "psd", "patch_px"),
+                             _value(directory, "monitor", "psd", "expansion"),
+                             _value(directory, "monitor", "psd", "near_depth"))
 
 
 def load_reference_camera(directory: Path | None = None) -> ReferenceCamera:
     """The camera normalisation's reference camera, ``[reference_camera]`` of monitor.toml."""
-    return build(ReferenceCamera, _value(directory, "monitor.toml", "reference_camera"),
-                 f"{(directory or config_dir()) / 'monitor.toml'} [reference_camera]")
+    return build(ReferenceCamera, _value(directory, "monitor", "reference_camera"),
+                 f"{ConfigSet.read(directory).path('monitor')} [reference_camera]")
 
 
 def load_model_device_record(directory: Path | None = None) -> dict:
@@ -74,6 +74,6 @@ def load_model_device_record(directory: Path | None = None) -> dict:
     this SEESys's camera normalisation version), the reference camera of the camera normalisation
     (``reference_camera``), the SLAM modes the dataset builder runs (``modes`` of dataset.toml) and the frame rate
     of its rendered sequences (``[camera] fps`` of synth.toml)."""
-    modes = _value(directory, "dataset.toml", "modes")
-    settings = load_device_settings(modes[0], _value(directory, "synth.toml", "camera", "fps"), directory)
+    modes = _value(directory, "dataset", "modes")
+    settings = load_device_settings(modes[0], _value(directory, "synth", "camera", "fps"), directory)
     return {**model_settings_record(settings, modes), "reference_camera": asdict(load_reference_camera(directory))}

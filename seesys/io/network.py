@@ -48,5 +48,9 @@ class NetworkConfig:
         return ClientKeys(resolve(self.curve.client_secret_key), resolve(self.curve.server_public_key)).socket_options()
 
 
+#: The file of :class:`NetworkConfig` in the configuration folder.
+SECTION = "network"
+
+
 def load_network_config(directory: Path | None = None) -> NetworkConfig:
-    return load_section("network", NetworkConfig, directory)
+    return load_section(SECTION, NetworkConfig, directory)
