@@ -5,7 +5,8 @@
   length. An advisory that only slows everyone down shows here and in time on task.
 - **False alarms and misses**: each advisory buffer of the task (``advisory.csv``: one per 1/3 s, and one per
   change) against the true error of the moment it stands for, the mean of the tracking error's pairs (RPE, the
-  study's error) that ended in the buffer's window. A buffer *warned* when it played pulses. The false-alarm rate
+  study's error, which is the pose-error label the estimates were trained on, monocular included:
+  ``seesys.core.labels.stretch_errors``) that ended in the buffer's window. A buffer *warned* when it played pulses. The false-alarm rate
   is the share of buffers with a true error below α (silence is right: Equation 2's "error below α") that warned;
   the miss rate is the share of buffers with a true error of at least ``advice_high_error_m`` that were silent.
   In the ``none`` condition nothing is played: it misses every high error, which is the baseline. Buffers whose

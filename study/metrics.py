@@ -1,17 +1,18 @@
 """Per-participant tracking metrics (paper §7.3): tracking error, tracking completeness, losses, time on task.
 
-- **Tracking error** is evo's relative pose error, translation part, over ``delta_frames`` frames, of the SLAM
-  trajectory against the motion-capture reference, **per tracked stretch**: the trajectory is cut where tracking
-  was lost (a stretch is a maximal run of tracked frames of the session's frame log; without a frame log, of
-  poses less than ``stretch_gap_s`` apart), and in each stretch the poses are associated by nearest timestamp
-  within ``association_max_dt_s`` (evo's ``associate_trajectories``), the stretch is aligned to the reference on
-  its own (SE(3) for metric RGB-D SLAM, Sim(3) for monocular) and evo's ``main_rpe.rpe`` gives its pairs; the
-  pairs of all stretches are pooled. So no pair straddles a loss, and a participant who loses tracking and
-  continues in a new ORB-SLAM3 map (its own origin) is not charged for the reset itself, only for the error
-  within each map — as the per-frame label (``seesys/core/labels.py``) refuses pairs across stretches. Each stretch
-  is what evo's command line computes on that stretch's poses (``evo_rpe tum REF EST --delta 10 --delta_unit f
-  --pose_relation trans_part --align [--correct_scale] --t_max_diff 0.01 [--all_pairs]``); a trajectory without
-  a loss is one stretch, and its error is evo's on the whole trajectory.
+- **Tracking error** is the pose-error label's error (``seesys/core/labels.py``, docs/labels.md): evo's relative
+  pose error, translation part, over ``delta_frames`` frames, of the SLAM trajectory against the motion-capture
+  reference, **per tracked stretch**: the trajectory is cut where tracking was lost (a stretch is a maximal run of
+  tracked frames of the session's frame log; without a frame log, of poses less than ``stretch_gap_s`` apart), in
+  each stretch every estimated pose is associated with the reference pose nearest in time within
+  ``association_max_dt_s``, the stretch is aligned to the reference on its own (SE(3) for metric RGB-D SLAM,
+  Sim(3) for monocular) and :func:`seesys.core.labels.stretch_errors` gives its pairs; the pairs of all stretches
+  are pooled. So no pair straddles a loss, a participant who loses tracking and continues in a new ORB-SLAM3 map
+  (its own origin) is not charged for the reset itself, only for the error within each map, and a pair's error is
+  the label of its end frame, monocular included (the advice analysis judges the estimates against these pairs).
+  Each stretch is what evo's command line computes on that stretch's poses (``evo_rpe tum REF EST --delta 10
+  --delta_unit f --pose_relation trans_part --align [--correct_scale] --t_max_diff 0.01 [--all_pairs]``); a
+  trajectory without a loss is one stretch, and its error is evo's on the whole trajectory.
 - **Completeness** is the share of camera frames tracked from the first tracked frame on (initialisation, which
   the operator confirms, is not the participant's doing). With a frame log (a session's ``frames.csv``) it is
   counted on the frames; from two TUM files alone it is the share of time from the first estimated pose to the
@@ -36,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from seesys.core.errors import SeesysError
-from seesys.core.labels import tracked_stretches
+from seesys.core.labels import ground_truth_of_frames, stretch_errors, tracked_stretches
 from seesys.core.tracking_state import TrackingState
 from seesys.core.trajectory import Poses
 from seesys.io.logfiles import read_csv_log
@@ -118,9 +119,9 @@ def stretches_from_poses(estimate: Poses, cfg: MetricsConfig) -> list[Stretch]:
 
 def relative_pose_error(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
                         stretches: list[Stretch] | None = None) -> RpeResult:
-    """evo's RPE (translation part, ``delta_frames``) of ``estimate`` against ``reference``, each stretch (default:
-    :func:`stretches_from_poses`) associated and SE(3) / Sim(3)-aligned on its own, the pairs pooled; no pairs
-    (empty arrays) when too few poses associate."""
+    """The label's error (:func:`seesys.core.labels.stretch_errors`) of ``estimate`` against ``reference``, each
+    stretch (default: :func:`stretches_from_poses`) associated and SE(3) / Sim(3)-aligned on its own, the pairs
+    pooled; no pairs (empty arrays) when too few poses associate."""
     alignment = "Sim(3)" if monocular else "SE(3)"
     if len(estimate) == 0 or len(reference) == 0:
         return RpeResult(np.zeros(0), np.zeros(0), alignment)
@@ -138,24 +139,18 @@ def relative_pose_error(estimate: Poses, reference: Poses, monocular: bool, cfg:
 
 
 def _stretch_rpe(est: Poses, ref: Poses, monocular: bool, cfg: MetricsConfig) -> tuple[np.ndarray, np.ndarray] | None:
-    """evo's RPE errors and end timestamps of one stretch, or None when it has too few associated poses."""
-    from evo.core import sync
-    from evo.core.metrics import PoseRelation
-    from evo.core.units import Unit
-    from evo.main_rpe import rpe
-
-    if len(est) == 0:
+    """The errors and end timestamps of one stretch's pairs: the label's :func:`stretch_errors` on the stretch's
+    poses that have a reference pose within ``association_max_dt_s`` (as evo's association keeps them: a pose
+    without one is dropped, not a cut), or None when it has no pair or its Sim(3) fit failed."""
+    ref_of_pose = ground_truth_of_frames(est.timestamps, ref, cfg.association_max_dt_s)
+    associated = ref_of_pose >= 0
+    est, ref = est.take(associated), ref.take(ref_of_pose[associated])
+    pairs = stretch_errors(est, ref, monocular, cfg.delta_frames)
+    if pairs.errors_m.size == 0:
         return None
-    try:
-        ref_evo, est_evo = sync.associate_trajectories(ref.to_evo(), est.to_evo(), max_diff=cfg.association_max_dt_s)
-    except sync.SyncException:
-        return None
-    # Alignment needs at least 3 poses and RPE at least one pair (i, i + delta).
-    if est_evo.num_poses <= max(cfg.delta_frames, 2):
-        return None
-    result = rpe(ref_evo, est_evo, PoseRelation.translation_part, delta=cfg.delta_frames, delta_unit=Unit.frames,
-                 all_pairs=cfg.all_pairs, align=True, correct_scale=monocular)
-    return (np.asarray(result.np_arrays["error_array"], float), np.asarray(result.np_arrays["timestamps"], float))
+    # evo's non-overlapping pairs (0, Δ), (Δ, 2Δ), ... are every Δ-th of all pairs.
+    step = 1 if cfg.all_pairs else cfg.delta_frames
+    return pairs.errors_m[::step], est.timestamps[cfg.delta_frames:][::step]
 
 
 @dataclass(frozen=True)

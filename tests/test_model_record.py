@@ -14,12 +14,13 @@ import sys
 import pytest
 from service_fixtures import tiny_model  # noqa: F401
 
-from estimator.artefact.compatibility import ModelMismatch, ModelSetup, compatibility
+from estimator.artefact.compatibility import ModelMismatch, ModelSetup, check_compatible, compatibility
 from estimator.deepsee.config import load_estimator_config
 from estimator.artefact.onnx_model import COMPATIBILITY_KEY
 from estimator.artefact.transforms import LabelTransform
 from estimator.service.model import ServedModel
 from seesys.core.device_settings import DeviceSettings, settings_differences
+from seesys.core.labels import MONO_ALIGNMENT
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.core_settings import load_device_settings, load_window_config
 from seesys.core import rts_schema
@@ -63,6 +64,31 @@ def test_a_model_made_for_other_settings_is_refused_naming_each_field(tiny_model
         ServedModel.load(tiny_model, windows, setup=ModelSetup(5, here.device))
     with pytest.raises(ModelMismatch, match=r"windows\.max_missing_rts: model 0, here 3"):
         ServedModel.load(tiny_model, dataclasses.replace(windows, max_missing_rts=3))
+
+
+def test_a_monocular_model_made_under_another_label_definition_is_refused_by_name():
+    """A model trained on monocular sessions records the monocular label's alignment; one made under another (or
+    before the name was recorded: the sliding-window label) is refused naming it. An RGB-D model's record does not
+    carry it and is not asked for it (its label never changed)."""
+    windows = load_window_config()
+    transform = LabelTransform(load_estimator_config().label_transform.k)
+    here = ModelSetup.configured()
+    mono = compatibility(windows, transform, ModelSetup(here.delta_frames, {**here.device,
+                                                                            "slam_modes": ["mono", "rgbd"]}))
+    assert mono["label"] == {"delta_frames": here.delta_frames, "mono_alignment": MONO_ALIGNMENT}
+    check_compatible(mono, "the mono model", windows, transform)
+    rgbd = compatibility(windows, transform, ModelSetup(here.delta_frames, SHIPPED_DEVICE))
+    assert rgbd["label"] == {"delta_frames": here.delta_frames}
+    check_compatible(rgbd, "the RGB-D model", windows, transform)
+
+    other = {**mono, "label": {**mono["label"], "mono_alignment": "sim3-window-90"}}
+    with pytest.raises(ModelMismatch, match=r'the mono model was made for other inputs: label\.mono_alignment: '
+                                            r'model "sim3-window-90", here "sim3-per-stretch"\. It cannot'):
+        check_compatible(other, "the mono model", windows, transform)
+    before = {**mono, "label": {"delta_frames": here.delta_frames}}
+    with pytest.raises(ModelMismatch, match=r'label\.mono_alignment: model "sim3-sliding-window", here '
+                                            r'"sim3-per-stretch"'):
+        check_compatible(before, "the mono model", windows, transform)
 
 
 def test_serve_refuses_a_model_whose_near_depth_differs_from_monitor_toml(tiny_model, tmp_path):

@@ -4,7 +4,9 @@ record stored with every model file (checkpoint, ONNX metadata, random-forest pi
 The record holds the RTS channels the model takes (their names, the fingerprint of their definitions, and the schema
 version they were made with: a model takes the rows of any later schema that still has them, through
 :func:`rts_columns`), the windows (T, K_L, tau and the missing-row
-rule ``max_missing_rts``), the label transform, the label's Δ (``delta_frames``) and the device settings the
+rule ``max_missing_rts``), the label transform, the label's Δ (``delta_frames``; for a model trained on monocular
+sessions also the name of the monocular label's alignment, ``mono_alignment``, checked only for such a model: a
+model made under another definition is refused naming it) and the device settings the
 training data was made with (:func:`seesys.core.device_settings.model_settings_record`: SLAM modes, frame rate,
 ORB feature count, PSD cell size, expansion and ``near_depth``, the camera normalisation version and its reference
 camera, :mod:`seesys.core.camera_normalisation`) and, for a model with an ordinal head, the head's
@@ -33,6 +35,7 @@ import pandas as pd
 from estimator.artefact.transforms import LabelTransform
 from seesys.core import camera_normalisation, rts_schema
 from seesys.core.errors import SeesysError
+from seesys.core.labels import MONO_ALIGNMENT
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_label_config, load_model_device_record
 
@@ -45,6 +48,11 @@ WINDOW_FIELDS = ("rts_length", "psd_samples", "psd_stride", "max_missing_rts")
 INSTALLATION_DEVICE_FIELDS = ("orb_features", "psd_patch_px", "psd_expansion", "near_depth", "camera_normalisation",
                               "reference_camera")
 ORDINAL_HEAD = "ordinal_head"
+# The monocular SLAM mode (one of seesys.core.device_settings.SLAM_MODES): its models record the label's alignment.
+MONO = "mono"
+# The monocular label's alignment of a model whose record names none: it was made before the name was recorded, on
+# the label that fitted each pair's scale on a sliding window.
+BEFORE_MONO_ALIGNMENT = "sim3-sliding-window"
 
 
 class ModelMismatch(SeesysError):
@@ -88,11 +96,25 @@ def compatibility(windows: WindowConfig, transform: LabelTransform, setup: Model
     record = {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_fingerprint": rts_schema.fingerprint(channels),
               "rts_channels": names,
               "windows": {name: getattr(windows, name) for name in WINDOW_FIELDS},
-              "label_transform": transform.describe(), "label": {"delta_frames": setup.delta_frames},
+              "label_transform": transform.describe(), "label": _label_record(setup),
               "device": dict(setup.device)}
     if head_thresholds_m:
         record[ORDINAL_HEAD] = {"thresholds_m": [float(t) for t in head_thresholds_m]}
     return record
+
+
+def _takes_mono(device: dict | None) -> bool:
+    """Whether a model of this device record was trained on monocular sessions."""
+    return MONO in ((device or {}).get("slam_modes") or ())
+
+
+def _label_record(setup: ModelSetup) -> dict:
+    """The label's Δ, and for a model trained on monocular sessions the name of the monocular label's alignment
+    (an RGB-D label does not depend on it, so an RGB-D model's record is what it was before the name existed)."""
+    label = {"delta_frames": setup.delta_frames}
+    if _takes_mono(setup.device):
+        label["mono_alignment"] = MONO_ALIGNMENT
+    return label
 
 
 def head_thresholds_of(record: dict) -> tuple[float, ...]:
@@ -138,6 +160,9 @@ def differences(record: dict, here: dict) -> list[str]:
         here_value = here[part][name]
         if model_value != here_value:
             out.append(f"{part}.{name}: model {_show(model_value)}, here {_show(here_value)}")
+    mono_alignment = (record.get("label") or {}).get("mono_alignment", BEFORE_MONO_ALIGNMENT)
+    if _takes_mono(record.get("device")) and mono_alignment != MONO_ALIGNMENT:
+        out.append(f"label.mono_alignment: model {_show(mono_alignment)}, here {_show(MONO_ALIGNMENT)}")
     return out
 
 

@@ -9,13 +9,13 @@ Definition (docs/labels.md explains the choices and how they differ from the aut
 - **Pairs only inside a tracked stretch.** A stretch is a maximal run of consecutive frames that SLAM reports
   as tracked (``TrackingState.tracked``) and that have a ground-truth pose within ``association_max_dt_s``.
   A pair whose frames are not both in one stretch gets no label.
-- **Alignment.** RGB-D: SE(3). A rigid change of the world frame leaves every relative pose unchanged, so the
-  SE(3)-aligned RPE equals the unaligned one and no alignment is computed (tests/test_labels.py checks this
-  against evo with the alignment). Monocular: the scale of each
-  pair is fitted (Sim(3), Umeyama) on ``mono_scale_window_frames`` frames centred on the pair, clipped to its
-  stretch. This follows ORB-SLAM3's slow scale drift without the jumps of fixed segments, so the label measures the
-  local error of the 10-frame motion, not an arbitrary segment's average scale. The fitted scale is kept per
-  frame (``scale``) for whoever wants scale drift as its own target.
+- **Alignment, per tracked stretch.** Each stretch is aligned to the ground truth on its own, as evo's
+  ``--align`` (RGB-D: SE(3)) and ``--align --correct_scale`` (monocular: Sim(3)) do on a whole trajectory. A rigid
+  change of the world frame leaves every relative pose unchanged, so only the monocular scale matters: the
+  estimate is multiplied by the Sim(3) scale fitted (Umeyama) on all the stretch's poses. Scale drift within a
+  stretch therefore stays in the label, as it stays in what an AR user sees (content placed at the wrong size).
+  The fitted scale is kept per frame (``scale``). :func:`stretch_errors` is this error of one stretch; the study's
+  tracking error and its judgement of the advice use it too, so a monocular label and a study pair are one number.
 - **No cleaning.** No clipping, no dropping of large errors, no smoothing, no ground-truth substitution when an
   alignment fails (the frame is flagged instead).
 - **Frames around tracking loss are flagged, not labelled:** every frame gets a :class:`LabelStatus`; only
@@ -39,8 +39,11 @@ from seesys.core.trajectory import Poses, sim3_scale
 class LabelConfig:
     delta_frames: int
     association_max_dt_s: float
-    mono_scale_window_frames: int
-    min_alignment_frames: int
+
+
+# The name of the monocular label's alignment (one Sim(3) per tracked stretch), recorded with every model trained on
+# monocular sessions: a model made under another definition is refused by it (estimator/artefact/compatibility.py).
+MONO_ALIGNMENT = "sim3-per-stretch"
 
 
 class LabelStatus(str, Enum):
@@ -50,7 +53,7 @@ class LabelStatus(str, Enum):
     NOT_TRACKED = "not_tracked"  # SLAM did not report the frame as tracked (initialising, lost, relocalising)
     WARMUP = "warmup"  # tracked, but fewer than delta frames into its tracked stretch
     NO_GROUND_TRUTH = "no_ground_truth"  # no ground-truth pose within the association tolerance
-    UNALIGNED = "unaligned"  # monocular: too few frames or degenerate motion to fit the pair's scale
+    UNALIGNED = "unaligned"  # monocular: degenerate motion (all poses on a line) leaves the stretch's scale unfitted
 
 
 class LabelError(SeesysError):
@@ -127,53 +130,51 @@ def label_frames(estimate: Poses, states: np.ndarray, ground_truth: Poses, monoc
             continue
         frames = np.arange(start, stop)
         ends = frames[delta:]
-        pair_scales = (_window_scales(estimate, ground_truth, frames, gt_of_frame, config) if monocular
-                       else np.ones(len(ends)))
-        ok = np.isfinite(pair_scales)
-        status[ends[~ok]] = LabelStatus.UNALIGNED.value
-        if ok.any():
-            error[ends[ok]] = _pair_errors(estimate, ground_truth, ends[ok] - delta, ends[ok], gt_of_frame,
-                                           pair_scales[ok])
-            status[ends[ok]] = LabelStatus.LABELLED.value
-        scale[ends] = pair_scales
+        pairs = stretch_errors(estimate.take(frames), ground_truth.take(gt_of_frame[frames]), monocular, delta)
+        scale[ends] = pairs.scale
+        if np.isfinite(pairs.scale):
+            error[ends] = pairs.errors_m
+            status[ends] = LabelStatus.LABELLED.value
+        else:
+            status[ends] = LabelStatus.UNALIGNED.value
     return FrameLabels(estimate.timestamps.copy(), error, status.astype(str), scale)
 
 
-def _window_scales(estimate: Poses, ground_truth: Poses, frames: np.ndarray, gt_of_frame: np.ndarray,
-                   config: LabelConfig) -> np.ndarray:
-    """Monocular: the Sim(3) scale fitted on the window centred on each pair, clipped to the stretch."""
-    delta, window = config.delta_frames, config.mono_scale_window_frames
-    est_xyz = estimate.positions[frames]
-    gt_xyz = ground_truth.positions[gt_of_frame[frames]]
-    scales = []
-    for end in range(delta, len(frames)):
-        centre = end - delta / 2
-        lo = int(max(0, min(round(centre - window / 2), len(frames) - window)))
-        hi = min(len(frames), lo + window)
-        scales.append(sim3_scale(est_xyz[lo:hi], gt_xyz[lo:hi]) if hi - lo >= config.min_alignment_frames
-                      else np.nan)
-    return np.array(scales)
+@dataclass(frozen=True)
+class StretchErrors:
+    """The error of every pair (k, k + Δ) of one tracked stretch, in pair order (metres; none when the stretch has
+    no pair), and the scale the estimate was multiplied by (1 for RGB-D; the stretch's Sim(3) scale for
+    monocular; NaN when that fit failed or the stretch has no pair, and then no errors)."""
+
+    errors_m: np.ndarray
+    scale: float
 
 
-def _pair_errors(estimate: Poses, ground_truth: Poses, starts: np.ndarray, ends: np.ndarray,
-                 gt_of_frame: np.ndarray, scales: np.ndarray) -> np.ndarray:
-    """evo RPE (translation part) of each pair (starts[k], ends[k]) with the estimate scaled by scales[k].
+def stretch_errors(estimate: Poses, ground_truth: Poses, monocular: bool, delta_frames: int) -> StretchErrors:
+    """The pose error of one tracked stretch: ``estimate`` and ``ground_truth`` associated pose for pose, every
+    pair (k, k + ``delta_frames``); raises :class:`LabelError` when their lengths differ.
 
-    The pairs are laid out as one interleaved path [s₀P_a₀, s₀P_b₀, s₁P_a₁, s₁P_b₁, …] (and the same for the
-    ground truth) and evo's RPE with delta 1 over all pairs is evaluated on it; the even-numbered pairs are
-    the wanted ones (the odd ones join two different pairs and are dropped).
+    This is evo's RPE (translation part, all pairs) after evo's alignment of the whole stretch: SE(3) for RGB-D
+    (which leaves every relative pose as it is, so none is applied) and Sim(3) for monocular, of which only the
+    scale changes a relative pose (the Umeyama fit over all the stretch's poses, ``sim3_scale``).
     """
     from evo.core import metrics
     from evo.core.trajectory import PosePath3D
 
-    order = np.column_stack([starts, ends]).ravel()
-    gt = ground_truth.take(gt_of_frame[order]).to_evo()
-    est = PosePath3D(positions_xyz=estimate.positions[order] * np.repeat(scales, 2)[:, None],
-                     orientations_quat_wxyz=estimate.quaternions_xyzw[order][:, [3, 0, 1, 2]])
-    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames,
+    n = len(estimate)
+    if len(ground_truth) != n:
+        raise LabelError(f"{len(ground_truth)} ground-truth poses for {n} estimated poses of a stretch")
+    if n <= delta_frames:
+        return StretchErrors(np.zeros(0), float("nan") if monocular else 1.0)
+    scale = sim3_scale(estimate.positions, ground_truth.positions) if monocular else 1.0
+    if not np.isfinite(scale):
+        return StretchErrors(np.zeros(0), scale)
+    scaled = PosePath3D(positions_xyz=estimate.positions * scale,
+                        orientations_quat_wxyz=estimate.quaternions_xyzw[:, [3, 0, 1, 2]])
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=delta_frames, delta_unit=metrics.Unit.frames,
                       all_pairs=True)
-    rpe.process_data((gt, est))
-    return np.asarray(rpe.error)[0::2]
+    rpe.process_data((ground_truth.to_evo(), scaled))
+    return StretchErrors(np.asarray(rpe.error, float), scale)
 
 
 @dataclass(frozen=True)
