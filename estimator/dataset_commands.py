@@ -90,18 +90,25 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _splits(args: argparse.Namespace) -> int:
-    config = load_dataset_config().splits
+    dataset = load_dataset_config()
+    config = dataset.splits
     if args.heldout is not None:
-        config = replace_fields(config, heldout_environments=tuple(args.heldout))
+        config = replace_fields(config, heldout_environments=tuple(args.heldout), heldout_environments_per_round=0)
+    if args.heldout_per_round is not None:
+        config = replace_fields(config, heldout_environments=(), heldout_environments_per_round=args.heldout_per_round)
     if args.heldout_cameras is not None:
         config = replace_fields(config, heldout_cameras=tuple(args.heldout_cameras))
     if args.rounds is not None:
         config = replace_fields(config, rounds=args.rounds)
-    splits = write_splits(args.roots, config, args.out)
+    splits = write_splits(args.roots, config, args.out, dataset.lockbox)
     for k, r in enumerate(splits.rounds):
+        environments, cameras = splits.heldout(k)
+        held = ", ".join(environments + cameras) or "none"
         print(f"round {k}: train {len(r.train)} runs, validation {len(r.validation)} "
               f"({', '.join(r.validation_trajectories)}), test {len(r.test)} ({', '.join(r.test_trajectories)}), "
-              f"excluded {len(r.excluded)}")
+              f"excluded {len(r.excluded)}; held out: {held}")
+    print(f"lockbox ({dataset.lockbox.environment}, {dataset.lockbox.camera_model}): {len(splits.lockbox.runs)} runs "
+          f"in no round; build {splits.build.name} ({splits.build.runs} runs)")
     print(f"wrote {args.out}")
     return 0
 
@@ -168,7 +175,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = sub.add_parser("splits", help="grouped cross-validation splits by trajectory and motion group (JSON)")
     p.add_argument("roots", type=Path, nargs="+", help="dataset folders split together (e.g. pretraining + others)")
     p.add_argument("--out", type=Path, required=True, help="JSON file to write")
-    p.add_argument("--heldout", type=_names, help="held-out environments (default: configs/dataset.toml; '' for none)")
+    p.add_argument("--heldout", type=_names,
+                   help="the same held-out environments in every round ('' for none; default: configs/dataset.toml)")
+    p.add_argument("--heldout-per-round", type=int,
+                   help="held-out rooms per round, different in every round (default: configs/dataset.toml)")
     p.add_argument("--heldout-cameras", type=_names,
                    help="held-out camera models, e.g. kinect_v1 for leave-one-camera-out (default: configs/dataset.toml;"
                         " '' for none)")

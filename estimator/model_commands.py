@@ -61,7 +61,7 @@ def _train(args: argparse.Namespace) -> int:
     from estimator.deepsee.stages import train_row
 
     ctx = _context(args, {"round": args.round})
-    data = split_windows(args.data, read_splits(args.splits), args.round)
+    data = split_windows(args.data, read_splits(args.splits, args.data), args.round)
     with ctx.progress:
         model = train_row(args.out, row(args.row), data, ctx, args.pretrained)
     print(f"trained {args.row} (round {args.round}, {args.schedule} schedule, {ctx.device}) -> {model}")
@@ -81,7 +81,7 @@ def _train_table_on_ray(args: argparse.Namespace) -> int:
     threads = args.threads or load_ray_settings().train_cpus
     spec = TrainSpec(load_estimator_config(), args.schedule, load_window_config(), args.device, threads,
                      _provenance(args))
-    jobs = table_jobs(args.data, read_splits(args.splits), args.rounds, args.rows, args.runs, spec)
+    jobs = table_jobs(args.data, read_splits(args.splits, args.data), args.rounds, args.rows, args.runs, spec)
     with ray_executor(args.ray or None) as executor, progress_bar() as progress:
         executor.run(jobs, progress)
     for r in args.rounds:
@@ -95,7 +95,7 @@ def _train_table(args: argparse.Namespace) -> int:
 
     if args.ray is not None:
         return _train_table_on_ray(args)
-    splits = read_splits(args.splits)
+    splits = read_splits(args.splits, args.data)
     for r in args.rounds:
         ctx = _context(args, {"round": r})
         with ctx.progress:
@@ -113,8 +113,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     config = load_estimator_config()
     pulses = load_pulse_settings()
     device = _device(args.device, None)
-    result = evaluate(args.data, read_splits(args.splits), args.runs, args.rounds, args.sessions or [], config,
-                      pulses, load_window_config(), device)
+    splits = read_splits(args.splits, args.data)
+    result = evaluate(args.data, splits, args.runs, args.rounds, args.sessions or [], config, pulses,
+                      load_window_config(), device)
     notes = [f"Data: {', '.join(str(p) for p in args.data)}; splits {args.splits}; models under {args.runs}."]
     if args.sessions:
         notes.append(f"Out-of-domain sessions: {', '.join(str(s) for s in args.sessions)}.")

@@ -18,7 +18,7 @@ from conftest import run_seesys
 from estimator import dataset_commands
 from estimator.dataset import build as build_module
 from estimator.dataset.build import DATASET_JSON, SESSIONS_DIR, DatasetBuilder, plan_from_config
-from estimator.dataset.config import SplitConfig, load_dataset_config
+from estimator.dataset.config import SplitConfig, load_dataset_config, lockbox_hash
 from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
 from estimator.dataset.splits import SplitError, Splits, check_no_leak, make_splits, run_table
 from estimator.dataset.store import (
@@ -46,7 +46,7 @@ from seesys.core import rts_schema
 from seesys.core.errors import ConfigError, SeesysError
 from seesys.core.labels import LabelStatus
 from seesys.core.windows import assemble_windows
-from seesys.io.config import replace_fields
+from seesys.io.config import CONFIG_DIR_ENV, config_dir, replace_fields
 from seesys.io.core_settings import load_label_config, load_window_config
 from seesys.io.rts_log import read_feature_frames
 from seesys.io.session_labels import label_session
@@ -395,14 +395,26 @@ def test_feature_correlations_find_a_monotone_feature():
     assert "constant" not in set(table.feature)
 
 
-def test_cli_splits_and_bad_input(tiny, tmp_path):
+def test_cli_splits_and_bad_input(tiny, tmp_path, monkeypatch):
     root, _ = tiny
+    # The lockbox's camera is among the tiny build's: a config whose lockbox is outside it leaves every run.
+    configs = tmp_path / "configs"
+    shutil.copytree(config_dir(), configs)
+    lockbox = load_dataset_config().lockbox
+    text = (configs / "dataset.toml").read_text()
+    outside = (("environment", "nowhere"), ("camera_model", "none"), ("sha256", lockbox_hash("nowhere", "none")))
+    for key, value in outside:
+        text = text.replace(f'{key} = "{getattr(lockbox, key)}"', f'{key} = "{value}"')
+    (configs / "dataset.toml").write_text(text)
+    monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
     parser = argparse.ArgumentParser(prog="seesys")
     dataset_commands.register(parser.add_subparsers())
     out = tmp_path / "splits.json"
     args = parser.parse_args(["dataset", "splits", str(root), "--out", str(out), "--heldout", "", "--rounds", "2"])
     assert args.func(args) == 0
-    assert len(json.loads(out.read_text())["rounds"]) == 2
+    written = json.loads(out.read_text())
+    assert len(written["rounds"]) == 2 and written["lockbox"]["runs"] == []
+    assert written["build"]["runs"] == len(run_table([root]))
     done = run_seesys("dataset", "report", str(tmp_path / "nothing"), "--out", str(tmp_path / "r"))
     assert done.returncode == 2 and "seesys: error:" in done.stderr and "not a dataset folder" in done.stderr
 

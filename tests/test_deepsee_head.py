@@ -106,7 +106,7 @@ def test_training_lowers_the_heads_bce(trained_runs, tiny_dataset):
     """The trained DeepSEE's head (stages (c) and (d) on MSE + λ·BCE) against the same model untrained."""
     trained, _ = load_model(trained_runs / "round_0" / "deepsee" / "model.pt", TRANSFORM)
     assert trained.thresholds_m == BOUNDS
-    test = split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits), 0)["test"]
+    test = split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits, [tiny_dataset.root]), 0)["test"]
     targets = exceeded(test.error_m, BOUNDS)
     assert 0 < targets[:, 0].mean() < 1  # both sides of 4 mm among the test windows
     untrained = DeepSEE(trained.config, trained.shape, trained.variant, BOUNDS)
@@ -133,7 +133,7 @@ def test_onnx_export_has_the_probabilities_and_matches_pytorch(trained_runs, tin
     with torch.no_grad():
         other.ordinal.first.bias += 0.5
     assert parity(other, onnx_model) > 0.01
-    test = split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits), 0)["test"]
+    test = split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits, [tiny_dataset.root]), 0)["test"]
     from_torch = load_predictor(path, TRANSFORM, 64).estimates(test)
     from_onnx = load_predictor(exported, TRANSFORM, 64).estimates(test)
     assert from_onnx.probabilities.shape == (len(test), 3)

@@ -155,7 +155,7 @@ def test_tiny_dataset_has_a_sample_for_every_labelled_frame(tiny_dataset):
     # Every labelled frame with a full window history (K_L PSD matrices tau apart) ends a usable sample.
     history = load_window_config().history
     assert len(reader) == ((frames.status == "labelled") & (frames.frame_index >= history)).sum() > 1000
-    parts = split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits), 0)
+    parts = split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits, [tiny_dataset.root]), 0)
     assert {p: len(w) > 100 for p, w in parts.items()} == {"train": True, "validation": True, "test": True}
     shape = parts["train"].input_shape()
     assert (shape.rts_length, shape.channels, shape.psd_height, shape.psd_width) == (30, rts_schema.NUM_CHANNELS,
@@ -222,7 +222,7 @@ def trained_runs(tiny_dataset) -> Path:
     if "runs" not in _cache:
         runs = tiny_dataset.root.parent / "runs"
         with Progress(disable=True) as progress, one_torch_thread():
-            train_table([tiny_dataset.root], read_splits(tiny_dataset.splits), 0, TRAINED_ROWS, runs,
-                        train_context(progress))
+            splits = read_splits(tiny_dataset.splits, [tiny_dataset.root])
+            train_table([tiny_dataset.root], splits, 0, TRAINED_ROWS, runs, train_context(progress))
         _cache["runs"] = runs
     return _cache["runs"]

@@ -27,7 +27,7 @@ _context = train_context
 
 
 def _data(tiny_dataset):
-    return split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits), 0)
+    return split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits, [tiny_dataset.root]), 0)
 
 
 @pytest.fixture

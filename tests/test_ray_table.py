@@ -36,7 +36,8 @@ def ray_runs(local_ray, tiny_dataset, tmp_path_factory):  # noqa: F811
     """The rows of ``trained_runs`` trained on Ray (one CPU and one torch thread a row)."""
     runs = tmp_path_factory.mktemp("ray_table") / "runs"
     spec = TrainSpec(tiny_config(), "reduced", load_window_config(), "cpu", 1, {"data": ["tiny"]})
-    jobs = table_jobs([tiny_dataset.root], read_splits(tiny_dataset.splits), [0], TRAINED_ROWS, runs, spec)
+    splits = read_splits(tiny_dataset.splits, [tiny_dataset.root])
+    jobs = table_jobs([tiny_dataset.root], splits, [0], TRAINED_ROWS, runs, spec)
     with Progress(disable=True) as progress:
         RayExecutor(local_ray).run(jobs, progress)
     return runs, jobs, spec

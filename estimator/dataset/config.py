@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,8 +36,28 @@ class TargetConfig:
 class SplitConfig:
     rounds: int
     seed: int
-    heldout_environments: tuple[str, ...]
-    heldout_cameras: tuple[str, ...]
+    heldout_environments: tuple[str, ...]  # the same rooms held out in every round; () to rotate them
+    heldout_cameras: tuple[str, ...]  # round r holds out the (r mod n)-th
+    heldout_environments_per_round: int = 0  # rooms held out per round, rotated, when heldout_environments is ()
+
+
+@dataclass(frozen=True)
+class LockboxConfig:
+    """A room and a camera model whose runs no split round uses, and the SHA-256 of ``"room|camera"`` recorded
+    when they were chosen (so that a changed lockbox is noticed)."""
+
+    environment: str
+    camera_model: str
+    sha256: str
+
+    def __post_init__(self) -> None:
+        if lockbox_hash(self.environment, self.camera_model) != self.sha256:
+            raise ValueError(f"lockbox {self.environment}|{self.camera_model} does not match its recorded sha256: "
+                             f"the lockbox was chosen once and must not change")
+
+
+def lockbox_hash(environment: str, camera_model: str) -> str:
+    return hashlib.sha256(f"{environment}|{camera_model}".encode()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -63,6 +84,7 @@ class DatasetConfig:
     report: ReportConfig
     targets: TargetConfig
     splits: SplitConfig
+    lockbox: LockboxConfig
     sample: SampleSequenceConfig
 
 

@@ -7,14 +7,24 @@ every run of one or more dataset folders at once (the synthetic pretraining data
 grouped by trajectory *name*: a real trajectory rendered in nine environments is one group, so all its renders
 land in the same part.
 
-On top, environments listed in ``heldout_environments`` and camera models listed in ``heldout_cameras`` never
-serve for training or validation: their runs are test data (unseen scenes, unseen cameras). A held-out run whose trajectory also occurs in runs that are not held out
-goes to test only when that trajectory is a test trajectory of the round; otherwise it is left out (listed
-under ``excluded``), since putting it in test would share its trajectory with training.
+On top, each round holds out rooms and camera models: they never serve for training or validation in that round,
+their runs are test data (unseen scenes, unseen cameras). The held-out rooms change from round to round (a seeded
+permutation of the build's rooms, ``heldout_environments_per_round`` at a time, no room twice), unless a fixed list
+``heldout_environments`` is given; with several ``heldout_cameras``, round r holds out the (r mod n)-th. A held-out
+run whose trajectory also occurs in runs that are not held out goes to test only when that trajectory is a test
+trajectory of the round; otherwise it is left out (listed under ``excluded``), since putting it in test would share
+its trajectory with training.
+
+The lockbox's runs (a room and a camera model of ``[lockbox]`` in configs/dataset.toml) are in no round at all.
+
+A splits file records the build it was made from: :func:`build_fingerprint` of its run names and camera models.
+:func:`check_splits` refuses a splits file on another build (naming both) and runs :func:`check_no_leak`; every
+reader of a splits file goes through it.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -22,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator.dataset.config import SplitConfig
+from estimator.dataset.config import LockboxConfig, SplitConfig
 from estimator.dataset.store import WITH_SAMPLES, list_runs
 from seesys.core.errors import SeesysError
 
@@ -41,13 +51,43 @@ class SplitRound:
     validation: list[str]
     test: list[str]
     excluded: list[str]
+    # The round's held-out rooms and cameras; None in splits written before they rotated (then the Splits' own).
+    heldout_environments: list[str] | None = None
+    heldout_cameras: list[str] | None = None
+
+
+@dataclass(frozen=True)
+class Build:
+    """Which build a splits file was made from: :func:`build_fingerprint`."""
+
+    name: str
+    runs: int
+    camera_models: list[str]
+
+
+@dataclass(frozen=True)
+class Lockbox:
+    environment: str
+    camera_model: str
+    sha256: str
+    runs: list[str]  # the build's runs in the room or through the camera: in no round
 
 
 @dataclass(frozen=True)
 class Splits:
-    heldout_environments: list[str]
+    heldout_environments: list[str]  # every round's held-out rooms (the union, when they rotate)
     rounds: list[SplitRound]
     heldout_cameras: list[str] = field(default_factory=list)
+    build: Build | None = None  # None: written before splits recorded their build
+    lockbox: Lockbox | None = None
+
+    def heldout(self, round_index: int) -> tuple[list[str], list[str]]:
+        """The held-out rooms and camera models of a round."""
+        split_round = self.rounds[round_index]
+        environments = split_round.heldout_environments
+        cameras = split_round.heldout_cameras
+        return (self.heldout_environments if environments is None else environments,
+                self.heldout_cameras if cameras is None else cameras)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2) + "\n"
@@ -55,9 +95,18 @@ class Splits:
     @classmethod
     def from_json(cls, text: str) -> Splits:
         data = json.loads(text)
-        # Splits written before held-out cameras hold none.
+        # Splits written before held-out cameras hold none; before builds and lockboxes, neither.
         return cls(data["heldout_environments"], [SplitRound(**r) for r in data["rounds"]],
-                   data.get("heldout_cameras", []))
+                   data.get("heldout_cameras", []), Build(**data["build"]) if data.get("build") else None,
+                   Lockbox(**data["lockbox"]) if data.get("lockbox") else None)
+
+
+def build_fingerprint(runs: pd.DataFrame) -> Build:
+    """The build of ``runs`` (:func:`run_table`): ``build-`` and 12 hex digits of the SHA-256 of its sorted run
+    names with their camera models; any run added, removed or drawn through another camera changes it."""
+    lines = sorted(f"{run}\t{camera}" for run, camera in zip(runs.run, runs.camera_model))
+    digest = hashlib.sha256("\n".join(lines).encode()).hexdigest()
+    return Build(f"build-{digest[:12]}", len(lines), sorted(set(runs.camera_model)))
 
 
 def run_table(roots: list[Path]) -> pd.DataFrame:
@@ -75,9 +124,50 @@ def run_table(roots: list[Path]) -> pd.DataFrame:
     return table
 
 
-def make_splits(runs: pd.DataFrame, config: SplitConfig) -> Splits:
-    """Grouped cross-validation rounds over ``runs`` (:func:`run_table`), plus held-out environments and
-    cameras."""
+def lockbox_runs(runs: pd.DataFrame, lockbox: LockboxConfig | None) -> Lockbox | None:
+    """The runs of ``lockbox``'s room or camera model among ``runs``."""
+    if lockbox is None:
+        return None
+    inside = (runs.environment == lockbox.environment) | (runs.camera_model == lockbox.camera_model)
+    return Lockbox(lockbox.environment, lockbox.camera_model, lockbox.sha256, sorted(runs.run[inside]))
+
+
+def _heldout_rooms(runs: pd.DataFrame, config: SplitConfig) -> list[list[str]]:
+    """Each round's held-out rooms: the fixed list, or a seeded permutation's consecutive groups."""
+    if config.heldout_environments or config.heldout_environments_per_round == 0:
+        return [sorted(config.heldout_environments)] * config.rounds
+    rooms = sorted(set(runs.environment))
+    needed = config.rounds * config.heldout_environments_per_round
+    if needed > len(rooms):
+        raise SplitError(f"{config.rounds} rounds of {config.heldout_environments_per_round} held-out rooms need "
+                         f"{needed} rooms, the build has {len(rooms)} outside the lockbox (a room is never held out "
+                         f"twice): ask for fewer rounds or fewer rooms per round")
+    order = [rooms[i] for i in np.random.default_rng(config.seed).permutation(len(rooms))]
+    k = config.heldout_environments_per_round
+    return [sorted(order[r * k:(r + 1) * k]) for r in range(config.rounds)]
+
+
+def _heldout_cameras(config: SplitConfig, round_index: int) -> list[str]:
+    cameras = sorted(config.heldout_cameras)
+    return [cameras[round_index % len(cameras)]] if cameras else []
+
+
+def _next_eligible(names: list[str], start: int, eligible: set[str], avoid: set[str]) -> str | None:
+    """The first of ``names`` from position ``start`` on (cyclically) that is eligible and not avoided."""
+    for k in range(len(names)):
+        name = names[(start + k) % len(names)]
+        if name in eligible and name not in avoid:
+            return name
+    return None
+
+
+def make_splits(runs: pd.DataFrame, config: SplitConfig, lockbox: LockboxConfig | None = None) -> Splits:
+    """Grouped cross-validation rounds over ``runs`` (:func:`run_table`), with each round's held-out rooms and
+    cameras, the ``lockbox``'s runs left out of every round, and the build recorded."""
+    build = build_fingerprint(runs)
+    box = lockbox_runs(runs, lockbox)
+    if box is not None:
+        runs = runs[~runs.run.isin(box.runs)].reset_index(drop=True)
     unknown = sorted(set(config.heldout_environments) - set(runs.environment))
     if unknown:
         raise SplitError(f"held-out environments not in the data: {', '.join(unknown)}")
@@ -85,60 +175,94 @@ def make_splits(runs: pd.DataFrame, config: SplitConfig) -> Splits:
     if unknown:
         raise SplitError(f"held-out camera models not in the data: {', '.join(unknown)} (the data has "
                          f"{', '.join(sorted(set(runs.camera_model)))})")
-    heldout = runs.environment.isin(config.heldout_environments) | runs.camera_model.isin(config.heldout_cameras)
-    # A trajectory seen only in held-out environments is always test data; the others rotate through the rounds.
-    shared = set(runs.trajectory[~heldout])
+    rooms = _heldout_rooms(runs, config)
+    heldout = [runs.environment.isin(rooms[r]) | runs.camera_model.isin(_heldout_cameras(config, r))
+               for r in range(config.rounds)]
+    # A trajectory seen only in held-out runs of a round is always test data in it; the others rotate through
+    # the rounds in the order of a seeded permutation of every trajectory that is ever outside the held-out runs.
+    shared = [set(runs.trajectory[~h]) for h in heldout]
+    ever = set().union(*shared) if shared else set()
     rng = np.random.default_rng(config.seed)
     candidates: dict[str, list[str]] = {}
-    for group, names in runs[runs.trajectory.isin(shared)].groupby("motion_group").trajectory:
+    for group, names in runs[runs.trajectory.isin(ever)].groupby("motion_group").trajectory:
         names = sorted(set(names))
-        if len(names) < 3:
-            raise SplitError(f"motion group {group} has {len(names)} trajectories outside the held-out "
-                             f"environments; a round needs 3 (one each for train, validation and test)")
         candidates[group] = [names[i] for i in rng.permutation(len(names))]
+    for r, eligible in enumerate(shared):
+        for group, names in candidates.items():
+            count = len(eligible & set(names))
+            if count < 3:
+                raise SplitError(f"motion group {group} has {count} trajectories outside the held-out runs of round "
+                                 f"{r}; a round needs 3 (one each for train, validation and test)")
     # Round r validates on the r-th trajectory of each group's permutation and tests on the next, so that n
     # rounds test every trajectory once; more rounds than the smallest group has trajectories would repeat one.
-    distinct = min(len(names) for names in candidates.values())
+    distinct = min((len(names) for names in candidates.values()), default=0)
     if config.rounds > distinct:
         raise SplitError(f"{config.rounds} rounds asked, but a motion group has only {distinct} trajectories "
-                         f"outside the held-out environments (at most {distinct} distinct rounds)")
+                         f"outside the held-out runs (at most {distinct} distinct rounds)")
     rounds = []
+    tested: dict[str, set[str]] = {group: set() for group in candidates}
     for r in range(config.rounds):
-        validation_traj = sorted(names[r % len(names)] for names in candidates.values())
-        test_traj = sorted(names[(r + 1) % len(names)] for names in candidates.values())
-        is_test = runs.trajectory.isin(test_traj) | (heldout & ~runs.trajectory.isin(shared))
-        is_validation = runs.trajectory.isin(validation_traj) & ~heldout
-        is_train = ~runs.trajectory.isin(validation_traj + test_traj) & ~heldout
+        validation_traj, test_traj = [], []
+        for group, names in candidates.items():
+            test = (_next_eligible(names, r + 1, shared[r], tested[group])
+                    or _next_eligible(names, r + 1, shared[r], set()))
+            tested[group].add(test)
+            test_traj.append(test)
+            validation_traj.append(_next_eligible(names, r, shared[r], {test}))
+        validation_traj, test_traj = sorted(validation_traj), sorted(test_traj)
+        is_test = runs.trajectory.isin(test_traj) | (heldout[r] & ~runs.trajectory.isin(shared[r]))
+        is_validation = runs.trajectory.isin(validation_traj) & ~heldout[r]
+        is_train = ~runs.trajectory.isin(validation_traj + test_traj) & ~heldout[r]
         excluded = ~(is_test | is_validation | is_train)
         rounds.append(SplitRound(validation_traj, test_traj, sorted(runs.run[is_train]),
                                  sorted(runs.run[is_validation]), sorted(runs.run[is_test]),
-                                 sorted(runs.run[excluded])))
-    splits = Splits(sorted(config.heldout_environments), rounds, sorted(config.heldout_cameras))
+                                 sorted(runs.run[excluded]), rooms[r], _heldout_cameras(config, r)))
+    splits = Splits(sorted(set().union(*rooms)) if rooms else [], rounds, sorted(config.heldout_cameras), build, box)
     check_no_leak(splits, runs)
     return splits
 
 
 def check_no_leak(splits: Splits, runs: pd.DataFrame) -> None:
-    """Raise :class:`SplitError` if a run or a trajectory is in two parts of a round, or a held-out
-    environment or camera is in training or validation."""
+    """Raise :class:`SplitError` if a run of the splits is not in ``runs``, a run or a trajectory is in two parts of
+    a round, a round's held-out environment or camera is in its training or validation, or a lockbox run is in a
+    round."""
     trajectory_of = dict(zip(runs.run, runs.trajectory))
     environment_of = dict(zip(runs.run, runs.environment))
     camera_of = dict(zip(runs.run, runs.camera_model))
+    boxed = set(splits.lockbox.runs) if splits.lockbox else set()
     for k, split_round in enumerate(splits.rounds):
+        environments, cameras = splits.heldout(k)
         seen: dict[str, str] = {}
         for part in PARTS:
             for run in getattr(split_round, part):
+                if run not in trajectory_of:
+                    raise SplitError(f"round {k}: {part} run {run} is not in the dataset folders")
+                if run in boxed:
+                    raise SplitError(f"round {k}: lockbox run {run} is in {part}")
                 trajectory = trajectory_of[run]
                 if seen.setdefault(trajectory, part) != part:
                     raise SplitError(f"round {k}: trajectory {trajectory} is in {seen[trajectory]} and {part}")
-                if part != "test" and environment_of[run] in splits.heldout_environments:
+                if part != "test" and environment_of[run] in environments:
                     raise SplitError(f"round {k}: held-out environment {environment_of[run]} is in {part}")
-                if part != "test" and camera_of[run] in splits.heldout_cameras:
+                if part != "test" and camera_of[run] in cameras:
                     raise SplitError(f"round {k}: held-out camera {camera_of[run]} is in {part}")
 
 
-def write_splits(roots: list[Path], config: SplitConfig, out: Path) -> Splits:
-    splits = make_splits(run_table(roots), config)
+def check_splits(splits: Splits, roots: list[Path], source: str) -> None:
+    """Raise :class:`SplitError` when ``splits`` (read from ``source``) were made from another build than the
+    dataset folders ``roots`` (one line naming both builds), or leak (:func:`check_no_leak`)."""
+    runs = run_table(roots)
+    if splits.build is not None:
+        build = build_fingerprint(runs)
+        if build.name != splits.build.name:
+            raise SplitError(f"{source} was made from {splits.build.name} ({splits.build.runs} runs), the dataset "
+                             f"folders are {build.name} ({build.runs} runs): make splits of this build with "
+                             f"`seesys dataset splits`")
+    check_no_leak(splits, runs)
+
+
+def write_splits(roots: list[Path], config: SplitConfig, out: Path, lockbox: LockboxConfig | None = None) -> Splits:
+    splits = make_splits(run_table(roots), config, lockbox)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(splits.to_json())
     return splits

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator.dataset.splits import Splits
+from estimator.dataset.splits import Splits, check_splits
 from estimator.dataset.store import DatasetReader
 from estimator.artefact.compatibility import InputShape
 from estimator.artefact.transforms import prepare_rts
@@ -107,11 +107,16 @@ def split_windows(roots: list[Path], splits: Splits, round_index: int,
             for part in parts}
 
 
-def read_splits(path: Path) -> Splits:
+def read_splits(path: Path, roots: list[Path]) -> Splits:
+    """The splits of ``path``, checked against the dataset folders ``roots`` they will be used on: made from
+    their build, no leak between parts, no lockbox run in a round (:func:`estimator.dataset.splits.check_splits`,
+    which raises a one-line :class:`~estimator.dataset.splits.SplitError`)."""
     try:
-        return Splits.from_json(Path(path).read_text())
+        splits = Splits.from_json(Path(path).read_text())
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise DataError(f"cannot read the splits {path}: {e}") from None
+    check_splits(splits, [Path(r) for r in roots], str(path))
+    return splits
 
 
 def limit(windows: Windows, count: int, seed: int) -> Windows:
