@@ -85,13 +85,12 @@ def test_evaluation_judges_each_held_out_camera_as_a_set_of_its_own():
     import numpy as np
     import pandas as pd
 
-    from estimator.dataset.splits import Splits
     from estimator.deepsee.data import Windows
     from estimator.deepsee.evaluate import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, _sets, heldout_camera_set
 
     meta = pd.DataFrame({"run": list("abcdef"), "environment": ["lab", "lab", "hall", "hall", "lab", "hall"],
                          "camera_model": ["ideal", "kinect_v1", "ideal", "kinect_v1", "d435", "d435"]})
     windows = Windows(np.zeros((6, 30, 19), np.float32), np.zeros((6, 4, 8, 8, 3), np.uint8), np.arange(6.0), meta)
-    sets = _sets(windows, Splits(["hall"], [], ["kinect_v1"]))
+    sets = _sets(windows, ["hall"], ["kinect_v1"])
     assert {name: list(data.meta.run) for name, data in sets.items()} == {
         TEST_TRAJECTORIES: ["a", "e"], HELDOUT_ENVIRONMENTS: ["c", "f"], heldout_camera_set("kinect_v1"): ["b", "d"]}

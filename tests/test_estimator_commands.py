@@ -22,7 +22,17 @@ from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity, traini
 from estimator.deepsee.finetune import finetune
 from estimator.artefact.onnx_model import recorded_cameras
 from estimator.deepsee.predictors import WindowEstimates, load_predictor
-from estimator.deepsee.report import CONFUSION_PNG, REPORT_MD, SCATTER_PNG, TIMESERIES_PNG, improvements
+from estimator.deepsee.config import load_estimator_config
+from estimator.deepsee.report import (
+    CALIBRATION_CSV,
+    CAMERAS_CSV,
+    CONFUSION_PNG,
+    RELIABILITY_PNG,
+    REPORT_MD,
+    SCATTER_PNG,
+    TIMESERIES_PNG,
+    improvements,
+)
 from estimator.artefact.transforms import LabelTransform
 from seesys_app.cli import main
 from seesys.io.core_settings import load_pulse_settings, load_window_config
@@ -53,7 +63,8 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     for png in (TIMESERIES_PNG, SCATTER_PNG, CONFUSION_PNG):
         assert (out / png).stat().st_size > 5000 and f"]({png})" in report
     scores = pd.read_csv(out / "scores.csv")
-    assert set(scores.row) == {"deepsee", "wo_psd", "lstm", "random_forest"}
+    assert set(scores.row) == {"deepsee", "wo_psd", "lstm", "random_forest", "constant", "always_top",
+                               "motion_isotonic"}  # the tiny dataset tracked each render once: no ceiling
     by_session = scores[(scores.row == "deepsee") & scores.set.isin(each)].set_index("set").windows
     pooled = scores[(scores.row == "deepsee") & (scores.set == OUT_OF_DOMAIN)].windows.iloc[0]
     assert set(by_session.index) == each and by_session.sum() == pooled > 0
@@ -64,7 +75,24 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     # baselines have none.
     assert 0 <= deepsee.head_agreement <= 1
     assert scores[scores.row.isin(["lstm", "random_forest"])].head_agreement.isna().all()
-    assert "head agreement | head recall ≥ 12 mm |" in report
+    assert "head agreement | head κ | head recall ≥ 12 mm | head Brier | head ECE |" in report
+    # The reference rows on the same windows as the models, in every set; a constant's κ and AURG are 0.
+    for name, part in scores.groupby("set"):
+        assert {"constant", "always_top", "motion_isotonic"} <= set(part.row)
+        assert part.windows.nunique() == 1
+    constant = scores[scores.row == "constant"]
+    assert (constant.kappa.fillna(0).abs() < 1e-9).all() and (constant.aurg.abs() < 1e-9).all()
+    assert "| Reference | motion only (isotonic) |" in report and "against the targets" in report
+    # Intervals over runs beside the yardsticks; the tiny dataset's test trajectories are one run.
+    assert deepsee.runs == 1 and np.isnan(deepsee.kappa_low)
+    pooled = scores[(scores.row == "deepsee") & (scores.set == OUT_OF_DOMAIN)].iloc[0]
+    assert pooled.runs == 2 and pooled.kappa_low <= pooled.kappa <= pooled.kappa_high
+    assert -1 <= deepsee.kappa <= 1 and deepsee.ause >= 0 and np.isfinite(deepsee.partial_spearman)
+    cameras = pd.read_csv(out / CAMERAS_CSV)
+    assert set(cameras.row) >= {"deepsee", "motion_isotonic"} and cameras.median_ratio.notna().all()
+    calibration = pd.read_csv(out / CALIBRATION_CSV)
+    assert set(calibration.row) == {"deepsee", "wo_psd"} and calibration.threshold_m.nunique() == 3
+    assert (out / RELIABILITY_PNG).stat().st_size > 5000
 
 
 def test_the_report_gives_deepsees_gain_on_both_rmses_per_round_and_in_the_mean():
@@ -73,14 +101,15 @@ def test_the_report_gives_deepsees_gain_on_both_rmses_per_round_and_in_the_mean(
         for row, range_rmse in (("deepsee", deepsee), ("random_forest", forest)):
             rows.append({"set": "test trajectories", "round": r, "row": row, "rmse_cm": 10.0,
                          "rmse_paper_range_cm": range_rmse})
-    lines = improvements(pd.DataFrame(rows), "test trajectories")
+    targets = load_estimator_config().targets
+    lines = improvements(pd.DataFrame(rows), "test trajectories", targets)
     # No LSTM in these scores: one line per RMSE, against the forest only.
     assert lines == [
         "- DeepSEE vs random_forest, RMSE: +0.0 % lower (mean over 3 rounds; target ≥ 15 %: NOT reached; "
         "per round +0 %, +0 %, +0 %, 0 of 3 reach it)",
         "- DeepSEE vs random_forest, RMSE 1 mm–2 cm: +21.7 % lower (mean over 3 rounds; target ≥ 15 %: reached; "
         "per round +20 %, +5 %, +40 %, 2 of 3 reach it)"]
-    assert improvements(pd.DataFrame(rows), "held-out environments") == []
+    assert improvements(pd.DataFrame(rows), "held-out environments", targets) == []
 
 
 def test_two_out_of_domain_sessions_of_one_folder_name_are_refused(tmp_path):

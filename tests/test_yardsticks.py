@@ -162,3 +162,34 @@ def test_reference_rows_are_fitted_on_training_windows():
     top = yardsticks(Judged(np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(0), np.zeros(0),
                             np.zeros(0), np.zeros(0, int), np.zeros(0, int)), 4, 0.012)
     assert np.isnan(top["agreement"]) and np.isnan(top["kappa"])
+
+
+def test_the_ceiling_is_the_other_trials_truth_at_the_same_frame(tmp_path):
+    """Two trials of one render (the same frames, different errors) and a third render tracked once."""
+    from test_deepsee_sessions import write_session
+
+    from estimator.dataset.build import label_run
+    from estimator.dataset.store import COMPLETED, DatasetReader, RunInfo, write_run
+    from estimator.deepsee.data import reader_windows
+    from estimator.deepsee.references import ceiling_estimates
+    from seesys.core import camera_normalisation
+    from seesys.io.core_settings import load_label_config, load_window_config
+    from slam_monitor.orbslam_settings import SlamMode
+
+    root = tmp_path / "dataset"
+    windows = dataclasses.replace(load_window_config(), end_stride=1)
+    for name, seed in (("lab__traj__s0__rgbd__t0", 0), ("lab__traj__s0__rgbd__t1", 1), ("lab__once__s0__rgbd__t0", 2)):
+        folder = write_session(tmp_path / "sessions" / name, seed=seed, frames=120)
+        arrays = label_run(folder, SlamMode.RGBD, load_label_config(), windows)
+        sequence, _, trial = name.rsplit("__", 2)
+        write_run(root, RunInfo(name, sequence, "lab", "patrol", sequence.split("__")[1], "rgbd", int(trial[1:]),
+                                COMPLETED, frames=120, frames_tracked=120, samples=len(arrays.samples),
+                                camera_normalisation=camera_normalisation.VERSION), arrays)
+    data = reader_windows(DatasetReader([root], runs=["lab__traj__s0__rgbd__t0", "lab__once__s0__rgbd__t0"],
+                                        usable_only=True))
+    ceiling = ceiling_estimates([root], data)
+    other = DatasetReader([root], runs=["lab__traj__s0__rgbd__t1"]).frame_labels().set_index("frame_index").error_m
+    twice = (data.meta.run == "lab__traj__s0__rgbd__t0").to_numpy()
+    np.testing.assert_allclose(ceiling[twice], other.reindex(data.meta.frame_index[twice]).to_numpy())
+    assert np.isfinite(ceiling[twice]).all() and np.isnan(ceiling[~twice]).all()  # tracked once: no ceiling
+    assert not np.allclose(ceiling[twice], data.error_m[twice])  # another trial, not its own truth

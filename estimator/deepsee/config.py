@@ -153,6 +153,21 @@ class EvaluationConfig:
 
 
 @dataclass(frozen=True)
+class TargetsConfig:
+    """The targets of an estimate, stated against the same set's reference rows and ceiling
+    (estimator/deepsee/references.py): the one place the generated reports take them from."""
+
+    kappa_share_of_ceiling: float  # κ at least this share of the ceiling's κ (another SLAM trial's)
+    kappa_over_motion: float  # κ at least this much above the motion-only row's
+    aurg_over_motion: float  # AURG at least this much above the motion-only row's
+    agreement_over_constant: float  # agreement at least this much above the constant class's
+    recall_share_of_ceiling: float  # recall of ≥ 12 mm bins at least this share of the ceiling's
+    median_ratio_within: float  # median estimate / median truth within [1 / x, x]
+    rmse_gain_over_random_forest: float  # RMSE within the paper's range below the forest's by at least this share
+    rmse_gain_over_lstm: float
+
+
+@dataclass(frozen=True)
 class AugmentationConfig:
     """Training-time changes of what a real camera changes (estimator/deepsee/augment.py); gains are drawn
     log-uniformly in [low, high], offsets uniformly in [-x, x], once per window."""
@@ -198,6 +213,7 @@ class EstimatorConfig:
     random_forest: RandomForestConfig
     lstm: LstmConfig
     evaluation: EvaluationConfig
+    targets: TargetsConfig
     finetune: FinetuneConfig
     augmentation: AugmentationConfig
     input_standardisation: InputStandardisationConfig

@@ -7,28 +7,42 @@ saw); with held-out camera models (leave-one-camera-out splits), each held-out c
 ``held-out camera NAME``, taken out of the other two. Labelled session folders given as out-of-domain data (another
 renderer, a real camera) are a third set, judged by every round's model; with more than one session, each is also a
 set of its own, ``session NAME`` (its folder's name), so sessions of different cameras are not only seen pooled.
+
+Every set is also judged for the reference rows of :mod:`estimator.deepsee.references` (a constant class, always
+the top class, the motion alone; fitted on the round's training windows) and, for dataset runs whose sequence was
+tracked more than once, the ceiling (another trial's true error), on the same windows and bins as the models.
+Beside the scores: the median ratio per camera model of each set and row (``cameras``), and the reliability diagram,
+Brier score and ECE of each head threshold (``calibration``).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import torch
 
+from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.splits import Splits
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import Windows, concat, session_windows, split_windows
 from estimator.deepsee.metrics import equation2_head, score
 from estimator.deepsee.predictors import load_predictor
+from estimator.deepsee.references import (
+    CEILING,
+    ceiling_estimates,
+    fit_references,
+    motion_statistic,
+)
 from estimator.deepsee.rows import ROWS
 from estimator.deepsee.run_folder import MODEL_PT
 from estimator.deepsee.stages import FOREST_PICKLE
-from estimator.artefact.transforms import LabelTransform
+from estimator.deepsee.yardsticks import calibration, median_ratio
 from seesys.core.equation2 import PulseSettings
 from seesys.core.errors import SeesysError
+from seesys.core.exceedance import class_boundaries_m
 from seesys.core.windows import WindowConfig
 
 TEST_TRAJECTORIES = "test trajectories"
@@ -52,6 +66,8 @@ class Evaluation:
     scores: pd.DataFrame  # one row per (set, row, round): the Scores fields
     predictions: pd.DataFrame  # one row per window: set, row, round, run, frame_index, timestamp, true_m, estimate_m
     runs: Path
+    cameras: pd.DataFrame  # one row per (set, row, round, camera model): windows, median ratio
+    calibration: pd.DataFrame  # one row per (set, row, round, head threshold, probability bin): reliability
 
 
 def heldout_camera_set(camera: str) -> str:
@@ -77,17 +93,49 @@ def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windo
     return sets
 
 
-def _sets(test: Windows, splits: Splits) -> dict[str, Windows]:
-    """The test windows of a round by set: the test trajectories, the held-out environments and each held-out
-    camera (through which a held-out environment's run counts for its camera)."""
+def _sets(test: Windows, environments: list[str], cameras: list[str]) -> dict[str, Windows]:
+    """The test windows of a round by set: the test trajectories, the held-out ``environments`` and each held-out
+    camera of ``cameras`` (through which a held-out environment's run counts for its camera)."""
     camera = test.meta.camera_model.to_numpy() if len(test.meta) else np.zeros(0, str)
-    unseen_camera = np.isin(camera, splits.heldout_cameras)
-    in_heldout = test.meta.environment.isin(splits.heldout_environments).to_numpy() & ~unseen_camera
+    unseen_camera = np.isin(camera, cameras)
+    in_heldout = test.meta.environment.isin(environments).to_numpy() & ~unseen_camera
     sets = {TEST_TRAJECTORIES: test.subset(np.flatnonzero(~in_heldout & ~unseen_camera)),
             HELDOUT_ENVIRONMENTS: test.subset(np.flatnonzero(in_heldout))}
-    for name in splits.heldout_cameras:
+    for name in cameras:
         sets[heldout_camera_set(name)] = test.subset(np.flatnonzero(camera == name))
     return sets
+
+
+@dataclass
+class _Tables:
+    """What :func:`judge` collects, row by row."""
+
+    scores: list = field(default_factory=list)
+    predictions: list = field(default_factory=list)
+    cameras: list = field(default_factory=list)
+    calibration: list = field(default_factory=list)
+
+
+def judge(tables: _Tables, key: dict, data: Windows, estimate_m: np.ndarray, probabilities: np.ndarray | None,
+          motion: np.ndarray, config: EstimatorConfig, pulses: PulseSettings) -> None:
+    """Score one row's estimates of one set (``key``: set, row, round) into ``tables``."""
+    tables.scores.append({**key, **asdict(score(data.meta, estimate_m, data.error_m, config.evaluation, pulses,
+                                                 probabilities, motion))})
+    tables.predictions.append(pd.DataFrame({**key, "run": data.meta.run.to_numpy(),
+                                            "frame_index": data.meta.frame_index.to_numpy(),
+                                            "timestamp": data.meta.timestamp.to_numpy(),
+                                            "true_m": data.error_m, "estimate_m": estimate_m}))
+    if "camera_model" in data.meta and len(data):
+        for camera, rows in data.meta.groupby("camera_model").groups.items():
+            rows = np.asarray(rows)
+            tables.cameras.append({**key, "camera_model": camera, "windows": len(rows),
+                                   "median_ratio": median_ratio(estimate_m[rows], data.error_m[rows])})
+    if probabilities is not None:
+        for k, threshold in enumerate(class_boundaries_m(pulses)):
+            fit = calibration(probabilities[:, k], data.error_m, threshold)
+            tables.calibration.append(pd.DataFrame({**key, "threshold_m": threshold, "brier": fit.brier,
+                                                    "ece": fit.ece, "confidence": fit.confidence,
+                                                    "observed": fit.observed, "windows": fit.count}))
 
 
 def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], sessions: list[Path],
@@ -95,26 +143,39 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
              device: torch.device) -> Evaluation:
     transform = LabelTransform(config.label_transform.k)
     other = session_sets(sessions, windows)
-    scores, predictions = [], []
+    tables = _Tables()
     for r in rounds:
         folder = round_folder(runs, r)
         trained = [(row, model_file(folder / row.name)) for row in ROWS]
         trained = [(row, path) for row, path in trained if path is not None]
         if not trained:
             raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
-        sets = _sets(split_windows(roots, splits, r, ("test",))["test"], splits)
+        parts = split_windows(roots, splits, r, ("train", "test"))
+        environments, cameras = splits.heldout(r)
+        sets = _sets(parts["test"], environments, cameras)
+        dataset_sets = set(sets)
         sets.update(other)
+        motion = {name: motion_statistic(data.rts) for name, data in sets.items()}
+        references = fit_references(parts["train"], pulses)
+        for name, data in sets.items():
+            for row_name, estimate in references.estimates(data).items():
+                judge(tables, {"set": name, "row": row_name, "round": r}, data, estimate, None, motion[name], config,
+                      pulses)
+            if name in dataset_sets:
+                ceiling = ceiling_estimates(roots, data)
+                kept = np.flatnonzero(np.isfinite(ceiling))
+                if len(kept):
+                    judge(tables, {"set": name, "row": CEILING, "round": r}, data.subset(kept), ceiling[kept], None,
+                          motion[name][kept], config, pulses)
         for row, path in trained:
             predictor = load_predictor(path, transform, config.evaluation.batch_size, device, windows)
             for name, data in sets.items():
                 estimates = predictor.estimates(data)
-                estimate = estimates.metres
                 head = equation2_head(estimates.probabilities, predictor.thresholds_m, pulses)
-                scores.append({"set": name, "row": row.name, "round": r,
-                               **asdict(score(data.meta, estimate, data.error_m, config.evaluation, pulses, head))})
-                predictions.append(pd.DataFrame({"set": name, "row": row.name, "round": r,
-                                                 "run": data.meta.run.to_numpy(),
-                                                 "frame_index": data.meta.frame_index.to_numpy(),
-                                                 "timestamp": data.meta.timestamp.to_numpy(),
-                                                 "true_m": data.error_m, "estimate_m": estimate}))
-    return Evaluation(pd.DataFrame(scores), pd.concat(predictions, ignore_index=True), Path(runs))
+                judge(tables, {"set": name, "row": row.name, "round": r}, data, estimates.metres, head, motion[name],
+                      config, pulses)
+    calibrated = pd.concat(tables.calibration, ignore_index=True) if tables.calibration else pd.DataFrame(
+        columns=["set", "row", "round", "threshold_m", "brier", "ece", "confidence", "observed", "windows"])
+    return Evaluation(pd.DataFrame(tables.scores), pd.concat(tables.predictions, ignore_index=True), Path(runs),
+                      pd.DataFrame(tables.cameras, columns=["set", "row", "round", "camera_model", "windows",
+                                                            "median_ratio"]), calibrated)
