@@ -272,11 +272,12 @@ class Broker:
         previous = self.losses.devices.get(frame.device_id)
         if previous is not None and frame.frame_index <= previous.last_index:
             device.last_published = -1  # the device restarted: its frame indices begin again
-        self.losses.observe(frame)
         device.frames += 1
         device.last_frame = token
+        self._forward(device, token, frame)
+        # Counted after the frame left: what is not needed to route it stays off its path.
+        self.losses.observe(frame)
         device.frame_times.append(token)
-        self._forward(frame.device_id, device, token, parts)
 
     def _assign(self, device_id: str, device: DeviceState) -> WorkerState | None:
         worker = self.workers.get(device.worker) if device.worker is not None else None
@@ -288,14 +289,15 @@ class Broker:
             device.worker = worker.identity
         return worker
 
-    def _forward(self, device_id: str, device: DeviceState, token: float, parts: list[bytes]) -> None:
-        worker = self._assign(device_id, device)
+    def _forward(self, device: DeviceState, token: float, frame: FeatureFrame) -> None:
+        worker = self._assign(frame.device_id, device)
         if worker is None:
             device.no_worker += 1
             return
-        forward = envelope.pack_forward(token, (time.monotonic() - token) * 1000.0)
         try:
-            self._backend.send_multipart([worker.identity, envelope.FRAME, forward, *parts], zmq.NOBLOCK)
+            self._backend.send_multipart(
+                [worker.identity, *envelope.pack_frame(token, (time.monotonic() - token) * 1000.0, frame)],
+                zmq.NOBLOCK)
         except zmq.Again:
             device.queue_full += 1
             return

@@ -2,9 +2,9 @@
 broker to its estimate leaving the broker, each timed on the clock of the process that runs it (no clock is
 compared across processes).
 
-- ``ingest`` (broker): frame received → forwarded to its worker (size and version checks, decoding, the device's
-  id and loss bookkeeping);
-- ``decode`` (worker): the frame decoded again in the worker;
+- ``ingest`` (broker): frame received → forwarded to its worker (size and version checks, decoding and validating,
+  the device's id, packing the decoded frame for the worker);
+- ``unpack`` (worker): the decoded frame read from the broker's message;
 - ``assemble`` (worker): the frame added to its device's window, the window checked and formed;
 - ``queued`` (worker): window formed → its batch starts (frames of other devices read first, an earlier batch);
 - ``prepare`` (worker): the batch stacked, its RTS normalised and standardised;
@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 #: Timed in the worker, in path order.
-WORKER_STAGES = ("decode", "assemble", "queued", "prepare", "inference", "reply")
+WORKER_STAGES = ("unpack", "assemble", "queued", "prepare", "inference", "reply")
 #: Every stage in path order, then the total.
 STAGES = ("ingest", *WORKER_STAGES, "hops", "publish", "server")
 # ingest, the worker's total, then WORKER_STAGES; float32 milliseconds.

@@ -114,7 +114,7 @@ class _Ready:
     stream_session: int
     ingest_ms: float  # the broker's time with its last frame (handed back for the stage breakdown)
     arrived: float  # perf_counter: its last frame reached this worker
-    decode_ms: float
+    unpack_ms: float
     assemble_ms: float
     formed: float  # perf_counter: the window was formed
 
@@ -186,8 +186,8 @@ class Worker:
                 return
             if parts[0] == envelope.FRAME:
                 arrived = time.perf_counter()
-                token, age_ms = envelope.unpack_forward(parts[1])
-                self._add(token, age_ms, self._clock() - age_ms / 1000.0, arrived, parts[2:])
+                token, age_ms, frame = envelope.unpack_frame(parts)  # decoded and validated by the broker
+                self._add(token, age_ms, self._clock() - age_ms / 1000.0, arrived, frame)
 
     def _settings_refused(self, frame: FeatureFrame) -> bool:
         """True (and logged once per stream session) when the frame's device settings differ from the model's."""
@@ -207,10 +207,8 @@ class Worker:
         self.counters.settings_refused.pop(device, None)
         return False
 
-    def _add(self, token: float, ingest_ms: float, received: float, arrived: float, frames: list[bytes]) -> None:
-        frame = messages.decode(frames)  # validated by the broker already
-        assert isinstance(frame, FeatureFrame)
-        decoded = time.perf_counter()
+    def _add(self, token: float, ingest_ms: float, received: float, arrived: float, frame: FeatureFrame) -> None:
+        unpacked = time.perf_counter()
         self.counters.frames += 1
         device = frame.device_id
         if self._settings_refused(frame):
@@ -240,7 +238,7 @@ class Worker:
             self.counters.dropped["stale"][device] += 1  # superseded before it was served
         formed = time.perf_counter()
         self._ready[device] = _Ready(sample, token, received, frame.stream_session, ingest_ms, arrived,
-                                     (decoded - arrived) * 1000.0, (formed - decoded) * 1000.0, formed)
+                                     (unpacked - arrived) * 1000.0, (formed - unpacked) * 1000.0, formed)
 
     def _serve_batch(self) -> None:
         now = self._clock()
@@ -283,7 +281,7 @@ class Worker:
         batch_times = ((prepared - start) * 1000.0, (done - prepared) * 1000.0, (replied - done) * 1000.0)
         for ready, message in encoded:
             times = stages.WorkerTimes(ready.ingest_ms, (replied - ready.arrived) * 1000.0,
-                                       (ready.decode_ms, ready.assemble_ms, (start - ready.formed) * 1000.0,
+                                       (ready.unpack_ms, ready.assemble_ms, (start - ready.formed) * 1000.0,
                                         *batch_times))
             parts += [*message, envelope.pack_meta(ready.token, ready.sample.frame_index, ready.stream_session,
                                                    times)]

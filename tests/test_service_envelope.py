@@ -1,0 +1,39 @@
+"""The broker → worker frame: every field of a decoded feature frame reaches the worker as the broker decoded it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from estimator.service import envelope
+from seesys.core import rts_schema
+from seesys.core.device_settings import DeviceSettings
+from seesys.core.messages import FeatureFrame
+from seesys.core.tracking_state import TrackingState
+
+
+def _frame(with_psd: bool, with_settings: bool) -> FeatureFrame:
+    rng = np.random.default_rng(1)
+    psd = rng.integers(0, 255, (96, 128, 3), dtype=np.uint8) if with_psd else None
+    settings = DeviceSettings("mono", 15, 1200, 16, 2, 0.75, 1) if with_settings else None
+    # Every field away from its default, so that one the envelope leaves out shows.
+    return FeatureFrame("dev-7", 12345, 411.5, TrackingState.RECENTLY_LOST,
+                        rng.normal(size=rts_schema.NUM_CHANNELS).astype(np.float32), psd, frames_skipped=3,
+                        rts_schema_version=rts_schema.SCHEMA_VERSION, rts_schema_fingerprint=0xABCDEF12,
+                        stream_session=0xFEEDFACE12345678, settings=settings)
+
+
+@pytest.mark.parametrize(("with_psd", "with_settings"), [(True, True), (False, True), (True, False)])
+def test_every_field_of_a_frame_reaches_the_worker_unchanged(with_psd, with_settings):
+    frame = _frame(with_psd, with_settings)
+    parts = [bytes(p) for p in envelope.pack_frame(1234.5, 0.25, frame)]  # as a worker's socket receives them
+    token, age_ms, received = envelope.unpack_frame(parts)
+    assert (token, age_ms) == (1234.5, 0.25)
+    for field in dataclasses.fields(FeatureFrame):
+        sent, got = getattr(frame, field.name), getattr(received, field.name)
+        if isinstance(sent, np.ndarray):
+            assert got.dtype == sent.dtype and np.array_equal(got, sent), field.name
+        else:
+            assert got == sent, field.name
