@@ -1,4 +1,4 @@
-"""``seesys estimator train | train-table | evaluate | finetune | finetune-curve | export | estimate``: thin
+"""``seesys estimator train | train-table | evaluate | lockbox | finetune | finetune-curve | export | estimate``: thin
 wrappers over :mod:`estimator.deepsee`."""
 
 from __future__ import annotations
@@ -119,6 +119,27 @@ def _evaluate(args: argparse.Namespace) -> int:
     notes = [f"Data: {', '.join(str(p) for p in args.data)}; splits {args.splits}; models under {args.runs}."]
     if args.sessions:
         notes.append(f"Out-of-domain sessions: {', '.join(str(s) for s in args.sessions)}.")
+    path = write_report(result, config, pulses, args.out, notes)
+    print(path.read_text())
+    print(f"wrote {path}")
+    return 0
+
+
+def _lockbox(args: argparse.Namespace) -> int:
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.data import read_splits
+    from estimator.deepsee.evaluate import evaluate_lockbox
+    from estimator.deepsee.report import write_report
+    from seesys.io.core_settings import load_pulse_settings, load_window_config
+    config = load_estimator_config()
+    pulses = load_pulse_settings()
+    model = _default_model(args)
+    splits = read_splits(args.splits, args.data)
+    result = evaluate_lockbox(args.data, splits, model, args.round, config, pulses, load_window_config(),
+                              _device(args.device, None))
+    notes = [f"The lockbox ({splits.lockbox.environment}, {splits.lockbox.camera_model}) judged for {model}, "
+             f"trained on round {args.round} of {args.splits}; the reference rows are fitted on that round's "
+             f"training data. Data: {', '.join(str(p) for p in args.data)}."]
     path = write_report(result, config, pulses, args.out, notes)
     print(path.read_text())
     print(f"wrote {path}")
@@ -276,6 +297,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     p.add_argument("--out", type=Path, required=True, help="report folder")
     p.set_defaults(func=_evaluate)
+
+    p = sub.add_parser("lockbox", help="judge a shipped model, once, on the lockbox's runs (never for a design choice)")
+    _data_arguments(p)
+    p.add_argument("--model", type=Path, help="the shipped model (default: the shipped model)")
+    p.add_argument("--round", type=int, default=0, help="the round of the splits the model was trained on (default 0)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    p.add_argument("--out", type=Path, required=True, help="report folder")
+    p.set_defaults(func=_lockbox)
 
     p = sub.add_parser("finetune", help="stage (d) on labelled session folders (real cameras with ground truth)")
     p.add_argument("--sessions", type=Path, nargs="+", required=True, help="session folders with groundtruth.tum")

@@ -95,6 +95,45 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     assert (out / RELIABILITY_PNG).stat().st_size > 5000
 
 
+def test_the_lockbox_is_judged_for_a_shipped_model_only_through_its_own_command(tiny_dataset, trained_runs, tmp_path,
+                                                                               capsys):
+    from estimator.dataset.build import label_run
+    from estimator.dataset.config import load_dataset_config
+    from estimator.dataset.splits import Lockbox, Splits
+    from estimator.dataset.store import COMPLETED, RunInfo, write_run
+    from seesys.core import camera_normalisation
+    from seesys.io.core_settings import load_label_config
+    from slam_monitor.orbslam_settings import SlamMode
+
+    root = tmp_path / "dataset"
+    shutil.copytree(tiny_dataset.root, root)
+    lockbox = load_dataset_config().lockbox
+    name = f"{lockbox.environment}__traj_g__s0__rgbd__t0"
+    folder = write_session(tmp_path / "sessions" / name, seed=50, frames=120)
+    arrays = label_run(folder, SlamMode.RGBD, load_label_config(), dataclasses.replace(load_window_config(),
+                                                                                       end_stride=1))
+    write_run(root, RunInfo(name, name.rsplit("__", 2)[0], lockbox.environment, "patrol", "traj_g", "rgbd", 0,
+                            COMPLETED, frames=120, frames_tracked=120, samples=len(arrays.samples),
+                            camera_normalisation=camera_normalisation.VERSION), arrays)
+    tiny = Splits.from_json(tiny_dataset.splits.read_text())
+    splits = tmp_path / "splits.json"
+    splits.write_text(dataclasses.replace(tiny, lockbox=Lockbox(lockbox.environment, lockbox.camera_model,
+                                                                lockbox.sha256, [name])).to_json())
+    out = tmp_path / "lockbox"
+    assert main(["estimator", "lockbox", "--data", str(root), "--splits", str(splits), "--model",
+                 str(_model(trained_runs)), "--out", str(out)]) == 0
+    scores = pd.read_csv(out / "scores.csv")
+    assert set(scores.set) == {"lockbox", f"lockbox room {lockbox.environment}"}  # no run through its camera
+    assert set(scores.row) == {"deepsee", "constant", "always_top", "motion_isotonic"}
+    assert (scores.windows == len(arrays.samples[arrays.samples.usable.astype(bool)])).all()
+    # The splits of the rounds hold none: nothing to judge, said in one line.
+    capsys.readouterr()
+    assert main(["estimator", "lockbox", "--data", str(tiny_dataset.root), "--splits", str(tiny_dataset.splits),
+                 "--model", str(_model(trained_runs)), "--out", str(tmp_path / "none")]) != 0
+    error = capsys.readouterr().err.strip()
+    assert "these splits hold no lockbox runs" in error and len(error.splitlines()) == 1
+
+
 def test_the_report_gives_deepsees_gain_on_both_rmses_per_round_and_in_the_mean():
     rows = []
     for r, (deepsee, forest) in enumerate([(0.8, 1.0), (0.95, 1.0), (0.6, 1.0)]):

@@ -26,8 +26,9 @@ import torch
 
 from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.splits import Splits
+from estimator.dataset.store import DatasetReader
 from estimator.deepsee.config import EstimatorConfig
-from estimator.deepsee.data import Windows, concat, session_windows, split_windows
+from estimator.deepsee.data import Windows, concat, reader_windows, session_windows, split_windows
 from estimator.deepsee.metrics import equation2_head, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import (
@@ -36,7 +37,7 @@ from estimator.deepsee.references import (
     fit_references,
     motion_statistic,
 )
-from estimator.deepsee.rows import ROWS
+from estimator.deepsee.rows import DEEPSEE, ROWS
 from estimator.deepsee.run_folder import MODEL_PT
 from estimator.deepsee.stages import FOREST_PICKLE
 from estimator.deepsee.yardsticks import calibration, median_ratio
@@ -138,16 +139,62 @@ def judge(tables: _Tables, key: dict, data: Windows, estimate_m: np.ndarray, pro
                                                     "observed": fit.observed, "windows": fit.count}))
 
 
+@dataclass(frozen=True)
+class _Judging:
+    """What judging one round's sets needs besides the sets."""
+
+    roots: list[Path]
+    config: EstimatorConfig
+    pulses: PulseSettings
+    windows: WindowConfig
+    device: torch.device
+
+
+def _judge_round(tables: _Tables, r: int, sets: dict[str, Windows], dataset_sets: set[str], train: Windows,
+                 models: list[tuple[str, Path]], how: _Judging) -> None:
+    """The reference rows (fitted on ``train``), the ceiling (on the dataset sets) and every model of ``models``
+    ((row name, model file)) on every set of round ``r``."""
+    config, pulses = how.config, how.pulses
+    transform = LabelTransform(config.label_transform.k)
+    motion = {name: motion_statistic(data.rts) for name, data in sets.items()}
+    references = fit_references(train, pulses)
+    for name, data in sets.items():
+        for row_name, estimate in references.estimates(data).items():
+            judge(tables, {"set": name, "row": row_name, "round": r}, data, estimate, None, motion[name], config,
+                  pulses)
+        if name in dataset_sets:
+            ceiling = ceiling_estimates(how.roots, data)
+            kept = np.flatnonzero(np.isfinite(ceiling))
+            if len(kept):
+                judge(tables, {"set": name, "row": CEILING, "round": r}, data.subset(kept), ceiling[kept], None,
+                      motion[name][kept], config, pulses)
+    for row_name, path in models:
+        predictor = load_predictor(path, transform, config.evaluation.batch_size, how.device, how.windows)
+        for name, data in sets.items():
+            estimates = predictor.estimates(data)
+            head = equation2_head(estimates.probabilities, predictor.thresholds_m, pulses)
+            judge(tables, {"set": name, "row": row_name, "round": r}, data, estimates.metres, head, motion[name],
+                  config, pulses)
+
+
+def _evaluation(tables: _Tables, runs: Path) -> Evaluation:
+    calibrated = pd.concat(tables.calibration, ignore_index=True) if tables.calibration else pd.DataFrame(
+        columns=["set", "row", "round", "threshold_m", "brier", "ece", "confidence", "observed", "windows"])
+    return Evaluation(pd.DataFrame(tables.scores), pd.concat(tables.predictions, ignore_index=True), Path(runs),
+                      pd.DataFrame(tables.cameras, columns=["set", "row", "round", "camera_model", "windows",
+                                                            "median_ratio"]), calibrated)
+
+
 def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], sessions: list[Path],
              config: EstimatorConfig, pulses: PulseSettings, windows: WindowConfig,
              device: torch.device) -> Evaluation:
-    transform = LabelTransform(config.label_transform.k)
     other = session_sets(sessions, windows)
     tables = _Tables()
+    how = _Judging([Path(r) for r in roots], config, pulses, windows, device)
     for r in rounds:
         folder = round_folder(runs, r)
-        trained = [(row, model_file(folder / row.name)) for row in ROWS]
-        trained = [(row, path) for row, path in trained if path is not None]
+        trained = [(row.name, model_file(folder / row.name)) for row in ROWS]
+        trained = [(name, path) for name, path in trained if path is not None]
         if not trained:
             raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
         parts = split_windows(roots, splits, r, ("train", "test"))
@@ -155,27 +202,31 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
         sets = _sets(parts["test"], environments, cameras)
         dataset_sets = set(sets)
         sets.update(other)
-        motion = {name: motion_statistic(data.rts) for name, data in sets.items()}
-        references = fit_references(parts["train"], pulses)
-        for name, data in sets.items():
-            for row_name, estimate in references.estimates(data).items():
-                judge(tables, {"set": name, "row": row_name, "round": r}, data, estimate, None, motion[name], config,
-                      pulses)
-            if name in dataset_sets:
-                ceiling = ceiling_estimates(roots, data)
-                kept = np.flatnonzero(np.isfinite(ceiling))
-                if len(kept):
-                    judge(tables, {"set": name, "row": CEILING, "round": r}, data.subset(kept), ceiling[kept], None,
-                          motion[name][kept], config, pulses)
-        for row, path in trained:
-            predictor = load_predictor(path, transform, config.evaluation.batch_size, device, windows)
-            for name, data in sets.items():
-                estimates = predictor.estimates(data)
-                head = equation2_head(estimates.probabilities, predictor.thresholds_m, pulses)
-                judge(tables, {"set": name, "row": row.name, "round": r}, data, estimates.metres, head, motion[name],
-                      config, pulses)
-    calibrated = pd.concat(tables.calibration, ignore_index=True) if tables.calibration else pd.DataFrame(
-        columns=["set", "row", "round", "threshold_m", "brier", "ece", "confidence", "observed", "windows"])
-    return Evaluation(pd.DataFrame(tables.scores), pd.concat(tables.predictions, ignore_index=True), Path(runs),
-                      pd.DataFrame(tables.cameras, columns=["set", "row", "round", "camera_model", "windows",
-                                                            "median_ratio"]), calibrated)
+        _judge_round(tables, r, sets, dataset_sets, parts["train"], trained, how)
+    return _evaluation(tables, runs)
+
+
+LOCKBOX = "lockbox"
+
+
+def evaluate_lockbox(roots: list[Path], splits: Splits, model: Path, round_index: int, config: EstimatorConfig,
+                     pulses: PulseSettings, windows: WindowConfig, device: torch.device) -> Evaluation:
+    """``model`` (a shipped model, trained on round ``round_index`` of ``splits``) on the lockbox's runs: all of
+    them, those of its room and those through its camera, beside the reference rows fitted on that round's training
+    windows and the ceiling. Raises :class:`SeesysError` when the splits have no lockbox run."""
+    box = splits.lockbox
+    if box is None or not box.runs:
+        raise SeesysError("these splits hold no lockbox runs (made before the lockbox, or the build has none of its "
+                          "room and camera): there is nothing to judge")
+    data = reader_windows(DatasetReader(roots, runs=box.runs, usable_only=True))
+    sets = {LOCKBOX: data,
+            f"{LOCKBOX} room {box.environment}": data.subset(np.flatnonzero(
+                (data.meta.environment == box.environment).to_numpy())),
+            f"{LOCKBOX} camera {box.camera_model}": data.subset(np.flatnonzero(
+                (data.meta.camera_model == box.camera_model).to_numpy()))}
+    sets = {name: windows_of for name, windows_of in sets.items() if len(windows_of)}
+    train = split_windows(roots, splits, round_index, ("train",))["train"]
+    tables = _Tables()
+    _judge_round(tables, round_index, sets, set(sets), train, [(DEEPSEE, Path(model))],
+                 _Judging([Path(r) for r in roots], config, pulses, windows, device))
+    return _evaluation(tables, Path(model).parent)
