@@ -210,8 +210,12 @@ def _finetune(args: argparse.Namespace) -> int:
         print(f"held-out sessions ({result.held_out_before.windows} windows, never trained on):")
         for name, scores in (("before", result.held_out_before), ("after", result.held_out_after)):
             print(f"  {name:6} RMSE {scores.rmse_cm:.3f} cm, within 1 mm-2 cm {scores.rmse_paper_range_cm:.3f} cm, "
-                  f"Spearman {scores.spearman:.2f}, advisory agreement {scores.agreement:.2f}, recall >= 12 mm "
-                  f"{scores.recall_large:.2f} ({scores.large_bins} of {scores.bins} bins)")
+                  f"Spearman {scores.spearman:.2f}, advisory agreement {scores.agreement:.2f}, kappa "
+                  f"{scores.kappa:.2f}, recall >= 12 mm {scores.recall_large:.2f} ({scores.large_bins} of "
+                  f"{scores.bins} bins)")
+        for name, scores in result.held_out_references.items():
+            print(f"  reference {name} (fitted on the same training windows): advisory agreement "
+                  f"{scores.agreement:.2f}, kappa {scores.kappa:.2f}, AURG {scores.aurg:.2f}")
     return 0
 
 

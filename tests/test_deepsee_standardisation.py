@@ -115,4 +115,7 @@ def test_the_learning_curve_fine_tunes_each_budget_from_the_base_and_judges_it_o
     assert list(table.columns) == list(CURVE_COLUMNS) and list(table.minutes) == [0.0, 0.05, 0.1]
     assert table.train_windows.iloc[0] == 0 and 0 < table.train_windows.iloc[1] < table.train_windows.iloc[2]
     assert table[["agreement", "median_ratio"]].notna().all().all()
+    # The reference rows, fitted on each budget's own training windows: none at 0 minutes.
+    assert table.iloc[0][["constant_agreement", "motion_isotonic_kappa"]].isna().all()
+    assert table.iloc[1:][["constant_agreement", "always_top_agreement", "motion_isotonic_aurg"]].notna().all().all()
     assert (tmp_path / "curve" / "learning_curve.csv").is_file() and (tmp_path / "curve" / "0.1min.pt").is_file()

@@ -77,7 +77,7 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     assert scores[scores.row.isin(["lstm", "random_forest"])].head_agreement.isna().all()
     assert "head agreement | head κ | head recall ≥ 12 mm | head Brier | head ECE |" in report
     # The reference rows on the same windows as the models, in every set; a constant's κ and AURG are 0.
-    for name, part in scores.groupby("set"):
+    for _, part in scores.groupby("set"):
         assert {"constant", "always_top", "motion_isotonic"} <= set(part.row)
         assert part.windows.nunique() == 1
     constant = scores[scores.row == "constant"]

@@ -9,7 +9,9 @@ given model, and the best epoch on the validation part is kept (the given model 
 with an ordinal head is fine-tuned on MSE + λ·BCE, its head with the rest; a model without one (the shipped model,
 trained before the head) stays without one. Whole held-out sessions, never trained on, are judged before and after with
 the scores of the Table 3 report (:func:`estimator.deepsee.metrics.score`): the in-session validation tail is correlated
-with the training part and flatters the model.
+with the training part and flatters the model. Beside the model, the held-out sessions are judged for the reference
+rows of :mod:`estimator.deepsee.references` (a constant class, always the top class, the motion alone) fitted on the
+same training part: what the fine-tuned model has to beat with the same minutes of data.
 
 The per-camera input standardisation (:mod:`estimator.artefact.standardisation`) is refitted first: the camera's
 statistics of the camera-dependent channels come from the training part of the sessions, the base's reference
@@ -33,6 +35,13 @@ from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows, con
 from estimator.deepsee.inference import predict, predict_outputs
 from estimator.deepsee.metrics import CM_PER_M, Scores, equation2_head, score
 from estimator.deepsee.ordinal import model_thresholds
+from estimator.deepsee.references import (
+    ALWAYS_TOP,
+    CONSTANT,
+    MOTION_ISOTONIC,
+    fit_references,
+    motion_statistic,
+)
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
 from estimator.artefact.standardisation import InputStandardisation
@@ -50,6 +59,7 @@ class FinetuneResult:
     rmse_after_cm: float
     held_out_before: Scores | None  # the held-out sessions, all windows together; None without any
     held_out_after: Scores | None
+    held_out_references: dict[str, Scores] | None = None  # each reference row's, fitted on the training part
 
 
 def split_in_time(windows: Windows, validation_fraction: float) -> tuple[Windows, Windows]:
@@ -99,6 +109,13 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
         labelled = first_seconds(labelled, budget_s)
     parts = [split_in_time(w, config.finetune.validation_fraction) for w in labelled]
     train, val = concat([p[0] for p in parts]), concat([p[1] for p in parts])
+    # The motion statistic reads every channel of the schema: taken before the model's columns are selected.
+    motion = motion_statistic(test.rts) if test is not None else None
+    references = None
+    if test is not None:
+        fitted = fit_references(train, pulses)
+        references = {name: score(test.meta, estimate, test.error_m, config.evaluation, pulses, None, motion)
+                      for name, estimate in fitted.estimates(test).items()}
     if not len(val):
         raise DataError("the sessions leave no validation windows: record longer sessions or raise "
                         "validation_fraction in configs/estimator.toml")
@@ -135,7 +152,7 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
         y, probabilities = predict_outputs(model, test.with_rts(through.apply(test.rts, channels)),
                                            config.evaluation.batch_size, device)
         return score(test.meta, transform.inverse(y), test.error_m, config.evaluation, pulses,
-                     equation2_head(probabilities, model_thresholds(model), pulses))
+                     equation2_head(probabilities, model_thresholds(model), pulses), motion)
 
     before, held_out_before = rmse_cm(base_standardisation), judge(base_standardisation)
     run = RunFolder(run_dir, {"finetune": asdict(config.finetune),
@@ -151,11 +168,18 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
                 "held_out_before": asdict(held_out_before) if held_out_before else None,
                 "held_out_after": asdict(held_out_after) if held_out_after else None}
     save_model(out, model.cpu(), windows, transform, training, channels, standardisation)
-    return FinetuneResult(Path(out), len(train), len(val), before, after, held_out_before, held_out_after)
+    return FinetuneResult(Path(out), len(train), len(val), before, after, held_out_before, held_out_after,
+                          references)
 
 
-#: The columns of :func:`learning_curve`'s table.
-CURVE_COLUMNS = ("minutes", "train_windows", "agreement", "median_ratio", "rmse_cm", "spearman")
+#: The reference rows of the learning curve and their figures on the held-out sessions.
+CURVE_REFERENCES = (CONSTANT, ALWAYS_TOP, MOTION_ISOTONIC)
+CURVE_REFERENCE_FIGURES = ("agreement", "kappa", "aurg")
+#: The columns of :func:`learning_curve`'s table: the model's figures, then each reference row's
+#: (``<row>_<figure>``), fitted on the same budget's training windows (NaN at 0 minutes: nothing to fit on).
+CURVE_COLUMNS = ("minutes", "train_windows", "agreement", "kappa", "aurg", "median_ratio", "rmse_cm", "spearman",
+                 "partial_spearman") + tuple(f"{row}_{figure}" for row in CURVE_REFERENCES
+                                             for figure in CURVE_REFERENCE_FIGURES)
 
 
 def learning_curve(base: Path, sessions: list[Path], held_out: list[Path], minutes: list[float], out: Path,
@@ -174,13 +198,16 @@ def learning_curve(base: Path, sessions: list[Path], held_out: list[Path], minut
         result = finetune(base, sessions, out / f"{name}.pt", out / f"{name}_run", config, windows, device, progress,
                           {"learning_curve_minutes": budget}, held_out, pulses, budget * 60.0)
         if not rows:
-            rows.append(_curve_row(0.0, 0, result.held_out_before))
-        rows.append(_curve_row(budget, result.train_windows, result.held_out_after))
+            rows.append(_curve_row(0.0, 0, result.held_out_before, None))
+        rows.append(_curve_row(budget, result.train_windows, result.held_out_after, result.held_out_references))
     table = pd.DataFrame(rows, columns=list(CURVE_COLUMNS))
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "learning_curve.csv", index=False)
     return table
 
 
-def _curve_row(minutes: float, train_windows: int, scores: Scores) -> tuple:
-    return (minutes, train_windows, scores.agreement, scores.median_ratio, scores.rmse_cm, scores.spearman)
+def _curve_row(minutes: float, train_windows: int, scores: Scores, references: dict[str, Scores] | None) -> tuple:
+    own = (minutes, train_windows, scores.agreement, scores.kappa, scores.aurg, scores.median_ratio, scores.rmse_cm,
+           scores.spearman, scores.partial_spearman)
+    return own + tuple(getattr(references[row], figure) if references else float("nan")
+                       for row in CURVE_REFERENCES for figure in CURVE_REFERENCE_FIGURES)
