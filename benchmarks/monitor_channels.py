@@ -108,6 +108,8 @@ def _local_map_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], Non
                 local_map.clear()
             local_map.update(item.map_points, item.frame.index)
             local_map.lost_points()
+            if config.windows.is_psd_frame(item.frame.index):
+                len(local_map)  # the PSD reads the map, which merges the frames kept since the last read
     return run
 
 

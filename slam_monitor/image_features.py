@@ -72,9 +72,12 @@ def laplacian_variance(reference_gray: np.ndarray) -> float:
     """The ``laplacian`` channel of a gray frame at the reference scale (:func:`reference_scale`). Raises
     ValueError for a frame that is not (H, W) uint8."""
     _check_gray(reference_gray)
-    # int16 holds the 3x3 Laplacian of 8-bit values exactly (|value| <= 4 * 255) and is faster than float32.
-    _, lap_std = cv2.meanStdDev(cv2.Laplacian(reference_gray, cv2.CV_16S, ksize=1))
-    return float(lap_std[0, 0]) ** 2
+    # int16 holds the 3x3 Laplacian of 8-bit values exactly (|value| <= 4 * 255) and is faster than float32. Its
+    # sum and sum of squares (exact in float64: at most 1020² per pixel) give the variance; cv2.meanStdDev on int16
+    # took twice as long as the Laplacian itself.
+    laplacian = cv2.Laplacian(reference_gray, cv2.CV_16S, ksize=1)
+    mean = cv2.sumElems(laplacian)[0] / laplacian.size
+    return cv2.norm(laplacian, cv2.NORM_L2SQR) / laplacian.size - mean * mean
 
 
 def image_features(gray: np.ndarray, reference_gray: np.ndarray | None = None) -> ImageFeatures:

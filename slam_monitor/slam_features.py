@@ -106,21 +106,22 @@ def slam_features(*, pose_cw: np.ndarray, motion: RelativeMotion, matched_inlier
     the previous processed frame but not in this one (for the outlier proxy).
     """
     kp = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
-    tree = cKDTree(kp) if len(kp) else None
+    # An unbalanced tree without compacted nodes builds in half the time and finds the same nearest neighbours.
+    tree = cKDTree(kp, balanced_tree=False, compact_nodes=False) if len(kp) else None
 
     matched_c = to_camera(matched_points_w, pose_cw)
     matched_c = matched_c[matched_c[:, 2] > min_depth]
     depth = matched_c[:, 2]
-    matched = nearest_keypoints(tree, project(matched_c, camera_matrix))
+    lost_c = to_camera(lost_points_w, pose_cw)
+    lost_uv = project(lost_c[lost_c[:, 2] > min_depth], camera_matrix)
+    in_image = (lost_uv[:, 0] >= 0) & (lost_uv[:, 0] < width) & (lost_uv[:, 1] >= 0) & (lost_uv[:, 1] < height)
+    # One query for the matched and the lost points: a query call costs about as much again as its points.
+    nearest = nearest_keypoints(tree, np.concatenate([project(matched_c, camera_matrix), lost_uv[in_image]]))
+    n = len(matched_c)
+    matched = Association(nearest.keypoint[:n], nearest.distance[:n])
     inliers = np.zeros(len(kp), dtype=bool)
     inliers[matched.keypoint[matched.distance <= match_gate_px]] = True
-
-    lost_c = to_camera(lost_points_w, pose_cw)
-    lost_c = lost_c[lost_c[:, 2] > min_depth]
-    lost_uv = project(lost_c, camera_matrix)
-    in_image = (lost_uv[:, 0] >= 0) & (lost_uv[:, 0] < width) & (lost_uv[:, 1] >= 0) & (lost_uv[:, 1] < height)
-    lost = nearest_keypoints(tree, lost_uv[in_image])
-    candidates = lost.keypoint[lost.distance <= match_gate_px]
+    candidates = nearest.keypoint[n:][nearest.distance[n:] <= match_gate_px]
     outliers = int(np.count_nonzero(~inliers[np.unique(candidates)])) if len(candidates) else 0
 
     return SlamFeatures(

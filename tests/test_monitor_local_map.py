@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from monitor_reference import ReferenceLocalMap, same_rows
 
 from slam_monitor.local_map import LocalMap
 
@@ -40,3 +41,27 @@ def test_lost_points_are_those_of_the_previous_update_only():
 def test_rejects_bad_bounds():
     with pytest.raises(ValueError):
         LocalMap(voxel=0.0, max_age_frames=1, max_points=1)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_frames_kept_aside_merge_into_the_map_merging_every_frame_gives(seed):
+    """Random frames (clears, gaps, NaN points, updates larger than the bound): the lost points after every update
+    and the map whenever it is read equal the frame-by-frame reference's."""
+    rng = np.random.default_rng(seed)
+    voxel, max_age, max_points = 0.05, int(rng.integers(1, 10)), int(rng.integers(1, 300))
+    local_map, reference = LocalMap(voxel, max_age, max_points), ReferenceLocalMap(voxel, max_age, max_points)
+    read_every, frame = int(rng.integers(1, 7)), 0
+    for step in range(40):
+        if rng.random() < 0.05:
+            local_map.clear()
+            reference.clear()
+        points = rng.uniform(-1, 1, (int(rng.choice([0, 2, 10, 150, 400])), 3))
+        if len(points) and rng.random() < 0.2:
+            points[0] = np.nan
+        frame += int(rng.integers(1, 4))
+        local_map.update(points, frame)
+        reference.update(points, frame)
+        assert same_rows(local_map.lost_points(), reference.lost_points())
+        if step % read_every == 0:
+            assert same_rows(np.column_stack([local_map.points, local_map.last_seen]),
+                             np.column_stack([reference.points, reference.last_seen]))

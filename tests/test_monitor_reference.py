@@ -1,0 +1,92 @@
+"""Each optimised RTS channel held to a straightforward reference computation on the frames real ORB-SLAM3 recorded
+for the embedded sample (RGB-D), within the tolerance docs/rts-features.md states."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from monitor_reference import (
+    ReferenceLocalMap,
+    entropy_bits,
+    laplacian_variance,
+    nearest_brute_force,
+    same_rows,
+    sample_inputs,
+)
+
+from slam_monitor.image_features import intensity_statistics
+from slam_monitor.image_features import laplacian_variance as monitor_laplacian_variance
+from slam_monitor.local_map import LocalMap
+from slam_monitor.monitor_config import load_monitor_config
+from slam_monitor.slam_features import RelativeMotion, project, slam_features, to_camera
+
+pytestmark = pytest.mark.slam
+
+CONFIG = load_monitor_config()
+
+
+def tracked_inputs():
+    inputs = [item for item in sample_inputs() if item.state.tracked and item.pose_cw is not None]
+    assert len(inputs) > 100  # the sample tracks from its first frame
+    return inputs
+
+
+def test_image_channels_match_the_whole_frame_reference():
+    for item in sample_inputs():
+        gray = item.frame.gray
+        brightness, contrast, entropy = intensity_statistics(gray)
+        assert brightness == pytest.approx(gray.mean() / 255, rel=1e-12)
+        assert contrast == pytest.approx(gray.std() / 255, rel=1e-9)
+        assert monitor_laplacian_variance(gray) == pytest.approx(laplacian_variance(gray), rel=1e-9)
+        assert entropy == pytest.approx(entropy_bits(gray), rel=1e-6)  # from a float32 histogram
+
+
+def test_local_map_matches_the_frame_by_frame_reference():
+    lm = CONFIG.local_map
+    local_map, reference = LocalMap(lm.voxel, lm.max_age_frames, lm.max_points), ReferenceLocalMap(
+        lm.voxel, lm.max_age_frames, lm.max_points)
+    compared, largest = 0, 0
+    for item in tracked_inputs():
+        local_map.update(item.map_points, item.frame.index)
+        reference.update(item.map_points, item.frame.index)
+        assert same_rows(local_map.lost_points(), reference.lost_points())
+        if CONFIG.windows.is_psd_frame(item.frame.index):  # the map is read where the PSD reads it
+            assert same_rows(np.column_stack([local_map.points, local_map.last_seen]),
+                             np.column_stack([reference.points, reference.last_seen]))
+            compared += 1
+        largest = max(largest, len(reference.points))
+    assert largest == lm.max_points and compared > 20  # the size bound was in play
+
+
+def test_pairing_matches_brute_force_nearest_keypoints():
+    lm, features = CONFIG.local_map, CONFIG.features
+    reference = ReferenceLocalMap(lm.voxel, lm.max_age_frames, lm.max_points)
+    outliers_seen = 0
+    for item in tracked_inputs():
+        reference.update(item.map_points, item.frame.index)
+        intr, lost_w = item.frame.intrinsics, reference.lost_points()
+        got = slam_features(pose_cw=item.pose_cw, motion=RelativeMotion.still(),
+                            matched_inliers=item.num_tracked_points, keypoints=item.keypoints,
+                            matched_points_w=item.map_points, lost_points_w=lost_w, camera_matrix=intr.matrix(),
+                            width=intr.width, height=intr.height, match_gate_px=features.match_gate_px,
+                            min_depth=features.min_depth)
+        keypoints = np.asarray(item.keypoints, dtype=np.float64)
+        matched_c = to_camera(item.map_points, item.pose_cw)
+        matched_c = matched_c[matched_c[:, 2] > features.min_depth]
+        nearest, distance = nearest_brute_force(project(matched_c, intr.matrix()), keypoints)
+        inliers = np.zeros(len(keypoints), dtype=bool)
+        inliers[nearest[distance <= features.match_gate_px]] = True
+        lost_c = to_camera(lost_w, item.pose_cw)
+        lost_uv = project(lost_c[lost_c[:, 2] > features.min_depth], intr.matrix())
+        lost_uv = lost_uv[(lost_uv >= 0).all(axis=1) & (lost_uv[:, 0] < intr.width) & (lost_uv[:, 1] < intr.height)]
+        lost_nearest, lost_distance = nearest_brute_force(lost_uv, keypoints)
+        outliers = np.count_nonzero(~inliers[np.unique(lost_nearest[lost_distance <= features.match_gate_px])])
+
+        # Where two keypoints lie at one position either may be the nearest: compared by position.
+        assert same_rows(np.unique(keypoints[got.inlier_keypoints], axis=0), np.unique(keypoints[inliers], axis=0))
+        assert got.outliers == outliers and got.matches_before_po == item.num_tracked_points + outliers
+        assert got.reprojection_error_px == pytest.approx(distance.mean(), rel=1e-12)
+        assert (got.avg_mp_depth, got.var_mp_depth) == pytest.approx((matched_c[:, 2].mean(), matched_c[:, 2].var()),
+                                                                      rel=1e-12)
+        outliers_seen += outliers
+    assert outliers_seen > 0
