@@ -1,67 +1,55 @@
 """``seesys advisory run``: start the generator and the player as two processes and keep them running.
 
 The player is left out in the silent ``none`` condition. The audio device is checked before anything starts, so a
-missing one is a clear error at once. A process that exits is logged in ``advisory_events.csv`` and restarted
-after ``restart_delay_s``; the other one carries on (the hand-off reconnects by itself). Only a process that fails
-with a SEESys error (status 2: configuration, device, endpoint) the first time it starts stops the run.
+missing one is a clear error at once. The processes are supervised by the session supervisor that ``seesys run``
+and ``seesys study run`` use too (:mod:`seesys.io.supervision`): a process that exits is logged in
+``advisory_events.csv`` and restarted after ``restart_delay_s``, without limit; the other one carries on (the
+hand-off reconnects by itself). Only a process that fails with a SEESys error (status 2: configuration, device,
+endpoint) the first time it starts stops the run. Their output goes to this command's own.
 """
 
 from __future__ import annotations
 
-import subprocess
 import threading
-import time
 from pathlib import Path
 
 from advisory.audio_device import check_output_device
 from advisory.conditions import Condition
 from advisory.config import AdvisoryConfig
 from advisory.logs import EventLog
-from advisory.process import advisory_command
-from seesys.core.errors import SeesysError
+from seesys.io.supervision import PartSpec, SupervisionPolicy, Supervisor
 
 _SEESYS_ERROR_EXIT = 2
 _STOP_TIMEOUT_S = 5.0
 
 
-def process_commands(condition: Condition, out: Path) -> dict[str, list[str]]:
-    """The command line of each process of a condition."""
-    commands = {"generator": advisory_command("generator", "--condition", condition.value, "--out", str(out))}
+def process_args(condition: Condition, out: Path) -> dict[str, tuple[str, ...]]:
+    """The ``seesys`` arguments of each process of a condition."""
+    args = {"generator": ("advisory", "generator", "--condition", condition.value, "--out", str(out))}
     if condition.audible:
-        commands["player"] = advisory_command("player", "--out", str(out))
-    return commands
+        args["player"] = ("advisory", "player", "--out", str(out))
+    return args
 
 
 def supervise(cfg: AdvisoryConfig, condition: Condition, out: Path, stop: threading.Event) -> None:
+    """Run the condition's processes until ``stop`` is set. SeesysError when the audio device is missing or a
+    process cannot start."""
     if condition.audible:
         check_output_device(cfg.audio)
-    commands = process_commands(condition, out)
+    out.mkdir(parents=True, exist_ok=True)
     events = EventLog(out, "supervisor")
     events.event("started", f"condition={condition.value}")
-    processes = {name: subprocess.Popen(command) for name, command in commands.items()}
-    restarted: set[str] = set()
+    policy = SupervisionPolicy(ready_timeout_s=0.0, poll_s=0.2, restart_delay_s=cfg.supervisor.restart_delay_s,
+                               max_restarts=None, stop_timeout_s=_STOP_TIMEOUT_S,
+                               device_stop_timeout_s=_STOP_TIMEOUT_S, fatal_status=_SEESYS_ERROR_EXIT)
+    supervisor = Supervisor(out, None, policy, lambda part, event, detail: events.event(f"{part} {event}", detail),
+                            logs=False)
     try:
-        while not stop.wait(0.2):
-            for name, proc in list(processes.items()):
-                code = proc.poll()
-                if code is None:
-                    continue
-                if code == _SEESYS_ERROR_EXIT and name not in restarted:
-                    raise SeesysError(f"the advisory {name} could not start (its error is printed above)")
-                events.event(f"{name} exited", f"status {code}; restarting in {cfg.supervisor.restart_delay_s} s")
-                if stop.wait(cfg.supervisor.restart_delay_s):
-                    break
-                processes[name] = subprocess.Popen(commands[name])
-                restarted.add(name)
-                events.event(f"{name} restarted", f"pid {processes[name].pid}")
+        for name, args in process_args(condition, out).items():
+            supervisor.start(PartSpec(name, args, restartable=True))
+        while not stop.wait(policy.poll_s):
+            supervisor.look()
     finally:
-        for proc in processes.values():
-            proc.terminate()
-        deadline = time.monotonic() + _STOP_TIMEOUT_S
-        for proc in processes.values():
-            try:
-                proc.wait(max(deadline - time.monotonic(), 0.1))
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        supervisor.stop()
         events.event("stopped")
         events.close()

@@ -9,6 +9,7 @@ stopped, and none holds a ZeroMQ endpoint the next session needs.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import functools
 import os
@@ -31,21 +32,25 @@ def seesys_command(*args: str) -> list[str]:
 class Child:
     name: str
     process: subprocess.Popen
-    log: Path
+    log: Path | None  # None: its output goes to this process's own
 
     @classmethod
-    def start(cls, name: str, args: list[str], folder: Path, env: dict[str, str] | None = None) -> Child:
-        logs = folder / LOGS
-        logs.mkdir(exist_ok=True)
-        log = logs / f"{name}.log"
-        with log.open("ab") as out:
+    def start(cls, name: str, args: list[str], folder: Path, env: dict[str, str] | None = None,
+              log: bool = True) -> Child:
+        """``seesys ARGS`` as a child named ``name``, its output appended to ``folder/logs/<name>.log`` (``log``
+        false: to this process's own output)."""
+        path = None
+        if log:
+            (folder / LOGS).mkdir(exist_ok=True)
+            path = folder / LOGS / f"{name}.log"
+        with path.open("ab") if path is not None else contextlib.nullcontext() as out:
             # A session of its own: the operator's Ctrl-C goes to the supervisor only (which stops the device
             # cleanly), and a child that does not stop can be killed with the processes it started.
-            process = subprocess.Popen(seesys_command(*args), stdout=out, stderr=subprocess.STDOUT,
+            process = subprocess.Popen(seesys_command(*args), stdout=out, stderr=subprocess.STDOUT if out else None,
                                        stdin=subprocess.DEVNULL, env=env or os.environ.copy(),
                                        preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM),
                                        start_new_session=True)
-        return cls(name, process, log)
+        return cls(name, process, path)
 
     @property
     def running(self) -> bool:
@@ -78,6 +83,9 @@ class Child:
             return self.stop(timeout_s)
 
     def last_line(self) -> str:
+        """The last line of the child's log ("" without one)."""
+        if self.log is None:
+            return ""
         try:
             lines = self.log.read_text(errors="replace").strip().splitlines()
         except OSError:
