@@ -25,7 +25,8 @@ _STOP_TIMEOUT_S = 5.0
 
 def process_args(condition: Condition, out: Path) -> dict[str, tuple[str, ...]]:
     """The ``seesys`` arguments of each process of a condition."""
-    args = {"generator": ("advisory", "generator", "--condition", condition.value, "--out", str(out))}
+    args: dict[str, tuple[str, ...]] = {
+        "generator": ("advisory", "generator", "--condition", condition.value, "--out", str(out))}
     if condition.audible:
         args["player"] = ("advisory", "player", "--out", str(out))
     return args
