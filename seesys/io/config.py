@@ -23,14 +23,18 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import tomli_w
 
 from seesys.core.errors import ConfigError
 from seesys.io import resources
 
-T = TypeVar("T")
+if TYPE_CHECKING:  # the stubs' name for "an instance of any dataclass"; no such module at run time
+    from _typeshed import DataclassInstance
+
+# Every settings section is a dataclass: build() reads its fields, replace_fields() copies it.
+T = TypeVar("T", bound="DataclassInstance")
 
 CONFIG_DIR_ENV = "SEESYS_CONFIG_DIR"
 
@@ -56,7 +60,7 @@ def read_toml(path: Path) -> dict[str, Any]:
 
 def _check_value(value: Any, annotation: Any, where: str) -> Any:
     origin = typing.get_origin(annotation)
-    if dataclasses.is_dataclass(annotation):
+    if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):  # a dataclass, not an instance
         if not isinstance(value, dict):
             raise ConfigError(f"{where}: expected a table, got {type(value).__name__}")
         return build(annotation, value, where)

@@ -24,6 +24,7 @@ import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import pandas as pd
@@ -84,24 +85,26 @@ class PsdLogWriter:
         folder.mkdir(parents=True, exist_ok=True)
         for stale in folder.glob("psd_*.bin"):  # an earlier session in the same folder
             stale.unlink()
-        self._file = None
+        self._file: BinaryIO | None = None  # the open chunk, from the first write on
         self._records = 0
         self._chunks = 0
 
     def write(self, frame_index: int, timestamp: float, psd: np.ndarray) -> None:
         if self._file is None or self._records == self.chunk_records:
-            self._next_chunk()
+            self._file = self._next_chunk()
         packed = pack_psd(psd)
         self._file.write(_RECORD.pack(len(packed), frame_index, timestamp) + packed)
         self._file.flush()
         self._records += 1
 
-    def _next_chunk(self) -> None:
+    def _next_chunk(self) -> BinaryIO:
+        """The next chunk file, opened (the current one closed)."""
         if self._file is not None:
             self._file.close()
-        self._file = open(self.folder / f"psd_{self._chunks:06d}.bin", "wb")
+        chunk = open(self.folder / f"psd_{self._chunks:06d}.bin", "wb")
         self._chunks += 1
         self._records = 0
+        return chunk
 
     def close(self) -> None:
         if self._file is not None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal, overload
 
 import zmq
 import zmq.auth
@@ -36,6 +37,15 @@ class TransportError(SeesysError):
 
 class CurveKeyError(SeesysError):
     """A Curve key file is missing or malformed."""
+
+
+# Asked for the secret key, a caller gets one: a file without it is a CurveKeyError.
+@overload
+def load_curve_key(path: Path, secret: Literal[True]) -> tuple[bytes, bytes]: ...
+
+
+@overload
+def load_curve_key(path: Path, secret: bool) -> tuple[bytes, bytes | None]: ...
 
 
 def load_curve_key(path: Path, secret: bool) -> tuple[bytes, bytes | None]:
@@ -174,7 +184,7 @@ def peer_answers(endpoint: str, timeout_s: float, options: Mapping[int, int | by
     there; the handshake can."""
     from zmq.utils.monitor import recv_monitor_message
 
-    ctx = zmq.Context.instance()
+    ctx: zmq.Context = zmq.Context.instance()
     sock = ctx.socket(zmq.SUB)
     sock.setsockopt(zmq.LINGER, 0)
     for option, value in (options or {}).items():
