@@ -81,7 +81,7 @@ class PlaybackState:
         if pending is not None and pending is not self._current_entry:
             switch_at = min(max(int(round((pending[0].play_at - block_dac) * self._rate)), 0), frames)
         self._fill(out, 0, switch_at)
-        if switch_at < frames:
+        if pending is not None and switch_at < frames:  # it is earlier than the block's end only for a new buffer
             self._current_entry, self._current, self._pos = pending, pending[0], 0
             self.started.append((*pending, block_dac + switch_at / self._rate, self._samples_out + switch_at))
             self._fill(out, switch_at, frames)

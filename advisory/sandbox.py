@@ -95,6 +95,7 @@ class JackDummy:
                 self._proc.kill()
                 self._proc.wait()
         self._proc = None
+        assert self._log is not None  # opened with the process
         self._log.close()
 
     def __enter__(self) -> JackDummy:

@@ -103,7 +103,8 @@ class PulseScheduler:
         in_window = [r for a, r in self._samples if a > t - self._window] or [newest]
         mean = sum(r.value for r in in_window) / len(in_window)
         heads = [r.head for r in in_window]
-        usable = all(h is not None and len(h) == len(heads[0]) for h in heads)
+        first = heads[0]
+        usable = first is not None and all(h is not None and len(h) == len(first) for h in heads)
         return mean, (np.mean(np.array(heads, float), axis=0) if usable else None), newest_arrival
 
     def _decide(self, t: float, trigger: str) -> Decision:

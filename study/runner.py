@@ -229,6 +229,8 @@ class Session:
         """The end of the task (``q``): when the operator pressed it and the last frame the device had logged by
         then (None: none yet). Frames the device logs after it are kept, outside the task."""
         row = last_line(self.attempt / "frames.csv").split(",")
+        frame: int | None
+        timestamp: float | None
         try:
             frame, timestamp = int(row[0]), float(row[1])
         except (IndexError, ValueError):
@@ -336,12 +338,13 @@ class Session:
         self.operator.record = None  # events typed from now on belong to no session
         self._event(events, "stop", status)
         events.close()
+        frames = self.frames()
         details = {"status": status, "ended": utc_now(), "exit_codes": exits,
-                   "frames": self.frames(), "estimates": watcher.estimates,
+                   "frames": frames, "estimates": watcher.estimates,
                    "bad_messages": watcher.bad_messages, "watcher_error": watcher.error,
                    "device_error": None if status in (*DONE_STATUSES, "interrupted") or "device" not in self.children
                    else self.children["device"].last_line(), "start_error": start_error}
-        if status == "failed" and details["frames"] == 0:
+        if status == "failed" and frames == 0:
             # Nothing was recorded: no attempt of the participant's. The folder is set aside, unnumbered.
             failed = self.attempt
             self.attempt = set_aside_failed_start(failed)
@@ -354,7 +357,7 @@ class Session:
         self._run_json(**details)
         if start_error:
             raise SeesysError(f"{self.attempt}: {start_error}")
-        return RunResult(self.attempt, status, details["frames"], watcher.estimates, self.events_logged)
+        return RunResult(self.attempt, status, frames, watcher.estimates, self.events_logged)
 
     def _calibrate(self) -> str:
         if (self.attempt / GROUND_TRUTH).exists():

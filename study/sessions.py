@@ -48,16 +48,20 @@ FAILED_START = "failed-start-"
 
 def attempt_folders(phase_folder: Path) -> list[Path]:
     """The attempt folders of a phase, in order."""
+    return [p for _, p in _numbered_attempts(phase_folder)]
+
+
+def _numbered_attempts(phase_folder: Path) -> list[tuple[int, Path]]:
+    """The attempt folders of a phase with their numbers, in order."""
     if not phase_folder.is_dir():
         return []
-    found = [(int(m.group(1)), p) for p in phase_folder.iterdir() if p.is_dir() and (m := ATTEMPT.match(p.name))]
-    return [p for _, p in sorted(found)]
+    return sorted((int(m.group(1)), p) for p in phase_folder.iterdir() if p.is_dir() and (m := ATTEMPT.match(p.name)))
 
 
 def next_attempt_folder(phase_folder: Path) -> Path:
     """A new attempt folder (created), numbered after every existing one."""
-    existing = attempt_folders(phase_folder)
-    number = int(ATTEMPT.match(existing[-1].name).group(1)) + 1 if existing else 1
+    existing = _numbered_attempts(phase_folder)
+    number = existing[-1][0] + 1 if existing else 1
     folder = phase_folder / f"attempt-{number}"
     folder.mkdir(parents=True)
     return folder
@@ -85,9 +89,12 @@ def set_aside_failed_start(attempt: Path) -> Path:
 
 
 def _alive(pid: object) -> bool:
+    """Whether the process ``pid`` of a ``run.json`` runs; a value that is no process id (a damaged file) is none."""
+    if not isinstance(pid, (int, float, str)):
+        return False
     try:
         os.kill(int(pid), 0)
-    except (ProcessLookupError, TypeError, ValueError):
+    except (ProcessLookupError, ValueError):
         return False
     except PermissionError:
         return True

@@ -35,8 +35,8 @@ def true_lens(lens: Intrinsics, model: CameraModel, distorted: bool) -> Intrinsi
     """The lens the images are seen through: ``lens`` with its distortion when the render applies it
     (``distorted``), plus the model's uncorrected radial distortion ``radial_k1``."""
     base = lens if distorted else lens.without_distortion()
-    k1, *rest = base.distortion
-    return dataclasses.replace(base, distortion=(k1 + model.radial_k1, *rest))
+    k1, k2, p1, p2, k3 = base.distortion
+    return dataclasses.replace(base, distortion=(k1 + model.radial_k1, k2, p1, p2, k3))
 
 
 def told_lens(lens: Intrinsics, model: CameraModel, distorted: bool, native_width: int) -> Intrinsics:

@@ -93,4 +93,7 @@ def jpeg_roundtrip(gray: np.ndarray, quality: int) -> np.ndarray:
     ok, data = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:
         raise SeesysError(f"cannot JPEG-encode a {gray.shape} image at quality {quality}")
-    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    decoded = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if decoded is None:  # OpenCV's answer to data it cannot decode
+        raise SeesysError(f"cannot decode the JPEG of a {gray.shape} image at quality {quality}")
+    return decoded
