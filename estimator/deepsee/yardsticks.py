@@ -33,7 +33,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-import pingouin
 from scipy.stats import spearmanr
 from sklearn.calibration import calibration_curve
 from sklearn.metrics import brier_score_loss, cohen_kappa_score
@@ -89,6 +88,9 @@ def partial_spearman(estimate: np.ndarray, truth: np.ndarray, motion: np.ndarray
     variable or a motion statistic that is not finite everywhere."""
     if len(truth) < 4 or not np.isfinite(motion).all() or min(np.ptp(estimate), np.ptp(truth), np.ptp(motion)) == 0:
         return float("nan")
+    # pingouin imports matplotlib's pyplot and more (about 2 s): only the scoring that asks for it pays for it.
+    import pingouin
+
     table = pd.DataFrame({"estimate": estimate, "truth": truth, "motion": motion})
     with warnings.catch_warnings():
         # An estimate equal to the truth (the ceiling's best case, a perfect model) makes the covariance singular:
