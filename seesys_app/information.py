@@ -23,7 +23,7 @@ class InformationClock:
     by_reason: dict[str, float] = field(default_factory=dict)
     _since: float | None = None  # the first frame, then the newest estimate
     _estimated: bool = False
-    _checked: float | None = None
+    _checked: float = 0.0  # counted up to here; set with the first frame, read only after it
 
     def first_frame(self, t: float) -> None:
         if self._since is None:
@@ -34,18 +34,23 @@ class InformationClock:
         self._since = self._checked = t
         self._estimated = True
 
+    def _deadline(self) -> float | None:
+        """Until when the newest estimate (or the first frame) is fresh enough; None before the first frame."""
+        if self._since is None:
+            return None
+        return self._since + (self.stale_after_s if self._estimated else self.first_estimate_s)
+
     def lacking(self, t: float) -> bool:
         """True when at ``t`` the device runs and the newest estimate (or the first frame) is too old."""
-        if self._since is None:
-            return False
-        return t > self._since + (self.stale_after_s if self._estimated else self.first_estimate_s)
+        deadline = self._deadline()
+        return deadline is not None and t > deadline
 
     def advance(self, t: float, reason: str) -> bool:
         """Count the time up to ``t`` that was without information under ``reason``; returns :meth:`lacking`."""
-        if not self.lacking(t):
+        deadline = self._deadline()
+        if deadline is None or t <= deadline:  # not lacking
             return False
-        since = self._since + (self.stale_after_s if self._estimated else self.first_estimate_s)
-        seconds = t - max(self._checked, since)
+        seconds = t - max(self._checked, deadline)
         self.seconds_without += seconds
         self.by_reason[reason] = self.by_reason.get(reason, 0.0) + seconds
         self._checked = t

@@ -34,7 +34,9 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -167,6 +169,21 @@ class App:
         self.information = InformationClock(self.advisory.timing.stale_after_s, self.cfg.supervision.first_estimate_s)
         self._inputs_seen = 0  # of the condition's input: estimates, or tracked frames for the rotation rule
         self._dropped_at_estimate: dict[str, int] = {}
+        self._exits: dict[str, int | None] | None = None  # each child's exit status, once stopped
+
+    # run() shows the view and starts the watcher before any child starts; supervision takes them as given.
+
+    @property
+    def _shown_view(self) -> LiveView:
+        if self.view is None:
+            raise RuntimeError("the live view is used before run() has shown it")
+        return self.view
+
+    @property
+    def _started_watcher(self) -> StreamWatcher:
+        if self.watcher is None:
+            raise RuntimeError("the stream watcher is used before run() has started it")
+        return self.watcher
 
     # -- set-up ---------------------------------------------------------------------------------------------------
 
@@ -221,8 +238,9 @@ class App:
         return StreamDrops(watcher.frames_skipped, watcher.losses.lost_in_transit, watcher.bad_messages)
 
     def _record(self, watcher: StreamWatcher | None) -> RunRecord:
+        estimator = self.o.estimator if self.o.estimator is not None else "local"  # HOST:PORT without --local
         return RunRecord(self.folder, self.o.source, self.mode, self.pace, self.o.condition.value,
-                         "local" if self.o.local else self.o.estimator, self.audio, self.advisory.equation2,
+                         estimator, self.audio, self.advisory.equation2,
                          self.advisory.timing.stale_after_s, self.config_dir, self._parts_now(),
                          self._drops(watcher) if watcher is not None else None,
                          self.view.snapshot.estimator_dropped if self.view is not None else None,
@@ -260,7 +278,7 @@ class App:
                 "--estimates", "--real-time" if self.pace else "--no-pace"]
         return args + (["--max-frames", str(self.o.max_frames)] if self.o.max_frames else [])
 
-    def _wait_ready(self, ready: dict[str, object], stop) -> None:
+    def _wait_ready(self, ready: dict[str, Callable[[], bool]], stop: threading.Event) -> None:
         """Until each named child's readiness check passes; SeesysError when one exits or the time is up."""
         deadline = time.monotonic() + self.cfg.supervision.ready_timeout_s
         while not all(check() for check in ready.values()):
@@ -273,7 +291,7 @@ class App:
                 late = [name for name, check in ready.items() if not check()]
                 raise SeesysError(f"{' and '.join(late)} not ready after {self.cfg.supervision.ready_timeout_s:g} s "
                                   f"(logs: {self.folder / LOGS})")
-            self.view.update(self._state_now())
+            self._shown_view.update(self._state_now())
             if stop.wait(self.cfg.supervision.status_interval_s):
                 raise KeyboardInterrupt
 
@@ -283,29 +301,31 @@ class App:
                                                  for r in rows)
         return self._player_up
 
-    def _check_reachable(self) -> None:
-        """A remote estimator must answer within ``reach_timeout_s``; SeesysError otherwise."""
+    def _check_reachable(self, endpoint: str) -> None:
+        """A remote estimator (its estimates ``endpoint``) must answer within ``reach_timeout_s``; SeesysError
+        otherwise."""
         timeout = self.cfg.supervision.reach_timeout_s
         network = load_network_config(self.config_dir)
-        if not peer_answers(self.estimates_endpoint, timeout, network.client_options(network.estimates_endpoint)):
+        if not peer_answers(endpoint, timeout, network.client_options(network.estimates_endpoint)):
             raise SeesysError(f"the estimator at {self.o.estimator} cannot be reached: no ZeroMQ peer answered at "
-                              f"{self.estimates_endpoint} within {timeout:g} s (is `seesys estimator serve` running "
+                              f"{endpoint} within {timeout:g} s (is `seesys estimator serve` running "
                               f"there, its estimates_endpoint bound on an address this device reaches, and Curve "
                               f"set alike on both?)")
-        self.event("estimator", "reachable", self.estimates_endpoint)
+        self.event("estimator", "reachable", endpoint)
 
-    def _start_children(self, stop) -> None:
-        if not self.o.local:
-            self._check_reachable()
+    def _start_children(self, stop: threading.Event) -> None:
+        if self.estimates_endpoint is not None:  # a remote estimator (not --local)
+            self._check_reachable(self.estimates_endpoint)
         if self.o.local:
             self._start("estimator", self._estimator_args())
-            self._wait_ready({"estimator": self.view.estimator_answers}, stop)
+            self._wait_ready({"estimator": self._shown_view.estimator_answers}, stop)
         advisory = self._advisory_args()
         for name, args in advisory.items():
             self._start(name, args)
         generator_rows = RowCounter(self.folder / ADVISORY_CSV)
         self._advisory_events = CsvTail(self.folder / EVENTS_CSV)
-        checks = {"generator": lambda: generator_rows() > 0, "player": self._player_started}
+        checks: dict[str, Callable[[], bool]] = {"generator": lambda: generator_rows() > 0,
+                                                 "player": self._player_started}
         self._wait_ready({name: checks[name] for name in advisory}, stop)
         self._start("device", self._device_args())
 
@@ -357,7 +377,7 @@ class App:
         known (stale; a remote estimator's drops are not known here)."""
         part = self.parts.get("estimator")
         if part is not None and (part.restart_at is not None or not part.child.running
-                                 or (part.restarts and self.view.snapshot.estimator.startswith("starting"))):
+                                 or (part.restarts and self._shown_view.snapshot.estimator.startswith("starting"))):
             return "estimator restarting"  # exited, or restarted and loading its model
         dropped = self.view.snapshot.estimator_dropped if self.view is not None else None
         if dropped:
@@ -378,16 +398,18 @@ class App:
         """How many inputs of the kind the condition's advisory plays from have arrived: the device's tracked feature
         frames for the rotation rule (its angular speed), the estimates otherwise (``none`` logs what Equation 2
         would have played)."""
-        return self.watcher.tracked_frames if self.o.condition is Condition.ROTATION else self.watcher.estimates
+        watcher = self._started_watcher
+        return watcher.tracked_frames if self.o.condition is Condition.ROTATION else watcher.estimates
 
     def _account_information(self) -> None:
         """Advance the information clock with what the device logged and the app received since the last look."""
         now = time.monotonic()
-        if self.view.snapshot.frames > 0:
+        view = self._shown_view
+        if view.snapshot.frames > 0:
             self.information.first_frame(now)
         # Only while the device delivers frames: the time after its newest one (it ended, and the app notices at its
         # next look) is not time in which the person moved without information.
-        newest_frame = self.watcher.last_frame_mono
+        newest_frame = self._started_watcher.last_frame_mono
         if newest_frame is not None:
             now = min(now, newest_frame)
         inputs = self._inputs_now()
@@ -395,11 +417,11 @@ class App:
             self.information.advance(now, self._why_no_information())
             self.information.estimate(now)
             self._inputs_seen = inputs
-            self._dropped_at_estimate = dict(self.view.snapshot.estimator_dropped or {})
+            self._dropped_at_estimate = dict(view.snapshot.estimator_dropped or {})
         else:
             self.information.advance(now, self._why_no_information())
 
-    def _supervise_until_stopped(self, stop) -> tuple[str, str | None]:
+    def _supervise_until_stopped(self, stop: threading.Event) -> tuple[str, str | None]:
         """Start the children and supervise them until the device ends or a signal comes; (status, error)."""
         self._start_children(stop)
         device = self.parts["device"].child
@@ -414,7 +436,7 @@ class App:
                 if name in self.parts:
                     self._supervise(self.parts[name])
             self._account_information()
-            self.view.update(self._state_now())
+            self._shown_view.update(self._state_now())
         self.event("app", "interrupted", "signal received")
         return "interrupted", None
 
@@ -437,7 +459,6 @@ class App:
         started = utc_now()
         stop = stop_on_signals()
         status, error = "completed", None
-        self._exits: dict[str, int | None] | None = None
         try:
             self.env = self._configure()
             self.event("app", "started", f"source {self.o.source}, condition {self.o.condition.value}, "

@@ -54,12 +54,12 @@ def session_figures(folder: Path) -> dict:
     frames, estimates = _table(folder / FRAMES_CSV), _table(folder / ESTIMATES_CSV)
     advisory, playback = _table(folder / ADVISORY_CSV), _table(folder / PLAYBACK_CSV)
     tracked = float(frames["state"].isin(TRACKED_STATES).mean()) if len(frames) else None
-    figures = {"frames": len(frames), "tracked_fraction": tracked,
-               "estimates": len(estimates),
-               "end_to_end_ms": _percentiles(estimates.get("end_to_end_ms", pd.Series(dtype=float))),
-               "estimate_error_m": ({"min": float(estimates.error_m.min()), "median": float(estimates.error_m.median()),
-                                     "max": float(estimates.error_m.max())} if len(estimates) else None),
-               "buffers": len(advisory), "buffers_played": len(playback)}
+    figures: dict[str, object] = {
+        "frames": len(frames), "tracked_fraction": tracked, "estimates": len(estimates),
+        "end_to_end_ms": _percentiles(estimates.get("end_to_end_ms", pd.Series(dtype=float))),
+        "estimate_error_m": ({"min": float(estimates.error_m.min()), "median": float(estimates.error_m.median()),
+                              "max": float(estimates.error_m.max())} if len(estimates) else None),
+        "buffers": len(advisory), "buffers_played": len(playback)}
     if len(advisory):
         counts = advisory.played_pulses.value_counts().sort_index()
         figures["buffers_by_pulses"] = {str(int(n)): int(c) for n, c in counts.items()}

@@ -195,9 +195,12 @@ class LiveView:
         from estimator.service.broker import ServiceError
         from estimator.service.status import query_status
 
+        endpoint = self.setup.status_endpoint
+        if endpoint is None:
+            raise RuntimeError("only a local estimator is asked for its status (a remote one has no endpoint here)")
         self._last_status = time.monotonic()
         try:
-            self._status = query_status(self.setup.status_endpoint, self.cfg.status_timeout_ms)
+            self._status = query_status(endpoint, self.cfg.status_timeout_ms)
         except ServiceError:
             self._status = None
         return self._status is not None
@@ -253,7 +256,8 @@ class LiveView:
         s.spark_top_m = max([self.setup.beta_m, *values])
         s.spark = sparkline(values, s.spark_top_m)
         if self._latencies:
-            s.latency_ms = tuple(float(v) for v in np.percentile(list(self._latencies), [50, 95, 99]))
+            p50, p95, p99 = (float(v) for v in np.percentile(list(self._latencies), [50, 95, 99]))
+            s.latency_ms = (p50, p95, p99)
         for r in self._advisory.new_rows():
             self._pulses.append(int(r["played_pulses"]) if r["played_pulses"].isdigit() else 0)
         s.pulses = list(self._pulses)

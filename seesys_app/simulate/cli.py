@@ -36,7 +36,7 @@ def _conditions(text: str) -> list[str]:
 
 
 def simulate_command(args: argparse.Namespace) -> int:
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
     from estimator.service.broker import default_model
     from estimator.service.config import load_service_config
@@ -57,7 +57,7 @@ def simulate_command(args: argparse.Namespace) -> int:
     started = time.monotonic()
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.0f} s"),
                   TimeElapsedColumn(), transient=True) as progress:
-        bars: dict[str, int] = {}
+        bars: dict[str, TaskID] = {}
 
         def show(name: str, seconds: float, note: str) -> None:
             if name not in bars:

@@ -271,8 +271,8 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
             log.close()
         last_time = max([float(plan.frame_times[max(frames - 1, 0)])] + [at for _, at in operator.reached])
         events.write(start_time + last_time, "stop", status)
-        for log in (events, estimates_log, advice.log):
-            log.close()
+        for csv_log in (events, estimates_log, advice.log):
+            csv_log.close()
         truth = operator.trajectory()
         times = plan.frame_times[:frames]
         positions, rotations = truth.interpolate(times)

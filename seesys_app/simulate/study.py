@@ -24,8 +24,10 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from multiprocessing.connection import wait
+from multiprocessing.connection import Connection, wait
+from multiprocessing.context import SpawnProcess
 from pathlib import Path
+from typing import cast
 
 from estimator.service.model import model_version
 from seesys_app.simulate.config import SimulateConfig
@@ -64,7 +66,8 @@ def simulation_record(cfg: SimulateConfig, model: Path) -> dict:
     return {"settings": json.loads(json.dumps(as_dict(cfg))), "model_version": model_version(model)}
 
 
-def _differences(recorded: dict, wanted: dict, where: str = "") -> list[str]:
+def _differences(recorded: object, wanted: object, where: str = "") -> list[str]:
+    """Where two JSON values differ, as "key.key (recorded there, wanted now)"; tables compared key by key."""
     if isinstance(recorded, dict) and isinstance(wanted, dict):
         out = []
         for key in sorted(set(recorded) | set(wanted)):
@@ -168,11 +171,11 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
     context = multiprocessing.get_context("spawn")
     queue = list(jobs)
     tries: dict[str, int] = {}
-    running: dict[object, tuple[Job, Path, multiprocessing.Process, object]] = {}
+    running: dict[Connection, tuple[Job, Path, SpawnProcess, str]] = {}  # by the session's progress pipe
     # A session reports every simulated second; one silent for stall_timeout_s is hung (ORB-SLAM3 has been seen to
     # hang in a map reset after a loss): it is killed and counts as a crash.
-    last_heard: dict[object, float] = {}
-    stalled: set[object] = set()
+    last_heard: dict[Connection, float] = {}
+    stalled: set[Connection] = set()
     failed: list[str] = []
     report = show or (lambda name, seconds, note: None)
     try:
@@ -192,7 +195,8 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
                 running[receiver] = (job, attempt, process, name)
                 last_heard[receiver] = time.monotonic()
                 report(name, 0.0, attempt.name)
-            ready = wait(list(running), timeout=min(WATCH_S, cfg.study.stall_timeout_s))
+            # wait() returns those of the given pipes that are ready (typeshed: any waitable).
+            ready = cast(list[Connection], wait(list(running), timeout=min(WATCH_S, cfg.study.stall_timeout_s)))
             now = time.monotonic()
             for receiver, (_, _, process, _) in running.items():
                 if receiver not in ready and now - last_heard[receiver] > cfg.study.stall_timeout_s:
@@ -229,7 +233,7 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
         # A terminal's Ctrl-C reaches every session already; SIGTERM to this process, or a Ctrl-C it alone got,
         # does not: each session is told, then given STOP_GRACE_S to close its files.
         for job, attempt, process, name in running.values():
-            if process.is_alive():
+            if process.is_alive() and process.pid is not None:  # alive: started, so it has a pid
                 os.kill(process.pid, signal.SIGINT)
         for job, attempt, process, name in running.values():
             process.join(STOP_GRACE_S)
