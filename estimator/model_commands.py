@@ -137,7 +137,9 @@ def _lockbox(args: argparse.Namespace) -> int:
     splits = read_splits(args.splits, args.data)
     result = evaluate_lockbox(args.data, splits, model, args.round, config, pulses, load_window_config(),
                               _device(args.device, None))
-    notes = [f"The lockbox ({splits.lockbox.environment}, {splits.lockbox.camera_model}) judged for {model}, "
+    box = splits.lockbox
+    where = f" ({box.environment}, {box.camera_model})" if box else ""
+    notes = [f"The lockbox{where} judged for {model}, "
              f"trained on round {args.round} of {args.splits}; the reference rows are fitted on that round's "
              f"training data. Data: {', '.join(str(p) for p in args.data)}."]
     path = write_report(result, config, pulses, args.out, notes)
@@ -213,7 +215,7 @@ def _finetune(args: argparse.Namespace) -> int:
                   f"Spearman {scores.spearman:.2f}, advisory agreement {scores.agreement:.2f}, kappa "
                   f"{scores.kappa:.2f}, recall >= 12 mm {scores.recall_large:.2f} ({scores.large_bins} of "
                   f"{scores.bins} bins)")
-        for name, scores in result.held_out_references.items():
+        for name, scores in (result.held_out_references or {}).items():
             print(f"  reference {name} (fitted on the same training windows): advisory agreement "
                   f"{scores.agreement:.2f}, kappa {scores.kappa:.2f}, AURG {scores.aurg:.2f}")
     return 0

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Set as AbstractSet
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -152,13 +153,15 @@ def _heldout_cameras(config: SplitConfig, round_index: int) -> list[str]:
     return [cameras[round_index % len(cameras)]] if cameras else []
 
 
-def _next_eligible(names: list[str], start: int, eligible: set[str], avoid: set[str]) -> str | None:
-    """The first of ``names`` from position ``start`` on (cyclically) that is eligible and not avoided."""
-    for k in range(len(names)):
-        name = names[(start + k) % len(names)]
-        if name in eligible and name not in avoid:
-            return name
-    return None
+def _next_eligible(names: list[str], start: int, eligible: AbstractSet[str], avoid: AbstractSet[str],
+                   prefer_not: AbstractSet[str] = frozenset()) -> str:
+    """The first of ``names`` from position ``start`` on (cyclically) that is eligible, not avoided and, where one
+    is left, not in ``prefer_not``."""
+    ordered = [names[(start + k) % len(names)] for k in range(len(names))]
+    allowed = [name for name in ordered if name in eligible and name not in avoid]
+    if not allowed:
+        raise SplitError(f"no trajectory left of {', '.join(names)} for a round")
+    return next((name for name in allowed if name not in prefer_not), allowed[0])
 
 
 def make_splits(runs: pd.DataFrame, config: SplitConfig, lockbox: LockboxConfig | None = None) -> Splits:
@@ -204,8 +207,7 @@ def make_splits(runs: pd.DataFrame, config: SplitConfig, lockbox: LockboxConfig 
     for r in range(config.rounds):
         validation_traj, test_traj = [], []
         for group, names in candidates.items():
-            test = (_next_eligible(names, r + 1, shared[r], tested[group])
-                    or _next_eligible(names, r + 1, shared[r], set()))
+            test = _next_eligible(names, r + 1, shared[r], set(), prefer_not=tested[group])
             tested[group].add(test)
             test_traj.append(test)
             validation_traj.append(_next_eligible(names, r, shared[r], {test}))

@@ -193,8 +193,7 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
     how = _Judging([Path(r) for r in roots], config, pulses, windows, device)
     for r in rounds:
         folder = round_folder(runs, r)
-        trained = [(row.name, model_file(folder / row.name)) for row in ROWS]
-        trained = [(name, path) for name, path in trained if path is not None]
+        trained = [(row.name, path) for row in ROWS if (path := model_file(folder / row.name)) is not None]
         if not trained:
             raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
         parts = split_windows(roots, splits, r, ("train", "test"))

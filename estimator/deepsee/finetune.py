@@ -112,7 +112,7 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     # The motion statistic reads every channel of the schema: taken before the model's columns are selected.
     motion = motion_statistic(test.rts) if test is not None else None
     references = None
-    if test is not None:
+    if test is not None and pulses is not None:
         fitted = fit_references(train, pulses)
         references = {name: score(test.meta, estimate, test.error_m, config.evaluation, pulses, None, motion)
                       for name, estimate in fitted.estimates(test).items()}

@@ -22,8 +22,15 @@ import pandas as pd  # noqa: E402
 from estimator.deepsee.config import EstimatorConfig, TargetsConfig  # noqa: E402
 from estimator.deepsee.evaluate import TEST_TRAJECTORIES, Evaluation, round_folder  # noqa: E402
 from estimator.deepsee.metrics import CM_PER_M, advisory_bins, confusion  # noqa: E402
-from estimator.deepsee.references import CEILING, CEILING_ROW, CONSTANT, MOTION_ISOTONIC, REFERENCE_ROWS  # noqa: E402
-from estimator.deepsee.rows import DEEPSEE, LSTM, RANDOM_FOREST, ROWS  # noqa: E402
+from estimator.deepsee.references import (  # noqa: E402
+    CEILING,
+    CEILING_ROW,
+    CONSTANT,
+    MOTION_ISOTONIC,
+    REFERENCE_ROWS,
+    ReferenceRow,
+)
+from estimator.deepsee.rows import DEEPSEE, LSTM, RANDOM_FOREST, ROWS, Row  # noqa: E402
 from estimator.deepsee.run_folder import CONFIG_JSON, HARDWARE_JSON  # noqa: E402
 from estimator.deepsee.yardsticks import WITH_INTERVALS  # noqa: E402
 from seesys.core.equation2 import PulseSettings  # noqa: E402
@@ -49,6 +56,8 @@ HEAD_COLUMNS = (("head_agreement", "head agreement", "{:.2f}"), ("head_kappa", "
                 ("head_recall_large", "head recall ≥ 12 mm", "{:.2f}"), ("head_brier", "head Brier", "{:.3f}"),
                 ("head_ece", "head ECE", "{:.3f}"))
 IMPROVEMENT_METRICS = {"rmse_cm": "RMSE", "rmse_paper_range_cm": "RMSE 1 mm–2 cm"}  # score column: its name
+# The rows of a set's table, in order: what every estimate must beat, the trained rows, the ceiling.
+TABLE_ROWS: tuple[Row | ReferenceRow, ...] = (*REFERENCE_ROWS, *ROWS, CEILING_ROW)
 
 
 def improvement_targets(targets: TargetsConfig) -> dict[str, float]:
@@ -94,7 +103,7 @@ def table(scores: pd.DataFrame, set_name: str, runs: Path) -> list[str]:
     headings = " | ".join(h for _, h, _ in columns)
     lines = [f"| Category | Method | {headings} | windows | runs | rounds | schedule, device |",
              "|---" * (len(columns) + 6) + "|"]
-    for row in (*REFERENCE_ROWS, *ROWS, CEILING_ROW):
+    for row in TABLE_ROWS:
         rows = part[part.row == row.name]
         if rows.empty:
             continue
@@ -180,7 +189,7 @@ def camera_table(cameras: pd.DataFrame, set_name: str) -> list[str]:
     if part.empty:
         return []
     ratios = part.pivot_table(index="row", columns="camera_model", values="median_ratio", aggfunc="mean")
-    order = [r.name for r in (*REFERENCE_ROWS, *ROWS, CEILING_ROW) if r.name in ratios.index]
+    order = [r.name for r in TABLE_ROWS if r.name in ratios.index]
     names = list(ratios.columns)
     lines = ["Median estimate / median truth per camera model (mean over rounds):", "",
              "| row | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]

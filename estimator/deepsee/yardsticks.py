@@ -199,7 +199,7 @@ def bootstrap_over_runs(judged: Judged, statistic: Callable[[Judged], dict[str, 
     windows_of = [np.flatnonzero(window_run == k) for k in range(len(runs))]
     bins_of = [np.flatnonzero(bin_run == k) for k in range(len(runs))]
     rng = np.random.default_rng(settings.seed)
-    values = {name: [] for name in names}
+    values: dict[str, list[float]] = {name: [] for name in names}
     for _ in range(settings.resamples):
         draw = rng.integers(len(runs), size=len(runs))
         result = statistic(judged.take(np.concatenate([windows_of[k] for k in draw]),
