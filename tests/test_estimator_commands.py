@@ -134,6 +134,43 @@ def test_the_lockbox_is_judged_for_a_shipped_model_only_through_its_own_command(
     assert "these splits hold no lockbox runs" in error and len(error.splitlines()) == 1
 
 
+def test_a_render_tracked_twice_gets_a_ceiling_row_on_its_windows(tiny_dataset, trained_runs, tmp_path):
+    """The tiny dataset with a second trial of its test trajectory's render: evaluate adds the ceiling row there."""
+    from estimator.dataset.build import label_run
+    from estimator.dataset.splits import Splits
+    from estimator.dataset.store import COMPLETED, RunInfo, list_runs, write_run
+    from seesys.core import camera_normalisation
+    from seesys.io.core_settings import load_label_config
+    from slam_monitor.orbslam_settings import SlamMode
+
+    root = tmp_path / "dataset"
+    shutil.copytree(tiny_dataset.root, root)
+    splits = Splits.from_json(tiny_dataset.splits.read_text())
+    first = next(i for i in list_runs(root) if i.trajectory in splits.rounds[0].test_trajectories
+                 and i.environment not in splits.heldout_environments)
+    second = dataclasses.replace(first, run=first.run.replace("__t0", "__t1"), trial=1)
+    folder = write_session(tmp_path / "sessions" / second.run, seed=77, frames=first.frames)
+    arrays = label_run(folder, SlamMode.RGBD, load_label_config(), dataclasses.replace(load_window_config(),
+                                                                                       end_stride=1))
+    write_run(root, dataclasses.replace(second, samples=len(arrays.samples), status=COMPLETED,
+                                        camera_normalisation=camera_normalisation.VERSION), arrays)
+    splits.rounds[0].test.append(second.run)
+    splits_path = tmp_path / "splits.json"
+    splits_path.write_text(splits.to_json())
+    runs = tmp_path / "runs"
+    shutil.copytree(trained_runs / "round_0" / "random_forest", runs / "round_0" / "random_forest")
+    out = tmp_path / "report"
+    assert main(["estimator", "evaluate", "--data", str(root), "--splits", str(splits_path), "--runs", str(runs),
+                 "--rounds", "0", "--out", str(out)]) == 0
+    scores = pd.read_csv(out / "scores.csv").set_index(["set", "row"])
+    ceiling = scores.loc[("test trajectories", "ceiling")]
+    # Each trial's windows are judged by the other's truth: all of the set's windows where both labelled the frame.
+    assert 0 < ceiling.windows <= scores.loc[("test trajectories", "random_forest")].windows
+    assert ceiling.runs == 2 and -1 <= ceiling.kappa <= 1 and np.isfinite(ceiling.spearman)
+    assert ("held-out environments", "ceiling") not in scores.index  # its render was tracked once
+    assert "| Ceiling | another SLAM trial of the same render |" in (out / REPORT_MD).read_text()
+
+
 def test_the_report_gives_deepsees_gain_on_both_rmses_per_round_and_in_the_mean():
     rows = []
     for r, (deepsee, forest) in enumerate([(0.8, 1.0), (0.95, 1.0), (0.6, 1.0)]):
