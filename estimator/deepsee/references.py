@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.isotonic import IsotonicRegression
 
-from estimator.dataset.store import DatasetReader, list_runs
+from estimator.dataset.store import WITH_SAMPLES, DatasetReader, list_runs
 from estimator.deepsee.data import Windows
 from estimator.deepsee.metrics import advisory_bins, pulse_classes
 from estimator.deepsee.yardsticks import spearman
@@ -103,7 +103,7 @@ def fit_references(train: Windows, pulses: PulseSettings) -> References:
 def other_trials(roots: list[Path]) -> dict[str, list[str]]:
     """For every run with samples of the dataset folders, the runs of the same rendered sequence and mode with
     another trial (empty where it was tracked once)."""
-    infos = [info for root in roots for info in list_runs(root) if info.frames]
+    infos = [info for root in roots for info in list_runs(root) if info.status in WITH_SAMPLES]
     by_sequence: dict[tuple[str, str], list[str]] = {}
     for info in infos:
         by_sequence.setdefault((info.sequence, info.mode), []).append(info.run)

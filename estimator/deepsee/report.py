@@ -111,9 +111,10 @@ def table(scores: pd.DataFrame, set_name: str, runs: Path) -> list[str]:
                  else _cell(rows[c], f) for c, _, f in columns]
         provenance = _provenance(runs, row.name) if row in ROWS else "fitted on the round's training data" if (
             row in REFERENCE_ROWS) else "–"
+        low, high = int(rows.runs.min()), int(rows.runs.max())
+        runs_cell = str(low) if low == high else f"{low}–{high}"
         lines.append(f"| {row.category} | {row.label} | " + " | ".join(cells)
-                     + f" | {int(rows.windows.mean())} | {int(rows.runs.min())}–{int(rows.runs.max())} | {len(rows)} "
-                       f"| {provenance} |")
+                     + f" | {int(rows.windows.mean())} | {runs_cell} | {len(rows)} | {provenance} |")
     return lines
 
 
