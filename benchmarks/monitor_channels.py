@@ -8,7 +8,8 @@ frame ``--repeats`` times and reports the median pass's mean thread CPU ms per f
 inflated by waiting for a core on a loaded machine). Rows marked "per PSD frame" run only on the frames that end a
 model window (every ``end_stride``-th, as on a device); their "per frame" figure is amortised over all frames.
 "monitor thread, whole" is the monitor thread's own work per frame: features, PSD, the stream message's encoding
-and both logs (``RtsMonitor._process`` without the socket send).
+and both logs (``RtsMonitor._process`` without the socket send). Last, the feature stream's size: wire bytes per
+message with and without a PSD, and kbit/s at 30 Hz.
 
     .venv/bin/python benchmarks/monitor_channels.py [--source tum:data/sample] [--mode rgbd] [--repeats 5]
 """
@@ -21,7 +22,7 @@ import os
 import statistics
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +30,7 @@ import numpy as np
 
 from seesys.core import messages
 from seesys.core.camera_normalisation import CameraNormalisation
+from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_device_settings
 from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from slam_monitor.depth_features import (
@@ -39,6 +41,7 @@ from slam_monitor.depth_features import (
     inverse_depth,
     noise_over_z2,
 )
+from slam_monitor.device_worker import new_stream_session
 from slam_monitor.image_features import (
     intensity_statistics,
     laplacian_variance,
@@ -46,7 +49,7 @@ from slam_monitor.image_features import (
 )
 from slam_monitor.local_map import LocalMap
 from slam_monitor.monitor import FeatureExtractor, MonitorInput
-from slam_monitor.monitor_config import MonitorConfig, load_monitor_config
+from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.replay import record_inputs
 from slam_monitor.slam_features import (
@@ -55,6 +58,7 @@ from slam_monitor.slam_features import (
     relative_motion,
     slam_features,
 )
+from slam_monitor.stream import zmtp_frame_overhead
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -221,7 +225,9 @@ def main() -> None:
     inputs = record_inputs(args.source, SlamMode(args.mode))
     frames = prepare(inputs, config)
     psd_frames = [p for p in frames if config.windows.is_psd_frame(p.item.frame.index)]
-    extractor = FeatureExtractor(config, 1, load_device_settings(args.mode, 30.0))
+    # The frames as the device sends them: its device id and settings, a fresh stream session.
+    device = replace_fields(config, device_id=resolve_device_id(config.device_id, args.source))
+    extractor = FeatureExtractor(device, new_stream_session(), load_device_settings(args.mode, 30.0))
     encoded = {item.frame.index: extractor.extract(item) for item in inputs}
     rows: dict[str, dict[str, float]] = {}
     for label, (run, psd_only) in stages(config, encoded).items():
@@ -243,8 +249,23 @@ def main() -> None:
         print(f"| {label} | {row['per_frame_ms']:.3f} | {per_psd} |")
     whole = rows["monitor thread, whole (features, PSD, encoding, logs)"]["per_frame_ms"]
     print(f"monitor thread: {whole:.2f} ms per frame = {whole * 30 / 10:.1f} % of a core at 30 Hz")
+    stream = stream_size(encoded.values())
+    print(f"stream (device id {device.device_id!r}): {stream['plain_bytes']:.0f} B per frame without a PSD, "
+          f"{stream['psd_bytes']:.0f} B with one, {stream['kbit_per_s']:.1f} kbit/s at 30 Hz with ZeroMQ's framing")
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        args.json.write_text(json.dumps({"channels": rows, "stream": stream}, indent=2) + "\n")
+
+
+def stream_size(frames: Iterable[messages.FeatureFrame]) -> dict[str, float]:
+    """Wire bytes of the feature stream's messages: per frame with and without a PSD, and kbit/s at 30 Hz."""
+    sizes = {False: [], True: []}
+    for frame in frames:
+        parts = messages.encode(frame)
+        sizes[frame.psd is not None].append(sum(len(p) + zmtp_frame_overhead(len(p)) for p in parts))
+    total = sum(sizes[False]) + sum(sizes[True])
+    count = len(sizes[False]) + len(sizes[True])
+    return {"plain_bytes": float(np.mean(sizes[False])), "psd_bytes": float(np.mean(sizes[True])),
+            "kbit_per_s": total * 8 * 30 / count / 1000}
 
 
 if __name__ == "__main__":

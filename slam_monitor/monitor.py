@@ -32,7 +32,7 @@ from seesys.core import rts_schema
 from seesys.core.camera import Intrinsics
 from seesys.core.camera_normalisation import CameraNormalisation
 from seesys.core.device_settings import DeviceSettings
-from seesys.core.messages import FeatureFrame
+from seesys.core.messages import FeatureFrame, stream_resolution
 from seesys.core.psd import PsdGeometry, build_psd
 from seesys.core.tracking_state import TrackingState
 from seesys.io.config import replace_fields
@@ -145,7 +145,8 @@ class FeatureExtractor:
         channels.update(vars(self._depth_quality.frame(frame.depth, frame.gray, intr, moved)))
 
         psd = self._psd(item, slam, normalisation, reference_gray) if cfg.windows.is_psd_frame(index) else None
-        rts = np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32)
+        # At the stream's resolution (float16 where a value fits): rts.csv, the stream and a dataset hold one value.
+        rts = stream_resolution(np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32))
         return FeatureFrame(cfg.device_id, index, frame.timestamp, item.state, rts, psd, item.frames_skipped,
                             stream_session=self.stream_session, settings=self.settings)
 

@@ -26,7 +26,8 @@ from seesys.io.network import NetworkConfig
 from seesys.io.transport import LossCounter, bound_endpoint, publisher, subscriber
 
 
-def _zmtp_frame_overhead(size: int) -> int:
+def zmtp_frame_overhead(size: int) -> int:
+    """Bytes ZeroMQ adds on the wire to a message part of ``size`` bytes."""
     # ZMTP 3 frame header: flags + 1-byte size up to 255 bytes, flags + 8-byte size beyond.
     return 2 if size <= 255 else 9
 
@@ -76,7 +77,7 @@ class FeaturePublisher:
         payload = sum(len(p) for p in parts)
         self.stats.messages += 1
         self.stats.payload_bytes += payload
-        self.stats.wire_bytes += payload + sum(_zmtp_frame_overhead(len(p)) for p in parts)
+        self.stats.wire_bytes += payload + sum(zmtp_frame_overhead(len(p)) for p in parts)
 
     def close(self) -> None:
         for sock in self._sockets:

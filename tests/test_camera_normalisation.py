@@ -13,6 +13,7 @@ from estimator.artefact.compatibility import ModelMismatch, check_normalisation
 from seesys.core import camera_normalisation, rts_schema
 from seesys.core.camera import Intrinsics
 from seesys.core.camera_normalisation import CameraNormalisation, ReferenceCamera
+from seesys.core.messages import stream_resolution
 from seesys.core.psd import INLIER_LAYER, KEYPOINT_LAYER, MAP_POINT_LAYER, PsdGeometry, build_psd
 from seesys.core.tracking_state import TrackingState
 from slam_monitor.frame import Frame
@@ -30,7 +31,7 @@ FINE = 4  # the scene is drawn on a grid of 4 x 4 cells per reference pixel
 
 
 def test_the_reference_camera_is_the_ideal_camera_and_maps_to_itself():
-    assert REFERENCE == ReferenceCamera(640, 480, 525.0, 525.0, 319.5, 239.5)
+    assert ReferenceCamera(640, 480, 525.0, 525.0, 319.5, 239.5) == REFERENCE
     same = CameraNormalisation(REFERENCE, SMALL)
     uv = np.array([[0.1, 0.2], [639.9, 479.4], [-30.3, 500.7]])
     assert same.identity and same.pixel_ratio == 1.0 and same.resampled_size() == (640, 480)
@@ -123,7 +124,8 @@ def test_the_reference_camera_gives_the_inputs_it_gave_before_camera_normalisati
     scene, points = _scene(3), _points(4)
     gray = _render(scene, SMALL)
     got = _extract(SMALL, gray, points, 0.7)
-    assert got.rts[rts_schema.index_of("laplacian")] == np.float32(image_features(gray).laplacian)
+    laplacian = stream_resolution(np.float32([image_features(gray).laplacian]))[0]  # the monitor's row's resolution
+    assert got.rts[rts_schema.index_of("laplacian")] == laplacian
     keypoints = _project(SMALL, points) + (0.7, 0.0)
     before = build_psd(PsdGeometry(640, 480, CONFIG.psd.patch_px, CONFIG.psd.expansion), keypoints=keypoints,
                        responses=keypoint_responses(gray, keypoints), inliers=np.ones(len(points), bool),
@@ -152,10 +154,10 @@ def test_the_shipped_model_refuses_a_session_logged_before_camera_normalisation(
 
     from test_deepsee_sessions import write_session
 
+    from estimator.artefact.transforms import LabelTransform
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.data import DataError, session_windows
     from estimator.deepsee.predictors import load_predictor
-    from estimator.artefact.transforms import LabelTransform
     from seesys.io.core_settings import load_device_settings, load_window_config
     from seesys.io.resources import resolve
     from seesys.io.rts_log import RTS_JSON, schema_metadata

@@ -52,7 +52,7 @@ def test_mostly_zero_psd_compresses():
         (lambda t, b: [t, b"JUNK" + b[4:]], "magic"),
         (lambda t, b: [t, b[:4] + bytes([99]) + b[5:]], "protocol version 99"),
         (lambda t, b: [t, b[:5] + bytes([7]) + b[6:]], "unknown message kind"),
-        (lambda t, b: [b"F/other\x00", b], "does not match"),
+        (lambda t, b: [b"E/dev-1\x00", b], "does not match"),
         (lambda t, b: [b"F/dev-1", b], "does not match"),
         (lambda t, b: [t], "expected 2 message parts"),
     ],
@@ -65,7 +65,7 @@ def test_malformed_messages_raise_message_error(mangle, message):
 
 def test_wrong_channel_count_and_bad_values_are_rejected():
     topic, body = encode(feature())
-    head = 4 + 1 + 1 + 1 + len(b"dev-1") + 8 + 16 + 2 + 4 + 4
+    head = 4 + 1 + 1 + 8 + 16 + 2 + 4 + 4  # a feature frame's body holds no device id: its topic does
     wrong = body[:head] + struct.pack("<bH", 2, 3) + body[head + 3:]
     with pytest.raises(MessageError, match="channels"):
         decode([topic, wrong])
@@ -99,11 +99,12 @@ def test_frames_of_another_rts_schema_are_refused_by_name():
         12, rts_schema.SCHEMA_VERSION, rts_schema.FINGERPRINT)
 
 
-@pytest.mark.parametrize("version", [1, 2, 3])
+@pytest.mark.parametrize("version", [1, 2, 3, 5])
 @pytest.mark.parametrize("kind", ["feature", "estimate"])
 def test_a_message_of_an_earlier_protocol_version_is_refused(version, kind):
-    """Version 2 had no stream session and no device settings, version 3 no head probabilities in an estimate:
-    refused naming both versions, never misread."""
+    """Version 2 had no stream session and no device settings, version 3 no head probabilities in an estimate,
+    version 5 a device id in a feature frame's body and its RTS row in float32: refused naming both versions, never
+    misread."""
     topic, body = encode(feature() if kind == "feature" else Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1"))
     old = body[:4] + bytes([version]) + body[5:]
     with pytest.raises(MessageError, match=f"protocol version {version} is not supported .this end speaks "
@@ -138,6 +139,80 @@ def test_psd_codec_round_trips_any_matrix(fill):
     rng = np.random.default_rng(3)
     psd = np.where(rng.random((96, 128, 3)) < fill, rng.integers(1, 256, (96, 128, 3)), 0).astype(np.uint8)
     np.testing.assert_array_equal(messages.unpack_psd(messages.pack_psd(psd)), psd)
+
+
+def _stream_psd_round_trip(psd: np.ndarray) -> np.ndarray:
+    frame = dataclasses.replace(feature(psd), rts=np.zeros(rts_schema.NUM_CHANNELS, np.float32))
+    return decode(encode(frame)).psd
+
+
+@pytest.mark.parametrize("fill", [0.0, 0.05, 0.5, 1.0])
+@pytest.mark.parametrize("shape", [(96, 128, 3), (2, 3, 3), (5, 7, 2), (4, 4, 1)])
+def test_the_streams_psd_code_round_trips_any_matrix(fill, shape):
+    rng = np.random.default_rng(4)
+    psd = np.where(rng.random(shape) < fill, rng.integers(1, 256, shape), 0).astype(np.uint8)
+    np.testing.assert_array_equal(_stream_psd_round_trip(psd), psd)
+
+
+def test_the_streams_psd_code_keeps_inliers_among_keypoints_and_is_smaller_than_the_logs():
+    """A PSD as the monitor makes it: inliers on keypoint cells (coded over those cells), map points around."""
+    rng = np.random.default_rng(5)
+    psd = np.zeros((96, 128, 3), np.uint8)
+    keypoints = rng.random((96, 128)) < 0.04
+    psd[..., 0] = np.where(keypoints, rng.integers(1, 256, (96, 128)), 0)
+    psd[..., 1] = np.where(keypoints & (rng.random((96, 128)) < 0.5), 255, 0)
+    yy, xx = np.mgrid[0:96, 0:128]
+    psd[..., 2] = np.where(rng.random((96, 128)) < 0.1, 20 + (yy + xx) // 8, 0)
+    np.testing.assert_array_equal(_stream_psd_round_trip(psd), psd)
+    assert len(messages.pack_stream_psd(psd)) < 0.9 * len(messages.pack_psd(psd))
+
+
+@pytest.mark.parametrize("cut, message", [("masks", "masks are longer than"), ("values", "keypoint values are cut short")])
+def test_a_stream_psd_whose_parts_do_not_fit_is_rejected(cut, message):
+    psd = np.zeros((4, 4, 3), np.uint8)
+    psd[1, 1], psd[2, 3] = (9, 255, 30), (10, 255, 31)
+    packed = messages.pack_stream_psd(psd)
+    head = struct.Struct("<HHHBBHHH")
+    *shape, nested, constant, a, b, c = head.unpack_from(packed)
+    constants, rest = packed[head.size:head.size + 1], packed[head.size + 1:]  # the inlier layer's 255
+    masks, plain, differences = rest[:a], rest[a:a + b], rest[a + b:]
+    if cut == "masks":  # 10 MB of set bits for 48 cells
+        bomb = zlib.compressobj(6, zlib.DEFLATED, -15)
+        masks = bomb.compress(b"\xff" * 10_000_000) + bomb.flush()
+    else:  # no keypoint values for the two marked cells
+        plain = b""
+    packed = head.pack(*shape, nested, constant, len(masks), len(plain), c) + constants + masks + plain + differences
+    topic, body = encode(feature())
+    with pytest.raises(MessageError, match=message):
+        decode([topic, body[:-1] + b"\x01" + packed])
+
+
+def test_rts_rows_at_the_streams_resolution_travel_as_float16_exactly_and_others_as_float32():
+    rng = np.random.default_rng(6)
+    row = (rng.standard_normal(rts_schema.NUM_CHANNELS) * 10.0 ** rng.integers(-6, 5, rts_schema.NUM_CHANNELS)
+           ).astype(np.float32)
+    row[3] = np.nan
+    at = messages.stream_resolution(row)
+    finite = np.isfinite(row)
+    assert np.all(np.abs(at[finite] - row[finite]) <= np.maximum(np.abs(row[finite]) * 2**-11, 6e-8))
+    assert np.isnan(at[3]) and not np.array_equal(at, row, equal_nan=True)
+    wide = at.copy()
+    wide[0] = 1e6  # beyond float16's range: the row goes as float32
+    assert messages.stream_resolution(wide)[0] == 1e6
+    sizes = {}
+    for name, values in (("half", at), ("single", wide), ("unrounded", row)):
+        topic, body = encode(dataclasses.replace(feature(), rts=values))
+        np.testing.assert_array_equal(decode([topic, body]).rts, values)
+        sizes[name] = len(body)
+    assert sizes["single"] == sizes["unrounded"] == sizes["half"] + 2 * rts_schema.NUM_CHANNELS
+
+
+def test_a_feature_frames_device_id_is_its_topics():
+    topic, body = encode(feature())
+    assert b"dev-1" not in body
+    assert decode([messages.topic(messages.FEATURE_TOPIC, "dev-2"), body]).device_id == "dev-2"
+    with pytest.raises(MessageError, match="UTF-8"):
+        decode([b"F/\xff\x00", body])
 
 
 def test_a_psd_that_inflates_beyond_its_header_is_rejected():

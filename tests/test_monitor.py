@@ -77,9 +77,10 @@ def test_feature_row_of_constructed_frames():
 
     assert (f10.frame_index, f11.frame_index) == (10, 11) and f11.timestamp == pytest.approx(11 / 30)
     assert f10.rts[row_of["rel_yaw"]] == 0.0                                  # no previous pose: no motion
-    assert f11.rts[row_of["rel_yaw"]] == pytest.approx(0.02, abs=1e-6)
-    assert f11.rts[row_of["rel_tz"]] == pytest.approx(0.05, abs=1e-6)
-    assert f11.rts[row_of["brightness"]] == pytest.approx(gray(11).mean() / 255, abs=1e-6)
+    # Values at the stream's resolution: float16, within 2^-11 of the value
+    assert f11.rts[row_of["rel_yaw"]] == pytest.approx(0.02, rel=2**-11)
+    assert f11.rts[row_of["rel_tz"]] == pytest.approx(0.05, rel=2**-11)
+    assert f11.rts[row_of["brightness"]] == pytest.approx(gray(11).mean() / 255, rel=2**-11)
     assert f11.rts[row_of["matched_inliers"]] == 300
     assert f11.rts[row_of["local_mapping_visual_error"]] == pytest.approx(0.0, abs=1e-3)
     depth = [row_of[name] for name in rts_schema.channel_names("depth")]

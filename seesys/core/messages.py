@@ -6,16 +6,19 @@ prefix matches, and the terminator keeps a subscription to ``dev-1`` from also m
 subscription to the bare kind prefix still receives every device. Device ids are 1–255 bytes of UTF-8 without
 NUL. The body is little-endian binary:
 
-``magic "SEES" | u8 protocol version | u8 kind | u8 len + device id (utf-8) | u64 stream session |
-i64 frame index | f64 timestamp`` followed by the kind's payload:
+``magic "SEES" | u8 protocol version | u8 kind`` then, in an estimate, ``u8 len + device id (utf-8)`` (a feature
+frame's device id is its topic's: the device's most frequent message does not carry it twice), then
+``u64 stream session | i64 frame index | f64 timestamp`` followed by the kind's payload:
 
 - :class:`FeatureFrame`: ``u16 RTS schema version | u32 RTS schema fingerprint | u32 frames skipped |
-  i8 tracking state | u16 C + C × f32 RTS row | u8 has_settings`` and, when has_settings, the device's settings
-  (:class:`~seesys.core.device_settings.DeviceSettings`: ``u8 SLAM mode | u16 fps | u16 ORB features |
-  u16 PSD patch px | u16 PSD expansion | f64 near depth | u16 camera normalisation version``), then ``u8 has_psd`` and, when has_psd, the PSD as
-  :func:`pack_psd` writes it (``u16 H | u16 W | u16 L | u32 n + n bytes``). "Frames skipped" is the device's
-  running count of frames it tracked but did not publish (its monitor fell behind): a receiver that sees a gap in
-  frame indices can tell those from frames lost on the way.
+  i8 tracking state | u16 C | u8 B + C × B-byte float RTS row | u8 has_settings`` and, when has_settings, the
+  device's settings (:class:`~seesys.core.device_settings.DeviceSettings`: ``u8 SLAM mode | u16 fps |
+  u16 ORB features | u16 PSD patch px | u16 PSD expansion | f64 near depth | u16 camera normalisation version``),
+  then ``u8 has_psd`` and, when has_psd, the PSD as :func:`pack_stream_psd` writes it. The row travels as float16
+  (B = 2) when every value is one (the monitor rounds its values to :func:`stream_resolution`), else as float32
+  (B = 4): either way a receiver gets exactly the values sent. "Frames skipped" is the device's running count of
+  frames it tracked but did not publish (its monitor fell behind): a receiver that sees a gap in frame indices can
+  tell those from frames lost on the way.
 - :class:`Estimate`: ``f64 error (m) | f64 server time (ms) | u8 len + model version (utf-8) | u8 K`` and K ×
   ``f32 threshold (m) | f32 probability``: the model's ordinal head, P(error ≥ threshold) for each of its thresholds
   in increasing order (:class:`Exceedance`; K = 0 from a model without a head). Each probability travels with its
@@ -44,10 +47,12 @@ import numpy as np
 from seesys.core import rts_schema
 from seesys.core.device_settings import SLAM_MODES, DeviceSettings
 from seesys.core.errors import SeesysError
+from seesys.core.psd import KEYPOINT_LAYER
 from seesys.core.tracking_state import TrackingState
 
-# 4: estimates carry the ordinal head's thresholds and probabilities (3 had none).
-PROTOCOL_VERSION = 5
+# 4: estimates carry the ordinal head's thresholds and probabilities (3 had none). 6: a feature frame's device id
+# only in its topic, its RTS row as float16 where it can be, its PSD in the stream's own code (5: the log's code).
+PROTOCOL_VERSION = 6
 MAGIC = b"SEES"
 #: Topic prefixes of the two kinds; subscribe to one alone to receive every device's messages of that kind.
 FEATURE_TOPIC = b"F/"
@@ -64,6 +69,10 @@ _EXCEEDANCE = struct.Struct("<ff")
 _FEATURE_HEAD = struct.Struct("<HIIbH")
 _SETTINGS = struct.Struct("<BHHHHdH")
 _PSD_LEVEL = 6
+_STREAM_PSD_HEAD = struct.Struct("<HHHBBHHH")
+#: Bytes per RTS value on the wire, and their type.
+_ROW_TYPES = {2: np.dtype("<f2"), 4: np.dtype("<f4")}
+_FLOAT16_MAX = float(np.finfo(np.float16).max)
 
 
 class MessageError(SeesysError):
@@ -133,14 +142,14 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
         rts = np.asarray(message.rts, dtype="<f4")
         if rts.shape != (rts_schema.NUM_CHANNELS,):
             raise ValueError(f"RTS row must have shape ({rts_schema.NUM_CHANNELS},), got {rts.shape}")
-        parts = [_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_FEATURE), device, ident,
+        parts = [_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_FEATURE), ident,
                  _FEATURE_HEAD.pack(message.rts_schema_version, message.rts_schema_fingerprint,
                                     message.frames_skipped, int(message.tracking_state), rts.size),
-                 rts.tobytes(), _pack_settings(message.settings)]
+                 _pack_row(rts), _pack_settings(message.settings)]
         if message.psd is None:
             parts.append(b"\x00")
         else:
-            parts += [b"\x01", pack_psd(message.psd)]
+            parts += [b"\x01", pack_stream_psd(message.psd)]
         return [topic(FEATURE_TOPIC, message.device_id), b"".join(parts)]
     if isinstance(message, Estimate):
         body = b"".join([_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_ESTIMATE), device, ident,
@@ -148,6 +157,32 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
                          _pack_text(message.model_version, "model version"), _pack_head(message.head)])
         return [topic(ESTIMATE_TOPIC, message.device_id), body]
     raise TypeError(f"cannot encode {type(message).__name__}")
+
+
+def stream_resolution(rts: np.ndarray) -> np.ndarray:
+    """The float32 row ``rts`` at the feature stream's resolution: each value within float16's range rounded to
+    the nearest float16 (2^-11 of the value, or 6·10^-8 below 6·10^-5), a larger one left as it is, NaN kept. A row
+    at this resolution travels in two bytes a value whenever no value is beyond float16's range."""
+    rts = np.asarray(rts, dtype=np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.where(np.abs(rts) <= _FLOAT16_MAX, rts.astype(np.float16).astype(np.float32), rts)
+
+
+def _pack_row(rts: np.ndarray) -> bytes:
+    """``u8 B`` and the row as B-byte floats: float16 when that holds every value exactly."""
+    with np.errstate(over="ignore"):
+        half = rts.astype("<f2")
+    if np.array_equal(half.astype(np.float32), rts, equal_nan=True):
+        return b"\x02" + half.tobytes()
+    return b"\x04" + rts.tobytes()
+
+
+def _read_row(r: _Reader, n_channels: int) -> np.ndarray:
+    (width,) = r.take(1, "RTS value width")
+    dtype = _ROW_TYPES.get(width)
+    if dtype is None:
+        raise MessageError(f"RTS values of {width} bytes are not a float16 or float32 row")
+    return np.frombuffer(r.take(width * n_channels, "RTS row"), dtype=dtype).astype(np.float32)
 
 
 def _pack_head(head: tuple[Exceedance, ...]) -> bytes:
@@ -229,7 +264,10 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
         raise MessageError(f"not a SEESys message (magic {magic!r})")
     if version != PROTOCOL_VERSION:
         raise MessageError(f"protocol version {version} is not supported (this end speaks {PROTOCOL_VERSION})")
-    device_id = r.text("device id")
+    expected_topic = {_KIND_FEATURE: FEATURE_TOPIC, _KIND_ESTIMATE: ESTIMATE_TOPIC}.get(kind)
+    if expected_topic is None:
+        raise MessageError(f"unknown message kind {kind}")
+    device_id = _topic_device(received_topic, expected_topic) if kind == _KIND_FEATURE else r.text("device id")
     if not device_id or "\x00" in device_id:
         raise MessageError(f"bad device id {device_id!r}")
     stream_session, frame_index, timestamp = r.unpack(_FRAME_ID, "frame id")
@@ -237,9 +275,6 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
         raise MessageError(f"negative frame index {frame_index}")
     if not math.isfinite(timestamp):
         raise MessageError(f"timestamp is not finite: {timestamp}")
-    expected_topic = {_KIND_FEATURE: FEATURE_TOPIC, _KIND_ESTIMATE: ESTIMATE_TOPIC}.get(kind)
-    if expected_topic is None:
-        raise MessageError(f"unknown message kind {kind}")
     if received_topic != topic(expected_topic, device_id):
         raise MessageError(f"topic {received_topic!r} does not match the body (kind {kind}, device {device_id!r})")
     if kind == _KIND_FEATURE:
@@ -251,6 +286,16 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     if not math.isfinite(error_m) or error_m < 0:
         raise MessageError(f"estimated error must be a finite non-negative number of metres, got {error_m}")
     return Estimate(device_id, frame_index, timestamp, error_m, model_version, server_ms, stream_session, head)
+
+
+def _topic_device(received_topic: bytes, kind: bytes) -> str:
+    """The device id of a topic of ``kind`` (the kind prefix, the id, NUL)."""
+    if not (received_topic.startswith(kind) and received_topic.endswith(TOPIC_END)):
+        raise MessageError(f"topic {received_topic!r} does not match the body (kind {kind!r}: no device id in it)")
+    try:
+        return received_topic[len(kind):-len(TOPIC_END)].decode("utf-8")
+    except UnicodeDecodeError:
+        raise MessageError("device id is not valid UTF-8") from None
 
 
 def pack_psd(psd: np.ndarray) -> bytes:
@@ -296,6 +341,131 @@ def _read_psd(r: _Reader) -> np.ndarray:
     return psd.reshape(h, w, layers)
 
 
+def _deflate(data: bytes, strategy: int) -> bytes:
+    # Raw deflate (no zlib header or checksum: each stream's length is in the message, and TCP checks the bytes).
+    compressor = zlib.compressobj(_PSD_LEVEL, zlib.DEFLATED, -15, 9, strategy)
+    return compressor.compress(data) + compressor.flush()
+
+
+def _inflate(data: bytes, most: int, what: str) -> bytes:
+    """What ``data`` inflates to, at most ``most`` bytes (bounded: a small message cannot inflate to GBs)."""
+    inflate = zlib.decompressobj(-15)
+    try:
+        raw = inflate.decompress(data, most)
+    except zlib.error as e:
+        raise MessageError(f"PSD {what} do not decompress: {e}") from None
+    if inflate.unconsumed_tail:
+        raise MessageError(f"PSD {what} are longer than the PSD's cells")
+    if not inflate.eof:
+        raise MessageError(f"PSD {what} are cut short")
+    return raw
+
+
+def _values(data: bytes, count: int, what: str) -> np.ndarray:
+    raw = _inflate(data, count, what)
+    if len(raw) != count:
+        raise MessageError(f"PSD {what}: {len(raw)} for {count} marked cells")
+    return np.frombuffer(raw, np.uint8)
+
+
+def _nested(masks: np.ndarray) -> list[bool]:
+    """For each layer after the first, whether its cells all lie among the layer before's (an inlier lies where a
+    keypoint does): such a layer's mask is coded over those cells only."""
+    return [bool(np.all(masks[layer - 1] | ~masks[layer])) for layer in range(1, len(masks))]
+
+
+def pack_stream_psd(psd: np.ndarray) -> bytes:
+    """The feature stream's code of a PSD matrix (H, W, L) uint8: ``u16 H | u16 W | u16 L | u8 nested |
+    u8 constant | u16 a | u16 b | u16 c``, one byte for each constant layer, and three raw deflate streams of a, b
+    and c bytes:
+
+    Cells are read row by row, every other row right to left (:func:`_serpentine`).
+
+    - the layers' masks (a bit per cell, set where non-zero; a layer flagged in ``nested``, bit l − 1 for layer l,
+      only over the cells of layer l − 1, as inliers lie on keypoints), deflated for runs (``Z_RLE``);
+    - the values of the keypoint layer's non-zero cells (mean responses, unlike their neighbours);
+    - the other layers' values as differences from the previous non-zero cell's of the layer, modulo 256
+      (neighbouring cells of the map layer see surfaces at similar depths), both Huffman-coded only
+      (``Z_HUFFMAN_ONLY``: they hold few repeated strings).
+
+    A layer flagged in ``constant`` (bit l), all of whose non-zero cells hold one value (the inlier layer's 255),
+    sends that value once, in the byte after the header, instead of its cells' values. Lossless; on the sample a
+    PSD takes ~1.9 kB (:func:`pack_psd`, the session log's code, ~2.45 kB).
+    """
+    psd = np.asarray(psd)
+    if psd.ndim != 3 or psd.dtype != np.uint8:
+        raise ValueError(f"PSD must be (H, W, L) uint8, got {psd.dtype} {psd.shape}")
+    planes = _serpentine(psd.transpose(2, 0, 1))
+    masks = planes != 0
+    nested = _nested(masks)
+    bits = [masks[0].ravel()] + [masks[layer][masks[layer - 1]] if nested[layer - 1] else masks[layer].ravel()
+                                 for layer in range(1, len(masks))]
+    values = [planes[layer][masks[layer]] for layer in range(len(planes))]
+    constant = [v.size > 0 and bool(np.all(v == v[0])) for v in values]
+    plain = [v for layer, v in enumerate(values) if layer == KEYPOINT_LAYER and not constant[layer]]
+    differences = [np.diff(v, prepend=np.uint8(0)) for layer, v in enumerate(values)
+                   if layer != KEYPOINT_LAYER and not constant[layer]]
+    streams = [_deflate(np.packbits(np.concatenate(bits)).tobytes(), zlib.Z_RLE),
+               _deflate(np.concatenate([np.zeros(0, np.uint8), *plain]).tobytes(), zlib.Z_HUFFMAN_ONLY),
+               _deflate(np.concatenate([np.zeros(0, np.uint8), *differences]).tobytes(), zlib.Z_HUFFMAN_ONLY)]
+    head = _STREAM_PSD_HEAD.pack(*psd.shape, _bits(nested), _bits(constant), *(len(x) for x in streams))
+    return head + bytes(int(v[0]) for v, c in zip(values, constant, strict=True) if c) + b"".join(streams)
+
+
+def _serpentine(planes: np.ndarray) -> np.ndarray:
+    """(L, H, W) planes with every other row reversed: read in that order, each cell follows a neighbour, also
+    from one row to the next (a few percent fewer bytes for the map layer). Its own inverse."""
+    planes = np.array(planes, order="C")
+    planes[:, 1::2] = planes[:, 1::2, ::-1]
+    return planes
+
+
+def _bits(flags: list[bool]) -> int:
+    return sum(1 << i for i, flag in enumerate(flags) if flag)
+
+
+def _read_stream_psd(r: _Reader) -> np.ndarray:
+    h, w, layers, nested, constant, *sizes = r.unpack(_STREAM_PSD_HEAD, "PSD header")
+    if layers == 0 or layers > 8 or nested >> (layers - 1) or constant >> layers:
+        raise MessageError(f"PSD header states {layers} layers, nesting {nested:#x} and constants {constant:#x}")
+    constants = dict(zip([layer for layer in range(layers) if constant >> layer & 1],
+                         r.take(constant.bit_count(), "PSD constants"), strict=True))
+    streams = [bytes(r.take(n, "PSD")) for n in sizes]
+    cells = h * w
+    masks = np.zeros((layers, cells), dtype=bool)
+    mask_bits = np.unpackbits(np.frombuffer(_inflate(streams[0], (layers * cells + 7) // 8, "masks"), np.uint8))
+    # A nested layer's bits follow its predecessor's marked cells: read layer by layer.
+    used = 0
+    for layer in range(layers):
+        over = masks[layer - 1] if layer and nested >> (layer - 1) & 1 else np.ones(cells, dtype=bool)
+        n = int(np.count_nonzero(over))
+        if used + n > mask_bits.size:
+            raise MessageError(f"PSD masks end before layer {layer}")
+        masks[layer, over] = mask_bits[used:used + n].view(bool)
+        used += n
+    if mask_bits.size != (used + 7) // 8 * 8:
+        raise MessageError(f"PSD masks hold {mask_bits.size} bits for {used}")
+    counts = [int(n) if layer not in constants else 0 for layer, n in enumerate(masks.sum(axis=1))]
+    plain_count = counts[KEYPOINT_LAYER] if KEYPOINT_LAYER < layers else 0
+    plain = _values(streams[1], plain_count, "keypoint values")
+    differences = _values(streams[2], sum(counts) - plain_count, "values")
+    planes = np.zeros((layers, cells), dtype=np.uint8)
+    start = 0
+    for layer in range(layers):
+        if layer in constants:
+            values = np.full(int(np.count_nonzero(masks[layer])), constants[layer], np.uint8)
+        elif layer == KEYPOINT_LAYER:
+            values = plain
+        else:
+            # Running sums modulo 256 undo the differences (uint8 arithmetic wraps).
+            values = np.cumsum(differences[start:start + counts[layer]], dtype=np.uint8)
+            start += counts[layer]
+        if not values.all():
+            raise MessageError(f"PSD layer {layer} holds a zero value in a marked cell")
+        planes[layer, masks[layer]] = values
+    return np.ascontiguousarray(_serpentine(planes.reshape(layers, h, w)).transpose(1, 2, 0))
+
+
 def unpack_psd(data: bytes) -> np.ndarray:
     """Inverse of :func:`pack_psd`; raises :class:`MessageError` on malformed data."""
     r = _Reader(data)
@@ -318,12 +488,12 @@ def _decode_feature(r: _Reader, device_id: str, stream_session: int, frame_index
     if n_channels != rts_schema.NUM_CHANNELS:
         raise MessageError(f"RTS row has {n_channels} channels, schema v{rts_schema.SCHEMA_VERSION} has "
                            f"{rts_schema.NUM_CHANNELS}")
-    rts = np.frombuffer(r.take(4 * n_channels, "RTS row"), dtype="<f4").astype(np.float32)
+    rts = _read_row(r, n_channels)
     settings = _read_settings(r)
     (has_psd,) = r.take(1, "PSD flag")
     psd = None
     if has_psd == 1:
-        psd = _read_psd(r)
+        psd = _read_stream_psd(r)
     elif has_psd != 0:
         raise MessageError(f"bad PSD flag {has_psd}")
     r.finish()
