@@ -1,6 +1,7 @@
 """``seesys study run``: one participant's session in one phase, composed of the existing commands.
 
-Each run writes a new attempt folder (``study.sessions``) and, as child processes (``seesys.io.children``):
+Each run writes a new attempt folder (``study.sessions``) and, as child processes of the session supervisor that
+``seesys run`` uses too (``seesys.io.supervision``):
 
 - the device: ``seesys monitor run --stream`` (ORB-SLAM3 + RTS monitor, publishing the feature stream), writing
   its session files into the attempt folder;
@@ -53,11 +54,12 @@ from advisory.output import AudioOutput, open_audio_output
 from advisory.process import stop_on_signals
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
-from seesys.io.children import Child, RowCounter, last_line
+from seesys.io.children import RowCounter, last_line
 from seesys.io.config import CONFIG_DIR_ENV, ConfigSet
 from seesys.io.logfiles import CsvLog, write_json_atomically
 from seesys.io.network import load_network_config
 from seesys.io.session_files import utc_now
+from seesys.io.supervision import PartSpec, SupervisionPolicy, Supervisor
 from slam_monitor import monitor_config
 from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
 from study.config import StudyConfig
@@ -149,7 +151,7 @@ class Session:
         self.mode = options.mode or cfg.runner.mode
         if options.replay_estimates is not None:
             read_estimate_log(options.replay_estimates)  # a bad log is refused before anything starts
-        self.children: dict[str, Child] = {}
+        self.supervisor: Supervisor | None = None  # once the children start
         self.output: AudioOutput | None = None
         self.env: dict[str, str] | None = None
         self.frames = self.advisory_rows = lambda: 0
@@ -187,29 +189,22 @@ class Session:
                     f"  N {self.pulses}  mocap {mocap}  drop {watcher.frames_skipped}+"
                     f"{watcher.losses.lost_in_transit}  obj {self.objects}")
 
-    def _start(self, name: str, args: list[str]) -> None:
-        self.children[name] = Child.start(name, args, self.attempt, self.env)
+    def _policy(self) -> SupervisionPolicy:
+        runner = self.cfg.runner
+        # Nothing is restarted: a part that exits during a participant's session ends it or is reported.
+        return SupervisionPolicy(ready_timeout_s=runner.ready_timeout_s, poll_s=runner.status_interval_s,
+                                 restart_delay_s=0.0, max_restarts=0, stop_timeout_s=runner.stop_timeout_s,
+                                 device_stop_timeout_s=runner.device_interrupt_timeout_s)
 
-    def _start_children(self, stop: threading.Event) -> None:
+    def _start_children(self, supervisor: Supervisor, stop: threading.Event) -> None:
         """The advisory and the mocap logger first; the device once both are running, so that the participant
         never starts without audio or ground truth. KeyboardInterrupt when a signal comes meanwhile."""
+        first = [PartSpec("advisory", ("advisory", "run", "--condition", self.condition, "--out", str(self.attempt)),
+                          ready=lambda: self.advisory_rows() > 0)]
         if self.record_mocap:
-            self._start("mocap", ["study", "mocap", "log", "--out", str(self.attempt)])
-        self._start("advisory", ["advisory", "run", "--condition", self.condition, "--out", str(self.attempt)])
-        ready = {"advisory": lambda: self.advisory_rows() > 0,
-                 "mocap": lambda: (self.attempt / MOCAP_STATS).exists()}
-        deadline = time.monotonic() + self.cfg.runner.ready_timeout_s
-        while not all(ready[name]() for name in self.children):
-            for name, child in self.children.items():
-                if not child.running:
-                    raise SeesysError(f"the {name} process exited while starting: {child.last_line()} "
-                                      f"(log: {child.log})")
-            if time.monotonic() > deadline:
-                late = [name for name in self.children if not ready[name]()]
-                raise SeesysError(f"{' and '.join(late)} not running after {self.cfg.runner.ready_timeout_s:g} s "
-                                  f"(logs: {self.attempt / 'logs'})")
-            if stop.wait(self.cfg.runner.status_interval_s):
-                raise KeyboardInterrupt
+            first.insert(0, PartSpec("mocap", ("study", "mocap", "log", "--out", str(self.attempt)),
+                                     ready=(self.attempt / MOCAP_STATS).exists))
+        supervisor.start_ready(first, stop)
         device = ["monitor", "run", "--source", self.source, "--mode", self.mode, "--out", str(self.attempt),
                   "--stream"]
         if self.o.max_frames:
@@ -217,7 +212,7 @@ class Session:
         if self.o.pace is not None:
             # a recording standing in for the participant's camera plays in real time, as the camera would
             device.append("--real-time" if self.o.pace else "--no-pace")
-        self._start("device", device)
+        supervisor.start(PartSpec("device", tuple(device), device=True))
 
     def _handle(self, event: OperatorEvent) -> bool:
         """Act on an operator event (the input thread has logged it); False when it ends the session."""
@@ -257,7 +252,8 @@ class Session:
                       .write(self.attempt / CONFIGS))
         self.env = {**os.environ, CONFIG_DIR_ENV: str(config_dir), **(self.output.env() if self.output else {})}
 
-    def _wait_for_the_device(self, stop: threading.Event, watcher: StreamWatcher, events: CsvLog) -> str | None:
+    def _wait_for_the_device(self, supervisor: Supervisor, stop: threading.Event, watcher: StreamWatcher,
+                             events: CsvLog) -> str | None:
         """Until the device ends (None), the operator ends the task (``stopped``) or a signal comes
         (``interrupted``)."""
         # The status line is drawn on a terminal only; a script or test gets the summary at the end.
@@ -265,7 +261,7 @@ class Session:
             self.console.print(f"{self.attempt}: {KEYS_HELP}")
         with (Live(self._status_line(watcher), console=self.console, transient=True, refresh_per_second=4)
               if self.console.is_terminal else contextlib.nullcontext()) as live:
-            while self.children["device"].running:
+            while supervisor.running("device"):
                 if stop.is_set():
                     return "interrupted"
                 try:
@@ -277,8 +273,9 @@ class Session:
                         return "stopped"
                 except queue.Empty:
                     pass
-                if self.o.replay_estimates and "replay" not in self.children and self.frames() > 0:
-                    self._start("replay", ["advisory", "replay", "--estimates", str(self.o.replay_estimates)])
+                if self.o.replay_estimates and "replay" not in supervisor.parts and self.frames() > 0:
+                    supervisor.start(PartSpec("replay", ("advisory", "replay", "--estimates",
+                                                         str(self.o.replay_estimates))))
                 if live is not None:
                     live.update(self._status_line(watcher))
         return None
@@ -316,9 +313,10 @@ class Session:
         start_error: str | None = None
         try:
             self._audio(events)
-            self._start_children(stop)
+            self.supervisor = Supervisor(self.attempt, self.env, self._policy(), lambda part, event, detail: None)
+            self._start_children(self.supervisor, stop)
             self._event(events, "device", "started")
-            ended = self._wait_for_the_device(stop, watcher, events)
+            ended = self._wait_for_the_device(self.supervisor, stop, watcher, events)
         except KeyboardInterrupt:  # a signal while starting
             ended = "interrupted"
         except SeesysError as e:
@@ -326,14 +324,15 @@ class Session:
         if ended == "interrupted":
             self._event(events, "interrupted", "signal received")
         try:
-            device_rc = (self.children["device"].interrupt(self.cfg.runner.device_interrupt_timeout_s)
-                         if "device" in self.children else None)
+            # The device first (SIGINT: it ends its source and closes its files), then the rest.
+            exits = self.supervisor.stop() if self.supervisor is not None else {}
         finally:
             self.operator.restore_terminal()
-            exits = {name: child.stop(self.cfg.runner.stop_timeout_s) for name, child in self.children.items()}
             watcher.stop()
             if self.output is not None:
                 self.output.stop()
+        device_rc = exits.get("device")
+        device = self.supervisor.parts.get("device") if self.supervisor is not None else None
         status = ended or ("failed" if start_error else "completed" if device_rc == 0 else "failed")
         self.operator.record = None  # events typed from now on belong to no session
         self._event(events, "stop", status)
@@ -342,8 +341,8 @@ class Session:
         details = {"status": status, "ended": utc_now(), "exit_codes": exits,
                    "frames": frames, "estimates": watcher.estimates,
                    "bad_messages": watcher.bad_messages, "watcher_error": watcher.error,
-                   "device_error": None if status in (*DONE_STATUSES, "interrupted") or "device" not in self.children
-                   else self.children["device"].last_line(), "start_error": start_error}
+                   "device_error": None if status in (*DONE_STATUSES, "interrupted") or device is None
+                   else device.child.last_line(), "start_error": start_error}
         if status == "failed" and frames == 0:
             # Nothing was recorded: no attempt of the participant's. The folder is set aside, unnumbered.
             failed = self.attempt
