@@ -1,4 +1,5 @@
-"""The broker → worker frame: every field of a decoded feature frame reaches the worker as the broker decoded it."""
+"""The broker → worker frames: every field of a decoded feature frame reaches the worker as the broker decoded it,
+and several frames travel in one message."""
 
 from __future__ import annotations
 
@@ -28,9 +29,12 @@ def _frame(with_psd: bool, with_settings: bool) -> FeatureFrame:
 @pytest.mark.parametrize(("with_psd", "with_settings"), [(True, True), (False, True), (True, False)])
 def test_every_field_of_a_frame_reaches_the_worker_unchanged(with_psd, with_settings):
     frame = _frame(with_psd, with_settings)
-    parts = [bytes(p) for p in envelope.pack_frame(1234.5, 0.25, frame)]  # as a worker's socket receives them
-    token, age_ms, received = envelope.unpack_frame(parts)
-    assert (token, age_ms) == (1234.5, 0.25)
+    other = dataclasses.replace(frame, device_id="dev-8", frame_index=12346)
+    # one message of two frames, as a worker's socket receives it
+    parts = [envelope.FRAME, envelope.pack_frame(1234.5, 0.25, frame), envelope.pack_frame(1234.75, 0.5, other)]
+    (token, age_ms, received), (*times, second) = envelope.unpack_frames(parts)
+    assert (token, age_ms, times) == (1234.5, 0.25, [1234.75, 0.5])
+    assert (second.device_id, second.frame_index) == ("dev-8", 12346)
     for field in dataclasses.fields(FeatureFrame):
         sent, got = getattr(frame, field.name), getattr(received, field.name)
         if isinstance(sent, np.ndarray):

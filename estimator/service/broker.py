@@ -54,6 +54,9 @@ from seesys.io.transport import LossCounter, bound_endpoint, open_socket
 
 # Messages handled from one socket before the broker looks at the others (keeps estimates flowing under a flood).
 _BURST = 256
+# Frames for one worker sent as one message: the frames that arrived together go together (one send, one wake-up of
+# the worker instead of one each), but no frame waits for more than this many others to be decoded.
+_FORWARD_BATCH = 16
 
 
 class ServiceError(SeesysError):
@@ -212,13 +215,17 @@ class Broker:
     # ----------------------------------------------------------------------------------------------- devices
     def _from_devices(self) -> None:
         curve = self.config.curve.enabled
+        outbox: dict[bytes, list[tuple[DeviceState, float, FeatureFrame]]] = {}
         for _ in range(_BURST):
             try:
                 frames = self._ingest.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
-                return
+                break
             key = (frames[0].get("User-Id") or "") if curve else ""
-            self._ingest_one([f.bytes for f in frames], key)
+            self._ingest_one([f.bytes for f in frames], key, outbox)
+        for identity, items in outbox.items():
+            if items:
+                self._forward(identity, items)
 
     def _log(self, text: str) -> None:
         print(f"estimator broker: {text}", file=sys.stderr, flush=True)
@@ -248,7 +255,10 @@ class Broker:
                       f"{_key_text(device.key)} (give each device its own device_id in monitor.toml)")
         return False
 
-    def _ingest_one(self, parts: list[bytes], key: str = "") -> None:
+    def _ingest_one(self, parts: list[bytes], key: str,
+                    outbox: dict[bytes, list[tuple[DeviceState, float, FeatureFrame]]]) -> None:
+        """Check and decode one message; a frame admitted is put in ``outbox`` for its worker (sent from there
+        with the others of this round, or at once when :data:`_FORWARD_BATCH` are waiting for that worker)."""
         token = time.monotonic()
         if sum(len(p) for p in parts) > self.config.max_message_bytes:
             self.rejected["oversized"] += 1
@@ -274,7 +284,15 @@ class Broker:
             device.last_published = -1  # the device restarted: its frame indices begin again
         device.frames += 1
         device.last_frame = token
-        self._forward(device, token, frame)
+        worker = self._assign(frame.device_id, device)
+        if worker is None:
+            device.no_worker += 1
+        else:
+            items = outbox.setdefault(worker.identity, [])
+            items.append((device, token, frame))
+            if len(items) >= _FORWARD_BATCH:
+                self._forward(worker.identity, items)
+                items.clear()
         # Counted after the frame left: what is not needed to route it stays off its path.
         self.losses.observe(frame)
         device.frame_times.append(token)
@@ -289,23 +307,26 @@ class Broker:
             device.worker = worker.identity
         return worker
 
-    def _forward(self, device: DeviceState, token: float, frame: FeatureFrame) -> None:
-        worker = self._assign(frame.device_id, device)
-        if worker is None:
-            device.no_worker += 1
-            return
+    def _forward(self, identity: bytes, items: list[tuple[DeviceState, float, FeatureFrame]]) -> None:
+        """Send ``items`` (device, token, frame) to the worker ``identity`` as one message, each frame with its age
+        at the broker; a full queue drops them all (``queue_full``), a worker gone loses them (``no_worker``)."""
+        worker = self.workers.get(identity)
+        now = time.monotonic()
         try:
-            self._backend.send_multipart(
-                [worker.identity, *envelope.pack_frame(token, (time.monotonic() - token) * 1000.0, frame)],
-                zmq.NOBLOCK)
+            if worker is None:
+                raise zmq.ZMQError(zmq.EHOSTUNREACH)
+            self._backend.send_multipart([identity, envelope.FRAME, *(envelope.pack_frame(
+                token, (now - token) * 1000.0, frame) for _, token, frame in items)], zmq.NOBLOCK)
         except zmq.Again:
-            device.queue_full += 1
+            for device, _, _ in items:
+                device.queue_full += 1
             return
         except zmq.ZMQError:  # EHOSTUNREACH: the worker's connection is gone
-            self._remove_worker(worker.identity)
-            device.no_worker += 1
+            self._remove_worker(identity)
+            for device, _, _ in items:
+                device.no_worker += 1
             return
-        worker.forwarded += 1
+        worker.forwarded += len(items)
 
     # ----------------------------------------------------------------------------------------------- workers
     def _from_workers(self) -> None:

@@ -1,10 +1,10 @@
 """The broker ↔ worker messages (DEALER ↔ ROUTER), internal to the service.
 
-Broker → worker: ``[b"F", head, device id, settings, RTS row, PSD shape, PSD cells]`` a feature frame as the
-broker decoded and validated it (:func:`pack_frame`: the worker does not decode it again, and the PSD is inflated
-once, by the broker; a window end's frame is about 37 kB this way) and ``[b"Q"]`` stop. ``head`` starts with the
-f64 token, the broker's monotonic second at which it received the frame, which the worker only hands back, and the
-f64 age in ms, how long the frame had been at the broker when it was forwarded. Worker → broker: ``[b"R", json]`` ready (name, pid, model version), ``[b"S", json]`` statistics
+Broker → worker: ``[b"F", frame…]`` one or more feature frames, a part each, as the broker decoded and validated
+them (:func:`pack_frame`: the worker does not decode them again, and a
+PSD is inflated once, by the broker; a window end's frame is about 37 kB this way) and ``[b"Q"]`` stop. A frame
+starts with the f64 token, the broker's monotonic second at which it received the frame, which the worker only
+hands back, and the f64 age in ms, how long the frame had been at the broker when it was forwarded. Worker → broker: ``[b"R", json]`` ready (name, pid, model version), ``[b"S", json]`` statistics
 (every heartbeat) and ``[b"E", (topic, body, meta)…]`` estimates, ``meta`` = f64 token of the window's last frame
 + i64 its frame index + u64 its stream session + the estimate's times in the service so far
 (:mod:`estimator.service.stages`).
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import struct
+from collections.abc import Iterator
 from functools import lru_cache
 
 import numpy as np
@@ -34,37 +35,49 @@ STATS = b"S"
 ESTIMATES = b"E"
 _META = struct.Struct("<dqQ")
 # token, age (ms), then the frame's stream session, frame index, timestamp, tracking state, frames skipped, RTS schema
-# version and fingerprint
-_FRAME_HEAD = struct.Struct("<ddQqdbIHI")
+# version and fingerprint, and the lengths of what follows: device id (bytes), settings (bytes), RTS row (values),
+# PSD (H, W, L; 0 × 0 × 0 without one)
+_FRAME_HEAD = struct.Struct("<ddQqdbIHIBBHHHH")
 # fps, ORB features, PSD patch, PSD expansion, near depth, camera normalisation; then the SLAM mode (utf-8)
 _SETTINGS = struct.Struct("<HHHHdH")
-_PSD_SHAPE = struct.Struct("<HHH")
 
 
-def pack_frame(token: float, age_ms: float, frame: FeatureFrame) -> list:
-    """The parts of a frame forwarded to a worker (after ``FRAME``); the PSD's cells go as a view, not a copy."""
+def pack_frame(token: float, age_ms: float, frame: FeatureFrame) -> bytes:
+    """One frame forwarded to a worker, as one part of a ``FRAME`` message (a part per frame: every part costs a
+    send and a receive, the bytes cost less)."""
     s = frame.settings
     settings = b"" if s is None else _SETTINGS.pack(s.fps, s.orb_features, s.psd_patch_px, s.psd_expansion,
                                                      s.near_depth, s.camera_normalisation) + s.slam_mode.encode()
+    device = frame.device_id.encode()
+    rts = np.ascontiguousarray(frame.rts, dtype="<f4")
+    psd = np.ascontiguousarray(frame.psd, dtype=np.uint8) if frame.psd is not None else None
+    shape = psd.shape if psd is not None else (0, 0, 0)
     head = _FRAME_HEAD.pack(token, age_ms, frame.stream_session, frame.frame_index, frame.timestamp,
                             int(frame.tracking_state), frame.frames_skipped, frame.rts_schema_version,
-                            frame.rts_schema_fingerprint)
-    rts = np.ascontiguousarray(frame.rts, dtype="<f4").data
-    if frame.psd is None:
-        return [FRAME, head, frame.device_id.encode(), settings, rts, b"", b""]
-    psd = np.ascontiguousarray(frame.psd, dtype=np.uint8)
-    return [FRAME, head, frame.device_id.encode(), settings, rts, _PSD_SHAPE.pack(*psd.shape), psd.data]
+                            frame.rts_schema_fingerprint, len(device), len(settings), rts.size, *shape)
+    return b"".join([head, device, settings, rts.data, psd.data if psd is not None else b""])
 
 
-def unpack_frame(parts: list[bytes]) -> tuple[float, float, FeatureFrame]:
-    """Inverse of :func:`pack_frame` (``parts`` with ``FRAME`` first): the token, the age in ms and the frame (its
-    arrays read-only views of ``parts``)."""
-    _, head, device_id, settings, rts, psd_shape, psd = parts
-    token, age_ms, session, index, timestamp, state, skipped, version, fingerprint = _FRAME_HEAD.unpack(head)
-    cells = None if not psd_shape else np.frombuffer(psd, np.uint8).reshape(_PSD_SHAPE.unpack(psd_shape))
-    return token, age_ms, FeatureFrame(device_id.decode(), index, timestamp, TrackingState(state),
-                                       np.frombuffer(rts, "<f4"), cells, skipped, version, fingerprint, session,
-                                       _settings(settings))
+def unpack_frames(parts: list[bytes]) -> Iterator[tuple[float, float, FeatureFrame]]:
+    """Inverse of :func:`pack_frame` for a whole ``FRAME`` message (``parts`` with ``FRAME`` first): per frame the
+    token, the age in ms and the frame (its arrays read-only views of the message)."""
+    for part in parts[1:]:
+        yield _unpack_frame(part)
+
+
+def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
+    (token, age_ms, session, index, timestamp, state, skipped, version, fingerprint, device_bytes, settings_bytes,
+     rts_values, h, w, layers) = _FRAME_HEAD.unpack_from(data)
+    at = _FRAME_HEAD.size
+    device = data[at:at + device_bytes].decode()
+    at += device_bytes
+    settings = _settings(data[at:at + settings_bytes])
+    at += settings_bytes
+    rts = np.frombuffer(data, "<f4", rts_values, at)
+    at += 4 * rts_values
+    psd = np.frombuffer(data, np.uint8, h * w * layers, at).reshape(h, w, layers) if h else None
+    return token, age_ms, FeatureFrame(device, index, timestamp, TrackingState(state), rts, psd, skipped, version,
+                                       fingerprint, session, settings)
 
 
 @lru_cache(maxsize=1024)

@@ -176,7 +176,8 @@ class Worker:
             self.counters.undelivered += 1
 
     def _drain(self) -> None:
-        for _ in range(self._drain_limit):
+        read = 0  # frames, at most the drain limit (a message may carry several)
+        while read < self._drain_limit:
             try:
                 parts = self._socket.recv_multipart(zmq.NOBLOCK)
             except zmq.Again:
@@ -186,8 +187,9 @@ class Worker:
                 return
             if parts[0] == envelope.FRAME:
                 arrived = time.perf_counter()
-                token, age_ms, frame = envelope.unpack_frame(parts)  # decoded and validated by the broker
-                self._add(token, age_ms, self._clock() - age_ms / 1000.0, arrived, frame)
+                for token, age_ms, frame in envelope.unpack_frames(parts):  # decoded and validated by the broker
+                    self._add(token, age_ms, self._clock() - age_ms / 1000.0, arrived, frame)
+                    read += 1
 
     def _settings_refused(self, frame: FeatureFrame) -> bool:
         """True (and logged once per stream session) when the frame's device settings differ from the model's."""
