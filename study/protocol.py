@@ -90,7 +90,10 @@ def make_protocol(cfg: ProtocolConfig, participants_per_condition: int | None = 
     """Draw the assignment (see the module docstring); arguments override ``configs/study.toml``."""
     design = design or cfg.design
     conditions = list(conditions or cfg.conditions)
-    per = participants_per_condition or cfg.participants_per_condition
+    per = cfg.participants_per_condition if participants_per_condition is None else participants_per_condition
+    if per < 1:
+        # 0 would silently mean the configured number, and a negative one a study of nobody.
+        raise ProtocolError(f"participants per condition must be at least 1, got {per}")
     seed = cfg.assignment_seed if seed is None else seed
     if design not in DESIGNS:
         raise ProtocolError(f"unknown design {design!r} (one of {', '.join(DESIGNS)})")

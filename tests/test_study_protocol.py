@@ -81,6 +81,11 @@ def test_new_and_status_commands(tmp_path):
     assert status.returncode == 0 and "task: 18 pending" in status.stdout
     again = run("new", str(tmp_path / "s"))
     assert again.returncode == 2 and "drawn once" in again.stderr
+    for per in ("0", "-3"):  # 0 had meant the configured 30 participants, -3 a study of nobody
+        refused = run("new", str(tmp_path / f"s{per}"), "--per-condition", per)
+        assert refused.returncode == 2 and refused.stderr.strip().count("\n") == 0, refused.stderr
+        assert f"participants per condition must be at least 1, got {per}" in refused.stderr
+        assert not (tmp_path / f"s{per}").exists()
 
 
 def test_operator_keys_on_a_terminal():
