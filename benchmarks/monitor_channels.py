@@ -251,21 +251,27 @@ def main() -> None:
     print(f"monitor thread: {whole:.2f} ms per frame = {whole * 30 / 10:.1f} % of a core at 30 Hz")
     stream = stream_size(encoded.values())
     print(f"stream (device id {device.device_id!r}): {stream['plain_bytes']:.0f} B per frame without a PSD, "
-          f"{stream['psd_bytes']:.0f} B with one, {stream['kbit_per_s']:.1f} kbit/s at 30 Hz with ZeroMQ's framing")
+          f"{stream['psd_bytes']:.0f} B with one, {stream['kbit_per_s']:.1f} kbit/s at 30 Hz with ZeroMQ's framing; "
+          f"a PSD {stream['psd_stream_code_bytes']:.0f} B in the stream's code, "
+          f"{stream['psd_log_code_bytes']:.0f} B in the log's")
     if args.json:
         args.json.write_text(json.dumps({"channels": rows, "stream": stream}, indent=2) + "\n")
 
 
 def stream_size(frames: Iterable[messages.FeatureFrame]) -> dict[str, float]:
     """Wire bytes of the feature stream's messages: per frame with and without a PSD, and kbit/s at 30 Hz."""
-    sizes = {False: [], True: []}
+    sizes, psd_codes = {False: [], True: []}, {"stream": [], "log": []}
     for frame in frames:
         parts = messages.encode(frame)
         sizes[frame.psd is not None].append(sum(len(p) + zmtp_frame_overhead(len(p)) for p in parts))
+        if frame.psd is not None:
+            psd_codes["stream"].append(len(messages.pack_stream_psd(frame.psd)))
+            psd_codes["log"].append(len(messages.pack_psd(frame.psd)))
     total = sum(sizes[False]) + sum(sizes[True])
     count = len(sizes[False]) + len(sizes[True])
     return {"plain_bytes": float(np.mean(sizes[False])), "psd_bytes": float(np.mean(sizes[True])),
-            "kbit_per_s": total * 8 * 30 / count / 1000}
+            "kbit_per_s": total * 8 * 30 / count / 1000, "psd_stream_code_bytes": float(np.mean(psd_codes["stream"])),
+            "psd_log_code_bytes": float(np.mean(psd_codes["log"]))}
 
 
 if __name__ == "__main__":

@@ -108,16 +108,20 @@ def slam_features(*, pose_cw: np.ndarray, motion: RelativeMotion, matched_inlier
     kp = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
     # An unbalanced tree without compacted nodes builds in half the time and finds the same nearest neighbours.
     tree = cKDTree(kp, balanced_tree=False, compact_nodes=False) if len(kp) else None
-
-    matched_c = to_camera(matched_points_w, pose_cw)
-    matched_c = matched_c[matched_c[:, 2] > min_depth]
-    depth = matched_c[:, 2]
-    lost_c = to_camera(lost_points_w, pose_cw)
-    lost_uv = project(lost_c[lost_c[:, 2] > min_depth], camera_matrix)
-    in_image = (lost_uv[:, 0] >= 0) & (lost_uv[:, 0] < width) & (lost_uv[:, 1] >= 0) & (lost_uv[:, 1] < height)
-    # One query for the matched and the lost points: a query call costs about as much again as its points.
-    nearest = nearest_keypoints(tree, np.concatenate([project(matched_c, camera_matrix), lost_uv[in_image]]))
-    n = len(matched_c)
+    # Matched and lost points in one pass: moved into the camera, projected, and paired by one tree query (a query
+    # call costs about as much again as its points). The matched points come first and stay first.
+    matched_w = np.asarray(matched_points_w, dtype=np.float64).reshape(-1, 3)
+    lost_w = np.asarray(lost_points_w, dtype=np.float64).reshape(-1, 3)
+    points_c = to_camera(np.concatenate([matched_w, lost_w]), pose_cw)
+    in_front = points_c[:, 2] > min_depth
+    depth = points_c[in_front, 2]
+    uv = project(points_c[in_front], camera_matrix)
+    is_matched = np.flatnonzero(in_front) < len(matched_w)
+    n = int(np.count_nonzero(is_matched))
+    depth = depth[:n]
+    # A lost point is paired only where it lands in the image.
+    paired = is_matched | ((uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height))
+    nearest = nearest_keypoints(tree, uv[paired])
     matched = Association(nearest.keypoint[:n], nearest.distance[:n])
     inliers = np.zeros(len(kp), dtype=bool)
     inliers[matched.keypoint[matched.distance <= match_gate_px]] = True

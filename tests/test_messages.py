@@ -167,7 +167,8 @@ def test_the_streams_psd_code_keeps_inliers_among_keypoints_and_is_smaller_than_
     assert len(messages.pack_stream_psd(psd)) < 0.9 * len(messages.pack_psd(psd))
 
 
-@pytest.mark.parametrize("cut, message", [("masks", "masks are longer than"), ("values", "keypoint values are cut short")])
+@pytest.mark.parametrize("cut, message", [("masks", "masks are longer than"),
+                                          ("values", "keypoint values are cut short")])
 def test_a_stream_psd_whose_parts_do_not_fit_is_rejected(cut, message):
     psd = np.zeros((4, 4, 3), np.uint8)
     psd[1, 1], psd[2, 3] = (9, 255, 30), (10, 255, 31)

@@ -446,7 +446,7 @@ def _read_stream_psd(r: _Reader) -> np.ndarray:
     if mask_bits.size != (used + 7) // 8 * 8:
         raise MessageError(f"PSD masks hold {mask_bits.size} bits for {used}")
     counts = [int(n) if layer not in constants else 0 for layer, n in enumerate(masks.sum(axis=1))]
-    plain_count = counts[KEYPOINT_LAYER] if KEYPOINT_LAYER < layers else 0
+    plain_count = counts[KEYPOINT_LAYER] if layers > KEYPOINT_LAYER else 0
     plain = _values(streams[1], plain_count, "keypoint values")
     differences = _values(streams[2], sum(counts) - plain_count, "values")
     planes = np.zeros((layers, cells), dtype=np.uint8)
