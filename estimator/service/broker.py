@@ -33,6 +33,7 @@ clients in the allow-list.
 
 from __future__ import annotations
 
+import gc
 import sys
 import time
 from collections import deque
@@ -185,6 +186,9 @@ class Broker:
         self._stopping = True
 
     def run(self) -> None:
+        # Everything alive now (modules, sockets, configs) lives as long as the loop: frozen out of the garbage
+        # collector, a full collection no longer walks it (tens of ms, in the middle of some frame's path).
+        gc.freeze()
         poller = zmq.Poller()
         for sock in (self._backend, self._ingest, self._status):
             poller.register(sock, zmq.POLLIN)
