@@ -10,9 +10,9 @@ the device beside the model's, and where each millisecond goes: the service's st
 
 Then the throughput rows. Each simulated device replays a logged session's feature stream (``rts.csv`` +
 ``psd/``) at 30 Hz on its own connection to ``seesys estimator serve`` (a subprocess with a private configuration:
-ipc:// endpoints, the configured windows, stale limit and batching). The devices' window ends are spread evenly over one estimate period,
-as independent devices' are (``--bunched``: all in the same frame period, one burst per estimate period; see
-:mod:`estimator.service.simulate`). Per row it prints, over ``--seconds`` of replay:
+ipc:// endpoints, the configured windows, stale limit and batching). The devices' window ends are spread evenly
+over one estimate period, as independent devices' are (``--bunched``: all in the same frame period, one burst per
+estimate period; see :mod:`estimator.service.simulate`). Per row it prints, over ``--seconds`` of replay:
 
 - **latency** p50/p90/p99: feature message of a window's last frame sent → its estimate received, at the device
   (transmit + inference; the device's own preprocessing is not part of a replay);
@@ -20,7 +20,8 @@ as independent devices' are (``--bunched``: all in the same frame period, one bu
   end_stride, less each device's first second, which no window covers yet);
 - **drops**: windows dropped as stale, frames dropped at a full worker queue, frames lost in transit (the broker's
   counters, this row only), and estimates that never came;
-- **CPU**: cores used by the service (broker and workers) during the row, from their CPU times.
+- **CPU**: cores used by the service (broker and workers) during the row, from their CPU times, and of them by
+  the broker.
 
 Then, per worker count, the largest number of devices served with no drop at the full rate. The first run
 records a session on the embedded sample (`seesys monitor run`, about a minute) unless ``--session`` is given,
@@ -84,9 +85,10 @@ def model_file(folder: Path, given: Path | None) -> Path:
     return path
 
 
-def service_cpu_s(process: psutil.Process) -> float:
+def service_cpu_s(process: psutil.Process, children: bool = True) -> float:
+    """CPU seconds of ``process`` (the broker) and, with ``children``, of its workers."""
     total = 0.0
-    for p in [process, *process.children(recursive=True)]:
+    for p in [process, *(process.children(recursive=True) if children else [])]:
         try:
             times = p.cpu_times()
         except psutil.NoSuchProcess:
@@ -112,9 +114,11 @@ def run_row(endpoints: dict, process: psutil.Process, frames, devices: int, seco
     try:
         before_status, before_cpu, start = query_status(endpoints["status"], 5000), service_cpu_s(process), \
             time.perf_counter()
+        before_broker = service_cpu_s(process, children=False)
         result = fleet.replay(frames, seconds, RATE_HZ, windows, bunched=bunched)
         wall = time.perf_counter() - start
         cpu = service_cpu_s(process) - before_cpu
+        broker_cpu = service_cpu_s(process, children=False) - before_broker
         after_status = query_status(endpoints["status"], 5000)
     finally:
         fleet.close()
@@ -126,7 +130,7 @@ def run_row(endpoints: dict, process: psutil.Process, frames, devices: int, seco
     p50, p90, p99 = result.percentiles()
     return {"devices": devices, "p50": p50, "p90": p90, "p99": p99, "estimates_per_s": result.estimates_per_s,
             "expected_per_s": expected / seconds, "missing": max(0, expected - len(result.estimates)),
-            **lost, "cores": cpu / wall}
+            **lost, "cores": cpu / wall, "broker": broker_cpu / wall}
 
 
 def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[str, np.ndarray]:
@@ -242,9 +246,10 @@ def main() -> None:
             return
         print()
         header = (f"{'workers':>7}{'devices':>8}{'p50 ms':>8}{'p90 ms':>8}{'p99 ms':>8}{'est/s':>8}{'expected':>9}"
-                  f"{'missing':>8}{'stale':>7}{'q-full':>7}{'lost':>6}{'cores':>7}")
+                  f"{'missing':>8}{'stale':>7}{'q-full':>7}{'lost':>6}{'cores':>7}{'broker':>7}")
         print(header)
-        best = {}
+        best: dict[int, int] = {}
+        most: dict[int, float] = {}
         for workers in args.workers:
             config_dir, endpoints = private_configs(folder / f"w{workers}", connect_device_stream=False)
             log = folder / f"serve-{workers}.log"
@@ -256,16 +261,18 @@ def main() -> None:
                                 args.bunched)
                     print(f"{workers:>7}{devices:>8}{r['p50']:>8.1f}{r['p90']:>8.1f}{r['p99']:>8.1f}"
                           f"{r['estimates_per_s']:>8.1f}{r['expected_per_s']:>9.1f}{r['missing']:>8}{r['stale']:>7}"
-                          f"{r['queue_full']:>7}{r['lost']:>6}{r['cores']:>7.2f}", flush=True)
+                          f"{r['queue_full']:>7}{r['lost']:>6}{r['cores']:>7.2f}{r['broker']:>7.2f}", flush=True)
                     if r["stale"] + r["queue_full"] + r["lost"] + r["missing"] == 0:
                         best[workers] = max(best.get(workers, 0), devices)
+                    most[workers] = max(most.get(workers, 0.0), r["estimates_per_s"])
             finally:
                 serve.terminate()
                 serve.wait(60)
         for workers in args.workers:
             served = best.get(workers, 0)
             print(f"{workers} worker(s): at most {served} device(s) served with no drop "
-                  f"({served * RATE_HZ / windows.end_stride:.0f} estimates/s)")
+                  f"({served * RATE_HZ / windows.end_stride:.0f} estimates/s); most delivered in a row "
+                  f"{most.get(workers, 0.0):.1f} estimates/s")
         print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 
