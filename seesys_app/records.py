@@ -6,16 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from seesys.core.equation2 import Equation2Config
-
-
-@dataclass(frozen=True)
-class PartStatus:
-    """One supervised part (device, estimator, generator, player) at one moment."""
-
-    running: bool
-    restarting: bool = False  # exited, and a restart is pending
-    restarts: int = 0
-    exits: tuple[int, ...] = ()
+from seesys.io.supervision import PartStatus
 
 
 @dataclass(frozen=True)

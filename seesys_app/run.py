@@ -15,7 +15,10 @@ One run writes one session folder (``--out``, new or empty):
   here, a remote estimator's estimates come from its endpoint);
 - at the end ``summary.json`` and the plot (``seesys_app.summary``).
 
-Children start in dependency order: the estimator (``--local``: ``seesys estimator serve``) until it answers its
+The children are supervised by the session supervisor that ``seesys study run`` and ``seesys advisory run`` use
+too (``seesys.io.supervision``), and what the app decides and shows is read from one observation of the run
+(``seesys_app.observer``: the session's logs and the estimator's status endpoint). Children start in dependency
+order: the estimator (``--local``: ``seesys estimator serve``) until it answers its
 status endpoint, the advisory until the generator logs a buffer and the player has started, then the device, so
 that no frame is tracked without an estimator or audio. The device is never restarted: its exit ends the run
 (``completed`` at the end of a recording, ``failed`` otherwise, with its logs kept). A local estimator, generator
@@ -33,11 +36,10 @@ installed that is an error.
 from __future__ import annotations
 
 import os
-import signal
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from advisory.conditions import Condition
@@ -45,24 +47,26 @@ from advisory import config as advisory_config
 from advisory.config import load_advisory_config
 from advisory.process import stop_on_signals
 from advisory.output import AudioOutput, open_audio_output
-from advisory.supervisor import process_commands
+from advisory.supervisor import process_args
 from estimator.artefact.onnx_model import recorded_cameras
 from estimator.service.config import load_service_config
 from seesys_app.config import AppConfig, load_app_config
 from seesys_app.information import InformationClock
-from seesys_app.records import PartStatus, RunRecord, RunState, StreamDrops
+from seesys_app.observer import Observation, RunObserver
+from seesys_app.records import RunRecord, RunState, StreamDrops
 from seesys_app.summary import TRACKED_STATES, write_summary
 from seesys_app.view import LiveView, ViewSetup
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
 from seesys.core.tracking_state import TrackingState
-from seesys.io.children import LOGS, Child, CsvTail, RowCounter
+from seesys.io.children import LOGS, CsvTail, RowCounter
 from seesys.io import network as network_config
 from seesys.io.config import CONFIG_DIR_ENV, ConfigSet
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
 from seesys.io.resources import resolve
 from seesys.io.session_files import utc_now
+from seesys.io.supervision import PartSpec, SupervisionPolicy, Supervisor
 from seesys.io.transport import peer_answers
 from slam_monitor import monitor_config
 from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
@@ -73,8 +77,6 @@ EVENT_COLUMNS = ("wall_time", "part", "event", "detail")
 CONFIGS = "configs"
 # How long the app waits for its own subscriber sockets before any publisher starts.
 SUBSCRIBER_READY_S = 5.0
-# Parts restarted when they exit; the device's exit ends the run.
-RESTARTABLE = ("estimator", "generator", "player")
 
 
 @dataclass(frozen=True)
@@ -129,18 +131,6 @@ def _new_folder(out: Path) -> Path:
     return out
 
 
-@dataclass
-class _Part:
-    """A supervised child and how often it was restarted."""
-
-    name: str
-    args: list[str]
-    child: Child
-    restarts: int = 0
-    restart_at: float | None = None  # monotonic time of a pending restart
-    exits: list[int] = field(default_factory=list)
-
-
 class App:
     """One run of ``seesys run`` (see the module docstring)."""
 
@@ -159,7 +149,8 @@ class App:
         self.monitor = load_monitor_config()
         self.device_id = resolve_device_id(self.monitor.device_id, options.source)
         self.folder = _new_folder(options.out)
-        self.parts: dict[str, _Part] = {}
+        self.supervisor: Supervisor | None = None  # once the run's settings are written
+        self.observer: RunObserver | None = None
         self.output: AudioOutput | None = None  # where the player's audio goes (audible conditions)
         self.audio = "none (silent condition)"
         self.view: LiveView | None = None
@@ -178,6 +169,18 @@ class App:
         if self.view is None:
             raise RuntimeError("the live view is used before run() has shown it")
         return self.view
+
+    @property
+    def _supervisor(self) -> Supervisor:
+        if self.supervisor is None:
+            raise RuntimeError("the children are supervised before run() has written the run's settings")
+        return self.supervisor
+
+    @property
+    def _observer(self) -> RunObserver:
+        if self.observer is None:
+            raise RuntimeError("the run is observed before run() has started observing it")
+        return self.observer
 
     @property
     def _started_watcher(self) -> StreamWatcher:
@@ -227,11 +230,17 @@ class App:
         """Log an app event and show it, with the parts' state as it is now (a restart shows as done at once)."""
         self.events.write(time.time(), part, event, detail)
         if self.view is not None:
-            self.view.note(f"{part}: {event}" + (f" ({detail})" if detail else ""), self._state_now())
+            self.view.note(f"{part}: {event}" + (f" ({detail})" if detail else ""), self._latest(), self._state_now())
 
-    def _parts_now(self) -> dict[str, PartStatus]:
-        return {name: PartStatus(part.child.running, part.restart_at is not None, part.restarts, tuple(part.exits))
-                for name, part in self.parts.items()}
+    def _latest(self) -> Observation:
+        """The newest observation of the run (an empty one before the first look)."""
+        return self.observer.latest if self.observer is not None else Observation()
+
+    def _policy(self) -> SupervisionPolicy:
+        s = self.cfg.supervision
+        return SupervisionPolicy(ready_timeout_s=s.ready_timeout_s, poll_s=s.status_interval_s,
+                                 restart_delay_s=s.restart_delay_s, max_restarts=s.max_restarts,
+                                 stop_timeout_s=s.stop_timeout_s, device_stop_timeout_s=s.stop_timeout_s)
 
     @staticmethod
     def _drops(watcher: StreamWatcher) -> StreamDrops:
@@ -241,59 +250,40 @@ class App:
         estimator = self.o.estimator if self.o.estimator is not None else "local"  # HOST:PORT without --local
         return RunRecord(self.folder, self.o.source, self.mode, self.pace, self.o.condition.value,
                          estimator, self.audio, self.advisory.equation2,
-                         self.advisory.timing.stale_after_s, self.config_dir, self._parts_now(),
+                         self.advisory.timing.stale_after_s, self.config_dir,
+                         self.supervisor.statuses() if self.supervisor is not None else {},
                          self._drops(watcher) if watcher is not None else None,
-                         self.view.snapshot.estimator_dropped if self.view is not None else None,
+                         self._latest().estimator.dropped if self.o.local else None,
                          self.information.seconds_without, dict(self.information.by_reason))
 
     def _view_setup(self) -> ViewSetup:
+        return ViewSetup(self.folder, self.o.source, self.o.condition.value, self.cfg.view,
+                         self.advisory.equation2.beta_m, None if self.o.local else self.o.estimator)
+
+    def _new_observer(self) -> RunObserver:
         status_endpoint = load_service_config(self.config_dir).status_endpoint if self.o.local else None
-        return ViewSetup(self.folder, self.o.source, self.o.condition.value, self.cfg.view, self.device_id,
-                         self.advisory.equation2.beta_m,
-                         None if self.o.local else self.o.estimator, status_endpoint)
+        return RunObserver(self.folder, self.cfg.view, self.device_id, status_endpoint)
 
-    def _start(self, name: str, args: list[str]) -> None:
-        child = Child.start(name, args, self.folder, self.env)
-        part = self.parts.get(name)
-        if part is None:
-            self.parts[name] = _Part(name, args, child)
-        else:
-            part.child, part.restart_at = child, None
-        self.event(name, "started", f"pid {child.process.pid}")
+    def _refresh(self) -> None:
+        """Observe the run and draw it."""
+        state = self._state_now()
+        self._shown_view.update(self._observer.look(state.parts), state)
 
-    def _estimator_args(self) -> list[str]:
-        return ["estimator", "serve"] + (["--model", str(self.o.model)] if self.o.model else [])
+    def _estimator_args(self) -> tuple[str, ...]:
+        return ("estimator", "serve") + (("--model", str(self.o.model)) if self.o.model else ())
 
-    def _advisory_args(self) -> dict[str, list[str]]:
-        """``seesys advisory generator|player`` arguments (the advisory supervisor's commands, the player also
-        writing what it played to the WAV)."""
-        commands = {name: command[command.index("advisory"):]
-                    for name, command in process_commands(self.o.condition, self.folder).items()}
-        if "player" in commands:
-            commands["player"] += ["--capture", str(self.folder / self.cfg.output.wav)]
-        return commands
+    def _advisory_args(self) -> dict[str, tuple[str, ...]]:
+        """``seesys advisory generator|player`` arguments (the advisory supervisor's, the player also writing what it
+        played to the WAV)."""
+        args = process_args(self.o.condition, self.folder)
+        if "player" in args:
+            args["player"] += ("--capture", str(self.folder / self.cfg.output.wav))
+        return args
 
-    def _device_args(self) -> list[str]:
-        args = ["monitor", "run", "--source", self.o.source, "--mode", self.mode, "--out", str(self.folder),
-                "--estimates", "--real-time" if self.pace else "--no-pace"]
-        return args + (["--max-frames", str(self.o.max_frames)] if self.o.max_frames else [])
-
-    def _wait_ready(self, ready: dict[str, Callable[[], bool]], stop: threading.Event) -> None:
-        """Until each named child's readiness check passes; SeesysError when one exits or the time is up."""
-        deadline = time.monotonic() + self.cfg.supervision.ready_timeout_s
-        while not all(check() for check in ready.values()):
-            for name in ready:
-                child = self.parts[name].child
-                if not child.running:
-                    raise SeesysError(f"the {name} exited while starting (status {child.process.returncode}): "
-                                      f"{child.last_line()} (log: {child.log})")
-            if time.monotonic() > deadline:
-                late = [name for name, check in ready.items() if not check()]
-                raise SeesysError(f"{' and '.join(late)} not ready after {self.cfg.supervision.ready_timeout_s:g} s "
-                                  f"(logs: {self.folder / LOGS})")
-            self._shown_view.update(self._state_now())
-            if stop.wait(self.cfg.supervision.status_interval_s):
-                raise KeyboardInterrupt
+    def _device_args(self) -> tuple[str, ...]:
+        args = ("monitor", "run", "--source", self.o.source, "--mode", self.mode, "--out", str(self.folder),
+                "--estimates", "--real-time" if self.pace else "--no-pace")
+        return args + (("--max-frames", str(self.o.max_frames)) if self.o.max_frames else ())
 
     def _player_started(self) -> bool:
         rows = self._advisory_events.new_rows()
@@ -314,79 +304,50 @@ class App:
         self.event("estimator", "reachable", endpoint)
 
     def _start_children(self, stop: threading.Event) -> None:
+        """The estimator (local) until its status endpoint answers, the advisory until the generator logs a buffer
+        and the player has started, then the device; each but the device restarted when it exits."""
+        supervisor = self._supervisor
         if self.estimates_endpoint is not None:  # a remote estimator (not --local)
             self._check_reachable(self.estimates_endpoint)
         if self.o.local:
-            self._start("estimator", self._estimator_args())
-            self._wait_ready({"estimator": self._shown_view.estimator_answers}, stop)
-        advisory = self._advisory_args()
-        for name, args in advisory.items():
-            self._start(name, args)
+            supervisor.start_ready([PartSpec("estimator", self._estimator_args(),
+                                             ready=self._observer.estimator_answers, restartable=True)],
+                                   stop, self._refresh)
         generator_rows = RowCounter(self.folder / ADVISORY_CSV)
         self._advisory_events = CsvTail(self.folder / EVENTS_CSV)
         checks: dict[str, Callable[[], bool]] = {"generator": lambda: generator_rows() > 0,
                                                  "player": self._player_started}
-        self._wait_ready({name: checks[name] for name in advisory}, stop)
-        self._start("device", self._device_args())
+        supervisor.start_ready([PartSpec(name, args, ready=checks[name], restartable=True)
+                                for name, args in self._advisory_args().items()], stop, self._refresh)
+        supervisor.start(PartSpec("device", self._device_args(), device=True))
 
     # -- supervision ----------------------------------------------------------------------------------------------
 
-    def _supervise(self, part: _Part) -> None:
-        """Notice an exit of a restartable part; restart it when its delay is over (or give up, ending the run)."""
-        now = time.monotonic()
-        if part.restart_at is None:
-            if part.child.running:
-                return
-            code = part.child.process.returncode
-            part.exits.append(code)
-            how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"status {code}"
-            if part.restarts >= self.cfg.supervision.max_restarts:
-                self.event(part.name, "exited", f"{how}; restarted {part.restarts} times already, giving up")
-                raise SeesysError(f"the {part.name} exited ({how}) after {part.restarts} restarts: "
-                                  f"{part.child.last_line()} (log: {part.child.log})")
-            self.event(part.name, "exited", f"{how}: {part.child.last_line()}; restarting in "
-                                            f"{self.cfg.supervision.restart_delay_s:g} s")
-            part.restart_at = now + self.cfg.supervision.restart_delay_s
-        elif now >= part.restart_at:
-            part.restarts += 1
-            self._start(part.name, part.args)
-            self.event(part.name, "restarted", f"restart {part.restarts}")
-
-    def _stop_children(self) -> dict[str, int | None]:
-        timeout = self.cfg.supervision.stop_timeout_s
-        exits: dict[str, int | None] = {}
-        device = self.parts.get("device")
-        if device is not None:
-            # SIGINT: the device ends its source, flushes and closes its files, and prints its summary.
-            exits["device"] = device.child.interrupt(timeout)
-        for name, part in self.parts.items():
-            if name != "device":
-                exits[name] = part.child.stop(timeout)
-        return exits
-
     def _state_now(self) -> RunState:
         drops = self._drops(self.watcher) if self.watcher is not None else StreamDrops()
+        parts = self.supervisor.statuses() if self.supervisor is not None else {}
         # Before the first input there is no information, whatever start-up allowance the clock gives the summary:
         # the view must not say "fresh estimates" while the advisory plays its no-information cue.
         lacking = not self._inputs_seen or self.information.lacking(time.monotonic())
-        return RunState(self._parts_now(), drops, self._why_no_information() if lacking else "")
+        return RunState(parts, drops, self._why_no_information() if lacking else "")
 
     def _why_no_information(self) -> str:
         """Why no fresh estimate comes, as far as the app can tell: the estimator restarting, windows it refused
         or dropped (every reason by name, counted since the last estimate), the device not tracking, or none
         known (stale; a remote estimator's drops are not known here)."""
-        part = self.parts.get("estimator")
-        if part is not None and (part.restart_at is not None or not part.child.running
-                                 or (part.restarts and self._shown_view.snapshot.estimator.startswith("starting"))):
+        observed = self._latest()
+        part = self.supervisor.statuses().get("estimator") if self.supervisor is not None else None
+        if part is not None and (part.restarting or not part.running
+                                 or (part.restarts and not observed.estimator.answering)):
             return "estimator restarting"  # exited, or restarted and loading its model
-        dropped = self.view.snapshot.estimator_dropped if self.view is not None else None
+        dropped = observed.estimator.dropped
         if dropped:
             grown = {r: n - self._dropped_at_estimate.get(r, 0) for r, n in dropped.items()
                      if n > self._dropped_at_estimate.get(r, 0)}
             if grown:
                 return "estimator dropped " + ", ".join(f"{r} {n}" for r, n in grown.items())
-        state = self.view.snapshot.state if self.view is not None else ""
-        if state in TrackingState.__members__ and state not in TRACKED_STATES:  # not the view's "starting"
+        state = observed.tracking_state
+        if state in TrackingState.__members__ and state not in TRACKED_STATES:
             return f"tracking {state}"
         if self.o.condition is Condition.ROTATION:
             return "no tracked frames from the device"
@@ -404,8 +365,8 @@ class App:
     def _account_information(self) -> None:
         """Advance the information clock with what the device logged and the app received since the last look."""
         now = time.monotonic()
-        view = self._shown_view
-        if view.snapshot.frames > 0:
+        observed = self._latest()
+        if observed.frames > 0:
             self.information.first_frame(now)
         # Only while the device delivers frames: the time after its newest one (it ended, and the app notices at its
         # next look) is not time in which the person moved without information.
@@ -417,14 +378,15 @@ class App:
             self.information.advance(now, self._why_no_information())
             self.information.estimate(now)
             self._inputs_seen = inputs
-            self._dropped_at_estimate = dict(view.snapshot.estimator_dropped or {})
+            self._dropped_at_estimate = dict(observed.estimator.dropped or {})
         else:
             self.information.advance(now, self._why_no_information())
 
     def _supervise_until_stopped(self, stop: threading.Event) -> tuple[str, str | None]:
         """Start the children and supervise them until the device ends or a signal comes; (status, error)."""
         self._start_children(stop)
-        device = self.parts["device"].child
+        supervisor = self._supervisor
+        device = supervisor.parts["device"].child
         while not stop.wait(self.cfg.supervision.status_interval_s):
             if not device.running:
                 code = device.process.returncode
@@ -432,11 +394,10 @@ class App:
                 if code == 0:
                     return ("degraded" if self.information.seconds_without > 0 else "completed"), None
                 return "failed", f"the device exited with status {code}: {device.last_line()}"
-            for name in RESTARTABLE:
-                if name in self.parts:
-                    self._supervise(self.parts[name])
+            supervisor.look()
+            observation = self._observer.look(supervisor.statuses())
             self._account_information()
-            self._shown_view.update(self._state_now())
+            self._shown_view.update(observation, self._state_now())
         self.event("app", "interrupted", "signal received")
         return "interrupted", None
 
@@ -445,7 +406,7 @@ class App:
         if self._exits is None:
             if self.view is not None:
                 self.view.stopping("stopping: the device closes its files, then the other parts stop")
-            self._exits = self._stop_children()
+            self._exits = self.supervisor.stop() if self.supervisor is not None else {}
             if self.watcher is not None:
                 self.watcher.stop()
             if self.output is not None:
@@ -460,7 +421,7 @@ class App:
         stop = stop_on_signals()
         status, error = "completed", None
         try:
-            self.env = self._configure()
+            self.supervisor = Supervisor(self.folder, self._configure(), self._policy(), self.event)
             self.event("app", "started", f"source {self.o.source}, condition {self.o.condition.value}, "
                                          f"estimator {'local' if self.o.local else self.o.estimator}, "
                                          f"audio {self.audio}")
@@ -470,6 +431,7 @@ class App:
             watcher.start()
             self.watcher = watcher
             watcher.wait_ready(SUBSCRIBER_READY_S)
+            self.observer = self._new_observer()
             self.view = LiveView(self._view_setup())
             with self.view.shown():
                 camera_warning = load_camera_config(self.config_dir).scale.warning()

@@ -1,5 +1,6 @@
-"""The live view of ``seesys run``: what the device, the estimator and the advisory are doing, read from the
-session's growing logs and the app's own subscriber (``study.watch.StreamWatcher``).
+"""The live view of ``seesys run``: what the device, the estimator and the advisory are doing, drawn from what the
+app observed (:class:`seesys_app.observer.Observation`: the session's growing logs and the estimator's status) and
+the state of its parts and stream (:class:`seesys_app.records.RunState`). The view reads nothing itself.
 
 Shown: the device's tracking state, frames and frame rate; the latest estimate and its age; the pulses of the
 newest advisory buffers; end-to-end latency percentiles (frame tracked → estimate on the device, from the device's
@@ -22,7 +23,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console, Group
 from rich.live import Live
 from rich.panel import Panel
@@ -30,13 +30,10 @@ from rich.table import Table
 from rich.text import Text
 
 from seesys_app.config import ViewConfig
+from seesys_app.observer import EstimatorObservation, Observation
 from seesys_app.records import RunState
-from seesys.core.session_layout import ADVISORY_CSV, ESTIMATES_CSV, FRAMES_CSV
-from seesys.io.children import CsvTail, RowCounter, last_line
 
 SPARK = "▁▂▃▄▅▆▇█"
-# The frame rate is measured over this many seconds of the frame log.
-RATE_WINDOW_S = 2.0
 PLAIN_INTERVAL_S = 1.0
 EVENTS_SHOWN = 3
 RUNNING_FOOTER = "Ctrl-C stops"
@@ -48,13 +45,6 @@ def sparkline(values: list[float], top: float) -> str:
         return ""
     levels = [min(int(v / top * len(SPARK)), len(SPARK) - 1) if math.isfinite(v) and v > 0 else 0 for v in values]
     return "".join(SPARK[level] for level in levels)
-
-
-def _float(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        return math.nan
 
 
 @dataclass
@@ -122,8 +112,8 @@ def plain_line(s: Snapshot) -> str:
     age = "" if math.isnan(s.estimate_age_s) else f" ({s.estimate_age_s:.1f} s ago)"
     pulses = " ".join(map(str, s.pulses)) or "–"
     return (f"{s.elapsed_s:6.1f} s  frames {s.frames} {s.state} {_fps(s)} | estimate {_cm(s.latest_error_m)}"
-            f"{age} | information {_information(s)} | pulses {pulses} | e2e {_latency(s)} | drops {_drops(s)} | estimator {s.estimator}, "
-            f"{_restarts(s)}")
+            f"{age} | information {_information(s)} | pulses {pulses} | e2e {_latency(s)} | drops {_drops(s)} | "
+            f"estimator {s.estimator}, {_restarts(s)}")
 
 
 def panel(s: Snapshot, title: str, footer: str = RUNNING_FOOTER) -> Panel:
@@ -154,137 +144,77 @@ class ViewSetup:
     source: str
     condition: str
     config: ViewConfig
-    device_id: str  # the device whose drops the local estimator reports
     beta_m: float  # Equation 2's β: the sparkline's least top
-    remote_estimator: str | None  # HOST:PORT of a remote service; None: a local one, asked at status_endpoint
-    status_endpoint: str | None
+    remote_estimator: str | None  # HOST:PORT of a remote service; None: a local one
+
+
+def estimator_text(estimator: EstimatorObservation, state: RunState, remote: str | None) -> str:
+    """The estimator's line: remote, starting, down while it restarts, not answering yet, or up with its model."""
+    if remote is not None:
+        return f"remote {remote}"
+    part = state.parts.get("estimator")
+    if part is None:
+        return "starting"
+    if part.restarting or not part.running:
+        return "DOWN (restarting)"
+    if not estimator.answering:
+        return "starting (not answering yet)"
+    return f"up, {estimator.model_version}"
 
 
 class LiveView:
-    """Reads the session's logs into a :class:`Snapshot` and shows it; the app calls :meth:`update` from its loop
-    with the state of its parts."""
+    """Draws the run (:meth:`update`, from the app's loop, with what it observed and the state of its parts) and the
+    app's events (:meth:`note`)."""
 
     def __init__(self, setup: ViewSetup, console: Console | None = None):
         self.setup = setup
         self.console = console or Console()
-        self.cfg = setup.config
-        folder = setup.folder
-        self._title = f"seesys run  {setup.source}  {setup.condition}  → {folder}"
-        self._folder = folder
-        self._frames = RowCounter(folder / FRAMES_CSV)
-        self._rates: deque[tuple[float, int]] = deque()
-        self._estimates = CsvTail(folder / ESTIMATES_CSV)
-        self._recent: deque[tuple[float, float]] = deque()  # (received unix, error m)
-        self._latencies: deque[float] = deque(maxlen=self.cfg.latency_window)
-        self._advisory = CsvTail(folder / ADVISORY_CSV)
-        self._pulses: deque[int] = deque(maxlen=self.cfg.buffers_shown)
+        self._title = f"seesys run  {setup.source}  {setup.condition}  → {setup.folder}"
         self.snapshot = Snapshot()
         self._events: deque[str] = deque(maxlen=EVENTS_SHOWN)
-        self._started = time.monotonic()
         self._last_plain = -math.inf
-        self._last_status = -math.inf
-        self._status: dict | None = None
         self._live: Live | None = None
+        self._observation = Observation()
         self._state = RunState()
         self._footer = RUNNING_FOOTER
 
-    # -- the estimator's status (local estimator only) -----------------------------------------------------------
-
-    def estimator_answers(self) -> bool:
-        """Ask the local estimator for its status now; True when it answered."""
-        from estimator.service.broker import ServiceError
-        from estimator.service.status import query_status
-
-        endpoint = self.setup.status_endpoint
-        if endpoint is None:
-            raise RuntimeError("only a local estimator is asked for its status (a remote one has no endpoint here)")
-        self._last_status = time.monotonic()
-        try:
-            self._status = query_status(endpoint, self.cfg.status_timeout_ms)
-        except ServiceError:
-            self._status = None
-        return self._status is not None
-
-    def _estimator_state(self) -> tuple[str, dict[str, int] | None]:
-        if self.setup.remote_estimator is not None:
-            return f"remote {self.setup.remote_estimator}", None
-        part = self._state.parts.get("estimator")
-        if part is None:
-            return "starting", None
-        if part.restarting or not part.running:
-            return "DOWN (restarting)", None
-        if time.monotonic() - self._last_status >= self.cfg.estimator_poll_s:
-            self.estimator_answers()
-        if self._status is None:
-            return "starting (not answering yet)", None
-        device = self._status["devices"].get(self.setup.device_id)
-        dropped = dict(device["dropped"]) if device else {}
-        for reason, n in self._status["rejected"].items():  # messages the broker rejected, by their own reasons
-            dropped[f"rejected {reason}"] = n
-        return f"up, {self._status['model_version']}", dropped
-
-    # -- reading the logs ----------------------------------------------------------------------------------------
-
-    def collect(self, state: RunState | None = None) -> Snapshot:
-        """The snapshot of now; ``state``: the app's parts and stream as they are now (the last given when None)."""
+    def collect(self, observation: Observation | None = None, state: RunState | None = None) -> Snapshot:
+        """The snapshot of ``observation`` and ``state`` (each the last given when None)."""
+        if observation is not None:
+            self._observation = observation
         if state is not None:
             self._state = state
-        now_mono, now = time.monotonic(), time.time()
-        s = Snapshot(elapsed_s=now_mono - self._started)
-        s.frames = self._frames()
-        row = last_line(self._folder / FRAMES_CSV).split(",")
-        s.state = row[2] if len(row) > 2 else ("waiting for the device" if "device" not in self._state.parts
-                                               else "starting")
-        self._rates.append((now_mono, s.frames))
-        while len(self._rates) > 2 and now_mono - self._rates[0][0] > RATE_WINDOW_S:
-            self._rates.popleft()
-        (t0, f0), (t1, f1) = self._rates[0], self._rates[-1]
-        s.fps = (f1 - f0) / (t1 - t0) if t1 > t0 else math.nan
-        for r in self._estimates.new_rows():
-            self._recent.append((_float(r["received_unix"]), _float(r["error_m"])))
-            latency = _float(r["end_to_end_ms"])
-            if not math.isnan(latency):
-                self._latencies.append(latency)
-            self.snapshot.estimates += 1
-        s.estimates = self.snapshot.estimates
-        if self._recent:
-            received, s.latest_error_m = self._recent[-1]
-            s.estimate_age_s = now - received
-        while self._recent and now - self._recent[0][0] > self.cfg.sparkline_s:
-            self._recent.popleft()
-        values = [error for _, error in self._recent]
-        s.spark_top_m = max([self.setup.beta_m, *values])
-        s.spark = sparkline(values, s.spark_top_m)
-        if self._latencies:
-            p50, p95, p99 = (float(v) for v in np.percentile(list(self._latencies), [50, 95, 99]))
-            s.latency_ms = (p50, p95, p99)
-        for r in self._advisory.new_rows():
-            self._pulses.append(int(r["played_pulses"]) if r["played_pulses"].isdigit() else 0)
-        s.pulses = list(self._pulses)
-        drops = self._state.drops
-        s.skipped, s.lost, s.bad_messages = drops.skipped_by_device, drops.lost_in_transit, drops.bad_messages
-        s.estimator, s.estimator_dropped = self._estimator_state()
-        s.restarts = {name: part.restarts for name, part in self._state.parts.items()}
-        s.information = self._state.information
-        s.events = list(self._events)
+        o, st = self._observation, self._state
+        values = list(o.recent_errors_m)
+        top = max([self.setup.beta_m, *values])
+        drops = st.drops
+        local = self.setup.remote_estimator is None
+        s = Snapshot(
+            elapsed_s=o.elapsed_s, frames=o.frames, fps=o.fps, estimates=o.estimates, latest_error_m=o.latest_error_m,
+            estimate_age_s=o.estimate_age_s, pulses=list(o.pulses), latency_ms=o.latency_ms,
+            state=o.tracking_state or ("waiting for the device" if "device" not in st.parts else "starting"),
+            skipped=drops.skipped_by_device, lost=drops.lost_in_transit, bad_messages=drops.bad_messages,
+            estimator_dropped=o.estimator.dropped if local else None,
+            estimator=estimator_text(o.estimator, st, self.setup.remote_estimator),
+            restarts={name: part.restarts for name, part in st.parts.items()}, information=st.information,
+            spark=sparkline(values, top), spark_top_m=top, events=list(self._events))
         self.snapshot = s
         return s
 
-    def note(self, text: str, state: RunState | None = None) -> None:
-        """An app event: kept for the panel, printed at once in plain mode; ``state``, the parts as they are now,
-        redraws the panel with them (an event saying "restarted" beside a state still saying "restarting" would
-        contradict it)."""
+    def note(self, text: str, observation: Observation | None = None, state: RunState | None = None) -> None:
+        """An app event: kept for the panel, printed at once in plain mode; ``observation`` and ``state``, the run
+        as it is now, redraw the panel with them (an event saying "restarted" beside a state still saying
+        "restarting" would contradict it)."""
         self._events.append(f"{time.strftime('%H:%M:%S')} {text}")
         if self._live is None:
             self.console.print(f"[{time.strftime('%H:%M:%S')}] {text}", markup=False, highlight=False)
         else:  # at once: the run may end before the next update
-            if state is not None:
-                self.collect(state)
+            self.collect(observation, state)
             self.snapshot.events = list(self._events)
             self._live.update(panel(self.snapshot, self._title, self._footer))
 
-    def update(self, state: RunState | None = None) -> None:
-        snapshot = self.collect(state)
+    def update(self, observation: Observation | None = None, state: RunState | None = None) -> None:
+        snapshot = self.collect(observation, state)
         if self._live is not None:
             self._live.update(panel(snapshot, self._title, self._footer))
         elif time.monotonic() - self._last_plain >= PLAIN_INTERVAL_S:

@@ -1,5 +1,6 @@
-"""The live view and the summary of `seesys run` work on small records (`ViewSetup`, `RunState`, `RunRecord`), not on
-the app: here they are given such records and a session folder whose logs were written as the parts write them."""
+"""The observer, the live view and the summary of `seesys run` work on small records (`ViewSetup`, `RunState`,
+`Observation`, `RunRecord`), not on the app: here they are given such records and a session folder whose logs were
+written as the parts write them."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from seesys_app.config import load_app_config
 from seesys_app.records import PartStatus, RunRecord, RunState, StreamDrops
 from seesys_app.run_cli import final_line
 from seesys_app.information import InformationClock
+from seesys_app.observer import EstimatorObservation, Observation, RunObserver
 from seesys_app.summary import broken_at_gaps, write_summary
 from seesys_app.view import LiveView, Snapshot, ViewSetup, dropped_text, plain_line
 from seesys.core.session_layout import (ADVISORY_COLUMNS, ADVISORY_CSV, ESTIMATE_COLUMNS, ESTIMATES_CSV, FRAMES_CSV,
@@ -52,13 +54,16 @@ def session(tmp_path: Path) -> Path:
     return folder
 
 
-def test_the_view_collects_a_snapshot_from_records_and_logs(session: Path):
-    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, "device-0", 0.012,
-                      remote_estimator="10.0.0.2:5556", status_endpoint=None)
+def test_the_view_draws_what_the_observer_read_from_the_logs(session: Path):
+    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, 0.012,
+                      remote_estimator="10.0.0.2:5556")
     view = LiveView(setup, Console(file=io.StringIO()))
     state = RunState({"device": PartStatus(running=True), "generator": PartStatus(running=True, restarts=1)},
                      StreamDrops(skipped_by_device=2, lost_in_transit=3, bad_messages=1))
-    s = view.collect(state)
+    observation = RunObserver(session, load_app_config().view, "device-0", None).look(state.parts)
+    assert (observation.frames, observation.tracking_state, observation.estimates) == (10, "LOST", 3)
+    assert observation.estimator == EstimatorObservation()  # a remote estimator is not asked
+    s = view.collect(observation, state)
     assert (s.frames, s.state, s.estimates) == (10, "LOST", 3)
     assert s.latest_error_m == ERRORS_M[-1]
     assert s.pulses == list(PULSES)
@@ -101,13 +106,13 @@ def test_the_final_line_and_the_view_print_no_nan_or_none(session: Path):
 
 
 def test_an_event_redraws_the_view_with_the_parts_as_they_are_now(session: Path):
-    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, "device-0", 0.012,
-                      remote_estimator="10.0.0.2:5556", status_endpoint=None)
+    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, 0.012,
+                      remote_estimator="10.0.0.2:5556")
     view = LiveView(setup, Console(file=io.StringIO(), force_terminal=True, width=150))
     restarting = RunState({"generator": PartStatus(running=False, restarting=True)})
     with view.shown():
-        view.update(restarting)
-        view.note("generator: restarted", RunState({"generator": PartStatus(running=True, restarts=1)}))
+        view.update(Observation(), restarting)
+        view.note("generator: restarted", Observation(), RunState({"generator": PartStatus(running=True, restarts=1)}))
         assert view.snapshot.restarts == {"generator": 1}
         view.stopping("stopping: the device closes its files")
     screen = view.console.file.getvalue()  # the panel as it was left when the view closed
@@ -147,13 +152,26 @@ def test_seconds_without_information_count_beyond_the_allowances_by_reason():
 def test_the_view_names_every_drop_reason_and_why_there_is_no_information(session: Path):
     assert dropped_text({"stale": 2, "queue_full": 0, "shape_mismatch": 7}) == "stale 2, shape_mismatch 7"
     assert dropped_text({"stale": 0}) == "0" and dropped_text(None) == "?"
-    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, "device-0", 0.012,
-                      remote_estimator="10.0.0.2:5556", status_endpoint=None)
+    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, 0.012,
+                      remote_estimator="10.0.0.2:5556")
     view = LiveView(setup, Console(file=io.StringIO()))
-    s = view.collect(RunState({"device": PartStatus(running=True)}, information="estimator restarting"))
+    s = view.collect(Observation(), RunState({"device": PartStatus(running=True)}, information="estimator restarting"))
     assert "information NONE: estimator restarting" in plain_line(s)
     degraded = {"frames": 10, "estimates": 3, "end_to_end_ms": {"p50": 11.0, "p95": 12.0, "p99": 12.0},
                 "buffers": 3, "audio": "WAV only", "error": None,
                 "information": {"seconds_without": 4.0, "by_reason": {"estimator restarting": 4.0}}}
     assert final_line("degraded", degraded, session).startswith(
         "degraded (4.0 s without information: estimator restarting 4.0 s): 10 frames, 3 estimates")
+
+
+def test_a_local_estimator_is_shown_down_while_it_restarts_and_starting_until_it_answers(session: Path):
+    setup = ViewSetup(session, "tum:somewhere", "seesys", load_app_config().view, 0.012, remote_estimator=None)
+    view = LiveView(setup, Console(file=io.StringIO()))
+    restarting = RunState({"estimator": PartStatus(running=False, restarting=True)})
+    assert view.collect(Observation(), restarting).estimator == "DOWN (restarting)"
+    running = RunState({"estimator": PartStatus(running=True, restarts=1)})
+    assert view.collect(Observation(estimator=EstimatorObservation(asked=True)), running).estimator == (
+        "starting (not answering yet)")
+    up = Observation(estimator=EstimatorObservation(True, True, "deepsee-1", {"stale": 2}))
+    s = view.collect(up, running)
+    assert s.estimator == "up, deepsee-1" and s.estimator_dropped == {"stale": 2}
