@@ -7,7 +7,9 @@ tracks; per-frame tracking latency is ``track_ms`` of ``frames.csv``; the monito
 thread CPU time) and the stream's bandwidth come from ``monitor_stats.json``. On a machine whose cores are busy
 with other work, CPU % and latency differences between runs are dominated by that other work; the monitor
 thread's CPU time per frame is the figure that stays put. Configurations alternate run by run so that slow drifts in
-machine load hit all of them alike.
+machine load hit all of them alike. Each configuration's range over the runs of its median tracking latency and
+median memory is printed too: the monitor's effect is within the run-to-run noise where its range meets SLAM
+alone's.
 
 In RGB-D mode it also times the depth-quality channels alone (``slam_monitor.depth_features``, schema v3) on every
 frame of the source, in this process, fed the source's ground-truth motion as the tracked motion (a source without
@@ -66,6 +68,9 @@ class Measurements:
     monitor: list[dict] = field(default_factory=list)
     camera_hz: float = float("nan")
     received: int = 0
+    # Per run: the median tracking latency and median memory, for the run-to-run spread.
+    run_latency_ms: list[float] = field(default_factory=list)
+    run_memory_mb: list[float] = field(default_factory=list)
 
 
 def _worker(options: SessionOptions) -> None:
@@ -111,6 +116,7 @@ def run_once(name: str, source: str, mode: SlamMode, max_frames: int | None, int
         if settings and settings["stream"]:
             listener = threading.Thread(target=_listen, args=(load_network_config().features_endpoint, into, done))
             listener.start()
+        memory_before = len(into.memory_mb)
         worker = multiprocessing.get_context("spawn").Process(target=_worker, args=(options,))
         worker.start()
         sampler = threading.Thread(target=_sample, args=(worker.pid, out, into, done))
@@ -124,6 +130,8 @@ def run_once(name: str, source: str, mode: SlamMode, max_frames: int | None, int
             raise SystemExit(f"{name}: the worker failed (exit code {worker.exitcode})")
         frames = pd.read_csv(out / FRAMES_CSV)
         into.track_ms += frames["track_ms"].tolist()
+        into.run_latency_ms.append(float(frames["track_ms"].median()))
+        into.run_memory_mb.append(statistics.median(into.memory_mb[memory_before:]))
         into.camera_hz = 1.0 / float(np.median(np.diff(frames["timestamp"])))
         if settings is not None:
             into.monitor.append(json.loads((out / MONITOR_STATS_JSON).read_text()))
@@ -154,6 +162,14 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
         table.add_row(label, *[f"{values['SLAM']:.1f}" if name == "SLAM" else _ratio(v, metric(base))
                                for name, v in values.items()])
     console.print(table)
+    # Run-to-run spread of each configuration: the monitor's effect on latency and memory is within the noise when
+    # its range overlaps SLAM alone's.
+    for label, attribute in (("median tracking latency (ms)", "run_latency_ms"),
+                             ("median memory (MB)", "run_memory_mb")):
+        spread = {name: getattr(m, attribute) for name, m in results.items()}
+        figures[f"runs: {label}"] = spread
+        console.print(f"run to run, {label}: " + "; ".join(f"{name} {min(v):.1f}-{max(v):.1f}"
+                                                            for name, v in spread.items()))
     for name, m in results.items():
         if not m.monitor:
             continue
