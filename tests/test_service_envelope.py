@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from estimator.service import envelope
+from estimator.service import envelope, stages
 from seesys.core import rts_schema
 from seesys.core.device_settings import DeviceSettings
 from seesys.core.messages import FeatureFrame
@@ -41,3 +41,16 @@ def test_every_field_of_a_frame_reaches_the_worker_unchanged(with_psd, with_sett
             assert got.dtype == sent.dtype and np.array_equal(got, sent), field.name
         else:
             assert got == sent, field.name
+
+
+def test_an_estimates_times_come_back_with_it_and_the_broker_keeps_the_newest():
+    times = stages.WorkerTimes(0.5, 4.0, (0.25, 0.5, 0.375, 0.75, 2.5, 0.125))  # exact in float32, as they travel
+    assert envelope.unpack_meta(envelope.pack_meta(7.5, 30, 99, times)) == (7.5, 30, 99, times)
+    kept = stages.StageTimes(size=2)
+    for server_ms in (100.0, 6.0, 8.0):  # the first is pushed out by the two after it
+        kept.add(times, publish_ms=0.5, server_ms=server_ms)
+    p50 = {stage: t["p50"] for stage, t in kept.percentiles().items()}
+    assert list(p50) == list(stages.STAGES)
+    assert p50["server"] == 7.0
+    assert p50["hops"] == 7.0 - 0.5 - 4.0 - 0.5  # what the broker and the worker did not time themselves
+    assert p50["inference"] == 2.5

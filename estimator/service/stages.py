@@ -23,7 +23,6 @@ sent with the frame) and the worker's own total; the broker adds ``publish`` and
 from __future__ import annotations
 
 import struct
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,21 +58,24 @@ def unpack(data: bytes) -> WorkerTimes:
 
 @dataclass
 class StageTimes:
-    """The newest ``size`` estimates' stages, in ms, in the order of :data:`STAGES`."""
+    """The newest ``size`` estimates' stages, in ms, in the order of :data:`STAGES` (a ring of rows: adding one
+    costs a row's copy, and the status reads the array as it is, without building one from many tuples)."""
 
     size: int
-    rows: deque = field(init=False)
+    _rows: np.ndarray = field(init=False, repr=False)
+    _count: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
-        self.rows = deque(maxlen=self.size)
+        self._rows = np.empty((self.size, len(STAGES)))
 
     def add(self, times: WorkerTimes, publish_ms: float, server_ms: float) -> None:
         hops = server_ms - times.ingest - times.worker - publish_ms
-        self.rows.append((times.ingest, *times.stages, hops, publish_ms, server_ms))
+        self._rows[self._count % self.size] = (times.ingest, *times.stages, hops, publish_ms, server_ms)
+        self._count += 1
 
     def percentiles(self) -> dict[str, dict[str, float]]:
         """Per stage its p50 and p99 (empty before the first estimate)."""
-        if not self.rows:
+        if not self._count:
             return {}
-        p50, p99 = np.percentile(np.asarray(self.rows, dtype=float), [50, 99], axis=0)
+        p50, p99 = np.percentile(self._rows[:min(self._count, self.size)], [50, 99], axis=0)
         return {stage: {"p50": float(a), "p99": float(b)} for stage, a, b in zip(STAGES, p50, p99)}
