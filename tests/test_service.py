@@ -44,7 +44,10 @@ def bad_messages(count: int, max_bytes: int) -> tuple[list[list[bytes]], dict[st
     kinds = {"malformed": 0, "wrong_version": 0, "oversized": 0}
     for k in range(count):
         kind = k % 4
-        if kind == 0:  # random bytes, random number of parts
+        if kind == 0 and k % 8 == 4:  # a device id longer than an estimate can carry (the id is in the topic)
+            out.append([messages.topic(messages.FEATURE_TOPIC, "d" * 256), valid[1]])
+            kinds["malformed"] += 1
+        elif kind == 0:  # random bytes, random number of parts
             out.append([rng.bytes(int(rng.integers(0, 200))) for _ in range(int(rng.integers(1, 4)))])
             kinds["malformed"] += 1
         elif kind == 1:  # a valid message cut short

@@ -58,6 +58,9 @@ _BURST = 256
 # Frames for one worker sent as one message: the frames that arrived together go together (one send, one wake-up of
 # the worker instead of one each), but no frame waits for more than this many others to be decoded.
 _FORWARD_BATCH = 16
+# The longest device id an Estimate can carry (a u8 length in seesys.core.messages): a frame whose id, carried in its
+# topic, is longer could never be answered, and its estimate's encoding would fail in the worker.
+_MAX_DEVICE_ID_BYTES = 255
 
 
 class ServiceError(SeesysError):
@@ -275,7 +278,7 @@ class Broker:
         except MessageError:
             self.rejected["malformed"] += 1
             return
-        if not isinstance(frame, FeatureFrame):
+        if not isinstance(frame, FeatureFrame) or len(frame.device_id.encode()) > _MAX_DEVICE_ID_BYTES:
             self.rejected["malformed"] += 1
             return
         device = self.devices.get(frame.device_id)

@@ -37,7 +37,7 @@ _META = struct.Struct("<dqQ")
 # token, age (ms), then the frame's stream session, frame index, timestamp, tracking state, frames skipped, RTS schema
 # version and fingerprint, and the lengths of what follows: device id (bytes), settings (bytes), RTS row (values),
 # PSD (H, W, L; 0 × 0 × 0 without one)
-_FRAME_HEAD = struct.Struct("<ddQqdbIHIBBHHHH")
+_FRAME_HEAD = struct.Struct("<ddQqdbIHIHBHHHH")
 # fps, ORB features, PSD patch, PSD expansion, near depth, camera normalisation; then the SLAM mode (utf-8)
 _SETTINGS = struct.Struct("<HHHHdH")
 
