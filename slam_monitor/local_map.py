@@ -86,7 +86,9 @@ class LocalMap:
             return np.zeros((0, 3))
         # Of a previous update larger than the bound, the map kept the higher keys.
         keys, points = previous.keys[-self.max_points:], previous.points[-self.max_points:]
-        lost = ~np.isin(keys, update.keys, assume_unique=True)
+        # Both key lists are sorted: a binary search finds which of the previous voxels the update refreshed.
+        at = np.minimum(np.searchsorted(update.keys, keys), max(len(update.keys) - 1, 0))
+        lost = update.keys[at] != keys if len(update.keys) else np.ones(len(keys), dtype=bool)
         excess = len(update.keys) + int(np.count_nonzero(lost)) - self.max_points
         if excess > 0:
             lost[np.flatnonzero(lost)[:excess]] = False
