@@ -63,7 +63,7 @@ class LocalMap:
 
     def _voxel_keys(self, points: np.ndarray) -> np.ndarray:
         # Voxel coordinates packed 21 bits per axis into one int64 (±2^20 voxels per axis, ample for a local map).
-        q = np.clip(np.floor(points / self.voxel).astype(np.int64) + _OFFSET, 0, _MASK)
+        q = np.minimum(np.maximum(np.floor(points / self.voxel).astype(np.int64) + _OFFSET, 0), _MASK)
         return (q[:, 0] << (2 * _BITS)) | (q[:, 1] << _BITS) | q[:, 2]
 
     def update(self, points_w: np.ndarray, frame_index: int) -> None:
