@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -17,7 +18,8 @@ from conftest import run_seesys
 
 from estimator import dataset_commands
 from estimator.dataset import build as build_module
-from estimator.dataset.build import DATASET_JSON, SESSIONS_DIR, DatasetBuilder, plan_from_config
+from estimator.dataset.build import SESSIONS_DIR, DatasetBuilder, plan_from_config
+from estimator.dataset.store import DATASET_JSON, check_label_definition, label_definition
 from estimator.dataset.config import SplitConfig, load_dataset_config, lockbox_hash
 from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
 from estimator.dataset.splits import SplitError, Splits, check_no_leak, make_splits, run_table
@@ -432,3 +434,25 @@ def test_sample_is_rendered_as_a_small_tum_folder(tmp_path):
     with open_source(parse_source_spec(f"tum:{tmp_path / 'sample'}"), load_camera_config(), True) as source:
         frames = list(source.frames())
     assert len(frames) == 4 and frames[0].depth is not None and frames[0].gray.shape == (480, 640)
+
+
+@pytest.mark.parametrize("modes, recorded, refused", [
+    ({"mono"}, "old", "mono_alignment 'sim3-sliding-window' (here 'sim3-per-stretch')"),
+    ({"mono"}, "here", None),
+    ({"rgbd"}, "old", None),  # the RGB-D label did not change with the monocular alignment
+    ({"rgbd"}, "other delta", "delta_frames 20 (here 10)"),
+])
+def test_a_dataset_labelled_under_another_definition_is_refused_for_its_modes(tmp_path, modes, recorded, refused):
+    """A folder built before the monocular label became per stretch records the sliding window's settings and no
+    alignment: its monocular runs must not train a model that records today's definition."""
+    here = label_definition(load_label_config())
+    old = {k: v for k, v in here.items() if k != "mono_alignment"} | {"mono_scale_window_frames": 90,
+                                                                      "min_alignment_frames": 30}
+    labels = {"old": old, "here": here,
+              "other delta": label_definition(dataclasses.replace(load_label_config(), delta_frames=20))}[recorded]
+    (tmp_path / DATASET_JSON).write_text(json.dumps({"labels": labels}))
+    if refused is None:
+        check_label_definition(tmp_path, modes)
+    else:
+        with pytest.raises(DatasetError, match=f"{tmp_path / DATASET_JSON}: .*{re.escape(refused)}"):
+            check_label_definition(tmp_path, modes)

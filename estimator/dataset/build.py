@@ -32,12 +32,14 @@ from estimator.dataset.config import DatasetConfig
 from estimator.dataset.store import (
     COMPLETED,
     CRASHED,
+    DATASET_JSON,
     FORMAT_KEY,
     FORMAT_VERSION,
     PARTIAL,
     RUNS_DIR,
     RunArrays,
     RunInfo,
+    label_definition,
     read_run_info,
     record_crashed_run,
     run_folder,
@@ -61,7 +63,6 @@ from slam_monitor.supervisor import run_supervised_session
 
 SEQUENCES_DIR = "sequences"
 SESSIONS_DIR = "sessions"
-DATASET_JSON = "dataset.json"
 BUILD_LOG = "build_log.jsonl"
 SEQUENCE_METADATA = "metadata.json"
 MONITOR_OBSERVER = "slam_monitor.monitor:create_observer"
@@ -264,7 +265,7 @@ class DatasetBuilder:
             "rts_channels": list(rts_schema.CHANNEL_NAMES),
             "rts_schema_version": rts_schema.SCHEMA_VERSION,
             "windows": asdict(self.windows),
-            "labels": asdict(self.label_config),
+            "labels": label_definition(self.label_config),
             "pace": self.config.pace,
             "wait_for_mapping_modes": list(self.config.wait_for_mapping_modes),
             "plan": {"template": asdict(plan.template), "environments": plan.environments, "motions": plan.motions,

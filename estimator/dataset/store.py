@@ -41,8 +41,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from estimator.artefact.compatibility import BEFORE_MONO_ALIGNMENT, MONO
 from seesys.core.camera_normalisation import BEFORE_NORMALISATION
 from seesys.core.errors import SeesysError
+from seesys.core.labels import MONO_ALIGNMENT, LabelConfig
+from seesys.io.core_settings import load_label_config
 
 RUNS_DIR = "runs"
 RUN_JSON = "run.json"
@@ -122,6 +125,36 @@ class RunArrays:
             problems.append("a window points outside the stored rows")
         if problems:
             raise DatasetError(f"run {run}: {'; '.join(problems)}")
+
+
+#: The dataset folder's description (:mod:`estimator.dataset.build` writes it).
+DATASET_JSON = "dataset.json"
+
+
+def label_definition(label_config: LabelConfig) -> dict[str, Any]:
+    """What a dataset's labels are, as ``dataset.json`` records it: the label's settings and the monocular
+    alignment's name."""
+    return {**asdict(label_config), "mono_alignment": MONO_ALIGNMENT}
+
+
+def check_label_definition(root: Path, modes: set[str]) -> None:
+    """Refuse a dataset folder whose labels of runs in ``modes`` were made under another definition than this
+    installation's (``dataset.json``, written by the builder): a model trained on them would record this
+    installation's definition in its compatibility record, not theirs. The RGB-D label is its settings; a monocular
+    one also its alignment (a folder that names none was labelled with a Sim(3) scale on a sliding window). A
+    folder without ``dataset.json`` records nothing to check. DatasetError naming the folder and what differs."""
+    path = root / DATASET_JSON
+    if not modes or not path.is_file():
+        return
+    recorded = json.loads(path.read_text()).get("labels", {})
+    here = label_definition(load_label_config())
+    keys = [k for k in here if k != "mono_alignment" or MONO in modes]
+    defaults = {"mono_alignment": BEFORE_MONO_ALIGNMENT}
+    differ = [f"{k} {recorded.get(k, defaults.get(k))!r} (here {here[k]!r})" for k in keys
+              if recorded.get(k, defaults.get(k)) != here[k]]
+    if differ:
+        raise DatasetError(f"{path}: its {'/'.join(sorted(modes))} labels were made under another definition: "
+                           f"{', '.join(differ)}; build the runs again into a new folder")
 
 
 def gather_rts(rts: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -238,9 +271,10 @@ class DatasetReader:
         tables = []
         self._folders: dict[str, Path] = {}
         for root in roots:
-            for info in list_runs(root):
-                if info.status not in WITH_SAMPLES or (runs is not None and info.run not in runs):
-                    continue
+            included = [info for info in list_runs(root)
+                        if info.status in WITH_SAMPLES and (runs is None or info.run in runs)]
+            check_label_definition(root, {info.mode for info in included})
+            for info in included:
                 if info.run in self._folders:
                     raise DatasetError(f"run {info.run} is in two dataset folders ({self._folders[info.run]}, {root})")
                 folder = run_folder(root, info.run)
