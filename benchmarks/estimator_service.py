@@ -52,6 +52,7 @@ from estimator.service.sandbox import private_configs, start_service, wait_ready
 from estimator.service.simulate import DeviceFleet
 from estimator.service.stages import STAGES
 from estimator.service.status import query_status
+from seesys.core import messages
 from seesys.core.windows import assemble_windows
 from seesys.io.core_settings import load_window_config
 from seesys.io.resources import resolve
@@ -159,6 +160,20 @@ def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[st
     return {"back_to_back": back_to_back * 1000.0, "paced": paced * 1000.0}
 
 
+def decode_cpu_us(frames) -> tuple[float, float]:
+    """CPU µs to decode one of the session's feature messages with a PSD and one without, as the broker does for
+    every frame (its share of the ``ingest`` stage; the mean of a few passes)."""
+    encoded = [(messages.encode(f), f.psd is not None) for f in frames]
+    costs = []
+    for with_psd in (True, False):
+        chosen = [parts for parts, has in encoded if has == with_psd] * 5
+        start = time.process_time()
+        for parts in chosen:
+            messages.decode(parts)
+        costs.append((time.process_time() - start) / max(1, len(chosen)) * 1e6)
+    return costs[0], costs[1]
+
+
 def _p(values, q: float) -> float:
     return float(np.percentile(values, q)) if len(values) else float("nan")
 
@@ -241,6 +256,9 @@ def main() -> None:
             period_s = windows.end_stride / RATE_HZ
             alone = model_alone(model, frames, args.model_runs, period_s)
             print_latency(alone, latency_run(folder, model, frames, args.latency_seconds), period_s)
+            with_psd, without = decode_cpu_us(frames)
+            print(f"decoding one feature message (the broker, every frame; CPU): {with_psd:.0f} µs with a PSD, "
+                  f"{without:.0f} µs without")
         if not args.devices:
             print(f"load average after: {os.getloadavg()[0]:.2f}")
             return
