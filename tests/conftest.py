@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from testkit.deepsee import single_thread, tiny_dataset, trained_runs  # noqa: F401 (fixtures offered to every test)
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE = REPO / "data" / "sample"

@@ -152,7 +152,7 @@ def test_the_shipped_model_refuses_a_session_logged_before_camera_normalisation(
     import dataclasses
     import json
 
-    from test_deepsee_sessions import write_session
+    from testkit.deepsee import write_session
 
     from estimator.artefact.transforms import LabelTransform
     from estimator.deepsee.config import load_estimator_config

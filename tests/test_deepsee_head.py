@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from test_deepsee_sessions import PSD_SHAPE, single_thread, tiny_config, tiny_dataset, trained_runs  # noqa: F401 (pytest fixtures among them)
+from testkit.deepsee import PSD_SHAPE, tiny_config
 
 from estimator.deepsee.checkpoint import load_model, save_model
 from estimator.artefact.compatibility import InputShape
@@ -27,6 +27,8 @@ from seesys.core.equation2 import PulseSettings
 from seesys.core.exceedance import class_boundaries_m, head_class, same_thresholds
 from seesys.io.core_settings import load_pulse_settings, load_window_config
 from seesys.io.resources import resolve
+
+pytestmark = pytest.mark.usefixtures("single_thread")
 
 TRANSFORM = LabelTransform(10000.0)
 BOUNDS = (0.004, 0.008, 0.012)

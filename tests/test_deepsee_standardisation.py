@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 from rich.progress import Progress
-from test_deepsee_sessions import single_thread, tiny_config, tiny_dataset, trained_runs, write_session  # noqa: F401 (pytest fixtures among them)
+from testkit.deepsee import tiny_config, write_session
 
 from estimator.deepsee.checkpoint import load_model, payload_standardisation
 from estimator.deepsee.config import load_estimator_config
@@ -21,6 +21,8 @@ from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.io.core_settings import load_window_config
 from seesys.io.resources import resolve
+
+pytestmark = pytest.mark.usefixtures("single_thread")
 
 TRANSFORM = LabelTransform(load_estimator_config().label_transform.k)
 CHANNELS = load_estimator_config().input_standardisation.camera_channels

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 import torch
 from rich.progress import Progress
-from test_deepsee_sessions import single_thread, tiny_config, tiny_dataset, train_context, trained_runs  # noqa: F401 (pytest fixtures among them)
+from testkit.deepsee import tiny_config, train_context
 
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, save_model
 from estimator.deepsee.data import read_splits, split_windows
@@ -22,6 +22,8 @@ from estimator.deepsee.run_folder import CONFIG_JSON, LOSS_PNG, METRICS_CSV, MOD
 from estimator.deepsee.stages import train_row
 from estimator.artefact.transforms import LabelTransform
 from seesys.io.core_settings import load_window_config
+
+pytestmark = pytest.mark.usefixtures("single_thread")
 
 _context = train_context
 
@@ -172,7 +174,7 @@ def test_ablation_masks_hide_what_they_drop(tiny_dataset):
 def _random_windows(seed: int, count: int):
     from estimator.deepsee.data import Windows
     from seesys.core import rts_schema
-    from test_deepsee_sessions import PSD_SHAPE
+    from testkit.deepsee import PSD_SHAPE
 
     rng = np.random.default_rng(seed)
     windows = load_window_config()

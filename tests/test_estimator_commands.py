@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 from pathlib import Path
 
@@ -12,7 +11,7 @@ import pandas as pd
 import pytest
 import torch
 from rich.progress import Progress
-from test_deepsee_sessions import single_thread, tiny_config, tiny_dataset, trained_runs, write_session  # noqa: F401 (pytest fixtures among them)
+from testkit.deepsee import tiny_config, tiny_config_dir, write_session
 
 from advisory.estimate_log import read_estimate_log
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, payload_standardisation
@@ -36,6 +35,8 @@ from estimator.deepsee.report import (
 from estimator.artefact.transforms import LabelTransform
 from seesys_app.cli import main
 from seesys.io.core_settings import load_pulse_settings, load_window_config
+
+pytestmark = pytest.mark.usefixtures("single_thread")
 
 TRANSFORM = LabelTransform(10000.0)
 REPO = Path(__file__).resolve().parent.parent
@@ -138,7 +139,7 @@ def test_a_render_tracked_twice_gets_a_ceiling_row_on_its_windows(tiny_dataset, 
     """The tiny dataset with a second trial of its test trajectory's render: evaluate adds the ceiling row there."""
     from estimator.dataset.build import label_run
     from estimator.dataset.splits import Splits
-    from estimator.dataset.store import COMPLETED, RunInfo, list_runs, write_run
+    from estimator.dataset.store import COMPLETED, list_runs, write_run
     from seesys.core import camera_normalisation
     from seesys.io.core_settings import load_label_config
     from slam_monitor.orbslam_settings import SlamMode
@@ -303,27 +304,9 @@ def test_windows_of_another_camera_are_refused_with_a_clear_error(trained_runs, 
     assert len(forest.metres(wide)) == len(windows)  # the forest reads the RTS window only
 
 
-def _toml(data: dict, prefix: str = "") -> list[str]:
-    """``data`` (plain values, lists, nested tables) as TOML lines."""
-    def value(v) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        return f'"{v}"' if isinstance(v, str) else repr(v)
-
-    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    for k, v in data.items():
-        if isinstance(v, dict):
-            lines += ["", f"[{prefix}{k}]"] + _toml(v, f"{prefix}{k}.")
-    return lines
-
-
 def test_cli_trains_a_row_into_a_run_folder_and_resumes(tiny_dataset, tmp_path, capsys, monkeypatch):
     """``seesys estimator train`` with configs/estimator.toml replaced by the tiny configuration."""
-    configs = tmp_path / "configs"
-    shutil.copytree(REPO / "configs", configs)
-    (configs / "estimator.toml").write_text("\n".join(_toml(dataclasses.asdict(tiny_config()))) + "\n")
+    configs = tiny_config_dir(tmp_path / "configs")
     args = ["estimator", "train", "--data", str(tiny_dataset.root), "--splits", str(tiny_dataset.splits),
             "--row", "lstm", "--out", str(tmp_path / "run"), "--threads", "1"]
     monkeypatch.setenv("SEESYS_CONFIG_DIR", str(configs))
@@ -352,7 +335,7 @@ def test_a_session_with_epoch_timestamps_renders_its_pulses_across_its_whole_dur
     from advisory.config import load_advisory_config
     from advisory.render import render_estimates
     from estimator.deepsee.estimate import estimate_session
-    from test_deepsee_sessions import FPS
+    from testkit.deepsee import FPS
 
     session = write_session(tmp_path / "epoch", seed=7, frames=240, t0=1305031102.175)
     out = tmp_path / "estimates.csv"

@@ -4,18 +4,14 @@ configurations, the same training, DeepSEE's encoders under the ablation, resume
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import shutil
 
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import REPO
 from rich.progress import Progress
 from ray_fixtures import local_ray  # noqa: F401 (a pytest fixture)
-from test_deepsee_sessions import TRAINED_ROWS, single_thread, tiny_config, tiny_dataset, trained_runs  # noqa: F401 (pytest fixtures among them)
-from test_estimator_commands import _toml
+from testkit.deepsee import TRAINED_ROWS, tiny_config, tiny_config_dir
 
 from estimator.deepsee.data import read_splits
 from estimator.deepsee.run_folder import CONFIG_JSON, METRICS_CSV
@@ -24,7 +20,8 @@ from estimator.jobs import RayExecutor
 from seesys_app.cli import main
 from seesys.io.core_settings import load_window_config
 
-REPO_CONFIGS = REPO / "configs"
+pytestmark = pytest.mark.usefixtures("single_thread")
+
 
 
 def _files(root) -> list[str]:
@@ -71,9 +68,7 @@ def test_a_rerun_on_ray_trains_nothing_again(ray_runs, local_ray):  # noqa: F811
 
 def test_the_command_trains_rows_on_ray(local_ray, tiny_dataset, tmp_path, capsys, monkeypatch):  # noqa: F811
     """``seesys estimator train-table --ray`` (Ray already initialised here: the command uses it as it is)."""
-    configs = tmp_path / "configs"
-    shutil.copytree(REPO_CONFIGS, configs)
-    (configs / "estimator.toml").write_text("\n".join(_toml(dataclasses.asdict(tiny_config()))) + "\n")
+    configs = tiny_config_dir(tmp_path / "configs")
     monkeypatch.setenv("SEESYS_CONFIG_DIR", str(configs))
     args = ["estimator", "train-table", "--data", str(tiny_dataset.root), "--splits", str(tiny_dataset.splits),
             "--rows", "lstm,random_forest", "--runs", str(tmp_path / "runs"), "--threads", "1", "--ray"]

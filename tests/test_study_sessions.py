@@ -125,21 +125,21 @@ def test_row_counter_counts_complete_rows_incrementally(tmp_path):
 def test_end_of_session_calibration_writes_the_ground_truth(within, tmp_path):
     """A session whose source had no ground truth: the runner calibrates the logged mocap into groundtruth.tum;
     a mocap body that never moves (motioncapture's mock) leaves the reason in run.json's words instead."""
-    from test_study_mocap import OFFSET_S, simulated_session
+    from testkit.mocap import OFFSET_S, write_simulated_session
 
     study, protocol = within
     session = Session(RunOptions(study, protocol.participants[0].id, "task"), load_study_config(),
                       OperatorInput(io.StringIO("")), Console(file=io.StringIO()))
     session.record_mocap = True
     (tmp_path / "moving").mkdir()
-    session.attempt = simulated_session.__wrapped__(tmp_path / "moving")
+    session.attempt = write_simulated_session(tmp_path / "moving")
     assert session._calibrate() == "groundtruth.tum written from the mocap"
     report = json.loads((session.attempt / "calibration.json").read_text())
     assert abs(report["clock"]["offset_s"] - OFFSET_S) < 0.002
     assert session._calibrate() == "the source's ground truth kept"
 
     (tmp_path / "still").mkdir()
-    session.attempt = simulated_session.__wrapped__(tmp_path / "still")
+    session.attempt = write_simulated_session(tmp_path / "still")
     (session.attempt / "mocap.tum").write_text("# t x y z qx qy qz qw\n" + "".join(
         f"{1000 + i / 100:.2f} 0.1 0.2 1.5 0 0 0 1\n" for i in range(3000)))
     outcome = session._calibrate()

@@ -166,7 +166,7 @@ def test_reference_rows_are_fitted_on_training_windows():
 
 def test_the_ceiling_is_the_other_trials_truth_at_the_same_frame(tmp_path):
     """Two trials of one render (the same frames, different errors) and a third render tracked once."""
-    from test_deepsee_sessions import write_session
+    from testkit.deepsee import write_session
 
     from estimator.dataset.build import label_run
     from estimator.dataset.store import COMPLETED, DatasetReader, RunInfo, write_run

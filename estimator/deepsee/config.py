@@ -219,9 +219,13 @@ class EstimatorConfig:
     input_standardisation: InputStandardisationConfig
 
 
+#: The file of :class:`EstimatorConfig` in the configuration folder.
+SECTION = "estimator"
+
+
 def load_estimator_config(directory: Path | None = None) -> EstimatorConfig:
     """Load ``configs/estimator.toml``."""
-    config = load_section("estimator", EstimatorConfig, directory)
+    config = load_section(SECTION, EstimatorConfig, directory)
     check_model_config(config.model)
     if config.ordinal_head.bce_weight < 0:
         raise ConfigError(f"configs/estimator.toml: ordinal_head.bce_weight must not be negative, got "
