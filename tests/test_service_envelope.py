@@ -7,9 +7,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+import zmq
+from service_fixtures import device_frames, setup_factory  # noqa: F401
 
 from estimator.service import envelope, stages
-from seesys.core import rts_schema
+from seesys.core import messages, rts_schema
 from seesys.core.device_settings import DeviceSettings
 from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
@@ -54,3 +56,38 @@ def test_an_estimates_times_come_back_with_it_and_the_broker_keeps_the_newest():
     assert p50["server"] == 7.0
     assert p50["hops"] == 7.0 - 0.5 - 4.0 - 0.5  # what the broker and the worker did not time themselves
     assert p50["inference"] == 2.5
+
+
+def test_the_frames_of_a_round_go_to_their_worker_together_at_most_16_a_message_in_order(setup_factory):
+    """Real broker and worker sockets; the round is driven by hand (what ``_from_devices`` does with what it reads
+    from the ingest socket), so that how many frames arrived together is not left to timing."""
+    from estimator.service.broker import Broker
+    from estimator.service.config import load_service_config
+    from seesys.io.network import load_network_config
+
+    setup = setup_factory()
+    broker = Broker(load_service_config(setup.config_dir), load_network_config(setup.config_dir))
+    ctx = zmq.Context()
+    worker = ctx.socket(zmq.DEALER)
+    worker.setsockopt(zmq.LINGER, 0)
+    worker.connect(broker.endpoints["workers"])
+    try:
+        worker.send_multipart([envelope.READY, envelope.pack_json({"name": "w", "pid": 1, "model_version": "m"})])
+        assert broker.wait_for_workers(1, 60)
+        outbox: dict = {}
+        for frame in device_frames("dev-r", 40):
+            broker._ingest_one(messages.encode(frame), "", outbox)
+        for identity, items in outbox.items():  # the end of the round
+            broker._forward(identity, items)
+        received = []
+        while len([f for parts in received for f in parts[1:]]) < 40:
+            assert worker.poll(60_000), "the broker forwarded fewer than 40 frames"
+            received.append(worker.recv_multipart())
+        assert [len(parts) - 1 for parts in received] == [16, 16, 8]
+        indices = [frame.frame_index for parts in received for _, _, frame in envelope.unpack_frames(parts)]
+        assert indices == list(range(40))
+        assert broker.status()["devices"]["dev-r"]["frames"] == 40
+    finally:
+        worker.close()
+        ctx.term()
+        broker.close()
