@@ -141,21 +141,26 @@ def to_toml_data(value: Any) -> Any:
     return value
 
 
-def _find_key(table: Mapping[str, Any], key: str) -> list[str] | None:
-    """The path of the first ``key`` in ``table`` or its sub-tables, in the file's order (None: not there)."""
-    for name, value in table.items():
+def _find_key(table: Any, key: str) -> list[str | int] | None:
+    """The path of the first ``key`` in ``table``, its sub-tables and arrays of tables, in the file's order (None:
+    not there)."""
+    items = table.items() if isinstance(table, Mapping) else enumerate(table) if isinstance(table, list) else ()
+    for name, value in items:
         if name == key:
             return [name]
-        if isinstance(value, Mapping):
-            below = _find_key(value, key)
-            if below is not None:
-                return [name, *below]
+        below = _find_key(value, key)
+        if below is not None:
+            return [name, *below]
     return None
 
 
-def _set(table: Mapping[str, Any], path: list[str], value: Any) -> dict[str, Any]:
+def _set(table: Any, path: list[str | int], value: Any) -> Any:
+    """A copy of ``table`` with the value at ``path`` replaced (the tables and arrays on the way copied)."""
     head, *rest = path
-    return {**table, head: _set(table[head], rest, value) if rest else value}
+    changed = _set(table[head], rest, value) if rest else value
+    if isinstance(table, list):
+        return [changed if i == head else item for i, item in enumerate(table)]
+    return {**table, head: changed}
 
 
 @dataclass(frozen=True)
@@ -201,8 +206,9 @@ class ConfigSet:
 
     def with_values(self, values: Mapping[str, object]) -> ConfigSet:
         """This set with settings changed by key: ``key`` where one file has it, else ``file.key`` (the first
-        ``key`` of that file, at any depth). For tests and scripted experiments; code that starts a child changes
-        a typed section with :meth:`replaced` instead. KeyError naming an unknown or ambiguous key."""
+        ``key`` of that file, at any depth, arrays of tables included). For tests and scripted experiments; code
+        that starts a child changes a typed section with :meth:`replaced` instead. KeyError naming an unknown or
+        ambiguous key."""
         sections = dict(self.sections)
         for name, value in values.items():
             stem, _, key = name.rpartition(".")
