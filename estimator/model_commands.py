@@ -81,8 +81,9 @@ def _train_table_on_ray(args: argparse.Namespace) -> int:
     threads = args.threads or load_ray_settings().train_cpus
     spec = TrainSpec(load_estimator_config(), args.schedule, load_window_config(), args.device, threads,
                      _provenance(args))
-    jobs = table_jobs(args.data, read_splits(args.splits, args.data), args.rounds, args.rows, args.runs, spec)
+    # The cluster first: a bad --ray address is the error the user gets, whatever else is wrong.
     with ray_executor(args.ray or None) as executor, progress_bar() as progress:
+        jobs = table_jobs(args.data, read_splits(args.splits, args.data), args.rounds, args.rows, args.runs, spec)
         executor.run(jobs, progress)
     for r in args.rounds:
         print(f"round {r}: {len(jobs) // len(args.rounds)} rows trained under {args.runs} (on Ray)")

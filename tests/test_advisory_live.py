@@ -9,11 +9,9 @@ import time
 
 import numpy as np
 import pytest
-from audio_fixtures import (  # noqa: F401
+from testkit.audio import (
     Publisher,
     estimate_message,
-    jack,
-    make_sandbox,
     pulse_onsets,
     pulses_per_buffer,
     rotation_frame,
@@ -21,7 +19,7 @@ from audio_fixtures import (  # noqa: F401
     wait_started,
     wait_until,
 )
-from polling import wait_for
+from testkit.polling import wait_for
 
 from advisory.player import DEVICE_LOST_EXIT
 from advisory.process import advisory_command
@@ -64,6 +62,7 @@ def hold(sandbox, status: str, n: int, count: int = 3) -> None:
     wait_until(lambda: started() >= count, f"{count} {status} tick buffers with N = {n} played")
 
 
+@pytest.mark.system
 def test_pulses_follow_the_estimate_and_go_silent_when_it_stops(jack, make_sandbox):
     sandbox = make_sandbox(jack, stale_after_s=0.6, no_information_cue=False)  # Equation 2 alone (cue: below)
     start_both(sandbox)
@@ -98,6 +97,7 @@ def test_pulses_follow_the_estimate_and_go_silent_when_it_stops(jack, make_sandb
     assert np.median(intervals) == pytest.approx(1 / 3, abs=0.001)
 
 
+@pytest.mark.system
 def test_rotation_condition_counts_pulses_from_the_angular_speed(jack, make_sandbox):
     sandbox = make_sandbox(jack)
     start_both(sandbox, "rotation")
@@ -114,6 +114,7 @@ def test_rotation_condition_counts_pulses_from_the_angular_speed(jack, make_sand
     assert live.input_value.max() == pytest.approx(400.0, rel=1e-3)
 
 
+@pytest.mark.system
 def test_none_condition_is_silent_but_logs_what_it_would_have_played(jack, make_sandbox):
     sandbox = make_sandbox(jack)
     start_both(sandbox, "none")
@@ -130,6 +131,7 @@ def test_none_condition_is_silent_but_logs_what_it_would_have_played(jack, make_
     assert (advisory.status == LIVE).sum() >= 3
 
 
+@pytest.mark.system
 def test_each_process_survives_the_others_restart(jack, make_sandbox):
     sandbox = make_sandbox(jack)
     player, generator = start_both(sandbox)
@@ -182,6 +184,7 @@ def test_each_process_survives_the_others_restart(jack, make_sandbox):
     assert set(sizes2) <= {0, 2} and sizes2.count(2) >= 3, sizes2  # the restarted player plays the generator
 
 
+@pytest.mark.system
 def test_supervisor_restarts_a_killed_process_and_stops_cleanly(jack, make_sandbox):
     sandbox = make_sandbox(jack, **{"advisory.restart_delay_s": 0.3})
     run = sandbox.start("run", "--condition", "seesys", "--out", str(sandbox.session), name="run")
@@ -200,6 +203,7 @@ def test_supervisor_restarts_a_killed_process_and_stops_cleanly(jack, make_sandb
     assert stopped == {"generator", "player", "supervisor"}
 
 
+@pytest.mark.system
 def test_lost_audio_device_is_logged_and_ends_the_player(make_sandbox):
     if not JackDummy.available():
         pytest.skip("jackd is not installed")
@@ -213,6 +217,7 @@ def test_lost_audio_device_is_logged_and_ends_the_player(make_sandbox):
     assert "audio device lost" in set(events.event)
 
 
+@pytest.mark.system
 def test_stalled_audio_server_is_logged_as_a_lost_device(make_sandbox):
     if not JackDummy.available():
         pytest.skip("jackd is not installed")
@@ -229,6 +234,7 @@ def test_stalled_audio_server_is_logged_as_a_lost_device(make_sandbox):
     assert len(lost) == 1 and "no callback for" in lost.detail.iloc[0]
 
 
+@pytest.mark.system
 def test_missing_audio_device_is_a_clear_error_at_start(make_sandbox, tmp_path):
     # An ALSA null PCM as the only device (no sound card, no JACK): a named device that does not exist fails at
     # once with a one-line message listing what there is.
@@ -246,6 +252,7 @@ def test_missing_audio_device_is_a_clear_error_at_start(make_sandbox, tmp_path):
         assert "'default'" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.system
 def test_a_jack_server_does_not_outlive_a_killed_parent():
     """A parent killed with SIGKILL cannot stop its JACK dummy server; the kernel does, so no server keeps one of
     the pool's names (four leaked servers would leave no name for the next run)."""

@@ -7,8 +7,9 @@ import subprocess
 
 import numpy as np
 import pandas as pd
+import pytest
 import zmq
-from audio_fixtures import make_sandbox, wait_started, wait_until  # noqa: F401
+from testkit.audio import wait_started, wait_until
 
 from advisory.process import advisory_command
 from seesys.core.messages import ESTIMATE_TOPIC, Estimate, decode, encode
@@ -36,6 +37,7 @@ def replay_and_receive(sandbox, log, sent_log) -> tuple[list[Estimate], str]:
     return received, out
 
 
+@pytest.mark.system
 def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make_sandbox):
     sandbox = make_sandbox(None)
     t = np.arange(0, 2, 1 / 30)
@@ -65,6 +67,7 @@ def test_replay_publishes_estimates_at_their_pace_and_the_generator_follows(make
     assert live.n_pulses.iloc[0] == 1 and live.n_pulses.iloc[-1] == 3 and live.n_pulses.is_monotonic_increasing
 
 
+@pytest.mark.system
 def test_replay_refuses_a_sent_log_it_cannot_write(make_sandbox, tmp_path):
     sandbox = make_sandbox(None)
     log = sandbox.root / "estimates.csv"
@@ -91,6 +94,7 @@ def silent_generator_fed_by_this_test(make_sandbox):
     return sandbox, ctx, pub
 
 
+@pytest.mark.system
 def test_generator_drops_malformed_messages_and_keeps_going(make_sandbox):
     sandbox, ctx, pub = silent_generator_fed_by_this_test(make_sandbox)
     good = encode(Estimate("test-device", 0, 0.0, 0.006, "test"))
@@ -104,6 +108,7 @@ def test_generator_drops_malformed_messages_and_keeps_going(make_sandbox):
     assert len(bad) == 2 and "not a SEESys message" in bad.detail.iloc[0]
 
 
+@pytest.mark.system
 def test_generator_on_a_taken_hand_off_endpoint_is_a_clear_error(make_sandbox):
     # TCP: an ipc:// bind takes the socket file over from its owner instead of failing (which is also why a
     # generator restarted after a crash gets its endpoint back).
@@ -122,6 +127,7 @@ def test_generator_on_a_taken_hand_off_endpoint_is_a_clear_error(make_sandbox):
     assert "seesys: error: cannot bind the advisory hand-off endpoint" in result.stderr
 
 
+@pytest.mark.system
 def test_run_none_starts_only_the_generator_and_needs_no_audio_device(make_sandbox):
     sandbox = make_sandbox(None, output_device="no-such-device")
     run = sandbox.start("run", "--condition", "none", "--out", str(sandbox.session), name="run")
@@ -132,6 +138,7 @@ def test_run_none_starts_only_the_generator_and_needs_no_audio_device(make_sandb
     assert processes == {"supervisor", "generator"}
 
 
+@pytest.mark.system
 def test_replay_sends_the_logged_frame_index_and_head(make_sandbox):
     sandbox = make_sandbox(None)
     t = np.arange(0, 0.5, 1 / 30)
@@ -147,6 +154,7 @@ def test_replay_sends_the_logged_frame_index_and_head(make_sandbox):
     assert pd.read_csv(sent_log).frame_index.tolist() == frames.tolist()
 
 
+@pytest.mark.system
 def test_the_generator_plays_the_heads_class_when_estimates_carry_it_and_logs_which_rule(make_sandbox):
     """6 mm estimates (Equation 2: 1 pulse) whose head says ≥ 12 mm are logged with 3 pulses from the head; the
     same estimates without a head go back to Equation 2 of the estimate."""

@@ -93,6 +93,7 @@ def test_inconsistent_settings_are_refused(tmp_path, overrides, message):
         _config_with(tmp_path, **overrides)
 
 
+@pytest.mark.system
 def test_cli_pulses_prints_n():
     def run(*args):
         return subprocess.run([sys.executable, "-m", "seesys", "advisory", "pulses", *args], capture_output=True,

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
-from audio_fixtures import PUBLISH_HZ, cue_tones, pulse_onsets, pulses_per_buffer, rotation_frame, run_lengths
+from testkit.audio import PUBLISH_HZ, cue_tones, pulse_onsets, pulses_per_buffer, rotation_frame, run_lengths
 
 from advisory.conditions import Condition, pulse_rule
 from advisory.config import load_advisory_config
@@ -178,6 +178,7 @@ def test_render_gives_the_pulses_a_listener_hears(tmp_path):
         assert b.trigger == CHANGE or b.time - a.time == pytest.approx(PERIOD)
 
 
+@pytest.mark.system
 def test_cli_render_writes_a_wav(tmp_path):
     out = tmp_path / "out.wav"
     result = subprocess.run([sys.executable, "-m", "seesys", "advisory", "render", "--estimates",
@@ -203,6 +204,7 @@ def test_bad_estimate_logs_are_named_errors(tmp_path, text, message):
     assert message in str(e.value)
 
 
+@pytest.mark.system
 def test_missing_estimate_log_is_a_clear_cli_error(tmp_path):
     result = subprocess.run([sys.executable, "-m", "seesys", "advisory", "render", "--estimates",
                              str(tmp_path / "nope.csv"), "--out", str(tmp_path / "x.wav")], capture_output=True,
@@ -221,6 +223,7 @@ def test_handoff_buffer_round_trip_and_rejects_garbage():
             decode_buffer(bad)
 
 
+@pytest.mark.system
 def test_an_estimate_log_whose_timestamps_collapsed_is_refused_in_one_line(tmp_path):
     """Epoch times written with 9 significant digits: 24 estimates of 0.8 s fall on 1 or 2 distinct times. Rendered,
     every pulse would sound at 0 s; render (and replay, which reads the log the same way) refuse it instead."""

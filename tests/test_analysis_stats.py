@@ -56,6 +56,7 @@ def row(table: pd.DataFrame, **match) -> pd.Series:
     return table[mask].iloc[0]
 
 
+@pytest.mark.system
 def test_descriptives_and_assumptions(between):
     from statsmodels.stats.weightstats import DescrStatsW
 
@@ -73,6 +74,7 @@ def test_descriptives_and_assumptions(between):
     assert row(checks, variable="rpe_mean_m", check="Levene (median)").p == pytest.approx(float(levene.pval.iloc[0]))
 
 
+@pytest.mark.system
 def test_omnibus_tests_and_effect_sizes(between):
     import pingouin as pg
 
@@ -94,6 +96,7 @@ def test_omnibus_tests_and_effect_sizes(between):
     assert kruskal.effect_value == pytest.approx(h.statistic / (len(data) - 1))
 
 
+@pytest.mark.system
 def test_post_hoc_tests(between):
     import pingouin as pg
     import scikit_posthocs as sp
@@ -117,6 +120,7 @@ def test_post_hoc_tests(between):
                 pytest.approx(dunn.loc[a, b])
 
 
+@pytest.mark.system
 def test_power_note_matches_pingouin(between):
     import pingouin as pg
 
@@ -129,6 +133,7 @@ def test_power_note_matches_pingouin(between):
     assert (out / "figures" / "box_rpe_mean_m.png").stat().st_size > 1000
 
 
+@pytest.mark.system
 def test_within_subjects_agrees_with_statsmodels_anovarm(tmp_path):
     import pingouin as pg
     from statsmodels.stats.anova import AnovaRM

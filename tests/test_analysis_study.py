@@ -75,6 +75,7 @@ def study(tmp_path_factory):
     return root, protocol
 
 
+@pytest.mark.system
 def test_participants_table(study):
     root, protocol = study
     table = pd.read_csv(root / "analysis" / "participants.csv")
@@ -92,6 +93,7 @@ def test_participants_table(study):
     assert table.time_on_task_s.iloc[2:].to_numpy() == pytest.approx(8.8)
 
 
+@pytest.mark.system
 def test_report_and_figures(study):
     root, _ = study
     out = root / "analysis"
@@ -119,6 +121,7 @@ def test_a_study_without_data_leaves_no_analysis_folder(tmp_path):
     assert not (root / "analysis").exists()
 
 
+@pytest.mark.system
 def test_one_participant_per_condition_prints_no_nan(tmp_path):
     table = tmp_path / "participants.csv"
     pd.DataFrame({"participant": ["p1", "p2"], "condition": ["none", "seesys"], "rpe_mean_m": [0.02, 0.01]}).to_csv(

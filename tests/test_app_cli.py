@@ -7,12 +7,12 @@ import os
 
 import pandas as pd
 import pytest
-from conftest import SAMPLE, run_seesys
+from testkit.sample import SAMPLE, run_seesys
 
-from seesys_app.config import load_app_config
-from seesys_app.run import estimates_endpoint
 from seesys.core.errors import ConfigError, SeesysError
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from seesys_app.config import load_app_config
+from seesys_app.run import estimates_endpoint
 
 
 def test_estimator_address_is_host_and_port():
@@ -22,6 +22,7 @@ def test_estimator_address_is_host_and_port():
             estimates_endpoint(bad)
 
 
+@pytest.mark.system
 def test_a_session_folder_in_use_is_refused(tmp_path):
     (tmp_path / "earlier.csv").write_text("x\n")
     done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--local", "--condition", "none", "--out", str(tmp_path))
@@ -30,6 +31,7 @@ def test_a_session_folder_in_use_is_refused(tmp_path):
                                    f"for the session")
 
 
+@pytest.mark.system
 def test_a_bad_estimator_address_leaves_no_session_folder(tmp_path):
     done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--estimator", "edge-server", "--condition", "none",
                       "--out", str(tmp_path / "s"))
@@ -37,6 +39,7 @@ def test_a_bad_estimator_address_leaves_no_session_folder(tmp_path):
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.system
 def test_local_and_remote_estimator_exclude_each_other(tmp_path):
     done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--local", "--estimator", "h:1", "--condition", "none",
                       "--out", str(tmp_path / "s"))
@@ -49,6 +52,7 @@ def test_app_config_is_checked(tmp_path):
         load_app_config(configs)
 
 
+@pytest.mark.system
 def test_an_unreachable_estimator_fails_the_run_at_start(tmp_path):
     configs = write_config_dir(tmp_path / "configs", {"reach_timeout_s": 2.0})
     out = tmp_path / "s"

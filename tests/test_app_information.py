@@ -22,10 +22,9 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from audio_fixtures import cue_tones
-from conftest import REPO, SAMPLE
-from polling import wait_for
-from test_app_run import stretched_sample
+from testkit.audio import cue_tones
+from testkit.polling import wait_for
+from testkit.sample import REPO, stretched_sample
 
 from advisory.config import load_advisory_config
 from advisory.sandbox import JackDummy
@@ -77,6 +76,7 @@ def start_app(root: Path, stretch: int, restart_delay_s: float | None = None,
     return app, out, config_dir
 
 
+@pytest.mark.system
 def test_a_killed_estimator_plays_the_no_information_cue_and_the_run_ends_degraded(root):
     app, out, config_dir = start_app(root, 4, restart_delay_s=3600.0, cue_every_s=1.0)
     wait_for(lambda: len(_rows(out / "estimates.csv")) >= 1 or app.poll() is not None, 300, "an estimate")
@@ -116,6 +116,7 @@ def test_a_killed_estimator_plays_the_no_information_cue_and_the_run_ends_degrad
         assert any(abs(h - s) <= tolerance or abs(h - s - gap) <= tolerance for s in played), (h, played)
 
 
+@pytest.mark.system
 def test_sigint_ends_the_device_with_its_files_final(root):
     app, out, _ = start_app(root, 6)
     wait_for(lambda: len(_rows(out / "frames.csv")) >= 20 or app.poll() is not None, 300, "20 frames tracked")

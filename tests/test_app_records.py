@@ -10,20 +10,26 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_seesys
 from rich.console import Console
+from testkit.sample import run_seesys
 
 from advisory.config import load_advisory_config
+from seesys.core.session_layout import (
+    ADVISORY_COLUMNS,
+    ADVISORY_CSV,
+    ESTIMATE_COLUMNS,
+    ESTIMATES_CSV,
+    FRAMES_CSV,
+    FRAMES_HEADER,
+)
+from seesys.io.logfiles import CsvLog
 from seesys_app.config import load_app_config
-from seesys_app.records import PartStatus, RunRecord, RunState, StreamDrops
-from seesys_app.run_cli import final_line
 from seesys_app.information import InformationClock
 from seesys_app.observer import EstimatorObservation, Observation, RunObserver
+from seesys_app.records import PartStatus, RunRecord, RunState, StreamDrops
+from seesys_app.run_cli import final_line
 from seesys_app.summary import broken_at_gaps, write_summary
 from seesys_app.view import LiveView, Snapshot, ViewSetup, dropped_text, plain_line
-from seesys.core.session_layout import (ADVISORY_COLUMNS, ADVISORY_CSV, ESTIMATE_COLUMNS, ESTIMATES_CSV, FRAMES_CSV,
-                                        FRAMES_HEADER)
-from seesys.io.logfiles import CsvLog
 
 ERRORS_M = (0.003, 0.005, 0.009)
 PULSES = (0, 1, 2)
@@ -128,6 +134,7 @@ def test_the_estimate_line_breaks_where_estimates_stopped():
     assert len(broken_at_gaps(np.array([0.0, 0.5]), np.array([1.0, 1.0]), 1.0)[0]) == 2
 
 
+@pytest.mark.system
 def test_a_bad_source_is_refused_before_anything_starts(tmp_path):
     done = run_seesys("run", "--source", f"tum:{tmp_path / 'missing'}", "--local", "--condition", "none",
                       "--out", str(tmp_path / "s"))

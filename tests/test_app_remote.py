@@ -35,6 +35,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.system
 def test_a_remote_estimator_feeds_the_app_in_the_rotation_condition():
     if not JackDummy.available():
         pytest.skip("jackd is not installed (apt package jackd2)")

@@ -33,15 +33,16 @@ import numpy as np
 import pandas as pd
 import psutil
 import pytest
-from audio_fixtures import pulses_per_buffer
-from polling import wait_for
+from testkit.audio import pulses_per_buffer
+from testkit.polling import wait_for
+from testkit.sample import stretched_sample
 
 from advisory.config import load_advisory_config
 from advisory.sandbox import JackDummy
 from advisory.wav import read_wav
 from estimator.service.sandbox import private_configs
-from seesys_app.view import SPARK, Snapshot, plain_line, sparkline
 from seesys.core.equation2 import error_pulses
+from seesys_app.view import SPARK, Snapshot, plain_line, sparkline
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE = REPO / "data" / "sample"
@@ -57,32 +58,6 @@ COLUMNS, ROWS = 160, 40
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 
 pytestmark = [pytest.mark.slam, pytest.mark.audio]
-
-
-def stretched_sample(folder: Path, factor: int) -> Path:
-    """A TUM folder with the sample's images and its timestamps spread ``factor`` times further apart (frames
-    taken at 30 Hz, played at 30/``factor`` Hz)."""
-    folder.mkdir()
-    for name in ("rgb", "depth"):
-        (folder / name).symlink_to(SAMPLE / name)
-    t0 = None
-    for name in ("rgb.txt", "depth.txt", "groundtruth.txt", "associations.txt"):
-        lines = []
-        for line in (SAMPLE / name).read_text().splitlines():
-            if line.startswith("#") or not line.strip():
-                lines.append(line)
-                continue
-            fields = line.split()
-            t0 = float(fields[0]) if t0 is None else t0
-            for i, value in enumerate(fields):
-                if i % 2 == 0 and (i == 0 or name == "associations.txt"):
-                    fields[i] = f"{t0 + (float(value) - t0) * factor:.6f}"
-            lines.append(" ".join(fields))
-        (folder / name).write_text("\n".join(lines) + "\n")
-    # The calibration keeps fps 30: these are the sample's 30 Hz frames played slower, and the device states the
-    # rate its frames were taken at, the one the served model was made for (another is refused as settings_mismatch).
-    (folder / "calibration.yaml").symlink_to(SAMPLE / "calibration.yaml")
-    return folder
 
 
 class Pane:
@@ -216,6 +191,7 @@ def run():
         shutil.rmtree(root, ignore_errors=True)
 
 
+@pytest.mark.system
 def test_the_app_says_at_start_the_camera_scale_error_and_the_cameras_its_model_knows(run):
     out, _ = run
     warning = events(out).query("part == 'app' and event == 'camera warning'").detail
@@ -229,6 +205,7 @@ def test_the_app_says_at_start_the_camera_scale_error_and_the_cameras_its_model_
     assert "seesys estimator finetune --sessions" in model.iloc[0]
 
 
+@pytest.mark.system
 def test_the_view_shows_tracking_estimate_pulses_latency_drops_and_sparkline(run):
     _, seen = run
     screen = seen["running"]
@@ -238,6 +215,7 @@ def test_the_view_shows_tracking_estimate_pulses_latency_drops_and_sparkline(run
     assert any(c in screen for c in SPARK), screen
 
 
+@pytest.mark.system
 def test_a_killed_estimator_is_reported_restarted_and_estimates_resume(run):
     out, seen = run
     log = events(out)
@@ -251,6 +229,7 @@ def test_a_killed_estimator_is_reported_restarted_and_estimates_resume(run):
     assert len(after) >= 2
 
 
+@pytest.mark.system
 def test_the_device_logged_every_frame(run):
     out, _ = run
     frames = pd.read_csv(out / "frames.csv")
@@ -262,6 +241,7 @@ def test_the_device_logged_every_frame(run):
     assert summary["frames"] == len(frames)
 
 
+@pytest.mark.system
 def test_ctrl_c_stops_every_child_and_leaves_the_session(run):
     out, seen = run
     assert not [pid for pid in seen["children"] if psutil.pid_exists(pid) and
@@ -276,6 +256,7 @@ def test_ctrl_c_stops_every_child_and_leaves_the_session(run):
     assert (out / summary["files"]["plot"]).stat().st_size > 0
 
 
+@pytest.mark.system
 def test_the_wav_plays_equation_2_of_the_logged_estimates_buffer_by_buffer(run):
     out, _ = run
     cfg = load_advisory_config(out / "configs")
@@ -307,6 +288,7 @@ def test_the_wav_plays_equation_2_of_the_logged_estimates_buffer_by_buffer(run):
     assert sum(whole) > 0
 
 
+@pytest.mark.system
 def test_plain_line_and_sparkline():
     s = Snapshot(elapsed_s=3.0, frames=90, state="OK", fps=30.0, estimates=5, latest_error_m=0.0042,
                  estimate_age_s=0.2, pulses=[1, 1, 0], latency_ms=(20.0, 35.0, 40.0), estimator="remote x:1")

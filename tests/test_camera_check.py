@@ -6,8 +6,8 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import SAMPLE, run_seesys
 from scipy.spatial.transform import Rotation
+from testkit.sample import SAMPLE, run_seesys
 
 from seesys.core.camera_scale import ScaleCheckError, ScaleSettings, describe, window_scales
 from seesys.core.errors import ConfigError
@@ -76,6 +76,7 @@ def test_a_monocular_session_is_refused_with_the_reason(tmp_path):
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_a_7_percent_depth_scale_error_is_found_within_1_percent_and_the_suggested_correction_removes_it(tmp_path):
     """The sample with its calibration's depth_factor divided by 1.07: the depth reads 7 % long, ORB-SLAM3's
     world and trajectory are 7 % too large, and only the ground truth shows it."""

@@ -7,11 +7,11 @@ import pytest
 
 from estimator.dataset.build import plan_from_config
 from estimator.dataset.config import load_dataset_config
+from seesys.core.errors import ConfigError
+from seesys.io.config import write_config_dir
 from synth.batch import CameraDraw, expand_environments, plan_batch, sequence_folder_name
 from synth.config import load_synth_config
 from synth.sequence import SequenceSpec, camera_record, preset_record
-from seesys.core.errors import ConfigError, SeesysError
-from seesys.io.config import write_config_dir
 
 TEMPLATE = SequenceSpec("", "", 0, 30, 160, 120)
 

@@ -52,6 +52,7 @@ def test_every_part_registers_its_commands():
         assert _subcommands(commands[group])[name].get_default("func").__module__.split(".")[0] == part
 
 
+@pytest.mark.system
 def test_help_lists_every_command_in_a_subprocess():
     out = subprocess.run([sys.executable, "-m", "seesys", "--help"], capture_output=True, text=True, check=True)
     assert out.stdout.startswith("usage: seesys")
@@ -68,6 +69,7 @@ def test_each_command_has_help(name, capsys):
     assert capsys.readouterr().out.startswith(f"usage: seesys {name}")
 
 
+@pytest.mark.system
 def test_a_user_error_is_one_line_with_status_2(tmp_path):
     missing = tmp_path / "nope"
     out = subprocess.run([sys.executable, "-m", "seesys", "track", "--source", f"tum:{missing}", "--out",
@@ -77,6 +79,7 @@ def test_a_user_error_is_one_line_with_status_2(tmp_path):
     assert str(missing) in out.stderr
 
 
+@pytest.mark.system
 def test_an_unknown_command_is_a_usage_error():
     out = subprocess.run([sys.executable, "-m", "seesys", "frobnicate"], capture_output=True, text=True)
     assert out.returncode == 2 and "invalid choice: 'frobnicate'" in out.stderr

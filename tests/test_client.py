@@ -7,9 +7,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import SAMPLE, run_seesys
-from polling import wait_for
-from service_fixtures import Client, ServiceProcess, ServiceSetup, serve_in_lockstep
+from testkit.polling import wait_for
+from testkit.sample import SAMPLE, run_seesys
+from testkit.service import Client, ServiceProcess, ServiceSetup, serve_in_lockstep
 
 from estimator.service.simulate import looped
 from seesys.client import EstimateClient
@@ -55,6 +55,7 @@ def lines(path):
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_the_anchor_placer_defers_while_the_class_is_high_and_survives_a_service_restart(tmp_path):
     session = tmp_path / "session"
     result = run_seesys("monitor", "run", "--source", f"tum:{SAMPLE}", "--mode", "rgbd", "--out", str(session))

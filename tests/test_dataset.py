@@ -14,18 +14,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import run_seesys
+from testkit.sample import run_seesys
 
 from estimator import dataset_commands
 from estimator.dataset import build as build_module
 from estimator.dataset.build import SESSIONS_DIR, DatasetBuilder, plan_from_config
-from estimator.dataset.store import DATASET_JSON, check_label_definition, label_definition
 from estimator.dataset.config import SplitConfig, load_dataset_config, lockbox_hash
 from estimator.dataset.report import CORRELATION_PNG, HISTOGRAM_PNG, REPORT_MD, feature_correlations, write_report
 from estimator.dataset.splits import SplitError, Splits, check_no_leak, make_splits, run_table
 from estimator.dataset.store import (
     COMPLETED,
     CRASHED,
+    DATASET_JSON,
     FORMAT_VERSION,
     PARTIAL,
     PSD_FRAMES_NPY,
@@ -37,13 +37,13 @@ from estimator.dataset.store import (
     SAMPLE_RTS_ROWS_NPY,
     DatasetError,
     DatasetReader,
+    check_label_definition,
     gather_rts,
+    label_definition,
     list_runs,
     read_run_info,
     run_folder,
 )
-from synth.config import load_synth_config
-from synth.sequence import SequenceSpec
 from seesys.core import rts_schema
 from seesys.core.errors import ConfigError, SeesysError
 from seesys.core.labels import LabelStatus
@@ -53,6 +53,8 @@ from seesys.io.core_settings import load_label_config, load_window_config
 from seesys.io.rts_log import read_feature_frames
 from seesys.io.session_labels import label_session
 from slam_monitor.device_worker import ObserverSpec
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec
 
 ENVIRONMENTS = ["lab", "office", "living_room"]
 FRAMES = 60
@@ -76,6 +78,7 @@ def tiny(tmp_path_factory) -> tuple[Path, object]:
     return root, _builder(root).build(_plan(ENVIRONMENTS))
 
 
+@pytest.mark.system
 def test_build_stores_every_run_with_windows_and_labels(tiny):
     root, result = tiny
     assert result.sequences == 3 and result.rendered_frames == 3 * FRAMES
@@ -126,6 +129,7 @@ def test_build_stores_every_run_with_windows_and_labels(tiny):
         assert np.load(folder / PSD_FRAMES_NPY)[psd_rows[-1]].tolist() == [end - 30, end - 20, end - 10, end]
 
 
+@pytest.mark.system
 def test_reader_gives_the_windows_the_assembler_gives(tiny):
     """A stored sample is exactly the window that assemble_windows makes from the session's logs (the one window
     definition, online and offline), though each PSD is stored once."""
@@ -144,6 +148,7 @@ def test_reader_gives_the_windows_the_assembler_gives(tiny):
         assert sample.rts.dtype == np.float32 and sample.psd.dtype == np.uint8
 
 
+@pytest.mark.system
 def test_reader_gives_lazy_random_access(tiny):
     root, _ = tiny
     reader = DatasetReader(root)
@@ -176,6 +181,7 @@ def test_a_missing_rts_row_reads_as_nan():
     np.testing.assert_array_equal(window[0, [0, 2]], rts[[2, 0]])
 
 
+@pytest.mark.system
 def test_an_old_format_run_or_dataset_is_refused(tiny, tmp_path):
     root, _ = tiny
     copy = tmp_path / "copy"
@@ -194,6 +200,7 @@ def test_an_old_format_run_or_dataset_is_refused(tiny, tmp_path):
         _builder(copy).build(_plan(ENVIRONMENTS))
 
 
+@pytest.mark.system
 def test_resume_redoes_only_unfinished_runs(tiny, tmp_path):
     root, _ = tiny
     copy = tmp_path / "copy"
@@ -211,6 +218,7 @@ def test_resume_redoes_only_unfinished_runs(tiny, tmp_path):
     assert not (copy / RUNS_DIR / f"{lost.run}.partial").exists()
 
 
+@pytest.mark.system
 def test_a_retuned_preset_renders_and_runs_its_sequences_again(tiny, tmp_path):
     """Resuming with a preset retuned since: only its sequences are rendered again, and their stored runs (which
     played the old render) are redone."""
@@ -226,6 +234,7 @@ def test_a_retuned_preset_renders_and_runs_its_sequences_again(tiny, tmp_path):
     assert result.runs_skipped == 2 and len(list_runs(copy)) == 3
 
 
+@pytest.mark.system
 def test_failed_run_is_recorded_and_skipped(tiny, tmp_path):
     root, _ = tiny
     configs = tmp_path / "configs"
@@ -246,6 +255,7 @@ def test_failed_run_is_recorded_and_skipped(tiny, tmp_path):
     assert plan["modes"] == ["rgbd", "mono"] and plan["environments"] == ENVIRONMENTS
 
 
+@pytest.mark.system
 def test_a_run_that_crashes_part_way_keeps_the_frames_logged_before(tiny, tmp_path, monkeypatch):
     root, _ = tiny
     copy = tmp_path / "copy"
@@ -292,6 +302,7 @@ def test_dataset_config_rejects_an_unknown_slam_mode(tmp_path):
         load_dataset_config(configs)
 
 
+@pytest.mark.system
 def test_a_dataset_is_extended_only_with_the_same_sample_definition(tiny, tmp_path):
     root, _ = tiny
     copy = tmp_path / "copy"
@@ -363,6 +374,7 @@ def test_a_held_out_camera_is_test_data_only_and_recorded(tmp_path):
         make_splits(runs, SplitConfig(rounds=3, seed=3, heldout_environments=(), heldout_cameras=("d435",)))
 
 
+@pytest.mark.system
 def test_splits_need_three_trajectories_per_group(tiny):
     root, _ = tiny
     runs = run_table([root])
@@ -373,6 +385,7 @@ def test_splits_need_three_trajectories_per_group(tiny):
         make_splits(runs, SplitConfig(1, 0, ("nowhere",), ()))
 
 
+@pytest.mark.system
 def test_report_writes_figures_against_targets(tiny, tmp_path):
     root, _ = tiny
     config = replace_fields(load_dataset_config().report, min_samples=5)
@@ -397,6 +410,7 @@ def test_feature_correlations_find_a_monotone_feature():
     assert "constant" not in set(table.feature)
 
 
+@pytest.mark.system
 def test_cli_splits_and_bad_input(tiny, tmp_path, monkeypatch):
     root, _ = tiny
     # The lockbox's camera is among the tiny build's: a config whose lockbox is outside it leaves every run.
@@ -421,6 +435,7 @@ def test_cli_splits_and_bad_input(tiny, tmp_path, monkeypatch):
     assert done.returncode == 2 and "seesys: error:" in done.stderr and "not a dataset folder" in done.stderr
 
 
+@pytest.mark.system
 def test_sample_is_rendered_as_a_small_tum_folder(tmp_path):
     from estimator.dataset.config import SampleSequenceConfig
     from estimator.dataset.sample import make_sample

@@ -11,17 +11,17 @@ import pytest
 import torch
 from testkit.deepsee import PSD_SHAPE, tiny_config
 
-from estimator.deepsee.checkpoint import load_model, save_model
 from estimator.artefact.compatibility import InputShape
+from estimator.artefact.onnx_model import OnnxModel
+from estimator.artefact.transforms import LabelTransform
+from estimator.deepsee.checkpoint import load_model, save_model
 from estimator.deepsee.data import read_splits, split_windows
 from estimator.deepsee.export import PARITY_TOLERANCE, export_onnx, parity
 from estimator.deepsee.inference import predict_outputs
 from estimator.deepsee.metrics import equation2_head, score
 from estimator.deepsee.model import DeepSEE
-from estimator.artefact.onnx_model import OnnxModel
 from estimator.deepsee.ordinal import bce, exceeded, head_thresholds
 from estimator.deepsee.predictors import load_predictor
-from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.core.equation2 import PulseSettings
 from seesys.core.exceedance import class_boundaries_m, head_class, same_thresholds
@@ -104,6 +104,7 @@ def _inputs(model: DeepSEE, batch: int):
             torch.randint(0, 256, (batch, model.shape.psd_samples, *PSD_SHAPE, 3), dtype=torch.uint8, generator=g))
 
 
+@pytest.mark.system
 def test_training_lowers_the_heads_bce(trained_runs, tiny_dataset):
     """The trained DeepSEE's head (stages (c) and (d) on MSE + λ·BCE) against the same model untrained."""
     trained, _ = load_model(trained_runs / "round_0" / "deepsee" / "model.pt", TRANSFORM)
@@ -122,6 +123,7 @@ def test_training_lowers_the_heads_bce(trained_runs, tiny_dataset):
     assert lstm.thresholds_m == () and lstm.estimates(test).probabilities is None
 
 
+@pytest.mark.system
 def test_onnx_export_has_the_probabilities_and_matches_pytorch(trained_runs, tiny_dataset, tmp_path):
     path = trained_runs / "round_0" / "deepsee" / "model.pt"
     model, payload = load_model(path, TRANSFORM)

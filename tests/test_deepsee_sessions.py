@@ -14,6 +14,7 @@ from seesys.io.core_settings import load_window_config
 pytestmark = pytest.mark.usefixtures("single_thread")
 
 
+@pytest.mark.system
 def test_tiny_dataset_has_a_sample_for_every_labelled_frame(tiny_dataset):
     reader = DatasetReader(tiny_dataset.root, usable_only=True)
     frames = DatasetReader(tiny_dataset.root).frame_labels()
@@ -28,6 +29,7 @@ def test_tiny_dataset_has_a_sample_for_every_labelled_frame(tiny_dataset):
     assert np.isfinite(parts["train"].rts).all() and np.abs(parts["train"].rts).max() < 20
 
 
+@pytest.mark.system
 def test_session_windows_match_the_dataset_samples(tiny_dataset):
     """The same session read directly (finetune, estimate) gives the dataset builder's windows and labels."""
     run = sorted(p.name for p in tiny_dataset.sessions.iterdir())[0]

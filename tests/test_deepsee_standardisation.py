@@ -10,14 +10,14 @@ import torch
 from rich.progress import Progress
 from testkit.deepsee import tiny_config, write_session
 
+from estimator.artefact.onnx_model import OnnxModel
+from estimator.artefact.standardisation import InputStandardisation
+from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.checkpoint import load_model, payload_standardisation
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import session_windows
 from estimator.deepsee.export import export_onnx
 from estimator.deepsee.finetune import finetune
-from estimator.artefact.onnx_model import OnnxModel
-from estimator.artefact.standardisation import InputStandardisation
-from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.io.core_settings import load_window_config
 from seesys.io.resources import resolve
@@ -32,6 +32,7 @@ def _windows(session):
     return session_windows(session, load_window_config(), labelled=True)
 
 
+@pytest.mark.system
 def test_a_model_trained_here_reads_its_input_as_it_is(trained_runs):
     _, payload = load_model(trained_runs / "round_0" / "deepsee" / "model.pt", TRANSFORM)
     standardisation = payload_standardisation(payload, "model.pt")
@@ -40,6 +41,7 @@ def test_a_model_trained_here_reads_its_input_as_it_is(trained_runs):
     assert standardisation.apply(rts, rts_schema.CHANNEL_NAMES) is rts
 
 
+@pytest.mark.system
 def test_finetune_refits_the_camera_statistics_and_stores_them_in_the_model_and_its_export(trained_runs, tmp_path):
     """Sessions of another camera (1.6x the contrast, 2.56x the Laplacian variance of the training sessions): the
     fine-tuned model keeps the base's reference, carries the camera's statistics refitted (unlike the base's), and
@@ -102,6 +104,7 @@ def test_a_malformed_record_is_refused_in_one_line():
                                           "camera": None}, "m.onnx")
 
 
+@pytest.mark.system
 def test_the_learning_curve_fine_tunes_each_budget_from_the_base_and_judges_it_on_held_out_sessions(trained_runs,
                                                                                                      tmp_path):
     """A smoke test on tiny sessions (5 s each): budgets of 3 and 6 seconds, the base as 0 minutes."""

@@ -13,6 +13,7 @@ import torch
 from rich.progress import Progress
 from testkit.deepsee import tiny_config, train_context
 
+from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, save_model
 from estimator.deepsee.data import read_splits, split_windows
 from estimator.deepsee.inference import batch_tensors, predict
@@ -20,7 +21,6 @@ from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant, row
 from estimator.deepsee.run_folder import CONFIG_JSON, LOSS_PNG, METRICS_CSV, MODEL_PT, RunFolder
 from estimator.deepsee.stages import train_row
-from estimator.artefact.transforms import LabelTransform
 from seesys.io.core_settings import load_window_config
 
 pytestmark = pytest.mark.usefixtures("single_thread")
@@ -47,6 +47,7 @@ def test_label_transform_round_trips():
     assert transform.inverse(-1.0) == 0.0  # below zero on the transformed scale is no error at all
 
 
+@pytest.mark.system
 def test_training_runs_every_stage_and_the_losses_fall(trained):
     out, model_path = trained
     metrics = pd.read_csv(out / METRICS_CSV)
@@ -63,6 +64,7 @@ def test_training_runs_every_stage_and_the_losses_fall(trained):
     assert json.loads((out / "hardware.json").read_text())[0]["device"] == "cpu"
 
 
+@pytest.mark.system
 def test_trained_model_beats_predicting_the_mean(trained, tiny_dataset):
     _, model_path = trained
     transform = LabelTransform(tiny_config().label_transform.k)
@@ -73,6 +75,7 @@ def test_trained_model_beats_predicting_the_mean(trained, tiny_dataset):
     assert mse < 0.7 * np.var(y)
 
 
+@pytest.mark.system
 def test_resume_skips_finished_stages_and_gives_the_same_model(trained, tiny_dataset):
     out, model_path = trained
     before = pd.read_csv(out / METRICS_CSV)
@@ -86,6 +89,7 @@ def test_resume_skips_finished_stages_and_gives_the_same_model(trained, tiny_dat
                                predict(load_model(model_path, transform)[0], test, 64, torch.device("cpu")))
 
 
+@pytest.mark.system
 def test_an_interrupted_stage_resumes_from_its_last_epoch(trained, tiny_dataset, tmp_path, monkeypatch):
     """A run killed after the first epoch of stage (d) continues from that epoch's checkpoint and ends with the
     model of the uninterrupted run."""
@@ -120,6 +124,7 @@ def test_an_interrupted_stage_resumes_from_its_last_epoch(trained, tiny_dataset,
                                atol=1e-4)
 
 
+@pytest.mark.system
 def test_a_model_for_other_inputs_is_refused(trained, tmp_path):
     _, model_path = trained
     transform = LabelTransform(tiny_config().label_transform.k)
@@ -139,6 +144,7 @@ def test_a_model_for_other_inputs_is_refused(trained, tmp_path):
         load_model(tmp_path / "junk.pt", transform)
 
 
+@pytest.mark.system
 def test_checkpoint_reload_gives_identical_outputs(tiny_dataset, tmp_path):
     config = tiny_config()
     test = _data(tiny_dataset)["test"]
@@ -152,6 +158,7 @@ def test_checkpoint_reload_gives_identical_outputs(tiny_dataset, tmp_path):
                                       predict(again, test, 64, torch.device("cpu")))
 
 
+@pytest.mark.system
 def test_ablation_masks_hide_what_they_drop(tiny_dataset):
     config = tiny_config()
     test = _data(tiny_dataset)["test"]
@@ -172,9 +179,10 @@ def test_ablation_masks_hide_what_they_drop(tiny_dataset):
 
 
 def _random_windows(seed: int, count: int):
+    from testkit.deepsee import PSD_SHAPE
+
     from estimator.deepsee.data import Windows
     from seesys.core import rts_schema
-    from testkit.deepsee import PSD_SHAPE
 
     rng = np.random.default_rng(seed)
     windows = load_window_config()
@@ -184,6 +192,7 @@ def _random_windows(seed: int, count: int):
     return Windows(rts, psd, np.full(count, 0.01), meta)
 
 
+@pytest.mark.system
 def test_the_encoder_cache_is_reused_only_for_the_same_encoders_and_windows(tmp_path):
     """Stage (c)'s cache of the frozen encoders' outputs: the same windows and encoders read it back without encoding
     again; other windows of the same count, or encoders trained again, are encoded afresh."""
@@ -225,6 +234,7 @@ def test_the_encoder_cache_is_reused_only_for_the_same_encoders_and_windows(tmp_
         assert not np.allclose(np.asarray(r3, np.float32), np.asarray(r2, np.float32))
 
 
+@pytest.mark.system
 def test_augmentation_reaches_every_training_stage(tmp_path, monkeypatch):
     """The PSD reconstruction (a), TS2Vec (b), the frozen-encoder stage (c) through its cache of augmented draws, and
     stage (d) all train on augmented windows; validation sees the windows as they are."""

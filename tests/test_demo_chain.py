@@ -4,11 +4,12 @@ researcher runs to hear what the advisory would have played for a recorded sessi
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import SAMPLE, run_seesys
 from scipy.io import wavfile
+from testkit.sample import SAMPLE, run_seesys
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_session_labels_feed_the_advisory_renderer(tmp_path):
     session_dir = tmp_path / "session"
     done = run_seesys("monitor", "run", "--source", f"tum:{SAMPLE}", "--mode", "rgbd", "--out", str(session_dir),
@@ -38,6 +39,7 @@ def test_session_labels_feed_the_advisory_renderer(tmp_path):
     assert rate > 0 and span <= len(audio) / rate <= span + 1.5  # the render covers the whole log
 
 
+@pytest.mark.system
 def test_label_of_a_folder_that_is_no_session_is_a_one_line_error(tmp_path):
     done = run_seesys("dataset", "label", str(tmp_path), "--out", str(tmp_path / "x.csv"))
     assert done.returncode == 2

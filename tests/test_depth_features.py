@@ -15,11 +15,11 @@ import cv2
 import numpy as np
 import pytest
 
-from synth.config import load_synth_config
-from synth.sequence import SequenceSpec, render_sequence
 from seesys.io.trajectory_files import read_tum
 from slam_monitor.depth_features import DepthFeatures, DepthQuality, noise_over_z2
 from slam_monitor.monitor_config import load_monitor_config
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec, render_sequence
 
 WIDTH, HEIGHT, FRAMES = 320, 240, 30
 NOISE = 0.0042  # the D435-like model's sigma_z / z^2 (1/m)
@@ -67,6 +67,7 @@ def _channel(features: list[DepthFeatures], name: str) -> np.ndarray:
     return np.array([getattr(f, name) for f in features])
 
 
+@pytest.mark.system
 def test_depth_noise_reads_the_sensors_sigma_over_z_squared_and_only_noise_moves_it(renders):
     for camera in ("noise", "d435"):
         assert np.allclose(_channel(renders[camera], "depth_noise"), NOISE, rtol=0.15), camera
@@ -74,6 +75,7 @@ def test_depth_noise_reads_the_sensors_sigma_over_z_squared_and_only_noise_moves
         assert (_channel(renders[camera], "depth_noise") < NOISE / 20).all(), camera
 
 
+@pytest.mark.system
 def test_depth_registration_reads_a_misregistration_in_focal_lengths_apart_from_the_motion(renders):
     fx = load_synth_config().camera.scaled(WIDTH, HEIGHT).lens.fx
     settled = slice(FRAMES // 4, None)  # the fit's first frames start from no misregistration

@@ -14,14 +14,15 @@ from rich.progress import Progress
 from testkit.deepsee import tiny_config, tiny_config_dir, write_session
 
 from advisory.estimate_log import read_estimate_log
+from estimator.artefact.onnx_model import recorded_cameras
+from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, payload_standardisation
+from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import DataError, concat, session_windows
 from estimator.deepsee.evaluate import OUT_OF_DOMAIN, session_set
 from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity, training_cameras
 from estimator.deepsee.finetune import finetune
-from estimator.artefact.onnx_model import recorded_cameras
 from estimator.deepsee.predictors import WindowEstimates, load_predictor
-from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.report import (
     CALIBRATION_CSV,
     CAMERAS_CSV,
@@ -32,9 +33,8 @@ from estimator.deepsee.report import (
     TIMESERIES_PNG,
     improvements,
 )
-from estimator.artefact.transforms import LabelTransform
-from seesys_app.cli import main
 from seesys.io.core_settings import load_pulse_settings, load_window_config
+from seesys_app.cli import main
 
 pytestmark = pytest.mark.usefixtures("single_thread")
 
@@ -46,6 +46,7 @@ def _model(trained_runs, row="deepsee"):
     return trained_runs / "round_0" / row / "model.pt"
 
 
+@pytest.mark.system
 def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path, capsys):
     other = [write_session(tmp_path / "other_renderer" / f"s{k}", seed=100 + k, noise_scale=2.0) for k in range(2)]
     out = tmp_path / "report"
@@ -96,6 +97,7 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     assert (out / RELIABILITY_PNG).stat().st_size > 5000
 
 
+@pytest.mark.system
 def test_the_lockbox_is_judged_for_a_shipped_model_only_through_its_own_command(tiny_dataset, trained_runs, tmp_path,
                                                                                capsys):
     from estimator.dataset.build import label_run
@@ -135,6 +137,7 @@ def test_the_lockbox_is_judged_for_a_shipped_model_only_through_its_own_command(
     assert "these splits hold no lockbox runs" in error and len(error.splitlines()) == 1
 
 
+@pytest.mark.system
 def test_a_render_tracked_twice_gets_a_ceiling_row_on_its_windows(tiny_dataset, trained_runs, tmp_path):
     """The tiny dataset with a second trial of its test trajectory's render: evaluate adds the ceiling row there."""
     from estimator.dataset.build import label_run
@@ -197,6 +200,7 @@ def test_two_out_of_domain_sessions_of_one_folder_name_are_refused(tmp_path):
         session_sets([tmp_path / "a" / "s", tmp_path / "b" / "s"], load_window_config())
 
 
+@pytest.mark.system
 def test_ablation_rows_start_from_the_pretrained_encoders(trained_runs):
     metrics = pd.read_csv(trained_runs / "round_0" / "wo_psd" / "metrics.csv")
     assert set(metrics.stage) == {"c_supervised_frozen", "d_finetune"}  # no second pretraining
@@ -208,6 +212,7 @@ def test_ablation_rows_start_from_the_pretrained_encoders(trained_runs):
         torch.testing.assert_close(ablation_state[f"rts_encoder.{name}"], value)
 
 
+@pytest.mark.system
 def test_export_to_onnx_then_estimate_a_session_for_the_advisory(tiny_dataset, trained_runs, tmp_path, capsys):
     """The exported file holds its weights (it works moved alone), matches PyTorch, refuses other inputs; the
     per-frame estimates of a session, from the checkpoint, the ONNX file or the forest, are a log the advisory
@@ -255,6 +260,7 @@ def test_export_to_onnx_then_estimate_a_session_for_the_advisory(tiny_dataset, t
     assert "model file not found" in capsys.readouterr().err
 
 
+@pytest.mark.system
 def test_finetune_on_a_few_sessions_lowers_the_error_on_held_out_sessions(trained_runs, tmp_path):
     """Sessions from another 'camera' (the same inputs mean 3× larger errors): fine-tuning on three of them makes the
     estimates of two others, never seen, closer to their labels."""
@@ -292,6 +298,7 @@ def test_finetune_on_a_few_sessions_lowers_the_error_on_held_out_sessions(traine
     assert training_cameras(training) == training["cameras"] + list(dict.fromkeys(sources))
 
 
+@pytest.mark.system
 def test_windows_of_another_camera_are_refused_with_a_clear_error(trained_runs, tmp_path):
     session = write_session(tmp_path / "vga", seed=7, frames=80)
     windows = session_windows(session, load_window_config(), labelled=False)
@@ -304,6 +311,7 @@ def test_windows_of_another_camera_are_refused_with_a_clear_error(trained_runs, 
     assert len(forest.metres(wide)) == len(windows)  # the forest reads the RTS window only
 
 
+@pytest.mark.system
 def test_cli_trains_a_row_into_a_run_folder_and_resumes(tiny_dataset, tmp_path, capsys, monkeypatch):
     """``seesys estimator train`` with configs/estimator.toml replaced by the tiny configuration."""
     configs = tiny_config_dir(tmp_path / "configs")
@@ -332,10 +340,11 @@ class _ConstantPredictor:
 def test_a_session_with_epoch_timestamps_renders_its_pulses_across_its_whole_duration(tmp_path):
     """Epoch times (a RealSense or TUM recording) keep their milliseconds in the estimate log, so the advisory's
     pulses follow the session instead of piling up at its start."""
+    from testkit.deepsee import FPS
+
     from advisory.config import load_advisory_config
     from advisory.render import render_estimates
     from estimator.deepsee.estimate import estimate_session
-    from testkit.deepsee import FPS
 
     session = write_session(tmp_path / "epoch", seed=7, frames=240, t0=1305031102.175)
     out = tmp_path / "estimates.csv"

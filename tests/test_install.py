@@ -55,6 +55,7 @@ def run(installed, *args: str, cwd: Path, timeout: float = 300) -> subprocess.Co
                           timeout=timeout)
 
 
+@pytest.mark.system
 def test_the_wheel_installs_code_configs_and_data_outside_the_checkout(installed, tmp_path):
     env_dir, env = installed
     where = subprocess.run([str(env_dir / "bin" / "python"), "-c",
@@ -69,6 +70,7 @@ def test_the_wheel_installs_code_configs_and_data_outside_the_checkout(installed
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_the_installed_command_tracks_its_embedded_sample(installed, tmp_path):
     env_dir, _ = installed
     sample = env_dir / "share" / "seesys" / "data" / "sample"
@@ -80,6 +82,7 @@ def test_the_installed_command_tracks_its_embedded_sample(installed, tmp_path):
     assert Path(manifest["vocabulary"]).is_relative_to(env_dir / "share" / "seesys" / "data" / "vocabulary")
 
 
+@pytest.mark.system
 def test_a_home_without_configs_is_a_clear_error(installed, tmp_path):
     env_dir, env = installed
     result = subprocess.run([str(env_dir / "bin" / "seesys"), "advisory", "pulses", "0.008"], cwd=tmp_path,

@@ -10,14 +10,14 @@ import pytest
 from evo.core import metrics
 from scipy.spatial.transform import Rotation
 
-from synth.config import load_synth_config
-from synth.trajectories import load_tum
 from seesys.core.labels import LabelConfig, LabelError, LabelStatus, LabelSummary, label_frames
 from seesys.core.tracking_state import TrackingState
 from seesys.core.trajectory import Poses
 from seesys.io.core_settings import load_label_config
 from seesys.io.session_labels import label_session
 from seesys.io.trajectory_files import write_tum
+from synth.config import load_synth_config
+from synth.trajectories import load_tum
 
 OK = int(TrackingState.OK)
 LOST = int(TrackingState.LOST)
@@ -95,6 +95,7 @@ def test_random_perturbation_matches_evo_rpe_and_its_known_spread(ground_truth, 
     assert rms == pytest.approx(np.sqrt(6) * sigma, rel=0.1)
 
 
+@pytest.mark.system
 def test_monocular_labels_remove_the_unknown_scale(ground_truth, config):
     """A monocular estimate is the truth at scale 0.37 in another frame, plus 1 mm noise: its labels are evo's
     Sim(3)-aligned RPE, and an exact scaled copy gives zero error and the inverse scale."""

@@ -32,6 +32,7 @@ def tree(tmp_path: Path) -> Path:
     return tmp_path
 
 
+@pytest.mark.system
 def test_the_contracts_hold_on_this_tree(tree: Path):
     result = lint(tree)
     assert result.returncode == 0, result.stdout + result.stderr
@@ -55,6 +56,7 @@ def test_the_contracts_hold_on_this_tree(tree: Path):
     ("estimator/artefact/onnx_model.py", "torch", "without PyTorch"),
     ("seesys_app/run.py", "estimator.deepsee.model", "without PyTorch"),
 ])
+@pytest.mark.system
 def test_an_import_the_wrong_way_breaks_a_contract_and_is_named(tree: Path, module: str, imported: str,
                                                                 contract: str):
     path = tree / module

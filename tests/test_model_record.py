@@ -12,18 +12,17 @@ import subprocess
 import sys
 
 import pytest
-from service_fixtures import tiny_model  # noqa: F401
 
 from estimator.artefact.compatibility import ModelMismatch, ModelSetup, check_compatible, compatibility
-from estimator.deepsee.config import load_estimator_config
 from estimator.artefact.onnx_model import COMPATIBILITY_KEY
 from estimator.artefact.transforms import LabelTransform
+from estimator.deepsee.config import load_estimator_config
 from estimator.service.model import ServedModel
+from seesys.core import rts_schema
 from seesys.core.device_settings import DeviceSettings, settings_differences
 from seesys.core.labels import MONO_ALIGNMENT
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.core_settings import load_device_settings, load_window_config
-from seesys.core import rts_schema
 from seesys.io.resources import resolve
 
 # What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now):
@@ -53,6 +52,7 @@ def test_the_shipped_model_carries_the_full_record_in_both_files():
     assert list(served._model.rts_columns) == list(range(rts_schema.NUM_CHANNELS))
 
 
+@pytest.mark.system
 def test_a_model_made_for_other_settings_is_refused_naming_each_field(tiny_model):
     windows = load_window_config()
     here = ModelSetup.configured()
@@ -91,6 +91,7 @@ def test_a_monocular_model_made_under_another_label_definition_is_refused_by_nam
         check_compatible(before, "the mono model", windows, transform)
 
 
+@pytest.mark.system
 def test_serve_refuses_a_model_whose_near_depth_differs_from_monitor_toml(tiny_model, tmp_path):
     config_dir = write_config_dir(tmp_path / "configs", {"near_depth": 1.0})
     run = subprocess.run([sys.executable, "-m", "seesys", "estimator", "serve", "--model", str(tiny_model)],

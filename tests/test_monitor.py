@@ -12,7 +12,7 @@ import types
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from stream_fixtures import wait_until_subscribed
+from testkit.stream import wait_until_subscribed
 
 from seesys.core import rts_schema
 from seesys.core.camera import Intrinsics

@@ -31,6 +31,7 @@ def tracked_inputs():
     return inputs
 
 
+@pytest.mark.system
 def test_image_channels_match_the_whole_frame_reference():
     for item in sample_inputs():
         gray = item.frame.gray
@@ -58,6 +59,7 @@ def test_local_map_matches_the_frame_by_frame_reference():
     assert largest == lm.max_points and compared > 20  # the size bound was in play
 
 
+@pytest.mark.system
 def test_pairing_matches_brute_force_nearest_keypoints():
     lm, features = CONFIG.local_map, CONFIG.features
     reference = ReferenceLocalMap(lm.voxel, lm.max_age_frames, lm.max_points)

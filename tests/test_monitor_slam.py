@@ -112,6 +112,7 @@ def check_session(session: Path, min_tracked: float, min_rotation_corr: float | 
     assert np.median(np.abs(truth - measured)) < 0.002
 
 
+@pytest.mark.system
 def test_rgbd_session_logs_and_streams_every_frame(tmp_path):
     out = tmp_path / "session"
     out.mkdir()
@@ -157,6 +158,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.system
 def test_monitor_run_command_mono_with_stream(tmp_path):
     endpoint = f"tcp://127.0.0.1:{_free_port()}"
     configs = configs_with_endpoint(tmp_path, endpoint)
@@ -180,6 +182,7 @@ def test_monitor_run_command_mono_with_stream(tmp_path):
     assert collector.frames and {f.device_id for f in collector.frames} == {"phone-1"}
 
 
+@pytest.mark.system
 def test_stream_endpoint_in_use_is_a_one_line_error(tmp_path):
     squatter = FeaturePublisher("tcp://127.0.0.1:*", send_high_water_mark=1)
     configs = configs_with_endpoint(tmp_path, squatter.bound_endpoint)

@@ -12,17 +12,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from ray_fixtures import local_ray  # noqa: F401 (a pytest fixture)
 
 from estimator.dataset.build import DATASET_JSON, SEQUENCES_DIR, SESSIONS_DIR, DatasetBuilder, plan_from_config
 from estimator.dataset.config import load_dataset_config
 from estimator.dataset.store import RUN_JSON, RUNS_DIR
 from estimator.jobs import RayExecutor
-from synth.config import load_synth_config
-from synth.sequence import SequenceSpec
 from seesys.core import session_layout
 from seesys.io.config import write_config_dir
 from seesys.io.core_settings import load_label_config, load_window_config
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec
 
 ENVIRONMENTS = ["lab", "office"]
 TEMPLATE = SequenceSpec("", "", 0, 60, 320, 240)
@@ -51,6 +50,7 @@ def builds(local_ray, tmp_path_factory):  # noqa: F811
     return base, configs, local, remote
 
 
+@pytest.mark.system
 def test_ray_writes_the_local_builds_files_and_schema(builds):
     base, _, local, remote = builds
     assert _files(base / "ray") == _files(base / "local")
@@ -77,6 +77,7 @@ def test_ray_writes_the_local_builds_files_and_schema(builds):
             assert list(pd.read_csv(csv).columns) == list(pd.read_csv(there / csv.name).columns), csv.name
 
 
+@pytest.mark.system
 def test_every_task_ran_with_the_drivers_settings(builds):
     base, _, _, remote = builds
     for info in remote.runs_done:
@@ -84,6 +85,7 @@ def test_every_task_ran_with_the_drivers_settings(builds):
         assert manifest["config"]["slam"]["supervisor"]["stall_timeout_s"] == STALL_TIMEOUT_S
 
 
+@pytest.mark.system
 def test_a_rerun_on_ray_does_only_the_missing_run_as_a_local_rerun_would(builds, local_ray):  # noqa: F811
     base, configs, _, _ = builds
     copy = base / "resumed"

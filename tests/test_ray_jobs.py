@@ -10,8 +10,7 @@ import sys
 
 import pytest
 import torch
-from conftest import REPO, run_seesys
-from ray_fixtures import local_ray  # noqa: F401 (a pytest fixture)
+from testkit.sample import REPO, run_seesys
 
 from estimator.dataset.splits import Splits
 from estimator.deepsee.rows import ROW_NAMES
@@ -88,6 +87,7 @@ def configs(tmp_path):
     return write_config_dir(tmp_path / "configs", {"slam_cpus": 1})
 
 
+@pytest.mark.system
 def test_a_task_shows_the_same_progress_and_reads_the_drivers_settings(ray_module, configs):
     jobs = [Job("one", counting_job, ("one", 5))]
     local, remote = RecordingProgress(), RecordingProgress()
@@ -98,6 +98,7 @@ def test_a_task_shows_the_same_progress_and_reads_the_drivers_settings(ray_modul
     assert local.calls[0] == ("add_task", 1, "one", {"total": 5}) and local.calls[-1] == ("remove_task", 1)
 
 
+@pytest.mark.system
 def test_results_come_in_job_order_and_each_end_is_reported(ray_module, configs):
     jobs = [Job(name, counting_job, (name, 3)) for name in ("a", "b", "c")]
     ended = []
@@ -109,12 +110,14 @@ def test_results_come_in_job_order_and_each_end_is_reported(ray_module, configs)
     assert added == {"a", "b", "c"} and sum(c[0] == "remove_task" for c in progress.calls) == 3
 
 
+@pytest.mark.system
 def test_a_job_waits_for_the_jobs_it_comes_after(ray_module, tmp_path):
     path = tmp_path / "first.txt"
     jobs = [Job("first", write_job, (path, "written first")), Job("second", read_job, (path,), after=("first",))]
     assert RayExecutor(ray_module).run(jobs, RecordingProgress()) == ["written first", "written first"]
 
 
+@pytest.mark.system
 def test_a_failed_task_is_the_same_error_as_a_failed_local_job(ray_module):
     jobs = [Job("fails", failing_job, ("run x: bad input",))]
     with pytest.raises(SeesysError, match="^run x: bad input$"):
@@ -125,6 +128,7 @@ def test_a_failed_task_is_the_same_error_as_a_failed_local_job(ray_module):
         RayExecutor(ray_module).run([Job("broken", broken_job, ())], RecordingProgress())
 
 
+@pytest.mark.system
 def test_a_job_no_node_can_take_is_refused_at_once(ray_module):
     executor = RayExecutor(ray_module)
     with pytest.raises(SeesysError, match=r"^big needs 3 CPU \+ 0 GPU on one node; the Ray cluster's nodes have 2 "
@@ -155,6 +159,7 @@ def _closed_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.system
 def test_an_unreachable_or_malformed_address_is_a_one_line_error(tmp_path):
     out = tmp_path / "dataset"
     port = _closed_port()
@@ -171,6 +176,7 @@ def test_an_unreachable_or_malformed_address_is_a_one_line_error(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.system
 def test_commands_import_ray_only_when_asked_to():
     code = ("import sys; from seesys_app.cli import build_parser; build_parser(); "
             "import estimator.dataset.build, estimator.deepsee.table, estimator.jobs; "

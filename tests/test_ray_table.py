@@ -10,15 +10,14 @@ import numpy as np
 import pandas as pd
 import pytest
 from rich.progress import Progress
-from ray_fixtures import local_ray  # noqa: F401 (a pytest fixture)
 from testkit.deepsee import TRAINED_ROWS, tiny_config, tiny_config_dir
 
 from estimator.deepsee.data import read_splits
 from estimator.deepsee.run_folder import CONFIG_JSON, METRICS_CSV
 from estimator.deepsee.table import TrainSpec, table_jobs
 from estimator.jobs import RayExecutor
-from seesys_app.cli import main
 from seesys.io.core_settings import load_window_config
+from seesys_app.cli import main
 
 pytestmark = pytest.mark.usefixtures("single_thread")
 
@@ -40,6 +39,7 @@ def ray_runs(local_ray, tiny_dataset, tmp_path_factory):  # noqa: F811
     return runs, jobs, spec
 
 
+@pytest.mark.system
 def test_ray_trains_the_same_run_folders_as_the_local_run(ray_runs, trained_runs):
     runs, _, _ = ray_runs
     assert _files(runs) == _files(trained_runs)
@@ -57,6 +57,7 @@ def test_ray_trains_the_same_run_folders_as_the_local_run(ray_runs, trained_runs
             np.testing.assert_allclose(b.train_loss, a.train_loss, rtol=1e-4)
 
 
+@pytest.mark.system
 def test_a_rerun_on_ray_trains_nothing_again(ray_runs, local_ray):  # noqa: F811
     runs, jobs, _ = ray_runs
     before = {name: len(pd.read_csv(runs / "round_0" / name / METRICS_CSV)) for name in ("deepsee", "wo_psd", "lstm")}
@@ -66,6 +67,7 @@ def test_a_rerun_on_ray_trains_nothing_again(ray_runs, local_ray):  # noqa: F811
     assert {name: len(pd.read_csv(runs / "round_0" / name / METRICS_CSV)) for name in before} == before
 
 
+@pytest.mark.system
 def test_the_command_trains_rows_on_ray(local_ray, tiny_dataset, tmp_path, capsys, monkeypatch):  # noqa: F811
     """``seesys estimator train-table --ray`` (Ray already initialised here: the command uses it as it is)."""
     configs = tiny_config_dir(tmp_path / "configs")

@@ -12,20 +12,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import run_seesys
 from evo.core.geometry import umeyama_alignment
-from synth_renders import calibration, depths, grays, png_bytes, with_camera
+from testkit.renders import calibration, depths, grays, png_bytes, with_camera
+from testkit.sample import run_seesys
 
+from seesys.core.camera import Intrinsics
+from seesys.core.errors import ConfigError
+from seesys.io.config import CONFIG_DIR_ENV, config_dir, write_config_dir
+from seesys.io.trajectory_files import read_tum
 from synth.batch import render_batch
 from synth.camera_effects import LensDistortion
 from synth.config import load_synth_config
 from synth.renderer import RayGrid, render
 from synth.sequence import SequenceSpec, plan_sequence, render_sequence
 from synth.structured_light import as_measured, projector_shadow
-from seesys.core.camera import Intrinsics
-from seesys.core.errors import ConfigError
-from seesys.io.config import CONFIG_DIR_ENV, config_dir, write_config_dir
-from seesys.io.trajectory_files import read_tum
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +43,7 @@ def _render(spec: SequenceSpec, config, folder):
     return folder
 
 
+@pytest.mark.system
 def test_a_depth_scale_error_multiplies_the_written_depth_and_leaves_the_calibration_nominal(config, tmp_path):
     """The sensor reports z·(1 + s): every depth pixel is the exact render's z·1.07 × depth_factor, the
     calibration still says depth_factor 5000 and the gray images are the ideal camera's."""
@@ -62,6 +63,7 @@ def test_a_depth_scale_error_multiplies_the_written_depth_and_leaves_the_calibra
     assert [g.tobytes() for g in grays(folder)] == [g.tobytes() for g in grays(ideal)]
 
 
+@pytest.mark.system
 def test_told_intrinsics_are_in_the_calibration_and_leave_the_frames_as_they_were(config, tmp_path):
     """Focal length told 3 % long and the principal point (8, −4) px off on the 640×480 sensor: at 64×48 the
     calibration says fx = 52.5·1.03 and (cx, cy) moved by (0.8, −0.4) px; every PNG is the ideal camera's."""
@@ -105,6 +107,7 @@ def test_radial_k1_bends_a_straight_edge_by_the_distortion_models_amount():
     assert middle - top > 3.5  # 3.7 px of bend between the middle and the top row
 
 
+@pytest.mark.system
 def test_radial_k1_distorts_colour_and_depth_alike_and_the_calibration_does_not_say_so(config, tmp_path):
     """Uncorrected k1 = −0.1: each depth image is the ideal one resampled through the k1 lens (nearest, as the
     renderer does), the gray images differ, and the calibration lists no distortion. With the configured lens
@@ -125,6 +128,7 @@ def test_radial_k1_distorts_colour_and_depth_alike_and_the_calibration_does_not_
     assert true_k1 == pytest.approx(config.camera.lens.distortion[0] - 0.1)
 
 
+@pytest.mark.system
 def test_an_unknown_option_or_a_value_out_of_range_is_a_one_line_error_naming_it(tmp_path):
     """A misspelt key of a camera model and a per-cent value written as a percentage are refused when the config
     is read, by the loader (the key and the keys it expected) and by the model (its name, the key, the range)."""
@@ -186,6 +190,7 @@ def test_the_projector_shadow_is_the_band_beside_a_depth_jump_away_from_the_proj
     assert np.array_equal(np.flatnonzero(left[3]), np.arange(160, 167))
 
 
+@pytest.mark.system
 def test_structured_light_leaves_holes_beside_depth_edges_and_on_dark_surfaces(config, tmp_path):
     """Rendered through a projector 75 mm to the right: every hole is a pixel with a nearer surface within the
     widest band the frame can have (f·b / its nearest depth) to its right, and there are some; with dark_albedo
@@ -217,6 +222,7 @@ def test_structured_light_leaves_holes_beside_depth_edges_and_on_dark_surfaces(c
         assert np.array_equal(measured, expected) and (view.albedo[view.depth > 0] < 0.2).any()
 
 
+@pytest.mark.system
 def test_jpeg_changes_the_gray_image_by_its_compression_and_leaves_the_depth(config, tmp_path):
     """Quality 50: each gray image is the ideal camera's encoded and decoded at 50 (not the same: ~10 DN off at
     64×48), the depth images are the ideal's; quality 0 leaves every byte as it was."""
@@ -231,6 +237,7 @@ def test_jpeg_changes_the_gray_image_by_its_compression_and_leaves_the_depth(con
     assert png_bytes(off) == png_bytes(ideal)
 
 
+@pytest.mark.system
 def test_a_camera_model_with_its_own_sensor_and_field_of_view_writes_matching_images_and_calibration(config,
                                                                                                      tmp_path):
     """1280×720 at 90° horizontal: fx = 640 / tan(45°) = 640 px, centre (639.5, 359.5), and images of that
@@ -255,6 +262,7 @@ def test_a_camera_model_with_its_own_sensor_and_field_of_view_writes_matching_im
 
 
 @pytest.mark.parametrize("name", ["d435_unaligned", "kinect_v1", "phone"])
+@pytest.mark.system
 def test_every_shipped_camera_model_renders_deterministically_and_says_which_camera_made_it(config, tmp_path,
                                                                                            name):
     """Each preset renders the same bytes on 1 and 2 processes, differs from the ideal camera, writes its own
@@ -281,6 +289,7 @@ def _umeyama_scale(estimate: Path, ground_truth: Path) -> float:
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_rgbd_orbslam3_on_depth_scaled_by_one_plus_s_estimates_a_path_one_plus_s_too_long(config, tmp_path):
     """RGB-D ORB-SLAM3 on 120 sharp frames (640×480) of a patrol in the lab rendered with depth_scale_error
     s = 0.07: the Umeyama scale that maps the estimate onto the ground truth is 1 / (1 + s) = 0.935 to 1 %.

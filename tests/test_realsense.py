@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import REPO, record_realsense, run_seesys, sample_frames
+from testkit.sample import REPO, record_realsense, run_seesys, sample_frames
 
 from slam_monitor.sources import SourceError, load_camera_config, open_source, parse_source_spec
 
@@ -72,6 +72,7 @@ def test_live_camera_missing_is_a_clear_error():
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_track_cli_on_a_recording_tracks_like_the_dataset(tmp_path):
     path = record_realsense(tmp_path / "walk.db3", sample_frames(45))
     # as-fast-as-possible playback (configs/camera.toml [recording]) keeps the test independent of CPU load;

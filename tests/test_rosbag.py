@@ -7,8 +7,8 @@ import shutil
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import SAMPLE, run_seesys
-from rosbag_fixtures import write_sample_bag
+from testkit.bags import write_sample_bag
+from testkit.sample import SAMPLE, run_seesys
 
 from seesys.core import session_layout
 from seesys.io.core_settings import load_label_config
@@ -37,6 +37,7 @@ def open_spec(text, with_depth=True, config=None):
     return open_source(parse_source_spec(text), config or load_camera_config(), with_depth)
 
 
+@pytest.mark.system
 def test_a_bag_yields_the_frames_depth_intrinsics_and_ground_truth_of_the_folder_it_came_from(sample_bag):
     with open_spec(f"tum:{SAMPLE}") as tum, open_spec(f"rosbag:{sample_bag}") as bag:
         assert bag.frame_count == tum.frame_count == 150
@@ -60,6 +61,7 @@ def test_a_ros2_storage_file_opens_its_bag_folder(tmp_path, small_tum):
         assert source.frame_count == 12 and not source.has_depth
 
 
+@pytest.mark.system
 def test_a_bag_without_an_image_topic_is_a_one_line_error_naming_its_topics(tmp_path, small_tum):
     bag = write_sample_bag(small_tum, tmp_path / "bag", ros1=False, image_topic=None)
     result = run_seesys("track", "--source", f"rosbag:{bag}", "--mode", "rgbd", "--out", str(tmp_path / "s"))
@@ -89,6 +91,7 @@ def test_not_a_bag_is_an_error(tmp_path):
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_a_bag_tracks_every_frame_and_labels_like_its_tum_folder(sample_bag, tmp_path):
     out = tmp_path / "session"
     result = run_seesys("track", "--source", f"rosbag:{sample_bag}", "--mode", "rgbd", "--out", str(out))
@@ -133,6 +136,7 @@ def write_session(folder, frames=20):
     return times
 
 
+@pytest.mark.system
 def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
     from rosbags.highlevel import AnyReader
 
@@ -162,6 +166,7 @@ def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
     assert again.returncode == 2 and "exists already" in again.stderr
 
 
+@pytest.mark.system
 def test_export_bag_of_a_folder_that_is_no_session_is_an_error(tmp_path):
     result = run_seesys("session", "export-bag", str(tmp_path), "--out", str(tmp_path / "b"))
     assert result.returncode == 2 and "not a session folder: no frames.csv" in result.stderr

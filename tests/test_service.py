@@ -14,17 +14,8 @@ from urllib.parse import urlparse
 
 import numpy as np
 import pytest
-from service_fixtures import (  # noqa: F401
-    Client,
-    ServiceProcess,
-    device_frames,
-    expected_errors,
-    serve_in_lockstep,
-    setup_factory,
-    tiny_head_model,
-    tiny_model,
-    wait_for,
-)
+from testkit.polling import wait_for
+from testkit.service import Client, ServiceProcess, device_frames, expected_errors, serve_in_lockstep
 
 from estimator.service.config import load_service_config
 from estimator.service.keys import ClientKeys, make_key_pair
@@ -64,6 +55,7 @@ def bad_messages(count: int, max_bytes: int) -> tuple[list[list[bytes]], dict[st
     return out, kinds
 
 
+@pytest.mark.system
 def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exactly(setup_factory, tiny_model):
     setup = setup_factory()
     service = ServiceProcess(setup, tiny_model)
@@ -112,6 +104,7 @@ def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exa
         service.kill()
 
 
+@pytest.mark.system
 def test_with_curve_a_client_not_allowed_gets_nothing_and_is_not_served(setup_factory, tiny_model, tmp_path):
     keys = tmp_path / "keys"
     _, server_secret = make_key_pair(keys / "server", "server")
@@ -146,6 +139,7 @@ def test_with_curve_a_client_not_allowed_gets_nothing_and_is_not_served(setup_fa
         service.kill()
 
 
+@pytest.mark.system
 def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(setup_factory, tiny_model):
     """``serve`` with one worker, then ``seesys estimator worker`` started beside it: new devices are shared
     between the two, and each device's estimates arrive in frame order."""
@@ -206,6 +200,7 @@ def test_default_endpoints_are_loopback():
     assert config.curve.enabled is False
 
 
+@pytest.mark.system
 def test_stale_windows_are_dropped_and_counted_never_served(setup_factory, tiny_model):
     """With a limit nothing can meet, every window is dropped at the worker and counted; none is served late."""
     setup = setup_factory(stale_after_ms=0.0)
@@ -238,6 +233,7 @@ def test_keys_refuses_to_overwrite(tmp_path):
         make_key_pair(tmp_path, "server")
 
 
+@pytest.mark.system
 def test_the_served_model_fits_any_end_stride_but_not_another_window(tiny_model):
     """The estimate rate (end_stride) is not part of what a model was made for; the window's content is."""
     from estimator.deepsee.checkpoint import ModelMismatch
@@ -250,6 +246,7 @@ def test_the_served_model_fits_any_end_stride_but_not_another_window(tiny_model)
         ServedModel.load(tiny_model, dataclasses.replace(windows, psd_stride=20))
 
 
+@pytest.mark.system
 def test_a_model_with_a_head_serves_its_thresholds_and_probabilities_with_every_estimate(setup_factory,
                                                                                          tiny_head_model):
     setup = setup_factory()

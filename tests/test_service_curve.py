@@ -10,7 +10,8 @@ import dataclasses
 import pandas as pd
 import pytest
 import zmq
-from service_fixtures import ServiceProcess, ServiceSetup, device_frames, tiny_model, wait_for  # noqa: F401
+from testkit.polling import wait_for
+from testkit.service import ServiceProcess, ServiceSetup, device_frames
 
 from estimator.service.config import load_service_config
 from estimator.service.keys import make_key_pair
@@ -30,6 +31,7 @@ def observer_for(network, folder, device_id: str) -> EstimateObserver:
                             network.client_options(network.estimates_endpoint))
 
 
+@pytest.mark.system
 def test_with_curve_from_network_toml_only_the_allowed_device_is_served(tiny_model, tmp_path):
     keys = tmp_path / "keys"
     _, server_secret = make_key_pair(keys / "server", "server")

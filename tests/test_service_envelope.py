@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 import zmq
-from service_fixtures import device_frames, setup_factory  # noqa: F401
+from testkit.service import device_frames
 
 from estimator.service import envelope, stages
 from seesys.core import messages, rts_schema

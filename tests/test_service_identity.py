@@ -14,17 +14,8 @@ import time
 
 import numpy as np
 import pytest
-from service_fixtures import (  # noqa: F401
-    Client,
-    ServiceSetup,
-    device_frames,
-    expected_errors,
-    running_service,
-    serve_in_lockstep,
-    setup_factory,
-    tiny_model,
-    wait_for,
-)
+from testkit.polling import wait_for
+from testkit.service import Client, ServiceSetup, device_frames, expected_errors, running_service, serve_in_lockstep
 
 from estimator.service.model import ServedModel
 from seesys.core import messages, rts_schema
@@ -42,6 +33,7 @@ def device_line(text: str, device: str) -> str:
     return next(line for line in text.splitlines() if line.startswith(f"{device} "))
 
 
+@pytest.mark.system
 def test_a_second_device_with_the_same_id_is_refused_and_the_first_is_served_untouched(setup_factory, tiny_model):
     setup = setup_factory(id_takeover_after_s=600.0)
     with running_service(setup, tiny_model) as service:
@@ -79,6 +71,7 @@ def test_a_second_device_with_the_same_id_is_refused_and_the_first_is_served_unt
                  in service.output(), what="the refusal in the service's log")
 
 
+@pytest.mark.system
 def test_a_restarted_device_takes_its_id_over_once_the_first_stream_is_silent(setup_factory, tiny_model):
     setup = setup_factory(id_takeover_after_s=1.0)
     with running_service(setup, tiny_model) as service:
@@ -95,6 +88,7 @@ def test_a_restarted_device_takes_its_id_over_once_the_first_stream_is_silent(se
         assert "stream session 2 takes the id over from stream session 1" in service.output()
 
 
+@pytest.mark.system
 def test_every_drop_reason_is_named_in_status_and_nonfinite_values_are_counted(setup_factory, tiny_model):
     """An 848×480 camera (another PSD shape), a device whose near_depth differs from the model's, a stream with a
     missing frame (the window rule allows no missing row) and RTS rows with a NaN and an inf channel."""

@@ -10,7 +10,7 @@ import sys
 
 import onnxruntime as ort
 import pytest
-from service_fixtures import ServiceProcess, ServiceSetup, tiny_model  # noqa: F401
+from testkit.service import ServiceProcess, ServiceSetup
 
 from estimator.artefact.onnx_model import CPU, CUDA, choose_providers
 from estimator.service.status import format_status
@@ -34,6 +34,7 @@ print(json.dumps({"torch": "torch" in sys.modules, "onnx": "onnx" in sys.modules
 """
 
 
+@pytest.mark.system
 def test_loading_the_onnx_model_imports_no_torch(tiny_model):
     """A worker's start-up (the worker module, the served model, the ONNX predictor) never imports PyTorch."""
     result = subprocess.run([sys.executable, "-c", _LOAD_WITHOUT_TORCH, str(tiny_model)], capture_output=True,
@@ -53,6 +54,7 @@ def test_providers_put_cuda_first_only_where_onnx_runtime_offers_it():
         choose_providers("gpu", [CPU])
 
 
+@pytest.mark.system
 def test_status_and_worker_log_name_the_provider(tiny_model):
     expected = CUDA if CUDA in ort.get_available_providers() else CPU
     setup = ServiceSetup()
@@ -68,6 +70,7 @@ def test_status_and_worker_log_name_the_provider(tiny_model):
         setup.cleanup()
 
 
+@pytest.mark.system
 def test_a_provider_setting_that_cannot_be_met_stops_serve_with_one_message(tiny_model):
     setup = ServiceSetup(providers="cuda" if CUDA not in ort.get_available_providers() else "tpu")
     service = ServiceProcess(setup, tiny_model)

@@ -11,8 +11,9 @@ import time
 import pandas as pd
 import psutil
 import pytest
-from conftest import SAMPLE
-from service_fixtures import ServiceProcess, ServiceSetup, tiny_model, wait_for  # noqa: F401 (fixture)
+from testkit.polling import wait_for
+from testkit.sample import SAMPLE
+from testkit.service import ServiceProcess, ServiceSetup
 
 from seesys.core import session_layout
 from seesys.core.session_layout import ESTIMATES_CSV
@@ -49,6 +50,7 @@ def rows(out):
     return pd.read_csv(path) if path.exists() else pd.DataFrame()
 
 
+@pytest.mark.system
 def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, record_property):
     setup = ServiceSetup(connect_device_stream=True)
     frames = back_and_forth(tmp_path / "source")

@@ -14,23 +14,23 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import REPO
-from polling import wait_for
+from testkit.polling import wait_for
+from testkit.sample import REPO
 
 from estimator.service.broker import default_model
 from estimator.service.config import load_service_config
-from synth.config import load_synth_config
-from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
-from seesys_app.simulate.scan_task import build_scan_task
-from seesys_app.simulate.config import load_simulate_config
-from seesys_app.simulate.study import pending_jobs
-from seesys_app.simulate.session import OPERATOR_JSON, Participant, simulate_session
-from seesys_app.cli import main
 from seesys.core.errors import ConfigError
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.trajectory_files import read_tum
+from seesys_app.cli import main
+from seesys_app.simulate.config import load_simulate_config
+from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
+from seesys_app.simulate.scan_task import build_scan_task
+from seesys_app.simulate.session import OPERATOR_JSON, Participant, simulate_session
+from seesys_app.simulate.study import pending_jobs
 from study.protocol import read_protocol
 from study.sessions import RUN_JSON, attempt_folders
+from synth.config import load_synth_config
 
 SHORT = ["--objects", "1", "--max-task-s", "2.5"]
 
@@ -47,6 +47,7 @@ def _operator(cfg, number: int, seed: int) -> SimulatedOperator:
                              getattr(synth.motion, traits.motion_group), cfg.operator, cfg.response, seed)
 
 
+@pytest.mark.system
 def test_an_operator_moves_as_in_silence_until_it_reacts_to_a_warning_and_slows_down_after():
     cfg = load_simulate_config()
     quiet, warned = _operator(cfg, 1, 7), _operator(cfg, 1, 7)
@@ -87,6 +88,7 @@ def reduced_study(tmp_path_factory):
     return study
 
 
+@pytest.mark.system
 def test_a_reduced_study_runs_end_to_end_and_analyses_as_a_real_one(reduced_study, capsys):
     protocol = read_protocol(reduced_study)
     assert protocol.phases == ["task"] and len(protocol.participants) == 6
@@ -124,6 +126,7 @@ def test_a_reduced_study_runs_end_to_end_and_analyses_as_a_real_one(reduced_stud
     assert "Relative change of the means" in report and "Mean speed" in report
 
 
+@pytest.mark.system
 def test_running_the_study_again_resumes_and_other_settings_are_refused(reduced_study, capsys):
     before = sorted(p for p in reduced_study.rglob("attempt-*"))
     assert main(["study", "simulate", "--out", str(reduced_study), "--participants", "2", *SHORT]) == 0
@@ -134,6 +137,7 @@ def test_running_the_study_again_resumes_and_other_settings_are_refused(reduced_
     assert "task.objects" in capsys.readouterr().err
 
 
+@pytest.mark.system
 def test_the_same_operator_moves_differently_after_a_warning_than_in_silence(tmp_path, monkeypatch):
     """The loop is closed: pulses the advisory played (all windows warn: alpha is set very low) change the
     participant's motion from the moment it reacts, and not before."""
@@ -157,6 +161,7 @@ def test_the_same_operator_moves_differently_after_a_warning_than_in_silence(tmp
     assert moved[t > first + delay + 0.5].max() > 0.01
 
 
+@pytest.mark.system
 def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
     """Started as a shell script's background job (SIGINT ignored), stopped by SIGTERM once both sessions track:
     each session ends `interrupted` with its logs whole, the command exits 130, and both sessions are still to do."""
@@ -185,6 +190,7 @@ def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
     assert total == 2 and len(jobs) == 2
 
 
+@pytest.mark.system
 def test_a_session_that_reports_no_frame_is_killed_as_hung_and_the_study_says_so(tmp_path):
     """A stall timeout far shorter than a session's start-up (its first report comes after a simulated second: 30
     rendered and tracked frames) stands in for ORB-SLAM3 hanging: every session is killed, its attempt says why, and

@@ -3,7 +3,7 @@ import itertools
 import cv2
 import numpy as np
 import pytest
-from conftest import SAMPLE, sample_frames
+from testkit.sample import SAMPLE, sample_frames
 
 from slam_monitor.sources import SourceError, load_camera_config, open_source, parse_source_spec
 

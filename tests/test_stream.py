@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import zmq
-from stream_fixtures import wait_until_subscribed
+from testkit.stream import wait_until_subscribed
 
 from seesys.core import messages, rts_schema
 from seesys.core.messages import FeatureFrame
@@ -100,6 +100,7 @@ def test_malformed_and_other_schema_messages_are_counted_and_skipped():
     sub.close()
 
 
+@pytest.mark.system
 def test_a_subscriber_that_stops_reading_counts_what_it_lost():
     pub = FeaturePublisher("tcp://127.0.0.1:*", send_high_water_mark=5)
     sub = FeatureSubscriber(pub.bound_endpoint, "dev-7", receive_high_water_mark=5)

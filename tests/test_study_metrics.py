@@ -55,6 +55,7 @@ def test_tracking_error_equals_evo_rpe(estimate, reference, monocular, all_pairs
     assert ours.alignment == ("Sim(3)" if monocular else "SE(3)")
 
 
+@pytest.mark.system
 def test_metrics_command_json_keys_and_values():
     estimate, reference, _ = PAIRS[0]
     out = subprocess.run([sys.executable, "-m", "seesys", "study", "metrics", "--slam", str(DATA / estimate),
@@ -143,6 +144,7 @@ def _evo_stretch_errors(estimate: Poses, reference: Poses, cfg) -> np.ndarray:
 
 
 @pytest.mark.parametrize("with_frame_log", [True, False])
+@pytest.mark.system
 def test_a_loss_and_a_new_map_give_the_per_stretch_evo_rpe(with_frame_log):
     cfg = load_study_config().metrics
     estimate, reference, frames, stretches = _loss_and_new_map(np.random.default_rng(3))

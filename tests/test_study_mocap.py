@@ -32,6 +32,7 @@ def simulated_session(tmp_path):
     return write_simulated_session(tmp_path)
 
 
+@pytest.mark.system
 def test_offset_and_hand_eye_recovered_and_ground_truth_is_the_camera(simulated_session):
     cfg = load_study_config()
     result = calibrate_session(simulated_session, cfg.calibration, cfg.mocap.body)
@@ -49,6 +50,7 @@ def test_offset_and_hand_eye_recovered_and_ground_truth_is_the_camera(simulated_
     assert (simulated_session / "calibration.json").is_file()
 
 
+@pytest.mark.system
 def test_calibrate_command_keeps_existing_ground_truth(simulated_session):
     (simulated_session / "groundtruth.tum").write_text("# kept\n")
     run = lambda *extra: subprocess.run([sys.executable, "-m", "seesys", "study", "calibrate",  # noqa: E731
@@ -91,6 +93,7 @@ def test_vicon_csv_import(tmp_path):
         read_vicon_csv(path, "wand")
 
 
+@pytest.mark.system
 def test_live_logging_with_the_mock_backend_stamps_on_receipt(tmp_path):
     before = time.time()
     done = subprocess.run([sys.executable, "-m", "seesys", "study", "mocap", "log", "--out", str(tmp_path),

@@ -71,6 +71,7 @@ def test_operator_events_from_a_pipe():
     assert reader.events.qsize() == 5
 
 
+@pytest.mark.system
 def test_new_and_status_commands(tmp_path):
     run = lambda *a: subprocess.run([sys.executable, "-m", "seesys", "study", *a], capture_output=True,  # noqa: E731
                                     text=True, cwd=REPO, timeout=120)

@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 import psutil
 import pytest
-from polling import wait_for
+from testkit.polling import wait_for
 
 from advisory.config import load_advisory_config
 from advisory.sandbox import JACK_HOST_API, JackDummy, process_env
@@ -136,6 +136,7 @@ def check_killed_attempt(attempt: Path, killed_at: float) -> None:
             assert rows.wall_time.iloc[-1] >= killed_at - 1.0
 
 
+@pytest.mark.system
 def test_study_end_to_end_with_kills(sandbox):
     root, env = sandbox
     rng = random.Random(SEED)

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import SAMPLE
 from rich.console import Console
+from testkit.sample import SAMPLE
 
 from seesys.core.errors import SeesysError
 from seesys.core.trajectory import Poses
@@ -24,11 +24,11 @@ from seesys.io.children import RowCounter
 from seesys.io.network import load_network_config
 from seesys.io.trajectory_files import write_tum
 from study.config import load_study_config
+from study.metrics import read_frame_log
 from study.mocap.logger import MOCAP_STATS
 from study.operator import OperatorInput
 from study.protocol import make_protocol, write_protocol
 from study.runner import RunOptions, Session, choose_condition
-from study.metrics import read_frame_log
 from study.sessions import (
     INCOMPLETE,
     attempt_folders,
@@ -222,6 +222,7 @@ def no_sound_card(monkeypatch):
     shutil.rmtree(root, ignore_errors=True)
 
 
+@pytest.mark.system
 def test_a_failed_start_is_no_attempt_and_no_sound_card_means_a_jack_dummy(no_sound_card):
     """`study run` in the seesys condition on a machine without the configured sound card starts the JACK dummy
     server `seesys run` starts; a start that fails (here the mocap logger) leaves its folder set aside, unnumbered,
@@ -249,6 +250,7 @@ def test_a_failed_start_is_no_attempt_and_no_sound_card_means_a_jack_dummy(no_so
     assert next_attempt_folder(phase).name == "attempt-1"
 
 
+@pytest.mark.system
 def test_a_device_that_ignores_sigint_is_terminated_after_the_timeout(tmp_path):
     """What keeps `q` from hanging on a device that does not end (a live camera that never stops delivering):
     SIGINT, then, after the timeout, SIGTERM."""

@@ -23,9 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import REPO, SAMPLE
-from polling import wait_for
-from test_app_run import stretched_sample
+from testkit.polling import wait_for
+from testkit.sample import REPO, stretched_sample
 
 from advisory.sandbox import JackDummy
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
@@ -101,6 +100,7 @@ def check_the_device_stopped(attempt: Path, told_at: float) -> dict:
     return run
 
 
+@pytest.mark.system
 def test_q_ends_the_task_and_stops_the_device(study):
     root, env, source, people = study
     runner, attempt = run_until_frame(root, env, source, people[0])
@@ -125,6 +125,7 @@ def test_q_ends_the_task_and_stops_the_device(study):
         assert np.all(measured.rpe.timestamps <= end["timestamp"])
 
 
+@pytest.mark.system
 def test_ctrl_c_interrupts_the_session_with_its_files_final(study):
     root, env, source, people = study
     runner, attempt = run_until_frame(root, env, source, people[1])

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pandas as pd
 import zmq
-from polling import wait_for
+from testkit.polling import wait_for
 
 from seesys.core import rts_schema
 from seesys.core.messages import Estimate, FeatureFrame, encode

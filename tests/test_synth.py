@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from testkit.renders import depths, grays, png_bytes, with_camera
 
 from synth.batch import render_batch
 from synth.camera_effects import LensDistortion
@@ -22,7 +23,6 @@ from synth.renderer import RayGrid, render
 from synth.sequence import SequenceSpec, plan_sequence, render_sequence
 from synth.textures import make_tile
 from synth.trajectories import MOTION_GROUPS, generate_motion, load_euroc, load_tum, place_real
-from synth_renders import depths, grays, png_bytes, with_camera
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +115,6 @@ def test_real_trajectories_are_placed_inside_the_smallest_room(config):
 
 
 def test_lens_distortion_keeps_the_centre_and_bends_the_edges(config):
-    grid = RayGrid.for_camera(config.camera)
     lens = LensDistortion.for_lens(config.camera.lens)
     cy, cx = int(config.camera.lens.cy), int(config.camera.lens.cx)
     assert abs(lens.map_x[cy, cx] - cx) < 0.5 and abs(lens.map_y[cy, cx] - cy) < 0.5
@@ -127,6 +126,7 @@ def _tiny(motion: str, **kw) -> SequenceSpec:
     return SequenceSpec("lab", motion, 7, frames=6, width=64, height=48, **kw)
 
 
+@pytest.mark.system
 def test_sequence_is_deterministic_tum_layout_with_metadata(config, tmp_path):
     one = tmp_path / "one"
     two = tmp_path / "two"
@@ -153,6 +153,7 @@ def test_sequence_is_deterministic_tum_layout_with_metadata(config, tmp_path):
     assert all(config.sensor.exposure_min_ms <= r.exposure_ms <= config.sensor.exposure_max_ms for r in records)
 
 
+@pytest.mark.system
 def test_a_batch_folder_is_the_same_sequence_whatever_else_the_batch_renders(config, tmp_path):
     """``basement__aiming__s0`` rendered alone and as part of a wider batch is the same sequence (same seed,
     same frames): extending a dataset with more environments or motions must not change what a name means."""
@@ -181,6 +182,7 @@ def test_motion_blur_comes_from_the_true_motion(config, tmp_path):
     assert lapvar(tmp_path / "b") < lapvar(tmp_path / "s")
 
 
+@pytest.mark.system
 def test_cli_render_diversity_and_errors(tmp_path):
     seesys = [sys.executable, "-m", "seesys", "synth"]
     out = subprocess.run(seesys + ["render", "--env", "gallery", "--motion", "real:tum_fr1_xyz", "--seed", "1",
@@ -205,6 +207,7 @@ def test_cli_render_diversity_and_errors(tmp_path):
     assert out.returncode == 2 and "unknown motion 'jumping'" in out.stderr
 
 
+@pytest.mark.system
 def test_camera_models_off_render_as_before_and_on_are_deterministic(config, tmp_path):
     """A model with every effect off gives the same bytes as the ideal camera, and its metadata does not list it;
     the D435-like model (every effect on) renders the same bytes on 1 and on 2 processes."""

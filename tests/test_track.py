@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import SAMPLE, run_seesys
+from testkit.sample import SAMPLE, run_seesys
 
 from seesys.core import session_layout
 from seesys.core.tracking_state import TrackingState
@@ -19,6 +19,7 @@ from slam_monitor.trajectory_metrics import absolute_trajectory_error, summarize
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_rgbd_on_the_sample_tracks_every_frame_within_2_cm(tmp_path):
     out = tmp_path / "rgbd"
     result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--mode", "rgbd", "--out", str(out))
@@ -44,6 +45,7 @@ def test_a_session_that_never_initialised_has_no_ate_instead_of_an_error(tmp_pat
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_mono_on_the_sample_initialises_and_tracks_within_5_cm_after_sim3(tmp_path):
     # Monocular ORB-SLAM3 is multi-threaded and not deterministic: on a CPU shared with other work an occasional
     # run stops inserting keyframes and loses track (docs/device.md). One retry keeps the test meaningful:
@@ -113,6 +115,7 @@ def test_an_observer_failing_to_close_still_closes_the_others_and_marks_the_sess
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_max_frames_and_explicit_settings_file(tmp_path):
     first = tmp_path / "first"
     assert run_seesys("track", "--source", f"tum:{SAMPLE}", "--out", str(first), "--max-frames", "5").returncode == 0

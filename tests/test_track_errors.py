@@ -6,7 +6,7 @@ import shutil
 import cv2
 import pandas as pd
 import pytest
-from conftest import REPO, SAMPLE, run_seesys
+from testkit.sample import REPO, SAMPLE, run_seesys
 
 from seesys.core import session_layout
 from seesys.core.camera import Intrinsics
@@ -45,12 +45,14 @@ def track(source, out, *extra, env=None):
         ("realsense:", "no RealSense camera connected"),  # camera not connected
     ],
 )
+@pytest.mark.system
 def test_source_that_cannot_open(tmp_path, source, fragment):
     out = tmp_path / "s"
     line = assert_one_line_error(track(source, out), fragment)
     assert_failed_session(out, 0, line)
 
 
+@pytest.mark.system
 def test_unknown_source_kind(tmp_path):
     out = tmp_path / "s"
     assert_one_line_error(track("kinect:/dev/video0", out), "unknown source kind 'kinect'", "tum, euroc")
@@ -58,6 +60,7 @@ def test_unknown_source_kind(tmp_path):
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_unreadable_image(small_tum, tmp_path):
     name = (small_tum / "rgb.txt").read_text().splitlines()[3].split()[1]
     (small_tum / name).write_bytes(b"\xff\xd8 truncated")
@@ -71,6 +74,7 @@ def test_unreadable_image(small_tum, tmp_path):
     "damage, fragment",
     [(lambda d: d // 500, "wrong depth scale"), (lambda d: d[::2, ::2], "has shape (240, 320), but the image is")],
 )
+@pytest.mark.system
 def test_bad_depth(small_tum, tmp_path, damage, fragment):
     name = (small_tum / "depth.txt").read_text().splitlines()[2].split()[1]
     cv2.imwrite(str(small_tum / name), damage(cv2.imread(str(small_tum / name), cv2.IMREAD_UNCHANGED)))
@@ -80,6 +84,7 @@ def test_bad_depth(small_tum, tmp_path, damage, fragment):
 
 
 @pytest.mark.parametrize("how", ["option", "environment"])
+@pytest.mark.system
 def test_corrupt_vocabulary(small_tum, tmp_path, how):
     bad = tmp_path / "ORBvoc.txt"
     bad.write_text("hello")  # this file segfaults ORB-SLAM3 when loaded unchecked
@@ -92,6 +97,7 @@ def test_corrupt_vocabulary(small_tum, tmp_path, how):
     assert_failed_session(out, 0, line)
 
 
+@pytest.mark.system
 def test_settings_missing_a_key(small_tum, tmp_path):
     settings = tmp_path / "settings.yaml"
     valid = build_settings(Intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5), 30.0, SlamMode.RGBD, load_slam_config())
@@ -103,6 +109,7 @@ def test_settings_missing_a_key(small_tum, tmp_path):
     assert_failed_session(out, 0, line)
 
 
+@pytest.mark.system
 def test_config_with_a_missing_key(tmp_path):
     configs = tmp_path / "configs"
     shutil.copytree(REPO / "configs", configs)
@@ -112,6 +119,7 @@ def test_config_with_a_missing_key(tmp_path):
     assert_one_line_error(result, "slam.toml.rgbd: missing key(s) th_depth")
 
 
+@pytest.mark.system
 def test_calibration_that_does_not_fit_the_images(tmp_path):
     folder = tmp_path / "images"
     folder.mkdir()

@@ -12,8 +12,8 @@ import time
 import pandas as pd
 import psutil
 import pytest
-from conftest import REPO, SAMPLE
 from evo.tools import file_interface
+from testkit.sample import REPO, SAMPLE
 
 from seesys.core import session_layout
 from seesys.core.errors import SeesysError
@@ -67,6 +67,7 @@ def counter(context):
     "how, expected",
     [("segfault", "ORB-SLAM3 crashed (signal 11, SIGSEGV)"), ("exit", "ORB-SLAM3 exited with status 255")],
 )
+@pytest.mark.system
 def test_crash_is_a_clear_error_and_keeps_the_logged_frames(tmp_path, how, expected):
     out = tmp_path / "s"
     options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out,
@@ -84,6 +85,7 @@ def test_crash_is_a_clear_error_and_keeps_the_logged_frames(tmp_path, how, expec
     assert (manifest["status"], manifest["error"], manifest["frames"]) == ("crashed", message, 6)
 
 
+@pytest.mark.system
 def test_a_hung_worker_is_killed_after_the_stall_timeout_and_keeps_the_logged_frames(tmp_path):
     configs = tmp_path / "configs"
     shutil.copytree(REPO / "configs", configs)
@@ -103,6 +105,7 @@ def test_a_hung_worker_is_killed_after_the_stall_timeout_and_keeps_the_logged_fr
     assert (manifest["status"], manifest["error"]) == ("crashed", message)
 
 
+@pytest.mark.system
 def test_observer_specs_are_built_in_the_worker(tmp_path):
     out = tmp_path / "s"
     options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out, max_frames=7,
@@ -117,6 +120,7 @@ def crash_at_start(context):
     os._exit(255)
 
 
+@pytest.mark.system
 def test_crash_before_the_first_frame(tmp_path):
     out = tmp_path / "s"
     options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out,
@@ -140,6 +144,7 @@ def faulty(context):
     return Faulty()
 
 
+@pytest.mark.system
 def test_a_bug_in_the_worker_is_reported_in_one_line_and_the_session_marked_failed(tmp_path):
     out = tmp_path / "s"
     options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out, observers=(ObserverSpec("test_track_isolation:faulty"),))
@@ -151,6 +156,7 @@ def test_a_bug_in_the_worker_is_reported_in_one_line_and_the_session_marked_fail
     assert "Traceback" in (out / session_layout.SLAM_LOG).read_text()
 
 
+@pytest.mark.system
 def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
     """``kill -9`` of a running ``seesys track`` (no chance to clean up) must not leave its ORB-SLAM3 worker
     running: the worker dies with it, and the frames logged until then stay readable."""

@@ -1,6 +1,6 @@
 import numpy as np
 import pytest
-from conftest import REPO, sample_frames
+from testkit.sample import REPO, sample_frames
 
 from slam_monitor.orbslam_settings import load_slam_config
 from slam_monitor.vocabulary import (
@@ -81,8 +81,9 @@ def test_corrupt_files_are_rejected(tmp_path, text, message):
 
 
 @pytest.mark.slam
+@pytest.mark.system
 def test_cli_trained_vocabulary_loads_into_orbslam3_and_tracks(small_tum, tmp_path):
-    from conftest import run_seesys
+    from testkit.sample import run_seesys
 
     vocabulary = tmp_path / "voc.txt"
     trained = run_seesys("vocab", "train", "--source", f"tum:{small_tum}", "--out", str(vocabulary), "--levels", "3")

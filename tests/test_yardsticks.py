@@ -98,6 +98,7 @@ def _meta(runs: int, windows_per_run: int) -> pd.DataFrame:
                          "timestamp": np.tile(np.arange(windows_per_run) * 0.1, runs)})
 
 
+@pytest.mark.system
 def test_score_of_a_perfect_and_of_a_constant_estimator():
     rng = np.random.default_rng(1)
     meta = _meta(6, 60)

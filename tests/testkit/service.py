@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zmq
-from polling import wait_for  # noqa: F401 (the service tests import it from here)
 
 from seesys.core import messages, rts_schema
 from seesys.core.errors import SeesysError

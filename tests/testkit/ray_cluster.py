@@ -18,7 +18,8 @@ from pathlib import Path
 
 import psutil
 import pytest
-from polling import wait_for
+
+from testkit.polling import wait_for
 
 SOCKET_PATH_MAX = 107
 SESSION_AND_SOCKET = 64  # "/session_2026-11-25_08-27-14_639978_92400/sockets/plasma_store" and a margin

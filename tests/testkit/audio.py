@@ -16,7 +16,6 @@ import numpy as np
 import pandas as pd
 import pytest
 import zmq
-from polling import wait_for
 
 from advisory.config import AdvisoryConfig, load_advisory_config
 from advisory.process import advisory_command
@@ -29,6 +28,7 @@ from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV, PLAYBACK_CSV
 from seesys.core.tracking_state import TrackingState
 from seesys.io.config import write_config_dir
 from seesys.io.transport import open_socket
+from testkit.polling import wait_for
 
 PUBLISH_HZ = 30.0
 
