@@ -44,12 +44,17 @@ def find_output_device(audio: AudioConfig) -> OutputDevice:
             names = ", ".join(h["name"] for h in host_apis) or "none"
             raise AudioDeviceError(f"audio host API {audio.host_api!r} not found (available: {names})")
         api = matches[0]
-    outputs = [i for i, d in enumerate(devices)
-               if d["max_output_channels"] >= audio.channels and (api is None or d["hostapi"] == api)]
+    outputs = [
+        i
+        for i, d in enumerate(devices)
+        if d["max_output_channels"] >= audio.channels and (api is None or d["hostapi"] == api)
+    ]
     where = f" in host API {host_apis[api]['name']!r}" if api is not None else ""
     if not outputs:
-        raise AudioDeviceError(f"no audio output device with {audio.channels} channel(s){where}: connect a sound "
-                               f"card or start an audio server (e.g. JACK)")
+        raise AudioDeviceError(
+            f"no audio output device with {audio.channels} channel(s){where}: connect a sound "
+            f"card or start an audio server (e.g. JACK)"
+        )
     if audio.output_device:
         named = [i for i in outputs if audio.output_device.lower() in devices[i]["name"].lower()]
         exact = [i for i in named if devices[i]["name"].lower() == audio.output_device.lower()]
@@ -58,8 +63,7 @@ def find_output_device(audio: AudioConfig) -> OutputDevice:
         if len(named) != 1:
             names = ", ".join(repr(devices[i]["name"]) for i in outputs)
             problem = "not found" if not named else "is ambiguous"
-            raise AudioDeviceError(f"audio output device {audio.output_device!r} {problem}{where} "
-                                   f"(outputs: {names})")
+            raise AudioDeviceError(f"audio output device {audio.output_device!r} {problem}{where} (outputs: {names})")
         index = named[0]
     else:
         default = host_apis[api]["default_output_device"] if api is not None else sd.default.device[1]
@@ -71,11 +75,19 @@ def open_output_stream(audio: AudioConfig, device: OutputDevice, callback: Calla
     """An unstarted float32 ``sd.OutputStream`` on ``device``; AudioDeviceError if PortAudio refuses it."""
     sd = _sounddevice()
     try:
-        return sd.OutputStream(device=device.index, samplerate=audio.sample_rate, channels=audio.channels,
-                               blocksize=audio.blocksize, dtype="float32", latency="low", callback=callback)
+        return sd.OutputStream(
+            device=device.index,
+            samplerate=audio.sample_rate,
+            channels=audio.channels,
+            blocksize=audio.blocksize,
+            dtype="float32",
+            latency="low",
+            callback=callback,
+        )
     except sd.PortAudioError as e:
-        raise AudioDeviceError(f"cannot open audio output {device.name!r} ({device.host_api}) at "
-                               f"{audio.sample_rate} Hz: {e}") from None
+        raise AudioDeviceError(
+            f"cannot open audio output {device.name!r} ({device.host_api}) at {audio.sample_rate} Hz: {e}"
+        ) from None
 
 
 def check_output_device(audio: AudioConfig) -> OutputDevice:

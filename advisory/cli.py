@@ -61,8 +61,10 @@ def _render(args: argparse.Namespace) -> int:
     wav.write(rendering.samples)
     wav.close()
     pulses = sum(d.n_pulses for d in rendering.decisions)
-    print(f"{args.out}: {rendering.samples.size / cfg.audio.sample_rate:.2f} s, "
-          f"{len(rendering.decisions)} buffers, {pulses} pulses")
+    print(
+        f"{args.out}: {rendering.samples.size / cfg.audio.sample_rate:.2f} s, "
+        f"{len(rendering.decisions)} buffers, {pulses} pulses"
+    )
     return 0
 
 
@@ -71,8 +73,9 @@ def _replay(args: argparse.Namespace) -> int:
 
     log = read_estimate_log(Path(args.estimates))
     sent_log = Path(args.sent_log) if args.sent_log else None
-    sent = replay_estimates(log, load_advisory_config().replay, load_network_config(), show_progress=True,
-                            sent_log=sent_log)
+    sent = replay_estimates(
+        log, load_advisory_config().replay, load_network_config(), show_progress=True, sent_log=sent_log
+    )
     print(f"published {sent} estimates" + (f"; send times in {sent_log}" if sent_log else ""))
     return 0
 
@@ -120,7 +123,10 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
 
     p = commands.add_parser("replay", help="publish an estimate log over ZeroMQ at its original pace")
     p.add_argument("--estimates", required=True, metavar="CSV", help="CSV with columns timestamp,error_m")
-    p.add_argument("--sent-log", metavar="CSV",
-                   help="also write each estimate's send time to this CSV (frame_index,timestamp,sent_mono)")
+    p.add_argument(
+        "--sent-log",
+        metavar="CSV",
+        help="also write each estimate's send time to this CSV (frame_index,timestamp,sent_mono)",
+    )
     p.set_defaults(func=_replay)
     return {}

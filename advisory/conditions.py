@@ -62,6 +62,7 @@ def estimate_reading(cfg: AdvisoryConfig) -> Callable[[Estimate | FeatureFrame],
         if decides([e.threshold_m for e in message.head]):
             return Reading(message.error_m, tuple(e.probability for e in message.head))
         return Reading(message.error_m)
+
     return sample
 
 
@@ -87,7 +88,19 @@ def condition_input(condition: Condition, cfg: AdvisoryConfig, network: NetworkC
             speed_deg_s = speed.update(message) if isinstance(message, FeatureFrame) else None
             return None if speed_deg_s is None else Reading(speed_deg_s)
 
-        return ConditionInput(network.features_endpoint, _subscription(FEATURE_TOPIC, device), sample,
-                              pulse_rule(condition, cfg), "deg/s", "rotation")
-    return ConditionInput(network.estimates_endpoint, _subscription(ESTIMATE_TOPIC, device), estimate_reading(cfg),
-                          pulse_rule(condition, cfg), "m", "estimate")
+        return ConditionInput(
+            network.features_endpoint,
+            _subscription(FEATURE_TOPIC, device),
+            sample,
+            pulse_rule(condition, cfg),
+            "deg/s",
+            "rotation",
+        )
+    return ConditionInput(
+        network.estimates_endpoint,
+        _subscription(ESTIMATE_TOPIC, device),
+        estimate_reading(cfg),
+        pulse_rule(condition, cfg),
+        "m",
+        "estimate",
+    )

@@ -97,15 +97,26 @@ def _check(cfg: AdvisoryConfig, where: str) -> None:
         problems.append(f"equation2 needs 0 < alpha_m < beta_m (got {eq.alpha_m}, {eq.beta_m})")
     if eq.pulse_s <= 0 or eq.interval_s < 0 or eq.pulse_s + eq.interval_s > tm.buffer_s:
         problems.append("equation2 needs pulse_s > 0, interval_s >= 0 and one pulse + interval within buffer_s")
-    positive = {"pulses_per_metre": eq.pulses_per_metre, "error_resolution_m": eq.error_resolution_m,
-                "degrees_per_step": cfg.rotation.degrees_per_step,
-                "speed_resolution_deg_s": cfg.rotation.speed_resolution_deg_s,
-                "max_frame_gap_s": cfg.rotation.max_frame_gap_s, "window_s": tm.window_s,
-                "cadence_hz": tm.cadence_hz, "stale_after_s": tm.stale_after_s, "sample_rate": au.sample_rate,
-                "tone_hz": au.tone_hz, "channels": au.channels, "blocksize": au.blocksize,
-                "schedule_latency_s": au.schedule_latency_s, "stall_after_s": au.stall_after_s,
-                "cue_every_s": ni.cue_every_s, "cue_tone_hz": ni.cue_tone_hz, "cue_tone_s": ni.cue_tone_s,
-                "cue_gap_s": ni.cue_gap_s}
+    positive = {
+        "pulses_per_metre": eq.pulses_per_metre,
+        "error_resolution_m": eq.error_resolution_m,
+        "degrees_per_step": cfg.rotation.degrees_per_step,
+        "speed_resolution_deg_s": cfg.rotation.speed_resolution_deg_s,
+        "max_frame_gap_s": cfg.rotation.max_frame_gap_s,
+        "window_s": tm.window_s,
+        "cadence_hz": tm.cadence_hz,
+        "stale_after_s": tm.stale_after_s,
+        "sample_rate": au.sample_rate,
+        "tone_hz": au.tone_hz,
+        "channels": au.channels,
+        "blocksize": au.blocksize,
+        "schedule_latency_s": au.schedule_latency_s,
+        "stall_after_s": au.stall_after_s,
+        "cue_every_s": ni.cue_every_s,
+        "cue_tone_hz": ni.cue_tone_hz,
+        "cue_tone_s": ni.cue_tone_s,
+        "cue_gap_s": ni.cue_gap_s,
+    }
     problems += [f"{name} must be positive (got {value})" for name, value in positive.items() if value <= 0]
     if tm.buffer_s > tm.cadence_s + 1e-9:
         problems.append(f"buffer_s ({tm.buffer_s}) must not exceed the cadence period ({tm.cadence_s:.4f} s)")

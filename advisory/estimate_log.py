@@ -44,8 +44,10 @@ def _collapsed(path: Path, timestamps: np.ndarray) -> str | None:
     if repeats * 2 <= timestamps.size:
         return None
     distinct = np.unique(timestamps).size
-    return (f"{path}: {timestamps.size} estimates at only {distinct} distinct time(s): its timestamps have lost "
-            f"their precision (write them in full, e.g. again with `seesys estimator estimate`)")
+    return (
+        f"{path}: {timestamps.size} estimates at only {distinct} distinct time(s): its timestamps have lost "
+        f"their precision (write them in full, e.g. again with `seesys estimator estimate`)"
+    )
 
 
 def read_estimate_log(path: Path) -> EstimateLog:
@@ -68,8 +70,10 @@ def read_estimate_log(path: Path) -> EstimateLog:
         bad = np.flatnonzero(~np.isfinite(numbers) | (numbers < 0 if column == "error_m" else False))
         if bad.size:
             row = int(bad[0])
-            raise SeesysError(f"{path}: row {row + 2}: {column} {table[column].iloc[row]!r} is not a valid "
-                              f"{'non-negative number of metres' if column == 'error_m' else 'time in seconds'}")
+            raise SeesysError(
+                f"{path}: row {row + 2}: {column} {table[column].iloc[row]!r} is not a valid "
+                f"{'non-negative number of metres' if column == 'error_m' else 'time in seconds'}"
+            )
         values[column] = numbers
     backwards = np.flatnonzero(np.diff(values["timestamp"]) < 0)
     if backwards.size:
@@ -83,8 +87,10 @@ def read_estimate_log(path: Path) -> EstimateLog:
         bad = np.flatnonzero(~np.isfinite(numbers) | (numbers < 0) | (numbers != np.round(numbers)))
         if bad.size:
             row = int(bad[0])
-            raise SeesysError(f"{path}: row {row + 2}: {FRAME_INDEX} {table[FRAME_INDEX].iloc[row]!r} is not a "
-                              f"frame index (a non-negative integer)")
+            raise SeesysError(
+                f"{path}: row {row + 2}: {FRAME_INDEX} {table[FRAME_INDEX].iloc[row]!r} is not a "
+                f"frame index (a non-negative integer)"
+            )
         frames = numbers.astype(np.int64)
     thresholds, probabilities = _read_head(path, table)
     return EstimateLog(values["timestamp"], values["error_m"], frames, thresholds, probabilities)
@@ -99,11 +105,11 @@ def _read_head(path: Path, table: pd.DataFrame) -> tuple[tuple[float, ...], np.n
     thresholds = tuple(t for t, _ in columns)
     if len(set(thresholds)) != len(thresholds) or not all(np.isfinite(thresholds)) or thresholds[0] <= 0:
         raise SeesysError(f"{path}: head columns {[c for _, c in columns]} are not of distinct positive thresholds")
-    probabilities = np.column_stack([pd.to_numeric(table[c], errors="coerce").to_numpy(np.float64)
-                                     for _, c in columns])
+    probabilities = np.column_stack([pd.to_numeric(table[c], errors="coerce").to_numpy(np.float64) for _, c in columns])
     bad = np.argwhere(~((probabilities >= 0) & (probabilities <= 1)))
     if bad.size:
         row, k = (int(v) for v in bad[0])
-        raise SeesysError(f"{path}: row {row + 2}: {columns[k][1]} {table[columns[k][1]].iloc[row]} is not a "
-                          f"probability")
+        raise SeesysError(
+            f"{path}: row {row + 2}: {columns[k][1]} {table[columns[k][1]].iloc[row]} is not a probability"
+        )
     return thresholds, probabilities

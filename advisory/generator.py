@@ -47,19 +47,30 @@ class Generator:
         self._log = CsvLog(out / ADVISORY_CSV, ADVISORY_COLUMNS)
         self._ctx = zmq.Context()
         self._pub = publisher(self._ctx, cfg.handoff.endpoint, "advisory hand-off", cfg.handoff.send_high_water_mark)
-        self._sub = subscriber(self._ctx, self._input.endpoint, f"{condition.value} input", [self._input.topic],
-                               options=network.client_options(self._input.endpoint))
-        self._scheduler = PulseScheduler(self._input.rule, cfg.timing.window_s, cfg.timing.cadence_s,
-                                         cfg.timing.stale_after_s, time.monotonic(), self._input.rule_name)
+        self._sub = subscriber(
+            self._ctx,
+            self._input.endpoint,
+            f"{condition.value} input",
+            [self._input.topic],
+            options=network.client_options(self._input.endpoint),
+        )
+        self._scheduler = PulseScheduler(
+            self._input.rule,
+            cfg.timing.window_s,
+            cfg.timing.cadence_s,
+            cfg.timing.stale_after_s,
+            time.monotonic(),
+            self._input.rule_name,
+        )
         self._status = self._scheduler.status
         self._buffers: dict[int, np.ndarray] = {}
         self._next_id = 0
         self._bad_messages = 0
         self._cue = synthesise_cue(cfg.no_information, cfg.audio.sample_rate, cfg.timing.buffer_s)
-        self._cues = CueClock(condition.audible, cfg.no_information.no_information_cue,
-                              cfg.no_information.cue_every_s)
-        self._events.event("started", f"condition={condition.value} input={self._input.endpoint} "
-                                      f"handoff={cfg.handoff.endpoint}")
+        self._cues = CueClock(condition.audible, cfg.no_information.no_information_cue, cfg.no_information.cue_every_s)
+        self._events.event(
+            "started", f"condition={condition.value} input={self._input.endpoint} handoff={cfg.handoff.endpoint}"
+        )
 
     def _samples(self, n: int) -> np.ndarray:
         if n not in self._buffers:
@@ -70,18 +81,40 @@ class Generator:
         played = d.n_pulses if self._condition.audible else 0
         trigger = self._cues.trigger(d)
         samples = self._cue if trigger == CUE else self._samples(played)
-        buf = AudioBuffer(self._next_id, trigger, d.n_pulses, played, self._cfg.audio.sample_rate, d.time,
-                          d.time + self._cfg.audio.schedule_latency_s, d.arrival, samples)
+        buf = AudioBuffer(
+            self._next_id,
+            trigger,
+            d.n_pulses,
+            played,
+            self._cfg.audio.sample_rate,
+            d.time,
+            d.time + self._cfg.audio.schedule_latency_s,
+            d.arrival,
+            samples,
+        )
         self._next_id += 1
         self._pub.send(encode_buffer(buf))
-        self._log.write(time.time(), d.time, self._condition.value, d.status, trigger, d.value, d.n_pulses,
-                        played, buf.buffer_id, d.arrival, buf.play_at, d.pulses_from)
+        self._log.write(
+            time.time(),
+            d.time,
+            self._condition.value,
+            d.status,
+            trigger,
+            d.value,
+            d.n_pulses,
+            played,
+            buf.buffer_id,
+            d.arrival,
+            buf.play_at,
+            d.pulses_from,
+        )
 
     def _note_status(self) -> None:
         status = self._scheduler.status
         if status != self._status:
-            self._events.event("input " + status, f"{self._status} -> {status} "
-                                                  f"(stale after {self._cfg.timing.stale_after_s} s)")
+            self._events.event(
+                "input " + status, f"{self._status} -> {status} (stale after {self._cfg.timing.stale_after_s} s)"
+            )
             self._status = status
 
     def _bad_message(self, error: MessageError) -> None:

@@ -45,8 +45,19 @@ class AudioBuffer:
 
 def encode_buffer(b: AudioBuffer) -> bytes:
     samples = np.ascontiguousarray(b.samples, dtype="<f4")
-    head = _HEAD.pack(MAGIC, VERSION, _TRIGGERS.index(b.trigger), b.n_pulses, b.played_pulses, b.sample_rate,
-                      b.buffer_id, b.time, b.play_at, b.arrival, samples.size)
+    head = _HEAD.pack(
+        MAGIC,
+        VERSION,
+        _TRIGGERS.index(b.trigger),
+        b.n_pulses,
+        b.played_pulses,
+        b.sample_rate,
+        b.buffer_id,
+        b.time,
+        b.play_at,
+        b.arrival,
+        samples.size,
+    )
     return head + samples.tobytes()
 
 

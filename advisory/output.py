@@ -4,8 +4,8 @@ machine without one (or when asked), a private JACK dummy server started here (`
 paced in real time like a sound card and heard by nobody.
 
 The children then run with the audio settings of :meth:`AudioOutput.settings` in their copy of the configs
-(``seesys.io.config.ConfigSet``) and :meth:`AudioOutput.env` in their environment; :meth:`AudioOutput.stop` stops the server
-once the player has stopped.
+(``seesys.io.config.ConfigSet``) and :meth:`AudioOutput.env` in their environment; :meth:`AudioOutput.stop` stops the
+server once the player has stopped.
 """
 
 from __future__ import annotations
@@ -48,8 +48,10 @@ def open_audio_output(audio: AudioConfig, dummy: bool = False) -> AudioOutput:
         except AudioDeviceError as e:
             unavailable = str(e)
     if not JackDummy.available():
-        raise SeesysError(f"{unavailable or 'no sound card asked for'}, and jackd is not installed to stand in for a "
-                          f"sound card (apt package jackd2); or run the silent condition (none)")
+        raise SeesysError(
+            f"{unavailable or 'no sound card asked for'}, and jackd is not installed to stand in for a "
+            f"sound card (apt package jackd2); or run the silent condition (none)"
+        )
     jack = JackDummy(audio.sample_rate, audio.blocksize)
     jack.start()
     return AudioOutput(f"JACK dummy server {jack.name}, no sound card used", jack, unavailable)

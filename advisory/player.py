@@ -66,7 +66,7 @@ class PlaybackState:
             return
         n = min(end - start, cur.samples.size - self._pos)
         if n > 0:
-            out[start:start + n] = cur.samples[self._pos:self._pos + n]
+            out[start : start + n] = cur.samples[self._pos : self._pos + n]
             self._pos += n
 
     def callback(self, outdata: np.ndarray, frames: int, time_info, status) -> None:
@@ -122,8 +122,12 @@ class Player:
                 self._receiver_notes.append(("bad buffer", str(e)))
                 continue
             if buf.sample_rate != self._cfg.audio.sample_rate:
-                self._receiver_notes.append(("bad buffer", f"sample rate {buf.sample_rate} Hz, the stream runs at "
-                                                           f"{self._cfg.audio.sample_rate} Hz"))
+                self._receiver_notes.append(
+                    (
+                        "bad buffer",
+                        f"sample rate {buf.sample_rate} Hz, the stream runs at {self._cfg.audio.sample_rate} Hz",
+                    )
+                )
                 continue
             self._state.latest = (buf, time.monotonic())
 
@@ -132,8 +136,19 @@ class Player:
         state = self._state
         while state.started:
             buf, received, dac, sample = state.started.popleft()
-            self._log.write(time.time(), buf.buffer_id, buf.time, buf.trigger, buf.n_pulses, buf.played_pulses,
-                            buf.arrival, received, buf.play_at, dac, sample)
+            self._log.write(
+                time.time(),
+                buf.buffer_id,
+                buf.time,
+                buf.trigger,
+                buf.n_pulses,
+                buf.played_pulses,
+                buf.arrival,
+                received,
+                buf.play_at,
+                dac,
+                sample,
+            )
         while state.blocks and self._wav is not None:
             self._wav.write(state.blocks.popleft())
         flags = []
@@ -147,13 +162,15 @@ class Player:
     def run(self, stop: threading.Event) -> None:
         """Play until ``stop`` is set; if the stream dies or stalls, log it and end the process (see module doc)."""
         receiver_stop = threading.Event()
-        receiver = threading.Thread(target=self._receive, args=(receiver_stop,), name="handoff-receiver",
-                                    daemon=True)
+        receiver = threading.Thread(target=self._receive, args=(receiver_stop,), name="handoff-receiver", daemon=True)
         receiver.start()
         self._stream.start()
-        self._events.event("started", f"device={self._device.name!r} ({self._device.host_api}) "
-                                      f"rate={self._cfg.audio.sample_rate} latency={self._stream.latency:.4f}s "
-                                      f"handoff={self._cfg.handoff.endpoint}")
+        self._events.event(
+            "started",
+            f"device={self._device.name!r} ({self._device.host_api}) "
+            f"rate={self._cfg.audio.sample_rate} latency={self._stream.latency:.4f}s "
+            f"handoff={self._cfg.handoff.endpoint}",
+        )
         poll_s = self._cfg.handoff.poll_ms / 1000.0
         callbacks, last_callback = self._state.callbacks, time.monotonic()
         while not stop.wait(poll_s):

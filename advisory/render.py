@@ -2,8 +2,8 @@
 
 The estimate log's timestamps stand in for arrival times and drive the same :class:`PulseScheduler` as the live
 generator, with the log's head probabilities where the live generator would use an estimate's head
-(:func:`advisory.conditions.head_rule`); each buffer is laid into the output at the moment it stands for and replaces the rest of the one
-before it, as the player does. The audio latency is left out: sample 0 is the first estimate.
+(:func:`advisory.conditions.head_rule`); each buffer is laid into the output at the moment it stands for and replaces
+the rest of the one before it, as the player does. The audio latency is left out: sample 0 is the first estimate.
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ def render_estimates(log: EstimateLog, cfg: AdvisoryConfig) -> Rendering:
     timing = cfg.timing
     times = log.timestamps - log.timestamps[0]
     end = float(times[-1]) + timing.cadence_s + timing.buffer_s
-    scheduler = PulseScheduler(pulse_rule(Condition.SEESYS, cfg), timing.window_s, timing.cadence_s,
-                               timing.stale_after_s, 0.0)
+    scheduler = PulseScheduler(
+        pulse_rule(Condition.SEESYS, cfg), timing.window_s, timing.cadence_s, timing.stale_after_s, 0.0
+    )
     buffers: dict[int, np.ndarray] = {}
     out = np.zeros(int(round(end * rate)) + buffer_samples(timing.buffer_s, rate), dtype=np.float32)
     decisions: list[Decision] = []
@@ -52,5 +53,5 @@ def render_estimates(log: EstimateLog, cfg: AdvisoryConfig) -> Rendering:
                 buffers[d.n_pulses] = synthesise(d.n_pulses, cfg.equation2, cfg.audio, timing.buffer_s)
             buf = buffers[d.n_pulses]
             start = int(round(d.time * rate))
-            out[start:start + buf.size] = buf
+            out[start : start + buf.size] = buf
     return Rendering(out[: int(round(end * rate))], decisions)

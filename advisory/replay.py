@@ -31,8 +31,9 @@ def _wait_until(due: float) -> float:
     return now
 
 
-def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkConfig, show_progress: bool,
-                     sent_log: Path | None = None) -> int:
+def replay_estimates(
+    log: EstimateLog, replay: ReplayConfig, network: NetworkConfig, show_progress: bool, sent_log: Path | None = None
+) -> int:
     """Publish every estimate at ``first send + (timestamp − first timestamp)``; returns how many were sent.
 
     Each estimate carries the log's frame index (the row number in a log without a ``frame_index`` column).
@@ -57,8 +58,18 @@ def replay_estimates(log: EstimateLog, replay: ReplayConfig, network: NetworkCon
                     start = sent_mono  # the schedule runs from the first send, however late that was
                 frame_index = log.frame_index(index)
                 head = tuple(Exceedance(t, p) for t, p in zip(log.head_thresholds_m, log.head(index) or ()))
-                pub.send_multipart(encode(Estimate(replay.replay_device_id, frame_index, float(timestamp),
-                                                   float(error_m), replay.replay_model_version, head=head)))
+                pub.send_multipart(
+                    encode(
+                        Estimate(
+                            replay.replay_device_id,
+                            frame_index,
+                            float(timestamp),
+                            float(error_m),
+                            replay.replay_model_version,
+                            head=head,
+                        )
+                    )
+                )
                 if sent is not None:
                     sent.write(frame_index, float(timestamp), sent_mono)
                 progress.advance(task)

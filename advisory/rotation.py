@@ -40,5 +40,5 @@ class RotationSpeed:
         dt = frame.timestamp - previous
         if not 0 < dt <= self._max_gap:
             return None
-        rms = math.sqrt(float(np.mean(rotation ** 2)))
+        rms = math.sqrt(float(np.mean(rotation**2)))
         return math.degrees(rms) / dt

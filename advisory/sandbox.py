@@ -58,8 +58,12 @@ class JackDummy:
 
     @staticmethod
     def _jack_wait(name: str, *args: str) -> subprocess.CompletedProcess:
-        return subprocess.run(["jack_wait", "-s", name, *args], capture_output=True, text=True,
-                              env={**os.environ, "JACK_NO_AUDIO_RESERVATION": "1"})
+        return subprocess.run(
+            ["jack_wait", "-s", name, *args],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "JACK_NO_AUDIO_RESERVATION": "1"},
+        )
 
     def start(self) -> None:
         if not self.available():
@@ -73,16 +77,21 @@ class JackDummy:
             self._log = tempfile.NamedTemporaryFile(prefix="jackd-", suffix=".log")
             # A JACK server left behind by a killed parent would hold one of the pool's names for good: the kernel
             # stops it with its parent (SIGTERM, so it clears its registry entry).
-            self._proc = subprocess.Popen(["jackd", "-n", name, *self._args], env={**os.environ, **self.env()},
-                                          stdout=self._log, stderr=subprocess.STDOUT,
-                                          preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM))
+            self._proc = subprocess.Popen(
+                ["jackd", "-n", name, *self._args],
+                env={**os.environ, **self.env()},
+                stdout=self._log,
+                stderr=subprocess.STDOUT,
+                preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM),
+            )
             ready = self._jack_wait(name, "-w", "-t", str(_JACK_WAIT_S))
             if ready.returncode == 0 and self._proc.poll() is None:
                 return
             problems.append(f"{name}: {Path(self._log.name).read_text(errors='replace')[-300:].strip()}")
             self.stop()
-        raise SeesysError("could not start a JACK dummy server: " + ("; ".join(problems) or
-                                                                     f"{', '.join(_SERVER_NAMES)} all running"))
+        raise SeesysError(
+            "could not start a JACK dummy server: " + ("; ".join(problems) or f"{', '.join(_SERVER_NAMES)} all running")
+        )
 
     def stop(self) -> None:
         if self._proc is None:

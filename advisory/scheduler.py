@@ -71,8 +71,15 @@ class PulseScheduler:
     """The generator's state: recent samples, the next tick, the N of the last buffer. ``rule_name`` names
     ``rule`` in the decisions (``estimate``: Equation 2 of the mean estimate)."""
 
-    def __init__(self, rule: Callable[[float], int], window_s: float, cadence_s: float, stale_after_s: float,
-                 start: float, rule_name: str = "estimate"):
+    def __init__(
+        self,
+        rule: Callable[[float], int],
+        window_s: float,
+        cadence_s: float,
+        stale_after_s: float,
+        start: float,
+        rule_name: str = "estimate",
+    ):
         self._rule = rule
         self._rule_name = rule_name
         self._window = window_s

@@ -26,7 +26,8 @@ _STOP_TIMEOUT_S = 5.0
 def process_args(condition: Condition, out: Path) -> dict[str, tuple[str, ...]]:
     """The ``seesys`` arguments of each process of a condition."""
     args: dict[str, tuple[str, ...]] = {
-        "generator": ("advisory", "generator", "--condition", condition.value, "--out", str(out))}
+        "generator": ("advisory", "generator", "--condition", condition.value, "--out", str(out))
+    }
     if condition.audible:
         args["player"] = ("advisory", "player", "--out", str(out))
     return args
@@ -40,11 +41,18 @@ def supervise(cfg: AdvisoryConfig, condition: Condition, out: Path, stop: thread
     out.mkdir(parents=True, exist_ok=True)
     events = EventLog(out, "supervisor")
     events.event("started", f"condition={condition.value}")
-    policy = SupervisionPolicy(ready_timeout_s=0.0, poll_s=0.2, restart_delay_s=cfg.supervisor.restart_delay_s,
-                               max_restarts=None, stop_timeout_s=_STOP_TIMEOUT_S,
-                               device_stop_timeout_s=_STOP_TIMEOUT_S, fatal_status=_SEESYS_ERROR_EXIT)
-    supervisor = Supervisor(out, None, policy, lambda part, event, detail: events.event(f"{part} {event}", detail),
-                            logs=False)
+    policy = SupervisionPolicy(
+        ready_timeout_s=0.0,
+        poll_s=0.2,
+        restart_delay_s=cfg.supervisor.restart_delay_s,
+        max_restarts=None,
+        stop_timeout_s=_STOP_TIMEOUT_S,
+        device_stop_timeout_s=_STOP_TIMEOUT_S,
+        fatal_status=_SEESYS_ERROR_EXIT,
+    )
+    supervisor = Supervisor(
+        out, None, policy, lambda part, event, detail: events.event(f"{part} {event}", detail), logs=False
+    )
     try:
         for name, args in process_args(condition, out).items():
             supervisor.start(PartSpec(name, args, restartable=True))

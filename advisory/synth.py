@@ -48,5 +48,5 @@ def synthesise_cue(cue: NoInformationConfig, sample_rate: int, buffer_s: float) 
     t = np.arange(length) / sample_rate
     tone = (cue.cue_level * np.hanning(length) * np.sin(2 * np.pi * cue.cue_tone_hz * t)).astype(np.float32)
     for onset in cue_onsets(cue, sample_rate):
-        out[onset:onset + length] = tone
+        out[onset : onset + length] = tone
     return out

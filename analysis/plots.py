@@ -15,16 +15,16 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
 
-from analysis.config import AnalysisConfig, Variable  # noqa: E402
-from seesys.core.trajectory import TrajectoryError  # noqa: E402
-from seesys.io.logfiles import read_csv_log  # noqa: E402
+from analysis.config import AnalysisConfig, Variable
+from seesys.core.trajectory import TrajectoryError
+from seesys.io.logfiles import read_csv_log
 from seesys.io.trajectory_files import read_tum
-from study.estimates import read_estimate_log, wall_to_camera_offset  # noqa: E402
-from study.sessions import StudyData, read_events  # noqa: E402
+from study.estimates import read_estimate_log, wall_to_camera_offset
+from study.sessions import StudyData, read_events
 
 ADVISORY_CSV = "advisory.csv"
 
@@ -32,8 +32,7 @@ ADVISORY_CSV = "advisory.csv"
 def box_strip(table: pd.DataFrame, variable: Variable, conditions: list[str], out: Path) -> Path:
     """Box plot per condition with every participant as a jittered point."""
     fig, ax = plt.subplots(figsize=(1.8 + 1.3 * len(conditions), 3.6))
-    values = [table.loc[table.condition == c, variable.column].dropna().to_numpy() * variable.scale
-              for c in conditions]
+    values = [table.loc[table.condition == c, variable.column].dropna().to_numpy() * variable.scale for c in conditions]
     ax.boxplot(values, tick_labels=conditions, showfliers=False, widths=0.5)
     rng = np.random.default_rng(0)
     for i, v in enumerate(values, start=1):
@@ -53,15 +52,19 @@ def _estimated_error_at(attempt: Path, times: np.ndarray, max_gap_s: float = 0.5
     log = read_estimate_log(attempt)
     if log.empty:
         return np.full(len(times), np.nan)
-    merged = pd.merge_asof(pd.DataFrame({"timestamp": np.asarray(times, float)}),
-                           log[["timestamp", "error_m"]].astype(float).sort_values("timestamp"), on="timestamp",
-                           direction="nearest", tolerance=max_gap_s)
+    merged = pd.merge_asof(
+        pd.DataFrame({"timestamp": np.asarray(times, float)}),
+        log[["timestamp", "error_m"]].astype(float).sort_values("timestamp"),
+        on="timestamp",
+        direction="nearest",
+        tolerance=max_gap_s,
+    )
     return merged.error_m.to_numpy()
 
 
 def _participants_to_plot(data: StudyData, condition: str, cfg: AnalysisConfig) -> list[tuple[str, list]]:
     chosen = [(p, a) for (p, c), a in sorted(data.attempts.items()) if c == condition]
-    return chosen[:cfg.plots_per_condition]
+    return chosen[: cfg.plots_per_condition]
 
 
 def trajectories(data: StudyData, condition: str, cfg: AnalysisConfig, out: Path) -> Path | None:
@@ -82,22 +85,30 @@ def trajectories(data: StudyData, condition: str, cfg: AnalysisConfig, out: Path
     errors = np.concatenate([e for _, _, e in drawn]) if drawn else np.zeros(0)
     finite = errors[np.isfinite(errors)]
     norm = plt.Normalize(*(np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0)))
-    fig, axes = plt.subplots(1, len(chosen), figsize=(3.4 * len(chosen) + 1.2, 3.8), squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(
+        1, len(chosen), figsize=(3.4 * len(chosen) + 1.2, 3.8), squeeze=False, layout="constrained"
+    )
     panel = {participant: ax for ax, (participant, _) in zip(axes[0], chosen)}
     for participant, poses, error_cm in drawn:
         ax = panel[participant]
         u, v = np.argsort(np.ptp(poses.positions, axis=0))[::-1][:2]
         ax.plot(poses.positions[:, u], poses.positions[:, v], color="0.8", lw=0.8, zorder=1)
-        ax.scatter(poses.positions[:, u], poses.positions[:, v], c=error_cm, s=6, cmap="viridis", norm=norm,
-                   zorder=2, plotnonfinite=True)
+        ax.scatter(
+            poses.positions[:, u],
+            poses.positions[:, v],
+            c=error_cm,
+            s=6,
+            cmap="viridis",
+            norm=norm,
+            zorder=2,
+            plotnonfinite=True,
+        )
     for participant, ax in panel.items():
         ax.set_title(participant)
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("m")
     fig.suptitle(f"Trajectories, {condition}: coloured by estimated error")
-    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap="viridis"), ax=axes[0].tolist(),
-                 label="estimated error (cm)")
+    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap="viridis"), ax=axes[0].tolist(), label="estimated error (cm)")
     path = out / f"trajectories_{condition}.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -123,13 +134,19 @@ def error_over_time(data: StudyData, condition: str, cfg: AnalysisConfig, out: P
             if (a.folder / ADVISORY_CSV).exists():
                 advisory = read_csv_log(a.folder / ADVISORY_CSV)
                 pulses = advisory.loc[advisory.n_pulses > 0, "wall_time"] + offset - t0
-                ax.vlines(pulses, 0, 0.15, transform=ax.get_xaxis_transform(), colors="tab:red", lw=0.6,
-                          label="audio pulses")
+                ax.vlines(
+                    pulses, 0, 0.15, transform=ax.get_xaxis_transform(), colors="tab:red", lw=0.6, label="audio pulses"
+                )
             for e in read_events(a.folder).itertuples():
                 ax.axvline(e.time + offset - t0, color="0.4", ls=":", lw=0.8)
-                ax.annotate(f"{e.kind} {e.detail if isinstance(e.detail, str) else ''}".strip(),
-                            (e.time + offset - t0, 0.95), xycoords=("data", "axes fraction"), fontsize=6,
-                            rotation=90, va="top")
+                ax.annotate(
+                    f"{e.kind} {e.detail if isinstance(e.detail, str) else ''}".strip(),
+                    (e.time + offset - t0, 0.95),
+                    xycoords=("data", "axes fraction"),
+                    fontsize=6,
+                    rotation=90,
+                    va="top",
+                )
         ax.set_title(participant, fontsize=9)
         ax.set_ylabel("cm")
         handles, labels = ax.get_legend_handles_labels()

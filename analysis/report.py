@@ -31,9 +31,11 @@ from study.sessions import DONE, advice_thresholds, collect_study
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
-HTML_STYLE = ("body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
-              "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:.2em .6em}"
-              "th{background:#eee}img{max-width:100%}code{background:#f4f4f4}")
+HTML_STYLE = (
+    "body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
+    "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:.2em .6em}"
+    "th{background:#eee}img{max-width:100%}code{background:#f4f4f4}"
+)
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,8 @@ def table5(comparisons: list[Comparison], conditions: list[str], cfg: AnalysisCo
             r = d.loc[condition]
             row[cfg.condition_labels.get(condition, condition)] = (
                 f"{fmt(r['mean'], v.decimals)} ± {fmt(r['sd'], v.decimals)} "
-                f"[{fmt(r['ci_low'], v.decimals)}, {fmt(r['ci_high'], v.decimals)}] (n = {int(r['n'])})")
+                f"[{fmt(r['ci_low'], v.decimals)}, {fmt(r['ci_high'], v.decimals)}] (n = {int(r['n'])})"
+            )
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -78,8 +81,9 @@ def analyse_table(table: pd.DataFrame, conditions: list[str], design: str, cfg: 
     return [compare(table, v, conditions, design, cfg) for v in cfg.variables if v.column in table]
 
 
-def changes_of(table: pd.DataFrame, comparisons: list[Comparison], conditions: list[str], design: str,
-               cfg: AnalysisConfig) -> pd.DataFrame:
+def changes_of(
+    table: pd.DataFrame, comparisons: list[Comparison], conditions: list[str], design: str, cfg: AnalysisConfig
+) -> pd.DataFrame:
     """The relative changes (``changes_of`` of analysis.toml) of every compared variable, as one tidy table."""
     frames = [relative_changes(table, c.variable, conditions, design, cfg.changes_of, cfg) for c in comparisons]
     frames = [f for f in frames if not f.empty]
@@ -105,11 +109,15 @@ def changes_table(changes: pd.DataFrame, comparisons: list[Comparison], cfg: Ana
     rows = []
     for r in changes.itertuples():
         label = cfg.condition_labels
-        rows.append({"Performance metric": titles.get(r.variable, r.variable),
-                     "change": f"{label.get(r.condition, r.condition)} vs {label.get(r.against, r.against)}",
-                     "relative change [CI]": f"{fmt(100 * r.relative_change, 1)} % "
-                                             f"[{fmt(100 * r.ci_low, 1)}, {fmt(100 * r.ci_high, 1)}]",
-                     "n": f"{r.n_condition} vs {r.n_against}"})
+        rows.append(
+            {
+                "Performance metric": titles.get(r.variable, r.variable),
+                "change": f"{label.get(r.condition, r.condition)} vs {label.get(r.against, r.against)}",
+                "relative change [CI]": f"{fmt(100 * r.relative_change, 1)} % "
+                f"[{fmt(100 * r.ci_low, 1)}, {fmt(100 * r.ci_high, 1)}]",
+                "n": f"{r.n_condition} vs {r.n_against}",
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -121,31 +129,45 @@ def _section(c: Comparison, cfg: AnalysisConfig, figures: dict[str, Path], out: 
         lines.append(f"- power: {c.power_note}")
     lines.append("")
     if not c.assumptions.empty:
-        a = c.assumptions.assign(statistic=c.assumptions.statistic.map(lambda x: fmt(x, 3)),
-                                 p=c.assumptions.p.map(_p),
-                                 passed=[("yes" if ok else "no") if math.isfinite(p) else "not checked (n < 3)"
-                                         for ok, p in zip(c.assumptions.passed, c.assumptions.p)])
+        a = c.assumptions.assign(
+            statistic=c.assumptions.statistic.map(lambda x: fmt(x, 3)),
+            p=c.assumptions.p.map(_p),
+            passed=[
+                ("yes" if ok else "no") if math.isfinite(p) else "not checked (n < 3)"
+                for ok, p in zip(c.assumptions.passed, c.assumptions.p)
+            ],
+        )
         lines += ["**Assumption checks**", "", a.to_markdown(index=False), ""]
     if not c.tests.empty:
         t = c.tests.copy()
-        t["result"] = [f"{r.statistic}({fmt(r.df1, 2)}{'' if not math.isfinite(r.df2) else ', ' + fmt(r.df2, 2)}) "
-                       f"= {fmt(r.value, 3)}, {_p_clause(r.p)}" for r in t.itertuples()]
-        t["effect size"] = [f"{r.effect} = {fmt(r.effect_value, 3)}" +
-                            (f" [{fmt(r.effect_ci_low, 3)}, {fmt(r.effect_ci_high, 3)}]"
-                             if math.isfinite(r.effect_ci_low) else "") if r.effect else ""
-                            for r in t.itertuples()]
+        t["result"] = [
+            f"{r.statistic}({fmt(r.df1, 2)}{'' if not math.isfinite(r.df2) else ', ' + fmt(r.df2, 2)}) "
+            f"= {fmt(r.value, 3)}, {_p_clause(r.p)}"
+            for r in t.itertuples()
+        ]
+        t["effect size"] = [
+            f"{r.effect} = {fmt(r.effect_value, 3)}"
+            + (f" [{fmt(r.effect_ci_low, 3)}, {fmt(r.effect_ci_high, 3)}]" if math.isfinite(r.effect_ci_low) else "")
+            if r.effect
+            else ""
+            for r in t.itertuples()
+        ]
         t["read"] = ["**yes**" if r.test == c.recommended_test else "" for r in t.itertuples()]
         lines += ["**Tests**", "", t[["test", "result", "effect size", "read"]].to_markdown(index=False), ""]
     if not c.posthoc.empty:
         ph = c.posthoc.copy()
         ph["difference"] = ph.mean_diff.map(lambda x: fmt(x, v.decimals + 1))
         ph["p (adjusted)"] = ph.p_adj.map(_p)
-        ph["Hedges' g [CI]"] = [f"{fmt(r.hedges_g, 2)} [{fmt(r.g_ci_low, 2)}, {fmt(r.g_ci_high, 2)}]"
-                                for r in ph.itertuples()]
+        ph["Hedges' g [CI]"] = [
+            f"{fmt(r.hedges_g, 2)} [{fmt(r.g_ci_low, 2)}, {fmt(r.g_ci_high, 2)}]" for r in ph.itertuples()
+        ]
         ph["read"] = ["**yes**" if m == c.recommended_posthoc else "" for m in ph.method]
-        lines += [f"**Post hoc** (difference = a − b, {v.unit or 'units'})", "",
-                  ph[["method", "a", "b", "difference", "p (adjusted)", "Hedges' g [CI]", "read"]]
-                  .to_markdown(index=False), ""]
+        lines += [
+            f"**Post hoc** (difference = a − b, {v.unit or 'units'})",
+            "",
+            ph[["method", "a", "b", "difference", "p (adjusted)", "Hedges' g [CI]", "read"]].to_markdown(index=False),
+            "",
+        ]
     if v.column in figures:
         lines += [f"![{v.label}]({figures[v.column].relative_to(out)})", ""]
     return lines
@@ -153,33 +175,58 @@ def _section(c: Comparison, cfg: AnalysisConfig, figures: dict[str, Path], out: 
 
 def metrics_note(metrics: MetricsConfig) -> str:
     """How the tracking error and completeness were computed, for the report."""
-    return (f"Tracking error: the mean of evo's RPE (translation part, delta = {metrics.delta_frames} frames, "
-            f"{'all' if metrics.all_pairs else 'non-overlapping'} pairs, association within "
-            f"{metrics.association_max_dt_s * 1e3:g} ms, SE(3) alignment, Sim(3) for monocular) over a "
-            "participant's task; completeness: the share of camera frames tracked from initialisation on.")
+    return (
+        f"Tracking error: the mean of evo's RPE (translation part, delta = {metrics.delta_frames} frames, "
+        f"{'all' if metrics.all_pairs else 'non-overlapping'} pairs, association within "
+        f"{metrics.association_max_dt_s * 1e3:g} ms, SE(3) alignment, Sim(3) for monocular) over a "
+        "participant's task; completeness: the share of camera frames tracked from initialisation on."
+    )
 
 
-def render_report(table: pd.DataFrame, comparisons: list[Comparison], conditions: list[str],
-                  design: str, cfg: AnalysisConfig, figures: dict[str, Path], out: Path, title: str,
-                  note: str = "", changes: pd.DataFrame | None = None) -> str:
+def render_report(
+    table: pd.DataFrame,
+    comparisons: list[Comparison],
+    conditions: list[str],
+    design: str,
+    cfg: AnalysisConfig,
+    figures: dict[str, Path],
+    out: Path,
+    title: str,
+    note: str = "",
+    changes: pd.DataFrame | None = None,
+) -> str:
     measured = table.dropna(subset=[c.variable.column for c in comparisons], how="all")
     counts = measured.groupby("condition").participant.nunique().reindex(conditions, fill_value=0)
     statuses = table.status.value_counts().to_dict() if "status" in table else {}
-    lines = [f"# {title}", "",
-             f"Design: {design}-subjects, conditions {', '.join(conditions)}; participants with data per "
-             f"condition: "
-             f"{', '.join(f'{c} {n}' for c, n in counts.items())}"
-             + (f"; sessions {', '.join(f'{k} {v}' for k, v in statuses.items())}." if statuses else "."),
-             f"Tests at alpha = {cfg.alpha}; intervals at {cfg.confidence:.0%}. Tidy tables: participants.csv, "
-             "rpe_pairs.csv, descriptives.csv, assumptions.csv, tests.csv, posthoc.csv.", ""]
+    lines = [
+        f"# {title}",
+        "",
+        f"Design: {design}-subjects, conditions {', '.join(conditions)}; participants with data per "
+        f"condition: "
+        f"{', '.join(f'{c} {n}' for c, n in counts.items())}"
+        + (f"; sessions {', '.join(f'{k} {v}' for k, v in statuses.items())}." if statuses else "."),
+        f"Tests at alpha = {cfg.alpha}; intervals at {cfg.confidence:.0%}. Tidy tables: participants.csv, "
+        "rpe_pairs.csv, descriptives.csv, assumptions.csv, tests.csv, posthoc.csv.",
+        "",
+    ]
     if note:
         lines.append(note)
-    lines += ["", "## Results per condition (Table 5 layout: mean ± SD [95 % CI])", "",
-              table5(comparisons, conditions, cfg).to_markdown(index=False), ""]
+    lines += [
+        "",
+        "## Results per condition (Table 5 layout: mean ± SD [95 % CI])",
+        "",
+        table5(comparisons, conditions, cfg).to_markdown(index=False),
+        "",
+    ]
     if changes is not None and not changes.empty:
-        lines += [f"## Relative change of the means ({cfg.confidence:.0%} percentile bootstrap CI)", "",
-                  "mean of the condition / mean of the other − 1; negative is lower. Tidy table: changes.csv.", "",
-                  changes_table(changes, comparisons, cfg).to_markdown(index=False), ""]
+        lines += [
+            f"## Relative change of the means ({cfg.confidence:.0%} percentile bootstrap CI)",
+            "",
+            "mean of the condition / mean of the other − 1; negative is lower. Tidy table: changes.csv.",
+            "",
+            changes_table(changes, comparisons, cfg).to_markdown(index=False),
+            "",
+        ]
     for c in comparisons:
         lines += _section(c, cfg, figures, out)
     extra = [p for key, p in figures.items() if key.startswith(("trajectories_", "error_over_time_"))]
@@ -192,8 +239,10 @@ def render_report(table: pd.DataFrame, comparisons: list[Comparison], conditions
 def write_report(markdown: str, out: Path, title: str) -> None:
     (out / REPORT_MD).write_text(markdown)
     body = MarkdownIt("commonmark").enable("table").render(markdown)
-    (out / REPORT_HTML).write_text(f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{title}</title>"
-                                   f"<style>{HTML_STYLE}</style></head><body>\n{body}</body></html>\n")
+    (out / REPORT_HTML).write_text(
+        f'<!DOCTYPE html>\n<html><head><meta charset="utf-8"><title>{title}</title>'
+        f"<style>{HTML_STYLE}</style></head><body>\n{body}</body></html>\n"
+    )
 
 
 def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: MetricsConfig) -> AnalysisResult:
@@ -215,16 +264,31 @@ def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: M
     write_tables(comparisons, out)
     changes = changes_of(table, comparisons, conditions, data.protocol.design, cfg)
     changes.to_csv(out / "changes.csv", index=False)
-    figures: dict[str, Path] = {c.variable.column: plots.box_strip(table, c.variable, conditions, figures_dir)
-                                for c in comparisons}
+    figures: dict[str, Path] = {
+        c.variable.column: plots.box_strip(table, c.variable, conditions, figures_dir) for c in comparisons
+    }
     for condition in conditions:
         for kind, draw in (("trajectories", plots.trajectories), ("error_over_time", plots.error_over_time)):
             path = draw(data, condition, cfg, figures_dir)
             if path is not None:
                 figures[f"{kind}_{condition}"] = path
     title = f"Study {Path(study).resolve().name}"
-    write_report(render_report(table, comparisons, conditions, data.protocol.design, cfg, figures, out, title,
-                               metrics_note(metrics), changes), out, title)
+    write_report(
+        render_report(
+            table,
+            comparisons,
+            conditions,
+            data.protocol.design,
+            cfg,
+            figures,
+            out,
+            title,
+            metrics_note(metrics),
+            changes,
+        ),
+        out,
+        title,
+    )
     return AnalysisResult(out, comparisons, table)
 
 

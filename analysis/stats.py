@@ -68,8 +68,13 @@ def descriptives(data: pd.DataFrame, conditions: list[str], confidence: float) -
         n = len(x)
         mean = float(x.mean()) if n else math.nan
         sd = float(x.std(ddof=1)) if n > 1 else math.nan
-        low, high = (stats.t.interval(confidence, n - 1, loc=mean, scale=sd / math.sqrt(n)) if n > 1 and sd > 0
-                     else (mean, mean) if n > 1 else (math.nan, math.nan))
+        low, high = (
+            stats.t.interval(confidence, n - 1, loc=mean, scale=sd / math.sqrt(n))
+            if n > 1 and sd > 0
+            else (mean, mean)
+            if n > 1
+            else (math.nan, math.nan)
+        )
         rows.append({"condition": c, "n": n, "mean": mean, "sd": sd, "ci_low": float(low), "ci_high": float(high)})
     return pd.DataFrame(rows)
 
@@ -84,9 +89,15 @@ def _shapiro(x: np.ndarray) -> tuple[float, float]:
 def _bootstrap_ci(samples: list[np.ndarray], statistic, cfg: AnalysisConfig) -> tuple[float, float]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # degenerate resamples (a constant group) give NaN and a warning
-        result = stats.bootstrap(samples, statistic, n_resamples=cfg.bootstrap_resamples,
-                                 confidence_level=cfg.confidence, method="percentile", vectorized=True,
-                                 random_state=np.random.default_rng(cfg.bootstrap_seed))
+        result = stats.bootstrap(
+            samples,
+            statistic,
+            n_resamples=cfg.bootstrap_resamples,
+            confidence_level=cfg.confidence,
+            method="percentile",
+            vectorized=True,
+            random_state=np.random.default_rng(cfg.bootstrap_seed),
+        )
     return float(result.confidence_interval.low), float(result.confidence_interval.high)
 
 
@@ -138,13 +149,15 @@ def compare_between(table: pd.DataFrame, variable: Variable, conditions: list[st
     k, n = len(present), len(data)
 
     model = smf.ols("value ~ C(condition)", data=data).fit()
-    rows = [{"check": "Shapiro-Wilk", "group": c, "statistic": s, "p": p} for c in present
-            for s, p in [_shapiro(groups[c])]]
+    rows = [
+        {"check": "Shapiro-Wilk", "group": c, "statistic": s, "p": p} for c in present for s, p in [_shapiro(groups[c])]
+    ]
     statistic, p = _shapiro(model.resid.to_numpy())
     rows.append({"check": "Shapiro-Wilk", "group": "residuals", "statistic": statistic, "p": p})
     levene = stats.levene(*samples, center="median")
-    rows.append({"check": "Levene (median)", "group": "all", "statistic": float(levene.statistic),
-                 "p": float(levene.pvalue)})
+    rows.append(
+        {"check": "Levene (median)", "group": "all", "statistic": float(levene.statistic), "p": float(levene.pvalue)}
+    )
     result.assumptions = pd.DataFrame(rows)
     result.assumptions["passed"] = ~(result.assumptions.p < cfg.alpha)  # an unchecked (NaN) p does not fail
 
@@ -159,22 +172,60 @@ def compare_between(table: pd.DataFrame, variable: Variable, conditions: list[st
     kruskal = stats.kruskal(*samples)
     eps2 = float(kruskal.statistic) / (n - 1)
     eps_ci = _bootstrap_ci(samples, epsilon_squared, cfg)
-    result.tests = pd.DataFrame([
-        {"test": "one-way ANOVA", "statistic": "F", "value": float(anova.loc["C(condition)", "F"]), "df1": df_b,
-         "df2": df_w, "p": float(anova.loc["C(condition)", "PR(>F)"]), "effect": "eta^2", "effect_value": eta2,
-         "effect_ci_low": eta_ci[0], "effect_ci_high": eta_ci[1]},
-        {"test": "one-way ANOVA", "statistic": "F", "value": float(anova.loc["C(condition)", "F"]), "df1": df_b,
-         "df2": df_w, "p": float(anova.loc["C(condition)", "PR(>F)"]), "effect": "omega^2", "effect_value": omega2,
-         "effect_ci_low": math.nan, "effect_ci_high": math.nan},
-        {"test": "Welch ANOVA", "statistic": "F", "value": float(welch.statistic), "df1": float(welch.df_num),
-         "df2": float(welch.df_denom), "p": float(welch.pvalue), "effect": "", "effect_value": math.nan,
-         "effect_ci_low": math.nan, "effect_ci_high": math.nan},
-        {"test": "Kruskal-Wallis", "statistic": "H", "value": float(kruskal.statistic), "df1": k - 1,
-         "df2": math.nan, "p": float(kruskal.pvalue), "effect": "epsilon^2", "effect_value": eps2,
-         "effect_ci_low": eps_ci[0], "effect_ci_high": eps_ci[1]},
-    ])
+    result.tests = pd.DataFrame(
+        [
+            {
+                "test": "one-way ANOVA",
+                "statistic": "F",
+                "value": float(anova.loc["C(condition)", "F"]),
+                "df1": df_b,
+                "df2": df_w,
+                "p": float(anova.loc["C(condition)", "PR(>F)"]),
+                "effect": "eta^2",
+                "effect_value": eta2,
+                "effect_ci_low": eta_ci[0],
+                "effect_ci_high": eta_ci[1],
+            },
+            {
+                "test": "one-way ANOVA",
+                "statistic": "F",
+                "value": float(anova.loc["C(condition)", "F"]),
+                "df1": df_b,
+                "df2": df_w,
+                "p": float(anova.loc["C(condition)", "PR(>F)"]),
+                "effect": "omega^2",
+                "effect_value": omega2,
+                "effect_ci_low": math.nan,
+                "effect_ci_high": math.nan,
+            },
+            {
+                "test": "Welch ANOVA",
+                "statistic": "F",
+                "value": float(welch.statistic),
+                "df1": float(welch.df_num),
+                "df2": float(welch.df_denom),
+                "p": float(welch.pvalue),
+                "effect": "",
+                "effect_value": math.nan,
+                "effect_ci_low": math.nan,
+                "effect_ci_high": math.nan,
+            },
+            {
+                "test": "Kruskal-Wallis",
+                "statistic": "H",
+                "value": float(kruskal.statistic),
+                "df1": k - 1,
+                "df2": math.nan,
+                "p": float(kruskal.pvalue),
+                "effect": "epsilon^2",
+                "effect_value": eps2,
+                "effect_ci_low": eps_ci[0],
+                "effect_ci_high": eps_ci[1],
+            },
+        ]
+    )
 
-    pairs = [(a, b) for i, a in enumerate(present) for b in present[i + 1:]]
+    pairs = [(a, b) for i, a in enumerate(present) for b in present[i + 1 :]]
     effects = {(a, b): _pair_effects(groups, a, b, cfg.confidence) for a, b in pairs}
     tukey = pairwise_tukeyhsd(data.value, data.condition, alpha=cfg.alpha)
     tukey_p = {tuple(sorted((str(r[0]), str(r[1])))): float(r[3]) for r in tukey.summary().data[1:]}
@@ -182,33 +233,57 @@ def compare_between(table: pd.DataFrame, variable: Variable, conditions: list[st
     games_p = {tuple(sorted((r.A, r.B))): float(r.pval) for r in games.itertuples()}
     dunn = sp.posthoc_dunn(data, val_col="value", group_col="condition", p_adjust="holm")
     rows = []
-    for method, p_of in (("Tukey HSD", tukey_p), ("Games-Howell", games_p),
-                         ("Dunn (Holm)", {tuple(sorted((a, b))): float(dunn.loc[a, b]) for a, b in pairs})):
+    for method, p_of in (
+        ("Tukey HSD", tukey_p),
+        ("Games-Howell", games_p),
+        ("Dunn (Holm)", {tuple(sorted((a, b))): float(dunn.loc[a, b]) for a, b in pairs}),
+    ):
         for a, b in pairs:
-            rows.append({"method": method, "a": a, "b": b, "mean_diff": groups[a].mean() - groups[b].mean(),
-                         "p_adj": p_of[tuple(sorted((a, b)))], **effects[(a, b)]})
+            rows.append(
+                {
+                    "method": method,
+                    "a": a,
+                    "b": b,
+                    "mean_diff": groups[a].mean() - groups[b].mean(),
+                    "p_adj": p_of[tuple(sorted((a, b)))],
+                    **effects[(a, b)],
+                }
+            )
     result.posthoc = pd.DataFrame(rows)
 
     normal = bool(result.assumptions.loc[result.assumptions.check == "Shapiro-Wilk", "passed"].all())
     equal_var = bool(result.assumptions.loc[result.assumptions.check == "Levene (median)", "passed"].all())
     result.recommended_test, result.recommended_posthoc = (
-        ("one-way ANOVA", "Tukey HSD") if normal and equal_var else
-        ("Welch ANOVA", "Games-Howell") if normal else ("Kruskal-Wallis", "Dunn (Holm)"))
-    result.notes.append(f"assumptions: {'normal' if normal else 'not normal'} (Shapiro-Wilk), "
-                        f"{'equal' if equal_var else 'unequal'} variances (Levene): read the "
-                        f"{result.recommended_test} and {result.recommended_posthoc}")
+        ("one-way ANOVA", "Tukey HSD")
+        if normal and equal_var
+        else ("Welch ANOVA", "Games-Howell")
+        if normal
+        else ("Kruskal-Wallis", "Dunn (Holm)")
+    )
+    result.notes.append(
+        f"assumptions: {'normal' if normal else 'not normal'} (Shapiro-Wilk), "
+        f"{'equal' if equal_var else 'unequal'} variances (Levene): read the "
+        f"{result.recommended_test} and {result.recommended_posthoc}"
+    )
     cohen_f = math.sqrt(eta2 / (1 - eta2)) if 0 < eta2 < 1 else math.nan
     if math.isfinite(cohen_f) and cohen_f > 0:
         power = FTestAnovaPower()
         smallest = power.power(effect_size=cohen_f, nobs=MIN_PER_GROUP * k, alpha=cfg.alpha, k_groups=k)
-        total = math.nan if smallest >= cfg.target_power else \
-            power.solve_power(effect_size=cohen_f, nobs=None, alpha=cfg.alpha, power=cfg.target_power, k_groups=k)
-        needed = (f"{math.ceil(total / k)} participants per condition ({math.ceil(total / k) * k} in all"
-                  if math.isfinite(total) else f"no more than {MIN_PER_GROUP} participants per condition (the "
-                                               f"smallest design already has that power")
-        result.power_note = (f"observed effect Cohen's f = {cohen_f:.2f} (from eta^2 = {eta2:.3f}); detecting it "
-                             f"with power {cfg.target_power:.0%} at alpha = {cfg.alpha} in a one-way ANOVA needs "
-                             f"{needed}; this study has {n})")
+        total = (
+            math.nan
+            if smallest >= cfg.target_power
+            else power.solve_power(effect_size=cohen_f, nobs=None, alpha=cfg.alpha, power=cfg.target_power, k_groups=k)
+        )
+        needed = (
+            f"{math.ceil(total / k)} participants per condition ({math.ceil(total / k) * k} in all"
+            if math.isfinite(total)
+            else f"no more than {MIN_PER_GROUP} participants per condition (the smallest design already has that power"
+        )
+        result.power_note = (
+            f"observed effect Cohen's f = {cohen_f:.2f} (from eta^2 = {eta2:.3f}); detecting it "
+            f"with power {cfg.target_power:.0%} at alpha = {cfg.alpha} in a one-way ANOVA needs "
+            f"{needed}; this study has {n})"
+        )
     else:
         result.power_note = "no effect observed (eta^2 = 0): no sample size can be given"
     return result
@@ -225,66 +300,130 @@ def compare_within(table: pd.DataFrame, variable: Variable, conditions: list[str
     data = data[data.participant.isin(complete) & data.condition.isin(conditions)]
     result = Comparison(variable, "within", descriptives(data, conditions, cfg.confidence))
     if len(complete) < everyone.participant.nunique():
-        result.notes.append(f"{everyone.participant.nunique() - len(complete)} participant(s) without every "
-                            f"condition: left out of all but the mixed model")
+        result.notes.append(
+            f"{everyone.participant.nunique() - len(complete)} participant(s) without every "
+            f"condition: left out of all but the mixed model"
+        )
     if len(complete) < 3 or data.value.std() == 0:
-        result.notes.append(f"fewer than three participants with every condition, or no variation: no tests for "
-                            f"{variable.label}")
+        result.notes.append(
+            f"fewer than three participants with every condition, or no variation: no tests for {variable.label}"
+        )
         return result
     groups = {c: data.loc[data.condition == c].sort_values("participant").value.to_numpy() for c in conditions}
-    rows = [{"check": "Shapiro-Wilk", "group": c, "statistic": s, "p": p} for c in conditions
-            for s, p in [_shapiro(groups[c])]]
+    rows = [
+        {"check": "Shapiro-Wilk", "group": c, "statistic": s, "p": p}
+        for c in conditions
+        for s, p in [_shapiro(groups[c])]
+    ]
     sphericity = pg.sphericity(data, dv="value", within="condition", subject="participant")
-    rows.append({"check": "Mauchly sphericity", "group": "all", "statistic": float(sphericity.W),
-                 "p": float(sphericity.pval)})
+    rows.append(
+        {"check": "Mauchly sphericity", "group": "all", "statistic": float(sphericity.W), "p": float(sphericity.pval)}
+    )
     result.assumptions = pd.DataFrame(rows)
     result.assumptions["passed"] = ~(result.assumptions.p < cfg.alpha)
 
-    rm = pg.rm_anova(data=data, dv="value", within="condition", subject="participant", correction=True,
-                     effsize="np2").iloc[0]
+    rm = pg.rm_anova(
+        data=data, dv="value", within="condition", subject="participant", correction=True, effsize="np2"
+    ).iloc[0]
     friedman = pg.friedman(data=data, dv="value", within="condition", subject="participant").iloc[0]
     p_gg = float(rm.get("p_GG_corr", rm.get("p-GG-corr", math.nan)))
-    result.tests = pd.DataFrame([
-        {"test": "repeated-measures ANOVA", "statistic": "F", "value": float(rm.F), "df1": float(rm.ddof1),
-         "df2": float(rm.ddof2), "p": float(rm.get("p_unc", rm.get("p-unc"))), "effect": "partial eta^2",
-         "effect_value": float(rm.np2), "effect_ci_low": math.nan, "effect_ci_high": math.nan},
-        {"test": "repeated-measures ANOVA (Greenhouse-Geisser)", "statistic": "F", "value": float(rm.F),
-         "df1": float(rm.ddof1) * float(rm.eps), "df2": float(rm.ddof2) * float(rm.eps), "p": p_gg,
-         "effect": "partial eta^2", "effect_value": float(rm.np2), "effect_ci_low": math.nan,
-         "effect_ci_high": math.nan},
-        {"test": "Friedman", "statistic": "Q", "value": float(friedman.Q), "df1": float(friedman.ddof1),
-         "df2": math.nan, "p": float(friedman.get("p_unc", friedman.get("p-unc"))), "effect": "Kendall W",
-         "effect_value": float(friedman.W), "effect_ci_low": math.nan, "effect_ci_high": math.nan},
-        _mixed_model(everyone),
-    ])
+    result.tests = pd.DataFrame(
+        [
+            {
+                "test": "repeated-measures ANOVA",
+                "statistic": "F",
+                "value": float(rm.F),
+                "df1": float(rm.ddof1),
+                "df2": float(rm.ddof2),
+                "p": float(rm.get("p_unc", rm.get("p-unc"))),
+                "effect": "partial eta^2",
+                "effect_value": float(rm.np2),
+                "effect_ci_low": math.nan,
+                "effect_ci_high": math.nan,
+            },
+            {
+                "test": "repeated-measures ANOVA (Greenhouse-Geisser)",
+                "statistic": "F",
+                "value": float(rm.F),
+                "df1": float(rm.ddof1) * float(rm.eps),
+                "df2": float(rm.ddof2) * float(rm.eps),
+                "p": p_gg,
+                "effect": "partial eta^2",
+                "effect_value": float(rm.np2),
+                "effect_ci_low": math.nan,
+                "effect_ci_high": math.nan,
+            },
+            {
+                "test": "Friedman",
+                "statistic": "Q",
+                "value": float(friedman.Q),
+                "df1": float(friedman.ddof1),
+                "df2": math.nan,
+                "p": float(friedman.get("p_unc", friedman.get("p-unc"))),
+                "effect": "Kendall W",
+                "effect_value": float(friedman.W),
+                "effect_ci_low": math.nan,
+                "effect_ci_high": math.nan,
+            },
+            _mixed_model(everyone),
+        ]
+    )
     rows = []
     for parametric, method in ((True, "paired t (Holm)"), (False, "Wilcoxon (Holm)")):
-        table_ = pg.pairwise_tests(data=data, dv="value", within="condition", subject="participant",
-                                   parametric=parametric, padjust="holm")
+        table_ = pg.pairwise_tests(
+            data=data, dv="value", within="condition", subject="participant", parametric=parametric, padjust="holm"
+        )
         p_col = "p_corr" if "p_corr" in table_ else "p-corr"
         for r in table_.to_dict("records"):
             a, b = r["A"], r["B"]
-            rows.append({"method": method, "a": a, "b": b, "mean_diff": groups[a].mean() - groups[b].mean(),
-                         "p_adj": float(r[p_col]), **_pair_effects(groups, a, b, cfg.confidence, paired=True)})
+            rows.append(
+                {
+                    "method": method,
+                    "a": a,
+                    "b": b,
+                    "mean_diff": groups[a].mean() - groups[b].mean(),
+                    "p_adj": float(r[p_col]),
+                    **_pair_effects(groups, a, b, cfg.confidence, paired=True),
+                }
+            )
     result.posthoc = pd.DataFrame(rows)
     normal = bool(result.assumptions.loc[result.assumptions.check == "Shapiro-Wilk", "passed"].all())
     spherical = bool(result.assumptions.loc[result.assumptions.check == "Mauchly sphericity", "passed"].all())
-    result.recommended_test = ("repeated-measures ANOVA" if normal and spherical else
-                               "repeated-measures ANOVA (Greenhouse-Geisser)" if normal else "Friedman")
+    result.recommended_test = (
+        "repeated-measures ANOVA"
+        if normal and spherical
+        else "repeated-measures ANOVA (Greenhouse-Geisser)"
+        if normal
+        else "Friedman"
+    )
     result.recommended_posthoc = "paired t (Holm)" if normal else "Wilcoxon (Holm)"
-    result.notes.append(f"assumptions: {'normal' if normal else 'not normal'} (Shapiro-Wilk), sphericity "
-                        f"{'holds' if spherical else 'violated'} (Mauchly): read the {result.recommended_test} "
-                        f"and {result.recommended_posthoc}")
+    result.notes.append(
+        f"assumptions: {'normal' if normal else 'not normal'} (Shapiro-Wilk), sphericity "
+        f"{'holds' if spherical else 'violated'} (Mauchly): read the {result.recommended_test} "
+        f"and {result.recommended_posthoc}"
+    )
     if 0 < float(rm.np2) < 1:
         wide = data.pivot(index="participant", columns="condition", values="value")
         corr = float(np.nanmean(wide.corr().to_numpy()[np.triu_indices(len(conditions), 1)]))
-        needed = pg.power_rm_anova(eta_squared=float(rm.np2), m=len(conditions), n=None, power=cfg.target_power,
-                                   alpha=cfg.alpha, corr=max(min(corr, 0.99), -0.49), epsilon=float(rm.eps))
-        count = (f"{math.ceil(needed)} participants" if math.isfinite(needed) else
-                 f"no more than {MIN_PER_GROUP} participants (the smallest design already has that power)")
-        result.power_note = (f"observed partial eta^2 = {float(rm.np2):.3f} (mean correlation between conditions "
-                             f"{corr:.2f}); power {cfg.target_power:.0%} at alpha = {cfg.alpha} needs "
-                             f"{count}; this study has {len(complete)}")
+        needed = pg.power_rm_anova(
+            eta_squared=float(rm.np2),
+            m=len(conditions),
+            n=None,
+            power=cfg.target_power,
+            alpha=cfg.alpha,
+            corr=max(min(corr, 0.99), -0.49),
+            epsilon=float(rm.eps),
+        )
+        count = (
+            f"{math.ceil(needed)} participants"
+            if math.isfinite(needed)
+            else f"no more than {MIN_PER_GROUP} participants (the smallest design already has that power)"
+        )
+        result.power_note = (
+            f"observed partial eta^2 = {float(rm.np2):.3f} (mean correlation between conditions "
+            f"{corr:.2f}); power {cfg.target_power:.0%} at alpha = {cfg.alpha} needs "
+            f"{count}; this study has {len(complete)}"
+        )
     else:
         result.power_note = "no effect observed: no sample size can be given"
     return result
@@ -296,9 +435,18 @@ def _mixed_model(data: pd.DataFrame) -> dict:
     who miss a condition (a crashed session)."""
     import statsmodels.formula.api as smf
 
-    row = {"test": "mixed model (random intercept)", "statistic": "chi2", "value": math.nan, "df1": math.nan,
-           "df2": math.nan, "p": math.nan, "effect": "", "effect_value": math.nan, "effect_ci_low": math.nan,
-           "effect_ci_high": math.nan}
+    row = {
+        "test": "mixed model (random intercept)",
+        "statistic": "chi2",
+        "value": math.nan,
+        "df1": math.nan,
+        "df2": math.nan,
+        "p": math.nan,
+        "effect": "",
+        "effect_value": math.nan,
+        "effect_ci_low": math.nan,
+        "effect_ci_high": math.nan,
+    }
     try:
         fit = smf.mixedlm("value ~ C(condition)", data, groups=data["participant"]).fit(reml=True)
         wald = fit.wald_test_terms(scalar=True).table.loc["C(condition)"]
@@ -314,8 +462,9 @@ def _ratio_minus_one(b: np.ndarray, a: np.ndarray, axis: int = -1) -> np.ndarray
         return np.where(reference == 0, np.nan, np.mean(b, axis=axis) / reference - 1.0)
 
 
-def relative_changes(table: pd.DataFrame, variable: Variable, conditions: list[str], design: str, of: list[str],
-                     cfg: AnalysisConfig) -> pd.DataFrame:
+def relative_changes(
+    table: pd.DataFrame, variable: Variable, conditions: list[str], design: str, of: list[str], cfg: AnalysisConfig
+) -> pd.DataFrame:
     """The change of each condition in ``of`` against every other condition, relative to the other's mean
     (mean_b / mean_a − 1: −0.25 is the paper's "25 % lower"), with a percentile bootstrap CI: groups resampled
     separately between subjects; participants resampled with their pairs within subjects (only participants with
@@ -329,8 +478,7 @@ def relative_changes(table: pd.DataFrame, variable: Variable, conditions: list[s
                 y = data.loc[data.condition == b, "value"].to_numpy()
                 paired = False
             else:
-                wide = data.pivot_table(index="participant", columns="condition", values="value").dropna(
-                    subset=[a, b])
+                wide = data.pivot_table(index="participant", columns="condition", values="value").dropna(subset=[a, b])
                 x, y, paired = wide[a].to_numpy(), wide[b].to_numpy(), True
             change, low, high = math.nan, math.nan, math.nan
             if len(x) and len(y):
@@ -338,15 +486,33 @@ def relative_changes(table: pd.DataFrame, variable: Variable, conditions: list[s
             if len(x) > 1 and len(y) > 1 and math.isfinite(change):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    result = stats.bootstrap((y, x), _ratio_minus_one, paired=paired, vectorized=True,
-                                             n_resamples=cfg.bootstrap_resamples, confidence_level=cfg.confidence,
-                                             method="percentile", random_state=np.random.default_rng(cfg.bootstrap_seed))
+                    result = stats.bootstrap(
+                        (y, x),
+                        _ratio_minus_one,
+                        paired=paired,
+                        vectorized=True,
+                        n_resamples=cfg.bootstrap_resamples,
+                        confidence_level=cfg.confidence,
+                        method="percentile",
+                        random_state=np.random.default_rng(cfg.bootstrap_seed),
+                    )
                 low, high = float(result.confidence_interval.low), float(result.confidence_interval.high)
-            rows.append({"variable": variable.column, "condition": b, "against": a, "n_condition": len(y),
-                         "n_against": len(x), "relative_change": change, "ci_low": low, "ci_high": high})
+            rows.append(
+                {
+                    "variable": variable.column,
+                    "condition": b,
+                    "against": a,
+                    "n_condition": len(y),
+                    "n_against": len(x),
+                    "relative_change": change,
+                    "ci_low": low,
+                    "ci_high": high,
+                }
+            )
     return pd.DataFrame(rows)
 
 
-def compare(table: pd.DataFrame, variable: Variable, conditions: list[str], design: str,
-            cfg: AnalysisConfig) -> Comparison:
+def compare(
+    table: pd.DataFrame, variable: Variable, conditions: list[str], design: str, cfg: AnalysisConfig
+) -> Comparison:
     return (compare_between if design == "between" else compare_within)(table, variable, conditions, cfg)

@@ -77,7 +77,7 @@ def publish(endpoint: str, seconds: float, rng: np.random.Generator) -> np.ndarr
 
 def percentiles(values_ms: np.ndarray) -> str:
     p50, p95, p99 = np.percentile(values_ms, [50, 95, 99])
-    return (f"n={values_ms.size} p50={p50:.1f} ms p95={p95:.1f} ms p99={p99:.1f} ms max={values_ms.max():.1f} ms")
+    return f"n={values_ms.size} p50={p50:.1f} ms p95={p95:.1f} ms p99={p99:.1f} ms max={values_ms.max():.1f} ms"
 
 
 def main() -> None:
@@ -90,15 +90,23 @@ def main() -> None:
     root = Path(tempfile.mkdtemp(prefix="sadvb", dir="/tmp"))
     session = root / "session"
     estimates = f"ipc://{root}/estimates"
-    config = write_config_dir(root / "configs", {"host_api": JACK_HOST_API, "endpoint": f"ipc://{root}/handoff",
-                                                 "estimates_endpoint": estimates,
-                                                 "features_endpoint": f"ipc://{root}/features"})
+    config = write_config_dir(
+        root / "configs",
+        {
+            "host_api": JACK_HOST_API,
+            "endpoint": f"ipc://{root}/handoff",
+            "estimates_endpoint": estimates,
+            "features_endpoint": f"ipc://{root}/features",
+        },
+    )
     procs = []
     try:
         with JackDummy(cfg.audio.sample_rate, cfg.audio.blocksize) as jack:
             env = process_env(config, jack)
-            for command in (["player", "--out", str(session)],
-                            ["generator", "--condition", "seesys", "--out", str(session)]):
+            for command in (
+                ["player", "--out", str(session)],
+                ["generator", "--condition", "seesys", "--out", str(session)],
+            ):
                 procs.append(subprocess.Popen(advisory_command(*command), env=env, stderr=subprocess.DEVNULL))
             wait_started(session, ("player", "generator"))
             sent = publish(estimates, args.seconds, np.random.default_rng(args.seed))
@@ -130,22 +138,30 @@ def main() -> None:
     tick_to_dac = (tick_rows.dac_mono - tick_rows.time_mono).to_numpy() * 1000
     underflows = events[events.event == "stream status"].detail.str.extract(r"^(\d+)")[0].astype(float).sum()
 
-    print(f"advisory latency benchmark: {args.seconds:.0f} s of estimates at {PUBLISH_HZ:.0f} Hz, JACK dummy "
-          f"{cfg.audio.sample_rate} Hz / {cfg.audio.blocksize}-frame periods, schedule_latency_s="
-          f"{cfg.audio.schedule_latency_s}")
-    print(f"buffers generated {len(generated)}, played {len(played)} "
-          f"({(generated.trigger == 'change').sum()} changes of N); callbacks flagged (xruns): {underflows:.0f}; "
-          f"device lost: {(events.event == 'audio device lost').sum()}")
+    print(
+        f"advisory latency benchmark: {args.seconds:.0f} s of estimates at {PUBLISH_HZ:.0f} Hz, JACK dummy "
+        f"{cfg.audio.sample_rate} Hz / {cfg.audio.blocksize}-frame periods, schedule_latency_s="
+        f"{cfg.audio.schedule_latency_s}"
+    )
+    print(
+        f"buffers generated {len(generated)}, played {len(played)} "
+        f"({(generated.trigger == 'change').sum()} changes of N); callbacks flagged (xruns): {underflows:.0f}; "
+        f"device lost: {(events.event == 'audio device lost').sum()}"
+    )
     print(f"estimate arrival -> sound (DAC), changes of N: {percentiles(arrival_to_dac)}")
     print(f"estimate sent -> sound (DAC), changes of N:    {percentiles(send_to_dac)}")
     print(f"estimate arrival -> buffer at the player:      {percentiles(arrival_to_player)}")
-    print(f"margin (play_at - receipt at the player), all: n={margin.size} min={margin.min():.1f} ms "
-          f"p5={np.percentile(margin, 5):.1f} ms p50={np.median(margin):.1f} ms (a block + the output latency, "
-          f"{1000 * (cfg.audio.blocksize / cfg.audio.sample_rate):.1f} ms + ~2 periods under JACK, must fit in it)")
+    print(
+        f"margin (play_at - receipt at the player), all: n={margin.size} min={margin.min():.1f} ms "
+        f"p5={np.percentile(margin, 5):.1f} ms p50={np.median(margin):.1f} ms (a block + the output latency, "
+        f"{1000 * (cfg.audio.blocksize / cfg.audio.sample_rate):.1f} ms + ~2 periods under JACK, must fit in it)"
+    )
     print(f"tick -> sound (DAC), 3 Hz buffers:             {percentiles(tick_to_dac)}")
-    print(f"cadence jitter (tick-to-tick DAC interval - 1/3 s): n={deviation.size} "
-          f"std={deviation.std():.3f} ms p95|dev|={np.percentile(np.abs(deviation), 95):.3f} ms "
-          f"max|dev|={np.abs(deviation).max():.3f} ms")
+    print(
+        f"cadence jitter (tick-to-tick DAC interval - 1/3 s): n={deviation.size} "
+        f"std={deviation.std():.3f} ms p95|dev|={np.percentile(np.abs(deviation), 95):.3f} ms "
+        f"max|dev|={np.abs(deviation).max():.3f} ms"
+    )
 
 
 if __name__ == "__main__":

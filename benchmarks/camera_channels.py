@@ -36,8 +36,6 @@ from estimator.deepsee.baselines import fit_forest, window_statistics
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import session_windows
 from estimator.deepsee.metrics import pulse_classes
-from synth.config import load_synth_config
-from synth.sequence import SequenceSpec, render_sequence
 from seesys.core import rts_schema
 from seesys.core.labels import LabelStatus
 from seesys.io.core_settings import load_label_config, load_pulse_settings, load_window_config
@@ -51,6 +49,8 @@ from slam_monitor.monitor_config import load_monitor_config
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.sources.base import depth_metres
 from slam_monitor.supervisor import run_supervised_session
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec, render_sequence
 
 CAMERAS = ("ideal", "d435")
 MOTION, SEED = "patrol", 5
@@ -73,11 +73,14 @@ def track(sequence: Path, out: Path) -> Path:
     try:
         if read_manifest(session).get("status") == "completed":
             return session
-    except Exception:  # noqa: BLE001 - missing or unreadable: track it again
+    except Exception:
         pass
     observer = ObserverSpec(MONITOR_FACTORY, {"stream": False, "device_id": sequence.name, "end_stride": 1})
-    run_supervised_session(SessionOptions(f"tum:{sequence}", SlamMode.RGBD, session, pace=True,
-                                          wait_for_mapping=False, observers=(observer,)))
+    run_supervised_session(
+        SessionOptions(
+            f"tum:{sequence}", SlamMode.RGBD, session, pace=True, wait_for_mapping=False, observers=(observer,)
+        )
+    )
     return session
 
 
@@ -113,14 +116,18 @@ def depth_grid(sequence: Path) -> np.ndarray:
         cells = []
         for band in np.array_split(depth, GRID[0], axis=0):
             for cell in np.array_split(band, GRID[1], axis=1):
-                w = inverse_depth(cell[s // 2::s, s // 2::s])
+                w = inverse_depth(cell[s // 2 :: s, s // 2 :: s])
                 cells += [float(np.mean(cell == 0)), noise_over_z2(w, depth_cfg.edge_jump)]
         rows.append(cells)
     return np.nan_to_num(np.array(rows))
 
 
-def held_out_forest(sessions: dict[tuple[str, str], Path], environments: list[str], channels: list[int],
-                    grids: dict[tuple[str, str], np.ndarray] | None = None) -> pd.DataFrame:
+def held_out_forest(
+    sessions: dict[tuple[str, str], Path],
+    environments: list[str],
+    channels: list[int],
+    grids: dict[tuple[str, str], np.ndarray] | None = None,
+) -> pd.DataFrame:
     """Leave-one-environment-out forest; with ``grids`` (per session, per frame: :func:`depth_grid`), each window's
     grid averaged over its frames is added to its features."""
     est = load_estimator_config()
@@ -133,7 +140,7 @@ def held_out_forest(sessions: dict[tuple[str, str], Path], environments: list[st
         features = window_statistics(w.rts[:, :, channels])
         if grids is not None:
             ends = w.meta.frame_index.to_numpy()
-            features = np.hstack([features, np.stack([grids[key][e - length + 1:e + 1].mean(axis=0) for e in ends])])
+            features = np.hstack([features, np.stack([grids[key][e - length + 1 : e + 1].mean(axis=0) for e in ends])])
         data[key] = (features, w.error_m)
     rows = []
     for held in environments:
@@ -144,10 +151,17 @@ def held_out_forest(sessions: dict[tuple[str, str], Path], environments: list[st
         test_x, test_e = data[(held, "d435")]
         estimate = np.exp(forest.predict(test_x))
         agree = np.mean(pulse_classes(estimate, pulses) == pulse_classes(test_e, pulses))
-        rows.append({"held_out": held, "windows": len(test_e), "true_median_mm": 1000 * np.median(test_e),
-                     "estimate_median_mm": 1000 * np.median(estimate),
-                     "ratio": np.median(estimate) / np.median(test_e), "class_agreement": agree,
-                     "spearman": spearmanr(estimate, test_e).statistic})
+        rows.append(
+            {
+                "held_out": held,
+                "windows": len(test_e),
+                "true_median_mm": 1000 * np.median(test_e),
+                "estimate_median_mm": 1000 * np.median(estimate),
+                "ratio": np.median(estimate) / np.median(test_e),
+                "class_agreement": agree,
+                "spearman": spearmanr(estimate, test_e).statistic,
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -159,8 +173,10 @@ def main() -> None:
     args = parser.parse_args()
     presets = [p.name for p in load_synth_config().presets]
     environments = presets if args.environments == "all" else args.environments.split(",")
-    print(f"load average at start {os.getloadavg()[0]:.2f}; {len(environments)} environments x {CAMERAS}, "
-          f"{args.frames} frames, {MOTION} seed {SEED}")
+    print(
+        f"load average at start {os.getloadavg()[0]:.2f}; {len(environments)} environments x {CAMERAS}, "
+        f"{args.frames} frames, {MOTION} seed {SEED}"
+    )
     tables, sessions, grids = {}, {}, {}
     for environment in environments:
         for camera in CAMERAS:
@@ -172,8 +188,15 @@ def main() -> None:
     frames.to_csv(args.out / "frames.csv", index=False)
 
     print("\nOverlap of the ideal and d435 per-frame distributions (0 = apart):")
-    separation = pd.DataFrame({env: {ch: overlap(tables[(env, "ideal")][ch].to_numpy(), tables[(env, "d435")][ch].to_numpy())
-                                     for ch in DEPTH_CHANNELS} for env in environments}).T
+    separation = pd.DataFrame(
+        {
+            env: {
+                ch: overlap(tables[(env, "ideal")][ch].to_numpy(), tables[(env, "d435")][ch].to_numpy())
+                for ch in DEPTH_CHANNELS
+            }
+            for env in environments
+        }
+    ).T
     print(separation.round(3).to_string())
     print("\nTrue error (10-frame RPE) median per camera, mm:")
     labelled = frames[frames.status == LabelStatus.LABELLED.value]
@@ -182,17 +205,27 @@ def main() -> None:
     everything = list(range(rts_schema.NUM_CHANNELS))
     without_depth = [i for i, name in enumerate(rts_schema.CHANNEL_NAMES) if name not in DEPTH_CHANNELS]
     results = {}
-    for name, channels, grid in (("all channels", everything, None), ("without depth channels", without_depth, None),
-                                 ("all channels and a 3x4 depth grid", everything, grids)):
+    for name, channels, grid in (
+        ("all channels", everything, None),
+        ("without depth channels", without_depth, None),
+        ("all channels and a 3x4 depth grid", everything, grids),
+    ):
         table = held_out_forest(sessions, environments, channels, grid)
         results[name] = table
         print(f"\nRandom forest, {name}, trained on ideal + d435 of the other environments, tested on d435:")
         print(table.round(3).to_string(index=False))
-        print(f"median ratio over held-out environments {table.ratio.median():.2f}, within x1.5 in "
-              f"{int(((table.ratio > 1 / 1.5) & (table.ratio < 1.5)).sum())} of {len(table)}; class agreement "
-              f"{table.class_agreement.mean():.2f}")
-    summary = {"load_average_end": os.getloadavg()[0], "frames": args.frames, "environments": environments,
-               "overlap": separation.to_dict(), **{k: v.to_dict(orient="records") for k, v in results.items()}}
+        print(
+            f"median ratio over held-out environments {table.ratio.median():.2f}, within x1.5 in "
+            f"{int(((table.ratio > 1 / 1.5) & (table.ratio < 1.5)).sum())} of {len(table)}; class agreement "
+            f"{table.class_agreement.mean():.2f}"
+        )
+    summary = {
+        "load_average_end": os.getloadavg()[0],
+        "frames": args.frames,
+        "environments": environments,
+        "overlap": separation.to_dict(),
+        **{k: v.to_dict(orient="records") for k, v in results.items()},
+    }
     (args.out / "camera_channels.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
     print(f"\nload average at end {os.getloadavg()[0]:.2f}; results in {args.out / 'camera_channels.json'}")
 

@@ -28,9 +28,12 @@ def main() -> None:
     parser.add_argument("--frames", type=int, help="frames per sequence (default: configured duration × fps)")
     parser.add_argument("--trials", type=int, help="default: configs/dataset.toml")
     parser.add_argument("--modes", type=int, help="number of SLAM modes (default: configs/dataset.toml)")
-    parser.add_argument("--render-fps", type=float,
-                        help="render speed (frames/s) to assume when the build log has no render phase (a build "
-                             "interrupted before builders logged it)")
+    parser.add_argument(
+        "--render-fps",
+        type=float,
+        help="render speed (frames/s) to assume when the build log has no render phase (a build "
+        "interrupted before builders logged it)",
+    )
     args = parser.parse_args()
     log = args.dataset / BUILD_LOG
     entries = [json.loads(line) for line in log.read_text().splitlines() if line.strip()] if log.exists() else []
@@ -50,17 +53,24 @@ def main() -> None:
     # Runs stored before run.json had ``seconds`` count only their SLAM session, not their labelling.
     slam_s = sum(r.seconds or r.slam_seconds for r in runs_done)
     config, synth = load_dataset_config(), load_synth_config()
-    sequences = (len(expand_environments(list(config.environments), synth))
-                 * len(expand_motions(list(config.motions), synth)) * len(config.seeds))
+    sequences = (
+        len(expand_environments(list(config.environments), synth))
+        * len(expand_motions(list(config.motions), synth))
+        * len(config.seeds)
+    )
     frames = args.frames or round(synth.trajectory.duration_s * synth.camera.fps)
     runs = sequences * (args.trials or config.trials) * (args.modes or len(config.modes))
     slam_s_per_frame = slam_s / slam_frames
     total_render = sequences * frames / render_fps
     total_slam = runs * frames * slam_s_per_frame
-    print(f"measured: rendering {render_note}; SLAM runs {slam_s_per_frame * 1000:.1f} ms/frame ({slam_frames} frames, "
-          f"{len(runs_done)} runs; camera pace alone is {1000 / synth.camera.fps:.1f} ms)")
-    print(f"projected full build: {sequences} sequences × {frames} frames, {runs} SLAM runs: render "
-          f"{total_render / 60:.0f} min + SLAM {total_slam / 60:.0f} min = {(total_render + total_slam) / 3600:.2f} h")
+    print(
+        f"measured: rendering {render_note}; SLAM runs {slam_s_per_frame * 1000:.1f} ms/frame ({slam_frames} frames, "
+        f"{len(runs_done)} runs; camera pace alone is {1000 / synth.camera.fps:.1f} ms)"
+    )
+    print(
+        f"projected full build: {sequences} sequences × {frames} frames, {runs} SLAM runs: render "
+        f"{total_render / 60:.0f} min + SLAM {total_slam / 60:.0f} min = {(total_render + total_slam) / 3600:.2f} h"
+    )
 
 
 if __name__ == "__main__":

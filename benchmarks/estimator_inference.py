@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.checkpoint import load_model
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.export import OnnxModel, example_inputs, export_onnx, parity
 from estimator.deepsee.model import DeepSEE, InputShape
-from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.core.psd import PsdGeometry
 from seesys.io import resources
@@ -79,20 +79,23 @@ def main() -> None:
     params = sum(p.numel() for p in model.parameters())
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
-        onnx_model = OnnxModel(export_onnx(model, Path(tmp) / "m.onnx", windows, transform), transform, windows,
-                               threads=args.threads)
+        onnx_model = OnnxModel(
+            export_onnx(model, Path(tmp) / "m.onnx", windows, transform), transform, windows, threads=args.threads
+        )
         difference = parity(model, onnx_model)
         print(f"model: {source}; {params / 1e6:.2f} M parameters; input {model.shape}")
-        print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
-              f"{args.threads} intra-op thread(s); torch {torch.__version__}; ONNX Runtime parity {difference:.1e}")
+        print(
+            f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
+            f"{args.threads} intra-op thread(s); torch {torch.__version__}; ONNX Runtime parity {difference:.1e}"
+        )
         print(f"load average before: {load_before[0]:.2f} {load_before[1]:.2f} {load_before[2]:.2f}")
         print(f"{'runtime':<14}{'batch':>6}{'p50 ms':>10}{'p99 ms':>10}{'samples/s':>12}")
         for batch, runs in ((1, args.runs), (args.batch, max(10, args.runs // 10))):
             rts, psd = example_inputs(model.shape, batch, seed=batch)
             with torch.inference_mode():
-                eager = timings(lambda: model(rts, psd), runs)
+                eager = timings(lambda rts=rts, psd=psd: model(rts, psd), runs)
             rts_np, psd_np = rts.numpy(), psd.numpy()
-            ort = timings(lambda: onnx_model(rts_np, psd_np), runs)
+            ort = timings(lambda rts_np=rts_np, psd_np=psd_np: onnx_model(rts_np, psd_np), runs)
             for name, t in (("eager torch", eager), ("onnxruntime", ort)):
                 p50, p99 = np.percentile(t, [50, 99]) * 1000
                 print(f"{name:<14}{batch:>6}{p50:>10.2f}{p99:>10.2f}{batch / (p50 / 1000):>12.0f}")

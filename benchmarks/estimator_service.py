@@ -69,8 +69,24 @@ def _ints(text: str) -> list[int]:
 
 def record_session(folder: Path) -> Path:
     out = folder / "session"
-    subprocess.run([sys.executable, "-m", "seesys", "monitor", "run", "--source", f"tum:{resolve('data/sample')}",
-                    "--mode", "rgbd", "--pace", "--out", str(out)], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "monitor",
+            "run",
+            "--source",
+            f"tum:{resolve('data/sample')}",
+            "--mode",
+            "rgbd",
+            "--pace",
+            "--out",
+            str(out),
+        ],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
     return out
 
 
@@ -81,8 +97,12 @@ def model_file(folder: Path, given: Path | None) -> Path:
     if configured.is_file():
         return configured
     path = folder / "deepsee-untrained.onnx"
-    subprocess.run([sys.executable, "-m", "seesys", "estimator", "untrained-model", "--out", str(path)], check=True,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(
+        [sys.executable, "-m", "seesys", "estimator", "untrained-model", "--out", str(path)],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     return path
 
 
@@ -107,14 +127,18 @@ def drops(status: dict) -> dict[str, int]:
     return totals
 
 
-def run_row(endpoints: dict, process: psutil.Process, frames, devices: int, seconds: float, row: int,
-            bunched: bool) -> dict:
+def run_row(
+    endpoints: dict, process: psutil.Process, frames, devices: int, seconds: float, row: int, bunched: bool
+) -> dict:
     windows = load_window_config()
     fleet = DeviceFleet(endpoints["ingest"], endpoints["estimates"], [f"bench-{row}-{k}" for k in range(devices)])
     time.sleep(1.0)  # connections and subscriptions settle; frames sent before would be lost, and counted missing
     try:
-        before_status, before_cpu, start = query_status(endpoints["status"], 5000), service_cpu_s(process), \
-            time.perf_counter()
+        before_status, before_cpu, start = (
+            query_status(endpoints["status"], 5000),
+            service_cpu_s(process),
+            time.perf_counter(),
+        )
         before_broker = service_cpu_s(process, children=False)
         result = fleet.replay(frames, seconds, RATE_HZ, windows, bunched=bunched)
         wall = time.perf_counter() - start
@@ -126,12 +150,22 @@ def run_row(endpoints: dict, process: psutil.Process, frames, devices: int, seco
     first, last = drops(before_status), drops(after_status)
     lost = {k: last[k] - first[k] for k in first}
     # Windows that can form: those whose history the replay covers (the first ones of each device cannot).
-    expected = devices * len([k for k in range(int(seconds * RATE_HZ)) if k >= windows.history
-                              and windows.is_psd_frame(k)])
+    expected = devices * len(
+        [k for k in range(int(seconds * RATE_HZ)) if k >= windows.history and windows.is_psd_frame(k)]
+    )
     p50, p90, p99 = result.percentiles()
-    return {"devices": devices, "p50": p50, "p90": p90, "p99": p99, "estimates_per_s": result.estimates_per_s,
-            "expected_per_s": expected / seconds, "missing": max(0, expected - len(result.estimates)),
-            **lost, "cores": cpu / wall, "broker": broker_cpu / wall}
+    return {
+        "devices": devices,
+        "p50": p50,
+        "p90": p90,
+        "p99": p99,
+        "estimates_per_s": result.estimates_per_s,
+        "expected_per_s": expected / seconds,
+        "missing": max(0, expected - len(result.estimates)),
+        **lost,
+        "cores": cpu / wall,
+        "broker": broker_cpu / wall,
+    }
 
 
 def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[str, np.ndarray]:
@@ -181,17 +215,23 @@ def _p(values, q: float) -> float:
 def print_latency(model: dict[str, np.ndarray], row: dict, period_s: float) -> None:
     """The one-device table: model alone and service path side by side, the path's excess, and the breakdown."""
     device = np.asarray(row["latencies"], dtype=float)
-    print("\none device, window's last frame sent → estimate received, against the model alone (ONNX Runtime, "
-          "batch 1, 1 thread); ms")
+    print(
+        "\none device, window's last frame sent → estimate received, against the model alone (ONNX Runtime, "
+        "batch 1, 1 thread); ms"
+    )
     print(f"{'':<46}{'p50':>8}{'p99':>8}{'n':>6}")
-    lines = [("model alone, back to back", model["back_to_back"]),
-             (f"model alone, one run every {period_s * 1000:.0f} ms", model["paced"]),
-             ("service path, one device", device)]
+    lines = [
+        ("model alone, back to back", model["back_to_back"]),
+        (f"model alone, one run every {period_s * 1000:.0f} ms", model["paced"]),
+        ("service path, one device", device),
+    ]
     for name, values in lines:
         print(f"{name:<46}{_p(values, 50):>8.2f}{_p(values, 99):>8.2f}{len(values):>6}")
     for name, values in lines[:2]:
-        print(f"{'service path − ' + name.removeprefix('model alone, '):<46}"
-              f"{_p(device, 50) - _p(values, 50):>+8.2f}{_p(device, 99) - _p(values, 99):>+8.2f}")
+        print(
+            f"{'service path − ' + name.removeprefix('model alone, '):<46}"
+            f"{_p(device, 50) - _p(values, 50):>+8.2f}{_p(device, 99) - _p(values, 99):>+8.2f}"
+        )
     stages_ms = row["status"]["stages_ms"]
     if not stages_ms:
         print("no stage times (no estimate reached the broker)")
@@ -199,8 +239,10 @@ def print_latency(model: dict[str, np.ndarray], row: dict, period_s: float) -> N
     server = stages_ms["server"]
     print("\nwhere the time goes (each stage's own p50 and p99; p50s of parts need not add up to the total's)")
     print(f"{'stage':<46}{'p50':>8}{'p99':>8}")
-    print(f"{'transit, device ⇄ broker (path − server)':<46}{_p(device, 50) - server['p50']:>8.2f}"
-          f"{_p(device, 99) - server['p99']:>8.2f}")
+    print(
+        f"{'transit, device ⇄ broker (path − server)':<46}{_p(device, 50) - server['p50']:>8.2f}"
+        f"{_p(device, 99) - server['p99']:>8.2f}"
+    )
     for stage in STAGES:
         print(f"{stage:<46}{stages_ms[stage]['p50']:>8.2f}{stages_ms[stage]['p99']:>8.2f}")
 
@@ -231,15 +273,26 @@ def main() -> None:
     parser.add_argument("--devices", type=_ints, default=[1, 16, 40, 64, 80, 96])
     parser.add_argument("--workers", type=_ints, default=[1, 2])
     parser.add_argument("--seconds", type=float, default=20.0, help="replay per row (default 20)")
-    parser.add_argument("--latency-seconds", type=float, default=30.0,
-                        help="one device's replay for the latency table (default 30; 0 skips it)")
-    parser.add_argument("--model-runs", type=int, default=600,
-                        help="back-to-back runs of the model alone (a fifth as many paced; default 600)")
+    parser.add_argument(
+        "--latency-seconds",
+        type=float,
+        default=30.0,
+        help="one device's replay for the latency table (default 30; 0 skips it)",
+    )
+    parser.add_argument(
+        "--model-runs",
+        type=int,
+        default=600,
+        help="back-to-back runs of the model alone (a fifth as many paced; default 600)",
+    )
     parser.add_argument("--session", type=Path, help="session folder to replay (default: record the sample)")
     parser.add_argument("--model", type=Path, help="ONNX model (default: configured, else an untrained stand-in)")
-    parser.add_argument("--bunched", action="store_true",
-                        help="all devices end their windows in the same frame period (default: spread evenly over "
-                             "one estimate period, as independent devices are)")
+    parser.add_argument(
+        "--bunched",
+        action="store_true",
+        help="all devices end their windows in the same frame period (default: spread evenly over "
+        "one estimate period, as independent devices are)",
+    )
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="svcb") as tmp:
@@ -248,23 +301,29 @@ def main() -> None:
         frames = list(read_feature_frames(session, "replay"))
         model = model_file(folder, args.model)
         windows = load_window_config()
-        print(f"estimator service benchmark: {platform.node()}, {os.cpu_count()} CPUs, model {model.name}, session "
-              f"{session} ({len(frames)} frames), {RATE_HZ:g} Hz, end_stride {windows.end_stride}, "
-              f"{'bunched' if args.bunched else 'spread'} phases, "
-              f"{args.seconds:g} s per row; load average before: {os.getloadavg()[0]:.2f}")
+        print(
+            f"estimator service benchmark: {platform.node()}, {os.cpu_count()} CPUs, model {model.name}, session "
+            f"{session} ({len(frames)} frames), {RATE_HZ:g} Hz, end_stride {windows.end_stride}, "
+            f"{'bunched' if args.bunched else 'spread'} phases, "
+            f"{args.seconds:g} s per row; load average before: {os.getloadavg()[0]:.2f}"
+        )
         if args.latency_seconds > 0:
             period_s = windows.end_stride / RATE_HZ
             alone = model_alone(model, frames, args.model_runs, period_s)
             print_latency(alone, latency_run(folder, model, frames, args.latency_seconds), period_s)
             with_psd, without = decode_cpu_us(frames)
-            print(f"decoding one feature message (the broker, every frame; CPU): {with_psd:.0f} µs with a PSD, "
-                  f"{without:.0f} µs without")
+            print(
+                f"decoding one feature message (the broker, every frame; CPU): {with_psd:.0f} µs with a PSD, "
+                f"{without:.0f} µs without"
+            )
         if not args.devices:
             print(f"load average after: {os.getloadavg()[0]:.2f}")
             return
         print()
-        header = (f"{'workers':>7}{'devices':>8}{'p50 ms':>8}{'p90 ms':>8}{'p99 ms':>8}{'est/s':>8}{'expected':>9}"
-                  f"{'missing':>8}{'stale':>7}{'q-full':>7}{'lost':>6}{'cores':>7}{'broker':>7}")
+        header = (
+            f"{'workers':>7}{'devices':>8}{'p50 ms':>8}{'p90 ms':>8}{'p99 ms':>8}{'est/s':>8}{'expected':>9}"
+            f"{'missing':>8}{'stale':>7}{'q-full':>7}{'lost':>6}{'cores':>7}{'broker':>7}"
+        )
         print(header)
         best: dict[int, int] = {}
         most: dict[int, float] = {}
@@ -275,11 +334,13 @@ def main() -> None:
             try:
                 wait_ready(serve, endpoints["status"], START_TIMEOUT_S, log)
                 for row, devices in enumerate(args.devices):
-                    r = run_row(endpoints, psutil.Process(serve.pid), frames, devices, args.seconds, row,
-                                args.bunched)
-                    print(f"{workers:>7}{devices:>8}{r['p50']:>8.1f}{r['p90']:>8.1f}{r['p99']:>8.1f}"
-                          f"{r['estimates_per_s']:>8.1f}{r['expected_per_s']:>9.1f}{r['missing']:>8}{r['stale']:>7}"
-                          f"{r['queue_full']:>7}{r['lost']:>6}{r['cores']:>7.2f}{r['broker']:>7.2f}", flush=True)
+                    r = run_row(endpoints, psutil.Process(serve.pid), frames, devices, args.seconds, row, args.bunched)
+                    print(
+                        f"{workers:>7}{devices:>8}{r['p50']:>8.1f}{r['p90']:>8.1f}{r['p99']:>8.1f}"
+                        f"{r['estimates_per_s']:>8.1f}{r['expected_per_s']:>9.1f}{r['missing']:>8}{r['stale']:>7}"
+                        f"{r['queue_full']:>7}{r['lost']:>6}{r['cores']:>7.2f}{r['broker']:>7.2f}",
+                        flush=True,
+                    )
                     if r["stale"] + r["queue_full"] + r["lost"] + r["missing"] == 0:
                         best[workers] = max(best.get(workers, 0), devices)
                     most[workers] = max(most.get(workers, 0.0), r["estimates_per_s"])
@@ -288,9 +349,11 @@ def main() -> None:
                 serve.wait(60)
         for workers in args.workers:
             served = best.get(workers, 0)
-            print(f"{workers} worker(s): at most {served} device(s) served with no drop "
-                  f"({served * RATE_HZ / windows.end_stride:.0f} estimates/s); most delivered in a row "
-                  f"{most.get(workers, 0.0):.1f} estimates/s")
+            print(
+                f"{workers} worker(s): at most {served} device(s) served with no drop "
+                f"({served * RATE_HZ / windows.end_stride:.0f} estimates/s); most delivered in a row "
+                f"{most.get(workers, 0.0):.1f} estimates/s"
+            )
         print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

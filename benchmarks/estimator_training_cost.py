@@ -26,7 +26,7 @@ from estimator.deepsee.export import example_inputs
 from estimator.deepsee.ssl import PsdReconstruction, ts2vec_loss
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from estimator_inference import untrained_model  # noqa: E402
+from estimator_inference import untrained_model
 
 
 def seconds_per_call(call, steps: int, device: torch.device) -> float:
@@ -34,6 +34,7 @@ def seconds_per_call(call, steps: int, device: torch.device) -> float:
         call()
         if device.type == "cuda":
             torch.cuda.synchronize(device)
+
     timed()
     start = time.perf_counter()
     for _ in range(steps):
@@ -50,6 +51,7 @@ def step(loss_fn, parameters):
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
+
     return call
 
 
@@ -62,11 +64,19 @@ def project(schedule: Schedule, costs: dict[str, float], windows: int, ablation:
         full = math.ceil(train / s.batch_size)
         return s.epochs * (min(full, s.steps_per_epoch) if s.steps_per_epoch > 0 else full)
 
-    frozen, finetune = ((schedule.ablation_frozen, schedule.ablation_finetune) if ablation
-                        else (schedule.supervised_frozen, schedule.finetune))
-    out = {} if ablation else {
-        "a": steps(schedule.psd_ssl) * costs["psd_ssl"] + schedule.psd_ssl.epochs * 512 * costs["validate"],
-        "b": schedule.rts_ssl.iterations * costs["ts2vec"]}
+    frozen, finetune = (
+        (schedule.ablation_frozen, schedule.ablation_finetune)
+        if ablation
+        else (schedule.supervised_frozen, schedule.finetune)
+    )
+    out = (
+        {}
+        if ablation
+        else {
+            "a": steps(schedule.psd_ssl) * costs["psd_ssl"] + schedule.psd_ssl.epochs * 512 * costs["validate"],
+            "b": schedule.rts_ssl.iterations * costs["ts2vec"],
+        }
+    )
     out["cache"] = (train + val) * costs["encode"]
     out["c"] = steps(frozen) * costs["head"]
     out["d"] = steps(finetune) * costs["full"] + finetune.epochs * val * costs["validate"]
@@ -91,12 +101,22 @@ def main() -> None:
     y = torch.rand(batch, device=device)
     generator = torch.Generator().manual_seed(0)
     recon = PsdReconstruction(model.psd_encoder, model.config.dim).to(device)
-    costs = {"psd_ssl": seconds_per_call(step(lambda: recon.loss(model.psd_input(psd), 0.5, generator),
-                                              list(recon.parameters())), args.steps, device),
-             "ts2vec": seconds_per_call(step(lambda: ts2vec_loss(model.rts_encoder, rts[:16], 0.5, 0.5, generator),
-                                             list(model.rts_encoder.parameters())), args.steps, device),
-             "full": seconds_per_call(step(lambda: torch.nn.functional.mse_loss(model(rts, psd), y),
-                                           list(model.parameters())), args.steps, device)}
+    costs = {
+        "psd_ssl": seconds_per_call(
+            step(lambda: recon.loss(model.psd_input(psd), 0.5, generator), list(recon.parameters())), args.steps, device
+        ),
+        "ts2vec": seconds_per_call(
+            step(
+                lambda: ts2vec_loss(model.rts_encoder, rts[:16], 0.5, 0.5, generator),
+                list(model.rts_encoder.parameters()),
+            ),
+            args.steps,
+            device,
+        ),
+        "full": seconds_per_call(
+            step(lambda: torch.nn.functional.mse_loss(model(rts, psd), y), list(model.parameters())), args.steps, device
+        ),
+    }
     with torch.no_grad():
         model.eval()
         costs["encode"] = seconds_per_call(lambda: model.encode(rts, psd), args.steps, device) / batch
@@ -106,20 +126,29 @@ def main() -> None:
     head_batch = reduced.supervised_frozen.batch_size
     r, p = r.repeat(head_batch // batch, 1, 1), p.repeat(head_batch // batch, 1, 1)
     head = [q for name, q in model.named_parameters() if not name.startswith(("rts_encoder", "psd_encoder"))]
-    costs["head"] = seconds_per_call(step(lambda: torch.nn.functional.mse_loss(
-        model.head(r, p), torch.rand(len(r), device=device)), head), args.steps, device)
+    costs["head"] = seconds_per_call(
+        step(lambda: torch.nn.functional.mse_loss(model.head(r, p), torch.rand(len(r), device=device)), head),
+        args.steps,
+        device,
+    )
     hardware = torch.cuda.get_device_name(device) if device.type == "cuda" else f"{args.threads} torch threads"
-    print(f"{hardware}, {os.cpu_count()} cores; load average before "
-          f"{load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}")
-    print("seconds per step: " + ", ".join(f"{k} {v:.3f}" for k, v in costs.items() if k not in ("encode", "validate"))
-          + f"; per window: encode {1000 * costs['encode']:.1f} ms, validate {1000 * costs['validate']:.1f} ms")
+    print(
+        f"{hardware}, {os.cpu_count()} cores; load average before {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}"
+    )
+    print(
+        "seconds per step: "
+        + ", ".join(f"{k} {v:.3f}" for k, v in costs.items() if k not in ("encode", "validate"))
+        + f"; per window: encode {1000 * costs['encode']:.1f} ms, validate {1000 * costs['validate']:.1f} ms"
+    )
     for name in ("reduced", "full"):
         schedule = config.schedules.get(name)
         deepsee = project(schedule, costs, args.windows, ablation=False)
         ablation = project(schedule, costs, args.windows, ablation=True)
-        print(f"{name}: DeepSEE {sum(deepsee.values()):.0f} min (" + ", ".join(f"{k} {v:.1f}" for k, v in
-                                                                            deepsee.items())
-              + f"); each ablation {sum(ablation.values()):.0f} min, for {args.windows} training windows")
+        print(
+            f"{name}: DeepSEE {sum(deepsee.values()):.0f} min ("
+            + ", ".join(f"{k} {v:.1f}" for k, v in deepsee.items())
+            + f"); each ablation {sum(ablation.values()):.0f} min, for {args.windows} training windows"
+        )
 
 
 if __name__ == "__main__":

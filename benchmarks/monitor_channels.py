@@ -90,12 +90,27 @@ def prepare(inputs: Sequence[MonitorInput], config: MonitorConfig) -> list[Prepa
                 local_map.clear()
             local_map.update(item.map_points, item.frame.index)
             lost = local_map.lost_points()
-            motion = (relative_motion(item.prev_pose_wc, item.pose_wc) if item.prev_pose_wc is not None
-                      else RelativeMotion.still())
-        moved = (np.linalg.inv(item.prev_pose_wc) @ item.pose_wc
-                 if item.pose_wc is not None and item.prev_pose_wc is not None and not item.map_changed else None)
-        prepared.append(Prepared(item, normalisation, reference_scale(item.frame.gray, normalisation), lost, motion,
-                                 moved, _slam(item, lost, motion, config) if motion is not None else None))
+            motion = (
+                relative_motion(item.prev_pose_wc, item.pose_wc)
+                if item.prev_pose_wc is not None
+                else RelativeMotion.still()
+            )
+        moved = (
+            np.linalg.inv(item.prev_pose_wc) @ item.pose_wc
+            if item.pose_wc is not None and item.prev_pose_wc is not None and not item.map_changed
+            else None
+        )
+        prepared.append(
+            Prepared(
+                item,
+                normalisation,
+                reference_scale(item.frame.gray, normalisation),
+                lost,
+                motion,
+                moved,
+                _slam(item, lost, motion, config) if motion is not None else None,
+            )
+        )
     return prepared
 
 
@@ -114,6 +129,7 @@ def _local_map_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], Non
             local_map.lost_points()
             if config.windows.is_psd_frame(item.frame.index):
                 len(local_map)  # the PSD reads the map, which merges the frames kept since the last read
+
     return run
 
 
@@ -127,20 +143,29 @@ def _registration_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], 
             frame = p.item.frame
             if frame.depth is None:
                 continue
-            w_sub = inverse_depth(frame.depth[s // 2::s, s // 2::s])
+            w_sub = inverse_depth(frame.depth[s // 2 :: s, s // 2 :: s])
             crossings = edge_crossings(frame.depth, frame.gray, w_sub, cfg)
             motion = image_motion_px(crossings, frame.intrinsics, p.moved) if p.moved is not None else None
             fit.update(crossings, motion, frame.depth.shape[0])
+
     return run
 
 
-def _slam(item: MonitorInput, lost_points_w: np.ndarray, motion: RelativeMotion, config: MonitorConfig
-          ) -> SlamFeatures:
+def _slam(item: MonitorInput, lost_points_w: np.ndarray, motion: RelativeMotion, config: MonitorConfig) -> SlamFeatures:
     intr, features = item.frame.intrinsics, config.features
-    return slam_features(pose_cw=item.pose_cw, motion=motion, matched_inliers=item.num_tracked_points,
-                         keypoints=item.keypoints, matched_points_w=item.map_points, lost_points_w=lost_points_w,
-                         camera_matrix=intr.matrix(), width=intr.width, height=intr.height,
-                         match_gate_px=features.match_gate_px, min_depth=features.min_depth)
+    return slam_features(
+        pose_cw=item.pose_cw,
+        motion=motion,
+        matched_inliers=item.num_tracked_points,
+        keypoints=item.keypoints,
+        matched_points_w=item.map_points,
+        lost_points_w=lost_points_w,
+        camera_matrix=intr.matrix(),
+        width=intr.width,
+        height=intr.height,
+        match_gate_px=features.match_gate_px,
+        min_depth=features.min_depth,
+    )
 
 
 def _whole_monitor(config: MonitorConfig, with_logs: bool) -> Callable[[Sequence[Prepared]], None]:
@@ -162,6 +187,7 @@ def _whole_monitor(config: MonitorConfig, with_logs: bool) -> Callable[[Sequence
             if with_logs:
                 rts_log.close()
                 psd_log.close()
+
     return run
 
 
@@ -169,6 +195,7 @@ def _each(step: Callable[[Prepared], object]) -> Callable[[Sequence[Prepared]], 
     def run(frames: Sequence[Prepared]) -> None:
         for p in frames:
             step(p)
+
     return run
 
 
@@ -184,20 +211,31 @@ def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> 
     return {
         "brightness, contrast, entropy": (_each(lambda p: intensity_statistics(p.item.frame.gray)), False),
         "laplacian (with the reference-scale resampling)": (
-            _each(lambda p: laplacian_variance(reference_scale(p.item.frame.gray, p.normalisation))), False),
+            _each(lambda p: laplacian_variance(reference_scale(p.item.frame.gray, p.normalisation))),
+            False,
+        ),
         "local map (update, lost points)": (_local_map_pass(config), False),
-        "matched_inliers, outliers, matches_before_po, avg/var_mp_depth, local_mapping_visual_error":
-            (_each(lambda p: _slam(p.item, p.lost_points_w, p.motion, config) if p.motion is not None else None),
-             False),
+        "matched_inliers, outliers, matches_before_po, avg/var_mp_depth, local_mapping_visual_error": (
+            _each(lambda p: _slam(p.item, p.lost_points_w, p.motion, config) if p.motion is not None else None),
+            False,
+        ),
         "rel_tx/ty/tz, rel_roll/pitch/yaw": (
-            _each(lambda p: relative_motion(p.item.prev_pose_wc, p.item.pose_wc)
-                  if p.motion is not None and p.item.prev_pose_wc is not None else None), False),
+            _each(
+                lambda p: (
+                    relative_motion(p.item.prev_pose_wc, p.item.pose_wc)
+                    if p.motion is not None and p.item.prev_pose_wc is not None
+                    else None
+                )
+            ),
+            False,
+        ),
         "depth_holes": (_each(_depth_only(hole_share)), False),
-        "depth_noise": (_each(_depth_only(lambda d: noise_over_z2(inverse_depth(d[s // 2::s, s // 2::s]), edge_jump))),
-                        False),
+        "depth_noise": (
+            _each(_depth_only(lambda d: noise_over_z2(inverse_depth(d[s // 2 :: s, s // 2 :: s]), edge_jump))),
+            False,
+        ),
         "depth_registration": (_registration_pass(config), False),
-        "PSD matrix": (_each(lambda p: extractor._psd(p.item, p.slam, p.normalisation,
-                                                      p.reference_gray)), True),
+        "PSD matrix": (_each(lambda p: extractor._psd(p.item, p.slam, p.normalisation, p.reference_gray)), True),
         "FeatureFrame encoding (stream)": (_each(lambda p: messages.encode(encoded[p.item.frame.index])), False),
     }
 
@@ -234,13 +272,17 @@ def main() -> None:
         subset = psd_frames if psd_only else frames
         per_call = thread_ms_per_call(run, subset, args.repeats)
         rows[label] = {"per_call_ms": per_call, "per_frame_ms": per_call * len(subset) / len(frames)}
-    for label, with_logs in (("monitor features, whole (FeatureExtractor.extract)", False),
-                             ("monitor thread, whole (features, PSD, encoding, logs)", True)):
+    for label, with_logs in (
+        ("monitor features, whole (FeatureExtractor.extract)", False),
+        ("monitor thread, whole (features, PSD, encoding, logs)", True),
+    ):
         per_frame = thread_ms_per_call(_whole_monitor(config, with_logs), frames, args.repeats)
         rows[label] = {"per_call_ms": per_frame, "per_frame_ms": per_frame}
     tracked = sum(p.motion is not None for p in frames)
-    print(f"{len(frames)} frames ({tracked} tracked, {len(psd_frames)} PSD frames), {args.mode}, "
-          f"{args.repeats} passes per row, load average {os.getloadavg()[0]:.2f} (1 min)")
+    print(
+        f"{len(frames)} frames ({tracked} tracked, {len(psd_frames)} PSD frames), {args.mode}, "
+        f"{args.repeats} passes per row, load average {os.getloadavg()[0]:.2f} (1 min)"
+    )
     print("| channel(s) | thread CPU ms per frame | per PSD frame |")
     print("|---|---|---|")
     psd_labels = {label for label, (_, psd_only) in stages(config, encoded).items() if psd_only}
@@ -250,10 +292,12 @@ def main() -> None:
     whole = rows["monitor thread, whole (features, PSD, encoding, logs)"]["per_frame_ms"]
     print(f"monitor thread: {whole:.2f} ms per frame = {whole * 30 / 10:.1f} % of a core at 30 Hz")
     stream = stream_size(encoded.values())
-    print(f"stream (device id {device.device_id!r}): {stream['plain_bytes']:.0f} B per frame without a PSD, "
-          f"{stream['psd_bytes']:.0f} B with one, {stream['kbit_per_s']:.1f} kbit/s at 30 Hz with ZeroMQ's framing; "
-          f"a PSD {stream['psd_stream_code_bytes']:.0f} B in the stream's code, "
-          f"{stream['psd_log_code_bytes']:.0f} B in the log's")
+    print(
+        f"stream (device id {device.device_id!r}): {stream['plain_bytes']:.0f} B per frame without a PSD, "
+        f"{stream['psd_bytes']:.0f} B with one, {stream['kbit_per_s']:.1f} kbit/s at 30 Hz with ZeroMQ's framing; "
+        f"a PSD {stream['psd_stream_code_bytes']:.0f} B in the stream's code, "
+        f"{stream['psd_log_code_bytes']:.0f} B in the log's"
+    )
     if args.json:
         args.json.write_text(json.dumps({"channels": rows, "stream": stream}, indent=2) + "\n")
 
@@ -269,9 +313,13 @@ def stream_size(frames: Iterable[messages.FeatureFrame]) -> dict[str, float]:
             psd_codes["log"].append(len(messages.pack_psd(frame.psd)))
     total = sum(sizes[False]) + sum(sizes[True])
     count = len(sizes[False]) + len(sizes[True])
-    return {"plain_bytes": float(np.mean(sizes[False])), "psd_bytes": float(np.mean(sizes[True])),
-            "kbit_per_s": total * 8 * 30 / count / 1000, "psd_stream_code_bytes": float(np.mean(psd_codes["stream"])),
-            "psd_log_code_bytes": float(np.mean(psd_codes["log"]))}
+    return {
+        "plain_bytes": float(np.mean(sizes[False])),
+        "psd_bytes": float(np.mean(sizes[True])),
+        "kbit_per_s": total * 8 * 30 / count / 1000,
+        "psd_stream_code_bytes": float(np.mean(psd_codes["stream"])),
+        "psd_log_code_bytes": float(np.mean(psd_codes["log"])),
+    }
 
 
 if __name__ == "__main__":

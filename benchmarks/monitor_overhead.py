@@ -109,8 +109,9 @@ def run_once(name: str, source: str, mode: SlamMode, max_frames: int | None, int
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "session"
         observers = (ObserverSpec(MONITOR_FACTORY, settings),) if settings is not None else ()
-        options = SessionOptions(source=source, mode=mode, out_dir=out, max_frames=max_frames, pace=True,
-                                 observers=observers)
+        options = SessionOptions(
+            source=source, mode=mode, out_dir=out, max_frames=max_frames, pace=True, observers=observers
+        )
         done = threading.Event()
         listener = None
         if settings and settings["stream"]:
@@ -159,17 +160,22 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
     for label, metric in rows.items():
         values = {name: metric(m) for name, m in results.items()}
         figures[label] = values
-        table.add_row(label, *[f"{values['SLAM']:.1f}" if name == "SLAM" else _ratio(v, metric(base))
-                               for name, v in values.items()])
+        table.add_row(
+            label,
+            *[f"{values['SLAM']:.1f}" if name == "SLAM" else _ratio(v, metric(base)) for name, v in values.items()],
+        )
     console.print(table)
     # Run-to-run spread of each configuration: the monitor's effect on latency and memory is within the noise when
     # its range overlaps SLAM alone's.
-    for label, attribute in (("median tracking latency (ms)", "run_latency_ms"),
-                             ("median memory (MB)", "run_memory_mb")):
+    for label, attribute in (
+        ("median tracking latency (ms)", "run_latency_ms"),
+        ("median memory (MB)", "run_memory_mb"),
+    ):
         spread = {name: getattr(m, attribute) for name, m in results.items()}
         figures[f"runs: {label}"] = spread
-        console.print(f"run to run, {label}: " + "; ".join(f"{name} {min(v):.1f}-{max(v):.1f}"
-                                                            for name, v in spread.items()))
+        console.print(
+            f"run to run, {label}: " + "; ".join(f"{name} {min(v):.1f}-{max(v):.1f}" for name, v in spread.items())
+        )
     for name, m in results.items():
         if not m.monitor:
             continue
@@ -181,12 +187,19 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
         # The monitor thread's own CPU time, as a share of the SLAM-alone CPU use at the camera rate.
         core_percent = cpu_ms * m.camera_hz / 10
         cpu_share = core_percent / statistics.fmean(base.cpu_percent) * 100
-        line = (f"{name}: monitor {np.median(ms):.2f} ms/frame median wall (p90 {np.median(p90):.2f}), "
-                f"{cpu_ms:.2f} ms/frame thread CPU = {core_percent:.1f} % of a core at {m.camera_hz:.0f} Hz "
-                f"(+{cpu_share:.1f} % over SLAM alone), {processed} frames processed, {dropped} dropped")
-        figures[name] = {"monitor_ms_median": float(np.median(ms)), "monitor_ms_p90": float(np.median(p90)),
-                         "monitor_cpu_ms_mean": cpu_ms, "monitor_cpu_share_percent": cpu_share,
-                         "frames_dropped": dropped, "frames_processed": processed}
+        line = (
+            f"{name}: monitor {np.median(ms):.2f} ms/frame median wall (p90 {np.median(p90):.2f}), "
+            f"{cpu_ms:.2f} ms/frame thread CPU = {core_percent:.1f} % of a core at {m.camera_hz:.0f} Hz "
+            f"(+{cpu_share:.1f} % over SLAM alone), {processed} frames processed, {dropped} dropped"
+        )
+        figures[name] = {
+            "monitor_ms_median": float(np.median(ms)),
+            "monitor_ms_p90": float(np.median(p90)),
+            "monitor_cpu_ms_mean": cpu_ms,
+            "monitor_cpu_share_percent": cpu_share,
+            "frames_dropped": dropped,
+            "frames_processed": processed,
+        }
         streams = [s for s in m.monitor if s["stream"] is not None]
         if streams:
             kbit = [s["stream_kbit_per_s"] for s in streams]
@@ -216,11 +229,17 @@ def depth_channel_cost(source: str, repeats: int, console: Console) -> dict:
                 session.frame(frame.depth, frame.gray, intr, moved)
                 wall.append((time.perf_counter() - start) * 1000.0)
                 cpu.append((time.thread_time() - start_cpu) * 1000.0)
-    figures = {"depth_channels_ms_median": float(np.median(wall)), "depth_channels_ms_p90": float(np.percentile(wall, 90)),
-               "depth_channels_cpu_ms_mean": float(np.mean(cpu)), "depth_channel_calls": len(wall)}
-    console.print(f"depth channels: {figures['depth_channels_ms_median']:.3f} ms/frame median wall "
-                  f"(p90 {figures['depth_channels_ms_p90']:.3f}), {figures['depth_channels_cpu_ms_mean']:.3f} ms/frame "
-                  f"thread CPU, {len(wall)} calls ({repeats} per frame)")
+    figures = {
+        "depth_channels_ms_median": float(np.median(wall)),
+        "depth_channels_ms_p90": float(np.percentile(wall, 90)),
+        "depth_channels_cpu_ms_mean": float(np.mean(cpu)),
+        "depth_channel_calls": len(wall),
+    }
+    console.print(
+        f"depth channels: {figures['depth_channels_ms_median']:.3f} ms/frame median wall "
+        f"(p90 {figures['depth_channels_ms_p90']:.3f}), {figures['depth_channels_cpu_ms_mean']:.3f} ms/frame "
+        f"thread CPU, {len(wall)} calls ({repeats} per frame)"
+    )
     return figures
 
 

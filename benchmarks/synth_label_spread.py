@@ -1,6 +1,7 @@
 """Label spread of rendered sequences under real ORB-SLAM3: per run and per batch, the 10-frame translation RPE
 of tracked frames (median, p90, p99, share above 4 / 12 mm, share tracked) and the RTS window features with the
-largest |Spearman ρ| against the label. The label-spread targets of configs/dataset.toml ([targets]) are checked per batch.
+largest |Spearman ρ| against the label. The label-spread targets of configs/dataset.toml ([targets]) are checked per
+batch.
 
 Run it with the CPU to itself, after rendering (never while rendering):
 
@@ -46,9 +47,11 @@ def run_and_label(sequence: Path, mode: SlamMode, out: Path) -> pd.DataFrame:
 
 def describe(labels: pd.DataFrame) -> str:
     s = LabelSummary.of(labels, THRESHOLDS_M)
-    return (f"tracked {100 * s.tracked_fraction:5.1f} %  labelled {s.labelled:5d}  median {1000 * s.median_m:6.1f} mm  "
-            f"p90 {1000 * s.p90_m:6.1f}  p99 {1000 * s.p99_m:6.1f}  max {1000 * s.max_m:6.1f}  "
-            f">4 mm {100 * s.fraction_above[0.004]:5.1f} %  >12 mm {100 * s.fraction_above[0.012]:5.1f} %")
+    return (
+        f"tracked {100 * s.tracked_fraction:5.1f} %  labelled {s.labelled:5d}  median {1000 * s.median_m:6.1f} mm  "
+        f"p90 {1000 * s.p90_m:6.1f}  p99 {1000 * s.p99_m:6.1f}  max {1000 * s.max_m:6.1f}  "
+        f">4 mm {100 * s.fraction_above[0.004]:5.1f} %  >12 mm {100 * s.fraction_above[0.012]:5.1f} %"
+    )
 
 
 def correlations(table: pd.DataFrame) -> pd.Series:

@@ -43,10 +43,10 @@ import pandas as pd
 
 from advisory.config import AdvisoryConfig, load_advisory_config
 from estimator.service.sandbox import private_configs
-from seesys_app.summary import true_error
 from seesys.core.equation2 import max_pulses
 from seesys.core.session_layout import ESTIMATES_CSV, PLAYBACK_CSV
 from seesys.io.config import CONFIG_DIR_ENV
+from seesys_app.summary import true_error
 
 REPO = Path(__file__).resolve().parent.parent
 TARGET_P95_MS = 400.0
@@ -70,11 +70,11 @@ def onsets(times: np.ndarray, bands: np.ndarray) -> list[tuple[float, int]]:
     return [(float(times[i]), int(bands[i])) for i in change]
 
 
-def warning_latencies(folder: Path, cfg: AdvisoryConfig, mono_to_unix: float,
-                      horizon_s: float) -> dict[str, list[float | None]]:
+def warning_latencies(
+    folder: Path, cfg: AdvisoryConfig, mono_to_unix: float, horizon_s: float
+) -> dict[str, list[float | None]]:
     """Latencies (ms; None: not heard within ``horizon_s``) from estimate and true-error onsets in one session."""
-    estimates = pd.read_csv(folder / ESTIMATES_CSV).dropna(subset=["capture_to_estimate_ms"]).sort_values(
-        "frame_index")
+    estimates = pd.read_csv(folder / ESTIMATES_CSV).dropna(subset=["capture_to_estimate_ms"]).sort_values("frame_index")
     playback = pd.read_csv(folder / PLAYBACK_CSV)
     heard_at = playback.dac_mono.to_numpy() + mono_to_unix
     heard_band = pulse_band(playback.played_pulses.to_numpy(), cfg)
@@ -102,10 +102,23 @@ def run_app(root: Path, k: int, source: str, max_frames: int | None) -> Path:
     """One ``seesys run`` in ``root``; its session folder."""
     config_dir, _ = private_configs(root / f"c{k}", endpoint=f"ipc://{root}/c{k}/handoff")
     out = root / f"run{k}"
-    command = [sys.executable, "-m", "seesys", "run", "--source", source, "--local", "--condition", "seesys",
-               "--wav", "--out", str(out)] + (["--max-frames", str(max_frames)] if max_frames else [])
-    done = subprocess.run(command, cwd=REPO, env={**os.environ, CONFIG_DIR_ENV: str(config_dir)},
-                          capture_output=True, text=True)
+    command = [
+        sys.executable,
+        "-m",
+        "seesys",
+        "run",
+        "--source",
+        source,
+        "--local",
+        "--condition",
+        "seesys",
+        "--wav",
+        "--out",
+        str(out),
+    ] + (["--max-frames", str(max_frames)] if max_frames else [])
+    done = subprocess.run(
+        command, cwd=REPO, env={**os.environ, CONFIG_DIR_ENV: str(config_dir)}, capture_output=True, text=True
+    )
     print(done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr.strip())
     if done.returncode != 0:
         raise SystemExit(f"seesys run failed (status {done.returncode}):\n{done.stderr[-3000:]}")
@@ -117,8 +130,10 @@ def report(name: str, values: list[float | None]) -> str:
     if heard.size == 0:
         return f"{name:>11} onsets: {len(values)}, none heard"
     p50, p95 = np.percentile(heard, [50, 95])
-    return (f"{name:>11} onsets: {len(values)}, heard {heard.size}; latency p50 {p50:.0f} ms, p95 {p95:.0f} ms, "
-            f"max {heard.max():.0f} ms")
+    return (
+        f"{name:>11} onsets: {len(values)}, heard {heard.size}; latency p50 {p50:.0f} ms, p95 {p95:.0f} ms, "
+        f"max {heard.max():.0f} ms"
+    )
 
 
 def main() -> None:
@@ -126,8 +141,12 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=10, help="app runs (default 10)")
     parser.add_argument("--source", default="tum:data/sample", help="recording to replay (default the sample)")
     parser.add_argument("--max-frames", type=int, help="stop each run after N frames (a smoke test)")
-    parser.add_argument("--horizon", type=float, default=1.0,
-                        help="an onset not heard within this many seconds counts as not heard (default 1)")
+    parser.add_argument(
+        "--horizon",
+        type=float,
+        default=1.0,
+        help="an onset not heard within this many seconds counts as not heard (default 1)",
+    )
     parser.add_argument("--keep", type=Path, help="keep the session folders here")
     args = parser.parse_args()
     cfg = load_advisory_config()
@@ -139,15 +158,19 @@ def main() -> None:
             folder = run_app(root, k, args.source, args.max_frames)
             for name, values in warning_latencies(folder, cfg, mono_to_unix, args.horizon).items():
                 totals[name] += values
-        print(f"Equation 2 thresholds alpha {cfg.equation2.alpha_m * 1000:g} mm, beta "
-              f"{cfg.equation2.beta_m * 1000:g} mm; {args.runs} run(s) of {args.source}")
+        print(
+            f"Equation 2 thresholds alpha {cfg.equation2.alpha_m * 1000:g} mm, beta "
+            f"{cfg.equation2.beta_m * 1000:g} mm; {args.runs} run(s) of {args.source}"
+        )
         for name, values in totals.items():
             print(report(name, values))
         heard = [v for v in totals["estimate"] if v is not None]
         if heard:
             p95 = float(np.percentile(heard, 95))
-            print(f"target p95 <= {TARGET_P95_MS:.0f} ms from the estimate's frame: "
-                  f"{'met' if p95 <= TARGET_P95_MS else 'NOT met'} ({p95:.0f} ms)")
+            print(
+                f"target p95 <= {TARGET_P95_MS:.0f} ms from the estimate's frame: "
+                f"{'met' if p95 <= TARGET_P95_MS else 'NOT met'} ({p95:.0f} ms)"
+            )
     finally:
         if args.keep:  # the session folders only (the configs' ipc sockets cannot be copied)
             for folder in sorted(root.glob("run*")):

@@ -28,9 +28,10 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
 
 def register_synth_commands(synth_commands: argparse._SubParsersAction) -> None:
     """Add ``diversity`` to ``seesys synth``."""
-    p = synth_commands.add_parser("diversity", help="per-environment image statistics of rendered sequences (paper Fig. 8)")
+    p = synth_commands.add_parser(
+        "diversity", help="per-environment image statistics of rendered sequences (paper Fig. 8)"
+    )
     p.add_argument("root", type=Path, help="folder holding rendered sequences")
     p.add_argument("--out", type=Path, required=True, help="folder for diversity.csv/.md/.png")
     p.add_argument("--stride", type=int, default=5, help="use every N-th frame (default 5)")
     p.set_defaults(func=_diversity)
-

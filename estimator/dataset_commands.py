@@ -15,14 +15,14 @@ from estimator.dataset.sample import make_sample
 from estimator.dataset.splits import write_splits
 from estimator.dataset.store import WITH_SAMPLES
 from estimator.jobs import add_ray_argument, ray_executor
-from synth.config import load_synth_config
-from synth.sequence import SequenceSpec
 from seesys.core import session_layout
 from seesys.core.errors import SeesysError
 from seesys.io import session_files
 from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_label_config, load_window_config
 from seesys.io.session_labels import label_session
+from synth.config import load_synth_config
+from synth.sequence import SequenceSpec
 
 
 def _names(text: str) -> list[str]:
@@ -58,8 +58,18 @@ def _build(args: argparse.Namespace) -> int:
         config = replace_fields(config, keep_sessions=False)
     width, height = args.size or (None, None)
     template = SequenceSpec("", "", 0, args.frames, width, height, True, args.distortion)
-    plan = plan_from_config(config, synth, template, args.envs, args.motions, args.seeds, args.modes, args.trials,
-                            args.processes, args.cameras)
+    plan = plan_from_config(
+        config,
+        synth,
+        template,
+        args.envs,
+        args.motions,
+        args.seeds,
+        args.modes,
+        args.trials,
+        args.processes,
+        args.cameras,
+    )
     if args.ray is None:
         builder = DatasetBuilder(args.out, config, synth, load_label_config(), load_window_config())
         result = builder.build(plan)
@@ -70,10 +80,12 @@ def _build(args: argparse.Namespace) -> int:
             result = builder.build(plan, executor)
     stored = [r for r in result.runs_done if r.status in WITH_SAMPLES]
     render_rate = result.rendered_frames / result.render_seconds if result.rendered_frames else 0.0
-    print(f"{result.sequences} sequences ({result.rendered_frames} frames rendered in {result.render_seconds:.0f} s, "
-          f"{render_rate:.1f} frames/s); {len(stored)} runs stored ({sum(r.samples for r in stored)} samples), "
-          f"{len(result.crashed)} crashed, "
-          f"{result.runs_skipped} already done; SLAM + labelling {result.slam_seconds:.0f} s; under {args.out}")
+    print(
+        f"{result.sequences} sequences ({result.rendered_frames} frames rendered in {result.render_seconds:.0f} s, "
+        f"{render_rate:.1f} frames/s); {len(stored)} runs stored ({sum(r.samples for r in stored)} samples), "
+        f"{len(result.crashed)} crashed, "
+        f"{result.runs_skipped} already done; SLAM + labelling {result.slam_seconds:.0f} s; under {args.out}"
+    )
     for run in result.crashed:
         kept = f" ({run.frames} frames before it stored)" if run.frames else ""
         print(f"  crashed{kept}: {run.run}: {run.error}")
@@ -104,11 +116,15 @@ def _splits(args: argparse.Namespace) -> int:
     for k, r in enumerate(splits.rounds):
         environments, cameras = splits.heldout(k)
         held = ", ".join(environments + cameras) or "none"
-        print(f"round {k}: train {len(r.train)} runs, validation {len(r.validation)} "
-              f"({', '.join(r.validation_trajectories)}), test {len(r.test)} ({', '.join(r.test_trajectories)}), "
-              f"excluded {len(r.excluded)}; held out: {held}")
-    print(f"lockbox ({dataset.lockbox.environment}, {dataset.lockbox.camera_model}): {len(splits.lockbox.runs)} runs "
-          f"in no round; build {splits.build.name} ({splits.build.runs} runs)")
+        print(
+            f"round {k}: train {len(r.train)} runs, validation {len(r.validation)} "
+            f"({', '.join(r.validation_trajectories)}), test {len(r.test)} ({', '.join(r.test_trajectories)}), "
+            f"excluded {len(r.excluded)}; held out: {held}"
+        )
+    print(
+        f"lockbox ({dataset.lockbox.environment}, {dataset.lockbox.camera_model}): {len(splits.lockbox.runs)} runs "
+        f"in no round; build {splits.build.name} ({splits.build.runs} runs)"
+    )
     print(f"wrote {args.out}")
     return 0
 
@@ -116,13 +132,18 @@ def _splits(args: argparse.Namespace) -> int:
 def _sample(args: argparse.Namespace) -> int:
     config = load_dataset_config().sample
     if args.env or args.motion or args.seed is not None:
-        config = replace_fields(config, environment=args.env or config.environment,
-                                motion=args.motion or config.motion,
-                                seed=config.seed if args.seed is None else args.seed)
+        config = replace_fields(
+            config,
+            environment=args.env or config.environment,
+            motion=args.motion or config.motion,
+            seed=config.seed if args.seed is None else args.seed,
+        )
     result = make_sample(config, load_synth_config(), args.out)
-    print(f"sample: {result.frames} frames, {result.bytes / 1e6:.1f} MB in {result.folder}; check it with "
-          f"`seesys track --source tum:{result.folder}` and train its vocabulary with "
-          f"`seesys vocab train --source tum:{result.folder} --out FILE`")
+    print(
+        f"sample: {result.frames} frames, {result.bytes / 1e6:.1f} MB in {result.folder}; check it with "
+        f"`seesys track --source tum:{result.folder}` and train its vocabulary with "
+        f"`seesys vocab train --source tum:{result.folder} --out FILE`"
+    )
     return 0
 
 
@@ -136,8 +157,11 @@ def _label(args: argparse.Namespace) -> int:
     labelled = labels[labels.status == "labelled"]
     (labelled if args.labelled_only else labels).to_csv(args.out, index=False)
     errors_mm = labelled.error_m.to_numpy() * MM_PER_M
-    summary = (f"median {float(np.median(errors_mm)):.1f} mm, p90 {float(np.percentile(errors_mm, 90)):.1f} mm"
-               if len(labelled) else "no labelled frame")
+    summary = (
+        f"median {float(np.median(errors_mm)):.1f} mm, p90 {float(np.percentile(errors_mm, 90)):.1f} mm"
+        if len(labelled)
+        else "no labelled frame"
+    )
     print(f"{len(labelled)} of {len(labels)} frames labelled ({summary}) -> {args.out}")
     return 0
 
@@ -147,18 +171,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     dataset = subparsers.add_parser("dataset", help="build the labelled training dataset, split it, report on it")
     sub = dataset.add_subparsers(dest="dataset_command", metavar="DATASET_COMMAND", required=True)
 
-    p = sub.add_parser("build", help="render sequences, run ORB-SLAM3 + RTS monitor on each, label, store samples "
-                                     "(resumable)")
+    p = sub.add_parser(
+        "build", help="render sequences, run ORB-SLAM3 + RTS monitor on each, label, store samples (resumable)"
+    )
     p.add_argument("--out", type=Path, required=True, help="dataset folder (created; an existing one is resumed)")
     p.add_argument("--envs", type=_names, help="comma-separated presets or all (default: configs/dataset.toml)")
-    p.add_argument("--motions", type=_names,
-                   help="comma-separated: patrol, aiming, rapid, real:<name>, real, all (default: configs/dataset.toml)")
+    p.add_argument(
+        "--motions",
+        type=_names,
+        help="comma-separated: patrol, aiming, rapid, real:<name>, real, all (default: configs/dataset.toml)",
+    )
     p.add_argument("--seeds", type=_ints, help="comma-separated batch seeds (default: configs/dataset.toml)")
-    p.add_argument("--modes", type=_names, help="comma-separated SLAM modes: rgbd, mono (default: configs/dataset.toml)")
+    p.add_argument(
+        "--modes", type=_names, help="comma-separated SLAM modes: rgbd, mono (default: configs/dataset.toml)"
+    )
     p.add_argument("--trials", type=int, help="SLAM runs per sequence and mode (default: configs/dataset.toml)")
-    p.add_argument("--cameras", type=_camera_names,
-                   help="comma-separated camera models (configs/synth.toml) drawn with equal weights per sequence, or "
-                        "'preset' for each preset's own camera (default: [cameras] of configs/dataset.toml)")
+    p.add_argument(
+        "--cameras",
+        type=_camera_names,
+        help="comma-separated camera models (configs/synth.toml) drawn with equal weights per sequence, or "
+        "'preset' for each preset's own camera (default: [cameras] of configs/dataset.toml)",
+    )
     p.add_argument("--frames", type=int, help="frames per sequence (default: configs/synth.toml duration)")
     p.add_argument("--size", type=_size, help="image size WIDTHxHEIGHT (default: configs/synth.toml camera)")
     p.add_argument("--processes", type=int, help="render processes (default: configs/synth.toml)")
@@ -175,13 +208,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = sub.add_parser("splits", help="grouped cross-validation splits by trajectory and motion group (JSON)")
     p.add_argument("roots", type=Path, nargs="+", help="dataset folders split together (e.g. pretraining + others)")
     p.add_argument("--out", type=Path, required=True, help="JSON file to write")
-    p.add_argument("--heldout", type=_names,
-                   help="the same held-out environments in every round ('' for none; default: configs/dataset.toml)")
-    p.add_argument("--heldout-per-round", type=int,
-                   help="held-out rooms per round, different in every round (default: configs/dataset.toml)")
-    p.add_argument("--heldout-cameras", type=_names,
-                   help="held-out camera models, e.g. kinect_v1 for leave-one-camera-out (default: configs/dataset.toml;"
-                        " '' for none)")
+    p.add_argument(
+        "--heldout",
+        type=_names,
+        help="the same held-out environments in every round ('' for none; default: configs/dataset.toml)",
+    )
+    p.add_argument(
+        "--heldout-per-round",
+        type=int,
+        help="held-out rooms per round, different in every round (default: configs/dataset.toml)",
+    )
+    p.add_argument(
+        "--heldout-cameras",
+        type=_names,
+        help="held-out camera models, e.g. kinect_v1 for leave-one-camera-out (default: configs/dataset.toml;"
+        " '' for none)",
+    )
     p.add_argument("--rounds", type=int, help="cross-validation rounds (default: configs/dataset.toml)")
     p.set_defaults(func=_splits)
 
@@ -195,6 +237,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = sub.add_parser("label", help="true pose-error label of every frame of one session folder (CSV)")
     p.add_argument("session", type=Path, help="a session folder with groundtruth.tum (seesys track / monitor run)")
     p.add_argument("--out", type=Path, required=True, help="CSV file: timestamp, error_m, status, scale")
-    p.add_argument("--labelled-only", action="store_true",
-                   help="keep only labelled frames (an estimate log for `seesys advisory render`)")
+    p.add_argument(
+        "--labelled-only",
+        action="store_true",
+        help="keep only labelled frames (an estimate log for `seesys advisory render`)",
+    )
     p.set_defaults(func=_label)

@@ -16,15 +16,15 @@ import cv2
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
+import matplotlib.pyplot as plt
+import pandas as pd
 
-from seesys.core.camera_normalisation import CameraNormalisation  # noqa: E402
-from seesys.core.errors import SeesysError  # noqa: E402
-from slam_monitor.image_features import image_features, reference_scale  # noqa: E402
-from slam_monitor.monitor_config import load_monitor_config  # noqa: E402
-from slam_monitor.sources import load_camera_config  # noqa: E402
-from slam_monitor.sources.settings import folder_calibration  # noqa: E402
+from seesys.core.camera_normalisation import CameraNormalisation
+from seesys.core.errors import SeesysError
+from slam_monitor.image_features import image_features, reference_scale
+from slam_monitor.monitor_config import load_monitor_config
+from slam_monitor.sources import load_camera_config
+from slam_monitor.sources.settings import folder_calibration
 
 FEATURES = ("brightness", "contrast", "entropy", "laplacian")
 
@@ -60,16 +60,21 @@ def measure(folders: list[Path], stride: int) -> pd.DataFrame:
             if gray is None or gray.ndim != 2:
                 raise SeesysError(f"{path}: not an 8-bit gray image")
             feats = image_features(gray, reference_scale(gray, normalisation))
-            rows.append({"environment": meta["environment"], "motion_group": meta["motion_group"],
-                         "sequence": folder.name, **{k: getattr(feats, k) for k in FEATURES}})
+            rows.append(
+                {
+                    "environment": meta["environment"],
+                    "motion_group": meta["motion_group"],
+                    "sequence": folder.name,
+                    **{k: getattr(feats, k) for k in FEATURES},
+                }
+            )
     return pd.DataFrame(rows)
 
 
 def summarise(frames: pd.DataFrame) -> pd.DataFrame:
     """Median, 10th and 90th percentile of each feature per environment (ordered by median brightness)."""
     grouped = frames.groupby("environment")[list(FEATURES)]
-    table = pd.concat({"median": grouped.median(), "p10": grouped.quantile(0.1), "p90": grouped.quantile(0.9)},
-                      axis=1)
+    table = pd.concat({"median": grouped.median(), "p10": grouped.quantile(0.1), "p90": grouped.quantile(0.9)}, axis=1)
     table.columns = [f"{feat}_{stat}" for stat, feat in table.columns]
     table["frames"] = grouped.size()
     return table.sort_values("brightness_median")

@@ -84,8 +84,7 @@ OnDone = Callable[[Job, Any], None]
 class LocalExecutor:
     """The jobs in this process, in order (what the commands do without ``--ray``)."""
 
-    def run(self, jobs: list[Job], progress, on_done: OnDone | None = None,
-            config_dir: Path | None = None) -> list:
+    def run(self, jobs: list[Job], progress, on_done: OnDone | None = None, config_dir: Path | None = None) -> list:
         env = JobEnv(progress, config_dir)
         results = []
         for job in jobs:
@@ -242,11 +241,12 @@ class RayExecutor:
         for job in jobs:
             if not any(n.get("CPU", 0) >= job.cpus and n.get("GPU", 0) >= job.gpus for n in nodes):
                 have = ", ".join(f"{n.get('CPU', 0):g} CPU + {n.get('GPU', 0):g} GPU" for n in nodes) or "no node"
-                raise SeesysError(f"{job.name} needs {job.cpus:g} CPU + {job.gpus:g} GPU on one node; the Ray "
-                                  f"cluster's nodes have {have}")
+                raise SeesysError(
+                    f"{job.name} needs {job.cpus:g} CPU + {job.gpus:g} GPU on one node; the Ray "
+                    f"cluster's nodes have {have}"
+                )
 
-    def run(self, jobs: list[Job], progress, on_done: OnDone | None = None,
-            config_dir: Path | None = None) -> list:
+    def run(self, jobs: list[Job], progress, on_done: OnDone | None = None, config_dir: Path | None = None) -> list:
         if not jobs:
             return []
         ray = self._ray
@@ -259,7 +259,8 @@ class RayExecutor:
         for job in jobs:
             after = [refs[name] for name in job.after if name in refs]
             ref = task.options(num_cpus=job.cpus, num_gpus=job.gpus, name=job.name).remote(
-                job.fn, job.args, snapshot, ProgressRelay(sink, job.name), *after)
+                job.fn, job.args, snapshot, ProgressRelay(sink, job.name), *after
+            )
             refs[job.name] = ref
             job_of[ref] = job
         mirror = _ProgressMirror(progress)
@@ -298,21 +299,30 @@ class RayExecutor:
 def _check_reachable(address: str) -> None:
     host, _, port = address.rpartition(":")
     if not host or not port.isdigit():
-        raise SeesysError(f"--ray {address}: expected auto or HOST:PORT (the head node's address, port 6379 unless "
-                          f"`ray start --head --port` said otherwise)")
+        raise SeesysError(
+            f"--ray {address}: expected auto or HOST:PORT (the head node's address, port 6379 unless "
+            f"`ray start --head --port` said otherwise)"
+        )
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
     except OSError as e:
-        raise SeesysError(f"cannot reach the Ray cluster at {address}: {e.strerror or _first_line(e)} (is `ray start "
-                          f"--head` running there?)") from None
+        raise SeesysError(
+            f"cannot reach the Ray cluster at {address}: {e.strerror or _first_line(e)} (is `ray start "
+            f"--head` running there?)"
+        ) from None
 
 
 def add_ray_argument(parser: argparse.ArgumentParser, what: str) -> None:
     """``--ray [ADDRESS]`` of a command; the namespace gets ``ray``: None without it, "" for Ray's default."""
-    parser.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
-                        help=f"run {what} as a Ray task: on the cluster at ADDRESS (auto, or the head's HOST:PORT), "
-                             f"or, with no ADDRESS, on $RAY_ADDRESS, this machine's `ray start` instance or a new "
-                             f"local one (docs/ray.md)")
+    parser.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        metavar="ADDRESS",
+        help=f"run {what} as a Ray task: on the cluster at ADDRESS (auto, or the head's HOST:PORT), "
+        f"or, with no ADDRESS, on $RAY_ADDRESS, this machine's `ray start` instance or a new "
+        f"local one (docs/ray.md)",
+    )
 
 
 @contextlib.contextmanager
@@ -323,8 +333,9 @@ def ray_executor(address: str | None) -> Iterator[RayExecutor]:
     try:
         import ray
     except ImportError:
-        raise SeesysError("--ray needs the ray package (it is among the project's dependencies: reinstall "
-                          "the project)") from None
+        raise SeesysError(
+            "--ray needs the ray package (it is among the project's dependencies: reinstall the project)"
+        ) from None
     if ray.is_initialized():
         yield RayExecutor(ray)
         return

@@ -23,8 +23,9 @@ def _device(name: str, threads: int | None):
             raise SeesysError("--threads must be at least 1")
         torch.set_num_threads(threads)
     if name == "cuda" and not torch.cuda.is_available():
-        raise SeesysError("--device cuda: no CUDA device (this torch is "
-                          f"{torch.__version__}; the project pins the CPU build)")
+        raise SeesysError(
+            f"--device cuda: no CUDA device (this torch is {torch.__version__}; the project pins the CPU build)"
+        )
     return torch.device(name)
 
 
@@ -51,9 +52,16 @@ def _context(args: argparse.Namespace, extra: dict):
     from estimator.deepsee.loop import progress_bar
     from estimator.deepsee.stages import TrainContext
     from seesys.io.core_settings import load_window_config
+
     device = _device(args.device, args.threads)
-    return TrainContext(load_estimator_config(), args.schedule, load_window_config(), device, progress_bar(),
-                        {**_provenance(args), **extra})
+    return TrainContext(
+        load_estimator_config(),
+        args.schedule,
+        load_window_config(),
+        device,
+        progress_bar(),
+        {**_provenance(args), **extra},
+    )
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -79,8 +87,9 @@ def _train_table_on_ray(args: argparse.Namespace) -> int:
     if args.threads is not None and args.threads < 1:
         raise SeesysError("--threads must be at least 1")
     threads = args.threads or load_ray_settings().train_cpus
-    spec = TrainSpec(load_estimator_config(), args.schedule, load_window_config(), args.device, threads,
-                     _provenance(args))
+    spec = TrainSpec(
+        load_estimator_config(), args.schedule, load_window_config(), args.device, threads, _provenance(args)
+    )
     # The cluster first: a bad --ray address is the error the user gets, whatever else is wrong.
     with ray_executor(args.ray or None) as executor, progress_bar() as progress:
         jobs = table_jobs(args.data, read_splits(args.splits, args.data), args.rounds, args.rows, args.runs, spec)
@@ -111,12 +120,14 @@ def _evaluate(args: argparse.Namespace) -> int:
     from estimator.deepsee.evaluate import evaluate
     from estimator.deepsee.report import write_report
     from seesys.io.core_settings import load_pulse_settings, load_window_config
+
     config = load_estimator_config()
     pulses = load_pulse_settings()
     device = _device(args.device, None)
     splits = read_splits(args.splits, args.data)
-    result = evaluate(args.data, splits, args.runs, args.rounds, args.sessions or [], config, pulses,
-                      load_window_config(), device)
+    result = evaluate(
+        args.data, splits, args.runs, args.rounds, args.sessions or [], config, pulses, load_window_config(), device
+    )
     notes = [f"Data: {', '.join(str(p) for p in args.data)}; splits {args.splits}; models under {args.runs}."]
     if args.sessions:
         notes.append(f"Out-of-domain sessions: {', '.join(str(s) for s in args.sessions)}.")
@@ -132,17 +143,21 @@ def _lockbox(args: argparse.Namespace) -> int:
     from estimator.deepsee.evaluate import evaluate_lockbox
     from estimator.deepsee.report import write_report
     from seesys.io.core_settings import load_pulse_settings, load_window_config
+
     config = load_estimator_config()
     pulses = load_pulse_settings()
     model = _default_model(args)
     splits = read_splits(args.splits, args.data)
-    result = evaluate_lockbox(args.data, splits, model, args.round, config, pulses, load_window_config(),
-                              _device(args.device, None))
+    result = evaluate_lockbox(
+        args.data, splits, model, args.round, config, pulses, load_window_config(), _device(args.device, None)
+    )
     box = splits.lockbox
     where = f" ({box.environment}, {box.camera_model})" if box else ""
-    notes = [f"The lockbox{where} judged for {model}, "
-             f"trained on round {args.round} of {args.splits}; the reference rows are fitted on that round's "
-             f"training data. Data: {', '.join(str(p) for p in args.data)}."]
+    notes = [
+        f"The lockbox{where} judged for {model}, "
+        f"trained on round {args.round} of {args.splits}; the reference rows are fitted on that round's "
+        f"training data. Data: {', '.join(str(p) for p in args.data)}."
+    ]
     path = write_report(result, config, pulses, args.out, notes)
     print(path.read_text())
     print(f"wrote {path}")
@@ -156,8 +171,9 @@ def _default_model(args: argparse.Namespace) -> Path:
         return args.model
     shipped = resources.resolve(load_estimator_config().shipped_model)
     if not shipped.is_file():
-        raise SeesysError(f"no shipped model at {shipped} yet; pass --model MODEL (a file from `seesys estimator "
-                          f"train`)")
+        raise SeesysError(
+            f"no shipped model at {shipped} yet; pass --model MODEL (a file from `seesys estimator train`)"
+        )
     return shipped
 
 
@@ -180,11 +196,21 @@ def _finetune_curve(args: argparse.Namespace) -> int:
     from estimator.deepsee.finetune import learning_curve
     from estimator.deepsee.loop import progress_bar
     from seesys.io.core_settings import load_pulse_settings, load_window_config
+
     progress = progress_bar()
     with progress:
-        table = learning_curve(_default_model(args), args.sessions, args.held_out, args.minutes, args.out,
-                               load_estimator_config(), load_window_config(), _device(args.device, args.threads),
-                               progress, load_pulse_settings())
+        table = learning_curve(
+            _default_model(args),
+            args.sessions,
+            args.held_out,
+            args.minutes,
+            args.out,
+            load_estimator_config(),
+            load_window_config(),
+            _device(args.device, args.threads),
+            progress,
+            load_pulse_settings(),
+        )
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(f"-> {args.out / 'learning_curve.csv'}")
     return 0
@@ -196,67 +222,99 @@ def _finetune(args: argparse.Namespace) -> int:
     from estimator.deepsee.loop import progress_bar
     from seesys.io.camera_check import load_scale_settings, sessions_scale_line
     from seesys.io.core_settings import load_label_config, load_pulse_settings, load_window_config
+
     config = load_estimator_config()
     device = _device(args.device, args.threads)
     run_dir = args.run or args.out.with_name(args.out.stem + "_finetune_run")
     progress = progress_bar()
     with progress:
-        result = finetune(_default_model(args), args.sessions, args.out, run_dir, config, load_window_config(),
-                          device, progress, {"command": " ".join(sys.argv)}, args.held_out or [],
-                          load_pulse_settings(), None if args.minutes is None else 60.0 * args.minutes)
-    print(f"fine-tuned on {len(args.sessions)} sessions ({result.train_windows} training windows, "
-          f"{result.validation_windows} validation windows, the last "
-          f"{100 * config.finetune.validation_fraction:.0f} % of each session): validation RMSE "
-          f"{result.rmse_before_cm:.3f} cm before, {result.rmse_after_cm:.3f} cm after -> {result.model}")
+        result = finetune(
+            _default_model(args),
+            args.sessions,
+            args.out,
+            run_dir,
+            config,
+            load_window_config(),
+            device,
+            progress,
+            {"command": " ".join(sys.argv)},
+            args.held_out or [],
+            load_pulse_settings(),
+            None if args.minutes is None else 60.0 * args.minutes,
+        )
+    print(
+        f"fine-tuned on {len(args.sessions)} sessions ({result.train_windows} training windows, "
+        f"{result.validation_windows} validation windows, the last "
+        f"{100 * config.finetune.validation_fraction:.0f} % of each session): validation RMSE "
+        f"{result.rmse_before_cm:.3f} cm before, {result.rmse_after_cm:.3f} cm after -> {result.model}"
+    )
     print(sessions_scale_line(args.sessions, load_scale_settings(), load_label_config().association_max_dt_s))
     if result.held_out_before is not None:
         print(f"held-out sessions ({result.held_out_before.windows} windows, never trained on):")
         for name, scores in (("before", result.held_out_before), ("after", result.held_out_after)):
-            print(f"  {name:6} RMSE {scores.rmse_cm:.3f} cm, within 1 mm-2 cm {scores.rmse_paper_range_cm:.3f} cm, "
-                  f"Spearman {scores.spearman:.2f}, advisory agreement {scores.agreement:.2f}, kappa "
-                  f"{scores.kappa:.2f}, recall >= 12 mm {scores.recall_large:.2f} ({scores.large_bins} of "
-                  f"{scores.bins} bins)")
+            print(
+                f"  {name:6} RMSE {scores.rmse_cm:.3f} cm, within 1 mm-2 cm {scores.rmse_paper_range_cm:.3f} cm, "
+                f"Spearman {scores.spearman:.2f}, advisory agreement {scores.agreement:.2f}, kappa "
+                f"{scores.kappa:.2f}, recall >= 12 mm {scores.recall_large:.2f} ({scores.large_bins} of "
+                f"{scores.bins} bins)"
+            )
         for name, scores in (result.held_out_references or {}).items():
-            print(f"  reference {name} (fitted on the same training windows): advisory agreement "
-                  f"{scores.agreement:.2f}, kappa {scores.kappa:.2f}, AURG {scores.aurg:.2f}")
+            print(
+                f"  reference {name} (fitted on the same training windows): advisory agreement "
+                f"{scores.agreement:.2f}, kappa {scores.kappa:.2f}, AURG {scores.aurg:.2f}"
+            )
     return 0
 
 
 def _export(args: argparse.Namespace) -> int:
+    from estimator.artefact.transforms import LabelTransform
     from estimator.deepsee.checkpoint import load_model, payload_standardisation
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity, training_cameras
     from estimator.deepsee.ordinal import model_thresholds
-    from estimator.artefact.transforms import LabelTransform
     from seesys.io.core_settings import load_window_config
+
     transform = LabelTransform(load_estimator_config().label_transform.k)
     windows = load_window_config()
     model, payload = load_model(args.model, transform, windows)
-    path = export_onnx(model, args.out, windows, transform, payload["compatibility"],
-                       training_cameras(payload.get("training", {})), payload_standardisation(payload, args.model))
+    path = export_onnx(
+        model,
+        args.out,
+        windows,
+        transform,
+        payload["compatibility"],
+        training_cameras(payload.get("training", {})),
+        payload_standardisation(payload, args.model),
+    )
     difference = parity(model, OnnxModel(path, transform, windows))
     if difference > PARITY_TOLERANCE:
         raise SeesysError(f"{path}: ONNX Runtime differs from PyTorch by {difference:.2e} (> {PARITY_TOLERANCE:g})")
     outputs = "the transformed scale" + (" and the head's probabilities" if model_thresholds(model) else "")
-    print(f"exported {args.model} -> {path} ({path.stat().st_size / 1e6:.1f} MB); parity with PyTorch: max abs "
-          f"difference {difference:.1e} on {outputs}")
+    print(
+        f"exported {args.model} -> {path} ({path.stat().st_size / 1e6:.1f} MB); parity with PyTorch: max abs "
+        f"difference {difference:.1e} on {outputs}"
+    )
     return 0
 
 
 def _estimate(args: argparse.Namespace) -> int:
+    from estimator.artefact.transforms import LabelTransform
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.estimate import estimate_session
     from estimator.deepsee.predictors import load_predictor
-    from estimator.artefact.transforms import LabelTransform
     from seesys.io.core_settings import load_window_config
+
     config = load_estimator_config()
     windows = load_window_config()
-    predictor = load_predictor(_default_model(args), LabelTransform(config.label_transform.k),
-                               config.evaluation.batch_size, windows=windows)
+    predictor = load_predictor(
+        _default_model(args), LabelTransform(config.label_transform.k), config.evaluation.batch_size, windows=windows
+    )
     table = estimate_session(predictor, args.session, windows, args.out)
     head = ", with the ordinal head's probabilities and class" if predictor.thresholds_m else ""
-    print(f"{len(table)} estimates (median {1000 * table.error_m.median():.1f} mm{head}) -> {args.out}; "
-          f"listen with `seesys advisory render --estimates {args.out} --out preview.wav`")
+    print(
+        f"{len(table)} estimates (median {1000 * table.error_m.median():.1f} mm{head}) -> {args.out}; "
+        f"listen with `seesys advisory render --estimates {args.out} --out preview.wav`"
+    )
     return 0
 
 
@@ -266,8 +324,12 @@ def _data_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _training_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--schedule", choices=("reduced", "full"), default="reduced",
-                   help="training schedule of configs/estimator.toml (default: reduced, about an hour on 2 cores)")
+    p.add_argument(
+        "--schedule",
+        choices=("reduced", "full"),
+        default="reduced",
+        help="training schedule of configs/estimator.toml (default: reduced, about an hour on 2 cores)",
+    )
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
 
@@ -292,8 +354,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--rows", type=_rows, default=list(ROW_NAMES), help="comma-separated rows, or all (default)")
     p.add_argument("--runs", type=Path, required=True, help="folder for round_<r>/<row>/ run folders")
     _training_arguments(p)
-    add_ray_argument(p, "each row × round (reserving --threads CPUs, default train_cpus of configs/ray.toml, and a "
-                        "GPU with --device cuda)")
+    add_ray_argument(
+        p,
+        "each row × round (reserving --threads CPUs, default train_cpus of configs/ray.toml, and a "
+        "GPU with --device cuda)",
+    )
     p.set_defaults(func=_train_table)
 
     p = sub.add_parser("evaluate", help="Table 3 report of the trained rows (Markdown, CSV, PNG)")
@@ -315,23 +380,37 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("finetune", help="stage (d) on labelled session folders (real cameras with ground truth)")
     p.add_argument("--sessions", type=Path, nargs="+", required=True, help="session folders with groundtruth.tum")
-    p.add_argument("--held-out", type=Path, nargs="+",
-                   help="whole sessions with groundtruth.tum never trained on, judged before and after")
+    p.add_argument(
+        "--held-out",
+        type=Path,
+        nargs="+",
+        help="whole sessions with groundtruth.tum never trained on, judged before and after",
+    )
     p.add_argument("--model", type=Path, help="model to start from (default: the shipped model)")
     p.add_argument("--out", type=Path, required=True, help="the fine-tuned model file")
     p.add_argument("--run", type=Path, help="run folder for its metrics and checkpoints (default: next to --out)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
-    p.add_argument("--minutes", type=_positive_minutes,
-                   help="fine-tune on the first MINUTES of the sessions only, in their order (default: all)")
+    p.add_argument(
+        "--minutes",
+        type=_positive_minutes,
+        help="fine-tune on the first MINUTES of the sessions only, in their order (default: all)",
+    )
     p.set_defaults(func=_finetune)
 
-    p = sub.add_parser("finetune-curve", help="the fine-tuning learning curve: fine-tune on the first 0.5, 1, 2, 5 "
-                                              "minutes of an unseen camera's sessions, judge each on held-out ones")
+    p = sub.add_parser(
+        "finetune-curve",
+        help="the fine-tuning learning curve: fine-tune on the first 0.5, 1, 2, 5 "
+        "minutes of an unseen camera's sessions, judge each on held-out ones",
+    )
     p.add_argument("--sessions", type=Path, nargs="+", required=True, help="the camera's labelled sessions, in order")
     p.add_argument("--held-out", type=Path, nargs="+", required=True, help="its sessions that judge every budget")
-    p.add_argument("--minutes", type=_minutes_list, default=[0.5, 1.0, 2.0, 5.0],
-                   help="comma-separated budgets in minutes (default: 0.5,1,2,5)")
+    p.add_argument(
+        "--minutes",
+        type=_minutes_list,
+        default=[0.5, 1.0, 2.0, 5.0],
+        help="comma-separated budgets in minutes (default: 0.5,1,2,5)",
+    )
     p.add_argument("--model", type=Path, help="model to start from (default: the shipped model)")
     p.add_argument("--out", type=Path, required=True, help="folder: learning_curve.csv, each budget's model and run")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")

@@ -14,6 +14,7 @@ def _configs():
     from estimator.service.config import load_service_config
     from seesys.io.core_settings import load_window_config
     from seesys.io.network import load_network_config
+
     return load_service_config(), load_network_config(), load_window_config()
 
 
@@ -32,15 +33,22 @@ def _serve(args: argparse.Namespace) -> int:
 
     def ready(broker) -> None:
         endpoints = broker.endpoints
-        print(f"serving {broker.model_version} on {workers} worker(s): features in at {endpoints['ingest']}"
-              + "".join(f" and {d}" for d in devices) + f", estimates out at {endpoints['estimates']}, status at "
-              f"{endpoints['status']}, workers at {endpoints['workers']}", flush=True)
+        print(
+            f"serving {broker.model_version} on {workers} worker(s): features in at {endpoints['ingest']}"
+            + "".join(f" and {d}" for d in devices)
+            + f", estimates out at {endpoints['estimates']}, status at "
+            f"{endpoints['status']}, workers at {endpoints['workers']}",
+            flush=True,
+        )
 
     broker = serve(config, network, windows, model, workers, devices, on_ready=ready)
     status = broker.status()
     estimates = sum(d["estimates"] for d in status["devices"].values())
-    print(f"stopped: {len(status['devices'])} device(s), {estimates} estimates published, rejected "
-          + ", ".join(f"{k} {v}" for k, v in status["rejected"].items()), flush=True)
+    print(
+        f"stopped: {len(status['devices'])} device(s), {estimates} estimates published, rejected "
+        + ", ".join(f"{k} {v}" for k, v in status["rejected"].items()),
+        flush=True,
+    )
     return 0
 
 
@@ -66,8 +74,10 @@ def _keys(args: argparse.Namespace) -> int:
     from estimator.service.keys import make_key_pair
 
     public, secret = make_key_pair(args.out, args.name)
-    print(f"public key {public} (give it to the other end; a server lists its clients' in its allow-list folder), "
-          f"secret key {secret} (keep it here)")
+    print(
+        f"public key {public} (give it to the other end; a server lists its clients' in its allow-list folder), "
+        f"secret key {secret} (keep it here)"
+    )
     return 0
 
 
@@ -83,8 +93,10 @@ def _untrained_model(args: argparse.Namespace) -> int:
     camera, psd = monitor.reference_camera, monitor.psd
     height, width, _ = PsdGeometry(camera.width, camera.height, psd.patch_px, psd.expansion).shape
     path = export_untrained(args.out, load_window_config(), (height, width), args.seed)
-    print(f"wrote {path} ({model_version(path)}): DeepSEE of the configured size for {height}x{width} PSD "
-          f"matrices, with untrained weights (serves the right shape and cost; its estimates mean nothing)")
+    print(
+        f"wrote {path} ({model_version(path)}): DeepSEE of the configured size for {height}x{width} PSD "
+        f"matrices, with untrained weights (serves the right shape and cost; its estimates mean nothing)"
+    )
     return 0
 
 
@@ -98,14 +110,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the service's commands to ``seesys estimator``."""
     sub = _estimator_group(subparsers)
 
-    p = sub.add_parser("serve", help="serve estimates to devices: a broker and a pool of worker processes",
-                       description="Subscribe to device feature streams, run the model at every window end and "
-                                   "publish each estimate (configs/service.toml, network.toml). Stops on SIGINT or "
-                                   "SIGTERM.")
+    p = sub.add_parser(
+        "serve",
+        help="serve estimates to devices: a broker and a pool of worker processes",
+        description="Subscribe to device feature streams, run the model at every window end and "
+        "publish each estimate (configs/service.toml, network.toml). Stops on SIGINT or "
+        "SIGTERM.",
+    )
     p.add_argument("--model", type=Path, help="ONNX model (default: model of configs/service.toml)")
     p.add_argument("--workers", type=int, help="local worker processes (default: configs/service.toml)")
-    p.add_argument("--device", action="append", metavar="ENDPOINT",
-                   help="also connect to a device that binds its feature stream here (repeatable)")
+    p.add_argument(
+        "--device",
+        action="append",
+        metavar="ENDPOINT",
+        help="also connect to a device that binds its feature stream here (repeatable)",
+    )
     p.set_defaults(func=_serve)
 
     p = sub.add_parser("worker", help="one more worker for a running service (this machine or another)")
@@ -125,8 +144,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--name", required=True, help="key pair name, e.g. server or device-0")
     p.set_defaults(func=_keys)
 
-    p = sub.add_parser("untrained-model", help="export an untrained DeepSEE of the configured size (a stand-in "
-                                               "to serve until a trained model ships)")
+    p = sub.add_parser(
+        "untrained-model",
+        help="export an untrained DeepSEE of the configured size (a stand-in to serve until a trained model ships)",
+    )
     p.add_argument("--out", type=Path, required=True, help="ONNX file to write")
     p.add_argument("--seed", type=int, default=0, help="seed of the random weights (default 0)")
     p.set_defaults(func=_untrained_model)

@@ -58,8 +58,11 @@ def main() -> int:
                 print(f"no estimate for {args.timeout_s} s", flush=True)
                 return 1
             action = placer.on_estimate(record)
-            print(f"frame {record.frame_index} error {record.error_m * 1000:.3f} mm class {record.error_class} "
-                  f"model {record.model_version}: {action}", flush=True)
+            print(
+                f"frame {record.frame_index} error {record.error_m * 1000:.3f} mm class {record.error_class} "
+                f"model {record.model_version}: {action}",
+                flush=True,
+            )
     print(f"placed {len(placer.placed)} anchors at frames {placer.placed}", flush=True)
     return 0
 

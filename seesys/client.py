@@ -81,8 +81,14 @@ class EstimateClient:
     :class:`seesys.io.transport.CurveKeyError` for an unreadable key file.
     """
 
-    def __init__(self, device_id: str, endpoint: str | None = None, config_dir: Path | None = None,
-                 pulses: PulseSettings | None = None, stream_session: int | None = None):
+    def __init__(
+        self,
+        device_id: str,
+        endpoint: str | None = None,
+        config_dir: Path | None = None,
+        pulses: PulseSettings | None = None,
+        stream_session: int | None = None,
+    ):
         network = load_network_config(config_dir)
         self.endpoint = endpoint or network.estimates_endpoint
         self.device_id = device_id
@@ -91,8 +97,13 @@ class EstimateClient:
         self.rejected = 0
         self.foreign = 0  # estimates of the device id from another stream session than ``stream_session``
         self._ctx = zmq.Context()
-        self._sub = subscriber(self._ctx, self.endpoint, "estimates", [messages.topic(messages.ESTIMATE_TOPIC, device_id)],
-                               options=network.client_options(self.endpoint))
+        self._sub = subscriber(
+            self._ctx,
+            self.endpoint,
+            "estimates",
+            [messages.topic(messages.ESTIMATE_TOPIC, device_id)],
+            options=network.client_options(self.endpoint),
+        )
 
     def receive(self, timeout_s: float | None = None) -> EstimateRecord | None:
         """The next estimate, or ``None`` when none arrived within ``timeout_s`` (``None``: wait for ever)."""
@@ -114,9 +125,17 @@ class EstimateClient:
                 return self._record(message)
 
     def _record(self, estimate: Estimate) -> EstimateRecord:
-        return EstimateRecord(estimate.device_id, estimate.frame_index, estimate.timestamp, estimate.error_m,
-                              self.pulses.pulses(estimate.error_m), estimate.model_version, estimate.server_ms,
-                              time.monotonic(), estimate.stream_session)
+        return EstimateRecord(
+            estimate.device_id,
+            estimate.frame_index,
+            estimate.timestamp,
+            estimate.error_m,
+            self.pulses.pulses(estimate.error_m),
+            estimate.model_version,
+            estimate.server_ms,
+            time.monotonic(),
+            estimate.stream_session,
+        )
 
     def __iter__(self) -> Iterator[EstimateRecord]:
         while True:

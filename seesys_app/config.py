@@ -61,11 +61,18 @@ def load_app_config(directory: Path | None = None) -> AppConfig:
     problems = []
     if cfg.device.mode not in MODES:
         problems.append(f"device.mode must be one of {', '.join(MODES)} (got {cfg.device.mode!r})")
-    positive = {"ready_timeout_s": s.ready_timeout_s, "reach_timeout_s": s.reach_timeout_s,
-                "first_estimate_s": s.first_estimate_s, "stop_timeout_s": s.stop_timeout_s,
-                "status_interval_s": s.status_interval_s, "sparkline_s": v.sparkline_s,
-                "latency_window": v.latency_window, "buffers_shown": v.buffers_shown,
-                "estimator_poll_s": v.estimator_poll_s, "status_timeout_ms": v.status_timeout_ms}
+    positive = {
+        "ready_timeout_s": s.ready_timeout_s,
+        "reach_timeout_s": s.reach_timeout_s,
+        "first_estimate_s": s.first_estimate_s,
+        "stop_timeout_s": s.stop_timeout_s,
+        "status_interval_s": s.status_interval_s,
+        "sparkline_s": v.sparkline_s,
+        "latency_window": v.latency_window,
+        "buffers_shown": v.buffers_shown,
+        "estimator_poll_s": v.estimator_poll_s,
+        "status_timeout_ms": v.status_timeout_ms,
+    }
     problems += [f"{name} must be positive (got {value})" for name, value in positive.items() if value <= 0]
     if s.restart_delay_s < 0 or s.max_restarts < 0:
         problems.append("restart_delay_s and max_restarts must not be negative")

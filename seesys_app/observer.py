@@ -136,8 +136,16 @@ class RunObserver:
         for r in self._advisory.new_rows():
             self._pulses.append(int(r["played_pulses"]) if r["played_pulses"].isdigit() else 0)
         self.latest = Observation(
-            elapsed_s=now_mono - self._started, frames=frames, tracking_state=row[2] if len(row) > 2 else "",
-            fps=(f1 - f0) / (t1 - t0) if t1 > t0 else math.nan, estimates=self._count, latest_error_m=latest_error,
-            estimate_age_s=age, recent_errors_m=tuple(error for _, error in self._recent), latency_ms=latency,
-            pulses=tuple(self._pulses), estimator=self._estimator(parts.get("estimator")))
+            elapsed_s=now_mono - self._started,
+            frames=frames,
+            tracking_state=row[2] if len(row) > 2 else "",
+            fps=(f1 - f0) / (t1 - t0) if t1 > t0 else math.nan,
+            estimates=self._count,
+            latest_error_m=latest_error,
+            estimate_age_s=age,
+            recent_errors_m=tuple(error for _, error in self._recent),
+            latency_ms=latency,
+            pulses=tuple(self._pulses),
+            estimator=self._estimator(parts.get("estimator")),
+        )
         return self.latest

@@ -42,25 +42,19 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from advisory.conditions import Condition
 from advisory import config as advisory_config
+from advisory.conditions import Condition
 from advisory.config import load_advisory_config
-from advisory.process import stop_on_signals
 from advisory.output import AudioOutput, open_audio_output
+from advisory.process import stop_on_signals
 from advisory.supervisor import process_args
 from estimator.artefact.onnx_model import recorded_cameras
 from estimator.service.config import load_service_config
-from seesys_app.config import AppConfig, load_app_config
-from seesys_app.information import InformationClock
-from seesys_app.observer import Observation, RunObserver
-from seesys_app.records import RunRecord, RunState, StreamDrops
-from seesys_app.summary import TRACKED_STATES, write_summary
-from seesys_app.view import LiveView, ViewSetup
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
 from seesys.core.tracking_state import TrackingState
-from seesys.io.children import LOGS, CsvTail, RowCounter
 from seesys.io import network as network_config
+from seesys.io.children import LOGS, CsvTail, RowCounter
 from seesys.io.config import CONFIG_DIR_ENV, ConfigSet
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
@@ -68,6 +62,12 @@ from seesys.io.resources import resolve
 from seesys.io.session_files import utc_now
 from seesys.io.supervision import PartSpec, SupervisionPolicy, Supervisor
 from seesys.io.transport import peer_answers
+from seesys_app.config import AppConfig, load_app_config
+from seesys_app.information import InformationClock
+from seesys_app.observer import Observation, RunObserver
+from seesys_app.records import RunRecord, RunState, StreamDrops
+from seesys_app.summary import TRACKED_STATES, write_summary
+from seesys_app.view import LiveView, ViewSetup
 from slam_monitor import monitor_config
 from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
 from slam_monitor.sources import load_camera_config, open_source, parse_source_spec
@@ -108,8 +108,9 @@ def estimates_endpoint(host_port: str) -> str:
     """``tcp://HOST:PORT`` from ``HOST:PORT``; SeesysError naming the problem when it is not one."""
     host, sep, port = host_port.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise SeesysError(f"--estimator wants HOST:PORT (the service's estimates endpoint, e.g. 192.168.1.20:5556), "
-                          f"got {host_port!r}")
+        raise SeesysError(
+            f"--estimator wants HOST:PORT (the service's estimates endpoint, e.g. 192.168.1.20:5556), got {host_port!r}"
+        )
     return f"tcp://{host}:{port}"
 
 
@@ -204,9 +205,11 @@ class App:
         self._open_audio()
         timing = replace(self.advisory.timing, listen_to_device=self.device_id)
         audio = self.output.settings(self.advisory.audio) if self.output is not None else self.advisory.audio
-        configs = (ConfigSet.read()
-                   .replaced(advisory_config.SECTION, replace(self.advisory, timing=timing, audio=audio))
-                   .replaced(monitor_config.SECTION, replace(self.monitor, device_id=self.device_id)))
+        configs = (
+            ConfigSet.read()
+            .replaced(advisory_config.SECTION, replace(self.advisory, timing=timing, audio=audio))
+            .replaced(monitor_config.SECTION, replace(self.monitor, device_id=self.device_id))
+        )
         if self.estimates_endpoint is not None:
             network = replace(load_network_config(), estimates_endpoint=self.estimates_endpoint)
             configs = configs.replaced(network_config.SECTION, network)
@@ -221,10 +224,15 @@ class App:
         camera's: the user should know when the advisory speaks from a model that never saw their camera."""
         path = self.o.model or resolve(load_service_config(self.config_dir).model)
         cameras = recorded_cameras(path)
-        seen = (f"was trained or fine-tuned on the cameras: {', '.join(cameras)}" if cameras
-                else "records no cameras it was trained on")
-        return (f"{Path(path).name} {seen}; for another camera, fine-tune it on a few minutes of that camera's "
-                "sessions with ground truth: seesys estimator finetune --sessions SESSION... (docs/estimator.md)")
+        seen = (
+            f"was trained or fine-tuned on the cameras: {', '.join(cameras)}"
+            if cameras
+            else "records no cameras it was trained on"
+        )
+        return (
+            f"{Path(path).name} {seen}; for another camera, fine-tune it on a few minutes of that camera's "
+            "sessions with ground truth: seesys estimator finetune --sessions SESSION... (docs/estimator.md)"
+        )
 
     def event(self, part: str, event: str, detail: str = "") -> None:
         """Log an app event and show it, with the parts' state as it is now (a restart shows as done at once)."""
@@ -238,9 +246,14 @@ class App:
 
     def _policy(self) -> SupervisionPolicy:
         s = self.cfg.supervision
-        return SupervisionPolicy(ready_timeout_s=s.ready_timeout_s, poll_s=s.status_interval_s,
-                                 restart_delay_s=s.restart_delay_s, max_restarts=s.max_restarts,
-                                 stop_timeout_s=s.stop_timeout_s, device_stop_timeout_s=s.stop_timeout_s)
+        return SupervisionPolicy(
+            ready_timeout_s=s.ready_timeout_s,
+            poll_s=s.status_interval_s,
+            restart_delay_s=s.restart_delay_s,
+            max_restarts=s.max_restarts,
+            stop_timeout_s=s.stop_timeout_s,
+            device_stop_timeout_s=s.stop_timeout_s,
+        )
 
     @staticmethod
     def _drops(watcher: StreamWatcher) -> StreamDrops:
@@ -248,17 +261,33 @@ class App:
 
     def _record(self, watcher: StreamWatcher | None) -> RunRecord:
         estimator = self.o.estimator if self.o.estimator is not None else "local"  # HOST:PORT without --local
-        return RunRecord(self.folder, self.o.source, self.mode, self.pace, self.o.condition.value,
-                         estimator, self.audio, self.advisory.equation2,
-                         self.advisory.timing.stale_after_s, self.config_dir,
-                         self.supervisor.statuses() if self.supervisor is not None else {},
-                         self._drops(watcher) if watcher is not None else None,
-                         self._latest().estimator.dropped if self.o.local else None,
-                         self.information.seconds_without, dict(self.information.by_reason))
+        return RunRecord(
+            self.folder,
+            self.o.source,
+            self.mode,
+            self.pace,
+            self.o.condition.value,
+            estimator,
+            self.audio,
+            self.advisory.equation2,
+            self.advisory.timing.stale_after_s,
+            self.config_dir,
+            self.supervisor.statuses() if self.supervisor is not None else {},
+            self._drops(watcher) if watcher is not None else None,
+            self._latest().estimator.dropped if self.o.local else None,
+            self.information.seconds_without,
+            dict(self.information.by_reason),
+        )
 
     def _view_setup(self) -> ViewSetup:
-        return ViewSetup(self.folder, self.o.source, self.o.condition.value, self.cfg.view,
-                         self.advisory.equation2.beta_m, None if self.o.local else self.o.estimator)
+        return ViewSetup(
+            self.folder,
+            self.o.source,
+            self.o.condition.value,
+            self.cfg.view,
+            self.advisory.equation2.beta_m,
+            None if self.o.local else self.o.estimator,
+        )
 
     def _new_observer(self) -> RunObserver:
         status_endpoint = load_service_config(self.config_dir).status_endpoint if self.o.local else None
@@ -281,14 +310,25 @@ class App:
         return args
 
     def _device_args(self) -> tuple[str, ...]:
-        args = ("monitor", "run", "--source", self.o.source, "--mode", self.mode, "--out", str(self.folder),
-                "--estimates", "--real-time" if self.pace else "--no-pace")
+        args = (
+            "monitor",
+            "run",
+            "--source",
+            self.o.source,
+            "--mode",
+            self.mode,
+            "--out",
+            str(self.folder),
+            "--estimates",
+            "--real-time" if self.pace else "--no-pace",
+        )
         return args + (("--max-frames", str(self.o.max_frames)) if self.o.max_frames else ())
 
     def _player_started(self) -> bool:
         rows = self._advisory_events.new_rows()
-        self._player_up = self._player_up or any(r["process"].startswith("player[") and r["event"] == "started"
-                                                 for r in rows)
+        self._player_up = self._player_up or any(
+            r["process"].startswith("player[") and r["event"] == "started" for r in rows
+        )
         return self._player_up
 
     def _check_reachable(self, endpoint: str) -> None:
@@ -297,10 +337,12 @@ class App:
         timeout = self.cfg.supervision.reach_timeout_s
         network = load_network_config(self.config_dir)
         if not peer_answers(endpoint, timeout, network.client_options(network.estimates_endpoint)):
-            raise SeesysError(f"the estimator at {self.o.estimator} cannot be reached: no ZeroMQ peer answered at "
-                              f"{endpoint} within {timeout:g} s (is `seesys estimator serve` running "
-                              f"there, its estimates_endpoint bound on an address this device reaches, and Curve "
-                              f"set alike on both?)")
+            raise SeesysError(
+                f"the estimator at {self.o.estimator} cannot be reached: no ZeroMQ peer answered at "
+                f"{endpoint} within {timeout:g} s (is `seesys estimator serve` running "
+                f"there, its estimates_endpoint bound on an address this device reaches, and Curve "
+                f"set alike on both?)"
+            )
         self.event("estimator", "reachable", endpoint)
 
     def _start_children(self, stop: threading.Event) -> None:
@@ -310,15 +352,29 @@ class App:
         if self.estimates_endpoint is not None:  # a remote estimator (not --local)
             self._check_reachable(self.estimates_endpoint)
         if self.o.local:
-            supervisor.start_ready([PartSpec("estimator", self._estimator_args(),
-                                             ready=self._observer.estimator_answers, restartable=True)],
-                                   stop, self._refresh)
+            supervisor.start_ready(
+                [
+                    PartSpec(
+                        "estimator", self._estimator_args(), ready=self._observer.estimator_answers, restartable=True
+                    )
+                ],
+                stop,
+                self._refresh,
+            )
         generator_rows = RowCounter(self.folder / ADVISORY_CSV)
         self._advisory_events = CsvTail(self.folder / EVENTS_CSV)
-        checks: dict[str, Callable[[], bool]] = {"generator": lambda: generator_rows() > 0,
-                                                 "player": self._player_started}
-        supervisor.start_ready([PartSpec(name, args, ready=checks[name], restartable=True)
-                                for name, args in self._advisory_args().items()], stop, self._refresh)
+        checks: dict[str, Callable[[], bool]] = {
+            "generator": lambda: generator_rows() > 0,
+            "player": self._player_started,
+        }
+        supervisor.start_ready(
+            [
+                PartSpec(name, args, ready=checks[name], restartable=True)
+                for name, args in self._advisory_args().items()
+            ],
+            stop,
+            self._refresh,
+        )
         supervisor.start(PartSpec("device", self._device_args(), device=True))
 
     # -- supervision ----------------------------------------------------------------------------------------------
@@ -337,13 +393,17 @@ class App:
         known (stale; a remote estimator's drops are not known here)."""
         observed = self._latest()
         part = self.supervisor.statuses().get("estimator") if self.supervisor is not None else None
-        if part is not None and (part.restarting or not part.running
-                                 or (part.restarts and not observed.estimator.answering)):
+        if part is not None and (
+            part.restarting or not part.running or (part.restarts and not observed.estimator.answering)
+        ):
             return "estimator restarting"  # exited, or restarted and loading its model
         dropped = observed.estimator.dropped
         if dropped:
-            grown = {r: n - self._dropped_at_estimate.get(r, 0) for r, n in dropped.items()
-                     if n > self._dropped_at_estimate.get(r, 0)}
+            grown = {
+                r: n - self._dropped_at_estimate.get(r, 0)
+                for r, n in dropped.items()
+                if n > self._dropped_at_estimate.get(r, 0)
+            }
             if grown:
                 return "estimator dropped " + ", ".join(f"{r} {n}" for r, n in grown.items())
         state = observed.tracking_state
@@ -422,9 +482,13 @@ class App:
         status, error = "completed", None
         try:
             self.supervisor = Supervisor(self.folder, self._configure(), self._policy(), self.event)
-            self.event("app", "started", f"source {self.o.source}, condition {self.o.condition.value}, "
-                                         f"estimator {'local' if self.o.local else self.o.estimator}, "
-                                         f"audio {self.audio}")
+            self.event(
+                "app",
+                "started",
+                f"source {self.o.source}, condition {self.o.condition.value}, "
+                f"estimator {'local' if self.o.local else self.o.estimator}, "
+                f"audio {self.audio}",
+            )
             network = load_network_config(self.config_dir)
             watcher = StreamWatcher(network, self.folder / LOGS, self.device_id)
             (self.folder / LOGS).mkdir(exist_ok=True)
@@ -453,6 +517,13 @@ class App:
             exits = self._stop()
             self.event("app", "stopped", status)
             self.events.close()
-        summary = write_summary(self._record(self.watcher), self.cfg.output, status=status, error=error,
-                                started=started, ended=utc_now(), exits=exits)
+        summary = write_summary(
+            self._record(self.watcher),
+            self.cfg.output,
+            status=status,
+            error=error,
+            started=started,
+            ended=utc_now(),
+            exits=exits,
+        )
         return RunResult(self.folder, status, summary)

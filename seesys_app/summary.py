@@ -21,13 +21,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seesys_app.config import OutputConfig
-from seesys_app.records import RunRecord
 from seesys.core.equation2 import Equation2Config
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, ESTIMATES_CSV, FRAMES_CSV, GROUND_TRUTH, PLAYBACK_CSV
 from seesys.core.tracking_state import TrackingState
 from seesys.io.logfiles import read_csv_log, write_json_atomically
+from seesys_app.config import OutputConfig
+from seesys_app.records import RunRecord
 
 PERCENTILES = (50, 95, 99)
 # The names frames.csv gives the states in which a frame has a pose SLAM considers good (OK and OK_KLT).
@@ -55,11 +55,22 @@ def session_figures(folder: Path) -> dict:
     advisory, playback = _table(folder / ADVISORY_CSV), _table(folder / PLAYBACK_CSV)
     tracked = float(frames["state"].isin(TRACKED_STATES).mean()) if len(frames) else None
     figures: dict[str, object] = {
-        "frames": len(frames), "tracked_fraction": tracked, "estimates": len(estimates),
+        "frames": len(frames),
+        "tracked_fraction": tracked,
+        "estimates": len(estimates),
         "end_to_end_ms": _percentiles(estimates.get("end_to_end_ms", pd.Series(dtype=float))),
-        "estimate_error_m": ({"min": float(estimates.error_m.min()), "median": float(estimates.error_m.median()),
-                              "max": float(estimates.error_m.max())} if len(estimates) else None),
-        "buffers": len(advisory), "buffers_played": len(playback)}
+        "estimate_error_m": (
+            {
+                "min": float(estimates.error_m.min()),
+                "median": float(estimates.error_m.median()),
+                "max": float(estimates.error_m.max()),
+            }
+            if len(estimates)
+            else None
+        ),
+        "buffers": len(advisory),
+        "buffers_played": len(playback),
+    }
     if len(advisory):
         counts = advisory.played_pulses.value_counts().sort_index()
         figures["buffers_by_pulses"] = {str(int(n)): int(c) for n, c in counts.items()}
@@ -70,6 +81,7 @@ def true_error(folder: Path, monocular: bool, config_dir: Path | None) -> pd.Dat
     """The true per-frame error of a session with a ground truth (labelled frames only), or None."""
     from seesys.io.core_settings import load_label_config
     from seesys.io.session_labels import label_session
+
     if not (folder / GROUND_TRUTH).is_file():
         return None
     labels = label_session(folder, monocular, load_label_config(config_dir)).to_frame()
@@ -84,8 +96,14 @@ def broken_at_gaps(t: np.ndarray, values: np.ndarray, gap_s: float) -> tuple[np.
     return np.insert(t, after, np.nan), np.insert(values, after, np.nan)
 
 
-def plot_session(folder: Path, equation2: Equation2Config, out: Path, monocular: bool = False,
-                 config_dir: Path | None = None, gap_s: float = math.inf) -> Path:
+def plot_session(
+    folder: Path,
+    equation2: Equation2Config,
+    out: Path,
+    monocular: bool = False,
+    config_dir: Path | None = None,
+    gap_s: float = math.inf,
+) -> Path:
     """Write the session plot (see the module docstring) to ``out``, the estimate line broken where estimates are
     more than ``gap_s`` apart (an estimator outage); SeesysError when there is nothing to plot."""
     import matplotlib
@@ -108,8 +126,14 @@ def plot_session(folder: Path, equation2: Equation2Config, out: Path, monocular:
     eq = equation2
     for value, name in ((eq.alpha_m, "α"), (eq.beta_m, "β")):
         top.axhline(value * 100, color="tab:red", ls="--", lw=1)
-        top.annotate(f"Equation 2 {name} = {value * 100:g} cm", (0, value * 100), textcoords="offset points",
-                     xytext=(2, 2), color="tab:red", fontsize=8)
+        top.annotate(
+            f"Equation 2 {name} = {value * 100:g} cm",
+            (0, value * 100),
+            textcoords="offset points",
+            xytext=(2, 2),
+            color="tab:red",
+            fontsize=8,
+        )
     top.set_ylabel("pose error (cm)")
     top.legend(loc="upper right")
     top.set_title(f"{folder.name}: estimated vs true error, and the pulses played")
@@ -129,28 +153,47 @@ def plot_session(folder: Path, equation2: Equation2Config, out: Path, monocular:
     return out
 
 
-def write_summary(run: RunRecord, out: OutputConfig, *, status: str, error: str | None, started: str, ended: str,
-                  exits: dict[str, int | None]) -> dict:
+def write_summary(
+    run: RunRecord,
+    out: OutputConfig,
+    *,
+    status: str,
+    error: str | None,
+    started: str,
+    ended: str,
+    exits: dict[str, int | None],
+) -> dict:
     """Write ``summary.json`` and the plot of a finished run; returns the summary. A plot that cannot be made is
     noted in the summary, never fatal: the logs are what matters."""
     folder = run.folder
-    summary = {"status": status, "error": error, "started": started, "ended": ended,
-               "source": run.source, "mode": run.mode, "paced": run.paced, "condition": run.condition,
-               "estimator": run.estimator, "audio": run.audio,
-               "parts": {name: {"restarts": part.restarts, "exits": list(part.exits), "final_exit": exits.get(name)}
-                         for name, part in run.parts.items()},
-               **session_figures(folder)}
-    summary["information"] = {"seconds_without": round(run.seconds_without_information, 2),
-                              "by_reason": {reason: round(seconds, 2)
-                                            for reason, seconds in run.without_information_by_reason.items()}}
+    summary = {
+        "status": status,
+        "error": error,
+        "started": started,
+        "ended": ended,
+        "source": run.source,
+        "mode": run.mode,
+        "paced": run.paced,
+        "condition": run.condition,
+        "estimator": run.estimator,
+        "audio": run.audio,
+        "parts": {
+            name: {"restarts": part.restarts, "exits": list(part.exits), "final_exit": exits.get(name)}
+            for name, part in run.parts.items()
+        },
+        **session_figures(folder),
+    }
+    summary["information"] = {
+        "seconds_without": round(run.seconds_without_information, 2),
+        "by_reason": {reason: round(seconds, 2) for reason, seconds in run.without_information_by_reason.items()},
+    }
     if run.drops is not None:
         summary["drops"] = {**asdict(run.drops), "estimator": run.estimator_dropped}
     files = {"events": out.events, "logs": "logs"}
     if (folder / out.wav).exists():
         files["wav"] = out.wav
     try:
-        plot_session(folder, run.equation2, folder / out.plot, run.mode == "mono", run.config_dir,
-                     run.stale_after_s)
+        plot_session(folder, run.equation2, folder / out.plot, run.mode == "mono", run.config_dir, run.stale_after_s)
         files["plot"] = out.plot
     except (SeesysError, ValueError, KeyError) as e:
         summary["plot_error"] = str(e)

@@ -111,9 +111,11 @@ def plain_line(s: Snapshot) -> str:
     """The view as one line (stdout not a terminal)."""
     age = "" if math.isnan(s.estimate_age_s) else f" ({s.estimate_age_s:.1f} s ago)"
     pulses = " ".join(map(str, s.pulses)) or "–"
-    return (f"{s.elapsed_s:6.1f} s  frames {s.frames} {s.state} {_fps(s)} | estimate {_cm(s.latest_error_m)}"
-            f"{age} | information {_information(s)} | pulses {pulses} | e2e {_latency(s)} | drops {_drops(s)} | "
-            f"estimator {s.estimator}, {_restarts(s)}")
+    return (
+        f"{s.elapsed_s:6.1f} s  frames {s.frames} {s.state} {_fps(s)} | estimate {_cm(s.latest_error_m)}"
+        f"{age} | information {_information(s)} | pulses {pulses} | e2e {_latency(s)} | drops {_drops(s)} | "
+        f"estimator {s.estimator}, {_restarts(s)}"
+    )
 
 
 def panel(s: Snapshot, title: str, footer: str = RUNNING_FOOTER) -> Panel:
@@ -122,14 +124,16 @@ def panel(s: Snapshot, title: str, footer: str = RUNNING_FOOTER) -> Panel:
     table.add_column(style="bold")
     table.add_column()
     age = "" if math.isnan(s.estimate_age_s) else f"  ({s.estimate_age_s:.1f} s ago)"
-    rows = [("tracking", f"{s.state}  {s.frames} frames  {_fps(s)}"),
-            ("estimate", f"{_cm(s.latest_error_m)}{age}  {s.estimates} received"),
-            ("information", _information(s)),
-            ("pulses", " ".join(map(str, s.pulses)) or "–"),
-            ("end to end", _latency(s)),
-            ("drops", _drops(s)),
-            ("estimator", f"{s.estimator}  {_restarts(s)}"),
-            ("last seconds", f"{s.spark}  (top {_cm(s.spark_top_m)})" if s.spark else "–")]
+    rows = [
+        ("tracking", f"{s.state}  {s.frames} frames  {_fps(s)}"),
+        ("estimate", f"{_cm(s.latest_error_m)}{age}  {s.estimates} received"),
+        ("information", _information(s)),
+        ("pulses", " ".join(map(str, s.pulses)) or "–"),
+        ("end to end", _latency(s)),
+        ("drops", _drops(s)),
+        ("estimator", f"{s.estimator}  {_restarts(s)}"),
+        ("last seconds", f"{s.spark}  (top {_cm(s.spark_top_m)})" if s.spark else "–"),
+    ]
     for name, value in rows:
         table.add_row(name, value)
     events = Text("\n".join(s.events), style="yellow") if s.events else Text("")
@@ -190,14 +194,26 @@ class LiveView:
         drops = st.drops
         local = self.setup.remote_estimator is None
         s = Snapshot(
-            elapsed_s=o.elapsed_s, frames=o.frames, fps=o.fps, estimates=o.estimates, latest_error_m=o.latest_error_m,
-            estimate_age_s=o.estimate_age_s, pulses=list(o.pulses), latency_ms=o.latency_ms,
+            elapsed_s=o.elapsed_s,
+            frames=o.frames,
+            fps=o.fps,
+            estimates=o.estimates,
+            latest_error_m=o.latest_error_m,
+            estimate_age_s=o.estimate_age_s,
+            pulses=list(o.pulses),
+            latency_ms=o.latency_ms,
             state=o.tracking_state or ("waiting for the device" if "device" not in st.parts else "starting"),
-            skipped=drops.skipped_by_device, lost=drops.lost_in_transit, bad_messages=drops.bad_messages,
+            skipped=drops.skipped_by_device,
+            lost=drops.lost_in_transit,
+            bad_messages=drops.bad_messages,
             estimator_dropped=o.estimator.dropped if local else None,
             estimator=estimator_text(o.estimator, st, self.setup.remote_estimator),
-            restarts={name: part.restarts for name, part in st.parts.items()}, information=st.information,
-            spark=sparkline(values, top), spark_top_m=top, events=list(self._events))
+            restarts={name: part.restarts for name, part in st.parts.items()},
+            information=st.information,
+            spark=sparkline(values, top),
+            spark_top_m=top,
+            events=list(self._events),
+        )
         self.snapshot = s
         return s
 
@@ -236,8 +252,12 @@ class LiveView:
         if not self.console.is_terminal:
             yield self
             return
-        with Live(panel(self.collect(), self._title, self._footer), console=self.console, refresh_per_second=4,
-                  transient=False) as live:
+        with Live(
+            panel(self.collect(), self._title, self._footer),
+            console=self.console,
+            refresh_per_second=4,
+            transient=False,
+        ) as live:
             self._live = live
             try:
                 yield self

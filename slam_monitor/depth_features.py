@@ -75,10 +75,14 @@ class DepthQualityConfig:
     min_registration_crossings: int
 
     def __post_init__(self) -> None:
-        if min(self.stride, self.search_px, self.max_edges, self.registration_frames,
-               self.min_registration_crossings) < 1:
-            raise ValueError("stride, search_px, max_edges, registration_frames and min_registration_crossings must "
-                             f"be at least 1: {self}")
+        if (
+            min(self.stride, self.search_px, self.max_edges, self.registration_frames, self.min_registration_crossings)
+            < 1
+        ):
+            raise ValueError(
+                "stride, search_px, max_edges, registration_frames and min_registration_crossings must "
+                f"be at least 1: {self}"
+            )
         if not 0 < self.edge_jump < 1:
             raise ValueError(f"edge_jump is a relative depth jump in (0, 1): {self}")
         if not 0 <= self.edge_sharpness <= 1:
@@ -224,8 +228,9 @@ def image_motion_px(crossings: EdgeCrossings, intrinsics: Intrinsics, previous_f
     depth) moved into the previous camera by ``previous_from_current`` (4×4, T_prev_cur = T_w_prev⁻¹ · T_w_cur)
     and projected there."""
     k = intrinsics
-    points = np.stack([(crossings.u - k.cx) / k.fx * crossings.z, (crossings.v - k.cy) / k.fy * crossings.z,
-                       crossings.z])
+    points = np.stack(
+        [(crossings.u - k.cx) / k.fx * crossings.z, (crossings.v - k.cy) / k.fy * crossings.z, crossings.z]
+    )
     before = (previous_from_current[:3, :3] @ points + previous_from_current[:3, 3:4]).T
     with np.errstate(divide="ignore", invalid="ignore"):  # a point behind the previous camera: NaN below
         uv_before = project(before, k.matrix())
@@ -287,8 +292,13 @@ class DepthQuality:
         self._cfg = cfg
         self._registration = RegistrationFit(cfg)
 
-    def frame(self, depth: np.ndarray | None, gray: np.ndarray, intrinsics: Intrinsics,
-              previous_from_current: np.ndarray | None) -> DepthFeatures:
+    def frame(
+        self,
+        depth: np.ndarray | None,
+        gray: np.ndarray,
+        intrinsics: Intrinsics,
+        previous_from_current: np.ndarray | None,
+    ) -> DepthFeatures:
         """The channels of one frame.
 
         ``depth``: (H, W) float32 metres aligned to ``gray`` (0 = unknown), or None (monocular: all NaN);
@@ -299,11 +309,12 @@ class DepthQuality:
         if depth.shape != gray.shape:
             raise ValueError(f"depth {depth.shape} is not aligned to the gray frame {gray.shape}")
         s = self._cfg.stride
-        w_sub = inverse_depth(depth[s // 2::s, s // 2::s])
+        w_sub = inverse_depth(depth[s // 2 :: s, s // 2 :: s])
         holes = hole_share(depth)
         noise = noise_over_z2(w_sub, self._cfg.edge_jump)
         crossings = edge_crossings(depth, gray, w_sub, self._cfg)
-        motion = (image_motion_px(crossings, intrinsics, previous_from_current)
-                  if previous_from_current is not None else None)
+        motion = (
+            image_motion_px(crossings, intrinsics, previous_from_current) if previous_from_current is not None else None
+        )
         m_x, m_y = self._registration.update(crossings, motion, depth.shape[0])
         return DepthFeatures(holes, noise, float(np.hypot(m_x / intrinsics.fx, m_y / intrinsics.fy)))

@@ -71,7 +71,8 @@ class SessionOptions:
 
     ``source`` is ``KIND:PATH``; ``max_frames`` stops early; ``settings_file`` replaces the generated ORB-SLAM3
     settings; ``vocabulary`` replaces the configured vocabulary; ``pace`` and ``wait_for_mapping`` override
-    ``[pacing]`` of slam.toml; ``config_dir`` replaces ``configs/``; ``observers`` are built in the worker (the RTS monitor is one).
+    ``[pacing]`` of slam.toml; ``config_dir`` replaces ``configs/``; ``observers`` are built in the worker (the RTS
+    monitor is one).
     """
 
     source: str
@@ -174,8 +175,9 @@ def _read_user_settings(options: SessionOptions) -> bytes | None:
         raise SeesysError(f"ORB-SLAM3 settings file not found or unreadable: {options.settings_file}") from None
 
 
-def _settings_file(options: SessionOptions, user_settings: bytes | None, source: FrameSource, config: SlamConfig,
-                   out_dir: Path) -> Path:
+def _settings_file(
+    options: SessionOptions, user_settings: bytes | None, source: FrameSource, config: SlamConfig, out_dir: Path
+) -> Path:
     """The settings ORB-SLAM3 will read, saved in the session folder either way."""
     target = out_dir / session_layout.SETTINGS
     if user_settings is not None:
@@ -199,14 +201,17 @@ def run_device_session(
     spec = parse_source_spec(options.source)
     vocabulary = options.vocabulary or vocabulary_path(slam_config)
     user_settings = _read_user_settings(options)
-    writer = session.SessionWriter(session.prepare_session_folder(options.out_dir), {
-        "source": str(spec),
-        "mode": options.mode.value,
-        "max_frames": options.max_frames,
-        "vocabulary": str(vocabulary),
-        "settings_file": str(options.settings_file or session_layout.SETTINGS),
-        "config": {"slam": as_dict(slam_config), "camera": as_dict(camera_config)},
-    })
+    writer = session.SessionWriter(
+        session.prepare_session_folder(options.out_dir),
+        {
+            "source": str(spec),
+            "mode": options.mode.value,
+            "max_frames": options.max_frames,
+            "vocabulary": str(vocabulary),
+            "settings_file": str(options.settings_file or session_layout.SETTINGS),
+            "config": {"slam": as_dict(slam_config), "camera": as_dict(camera_config)},
+        },
+    )
     active: list[FrameObserver] = []
     try:
         with open_source(spec, camera_config, with_depth=options.mode is SlamMode.RGBD) as source:
@@ -219,15 +224,24 @@ def run_device_session(
             settings = _settings_file(options, user_settings, source, slam_config, writer.folder)
             tracker = Tracker(vocabulary, settings, options.mode, source.intrinsics)
             try:
-                context = SessionContext(options, writer.folder, options.mode, source.intrinsics, source.fps,
-                                         slam_config, camera_config, new_stream_session())
+                context = SessionContext(
+                    options,
+                    writer.folder,
+                    options.mode,
+                    source.intrinsics,
+                    source.fps,
+                    slam_config,
+                    camera_config,
+                    new_stream_session(),
+                )
                 active = list(observers) + [build_observer(s, context) for s in options.observers]
                 pace = options.pace if options.pace is not None else slam_config.pacing.paces(options.mode)
                 pacing = slam_config.pacing
                 if options.wait_for_mapping is not None:
                     pacing = dataclasses.replace(pacing, wait_for_mapping=options.wait_for_mapping)
-                pacer = FramePacer(pacing, pace and not source.paced_by_clock,
-                                   ThreadDemand(tracker.background_thread_ids))
+                pacer = FramePacer(
+                    pacing, pace and not source.paced_by_clock, ThreadDemand(tracker.background_thread_ids)
+                )
                 frames = checked_frames(source, options.mode, camera_config.scale.depth_correction)
                 for frame in itertools.islice(frames, options.max_frames):
                     pacer.wait(frame.timestamp)

@@ -73,8 +73,15 @@ def _ms(later: float | None, earlier: float | None) -> float:
 class EstimateObserver:
     """Device-worker observer logging this device's estimates and their latency into ``estimates.csv``."""
 
-    def __init__(self, out_dir: Path, device_id: str, features_endpoint: str, estimates_endpoint: str,
-                 socket_options: dict | None = None, stream_session: int = 0):
+    def __init__(
+        self,
+        out_dir: Path,
+        device_id: str,
+        features_endpoint: str,
+        estimates_endpoint: str,
+        socket_options: dict | None = None,
+        stream_session: int = 0,
+    ):
         self.device_id = device_id
         self.stream_session = stream_session
         self.received = 0
@@ -82,11 +89,23 @@ class EstimateObserver:
         self._tracked = _Moments()
         self._sent = _Moments()
         self._ctx = zmq.Context()
-        self._features = open_socket(self._ctx, zmq.SUB, features_endpoint, "own feature stream", bind=False,
-                                     subscribe=[messages.topic(messages.FEATURE_TOPIC, device_id)])
-        self._estimates = open_socket(self._ctx, zmq.SUB, estimates_endpoint, "estimates", bind=False,
-                                      subscribe=[messages.topic(messages.ESTIMATE_TOPIC, device_id)],
-                                      options=socket_options)
+        self._features = open_socket(
+            self._ctx,
+            zmq.SUB,
+            features_endpoint,
+            "own feature stream",
+            bind=False,
+            subscribe=[messages.topic(messages.FEATURE_TOPIC, device_id)],
+        )
+        self._estimates = open_socket(
+            self._ctx,
+            zmq.SUB,
+            estimates_endpoint,
+            "estimates",
+            bind=False,
+            subscribe=[messages.topic(messages.ESTIMATE_TOPIC, device_id)],
+            options=socket_options,
+        )
         self._file = open(Path(out_dir) / ESTIMATES_CSV, "w", newline="")
         self._csv = csv.writer(self._file)
         self._csv.writerow(ESTIMATE_COLUMNS)
@@ -121,9 +140,19 @@ class EstimateObserver:
         tracked, track_ms = self._tracked.get(estimate.frame_index) or (None, math.nan)
         sent = (self._sent.get(estimate.frame_index) or (None,))[0]
         end_to_end = _ms(received, tracked)
-        row = [estimate.frame_index, f"{estimate.timestamp:.6f}", f"{estimate.error_m:.6g}", estimate.model_version,
-               f"{estimate.server_ms:.3f}", f"{time.time():.6f}", f"{track_ms:.3f}", f"{_ms(sent, tracked):.3f}",
-               f"{_ms(received, sent):.3f}", f"{end_to_end:.3f}", f"{track_ms + end_to_end:.3f}"]
+        row = [
+            estimate.frame_index,
+            f"{estimate.timestamp:.6f}",
+            f"{estimate.error_m:.6g}",
+            estimate.model_version,
+            f"{estimate.server_ms:.3f}",
+            f"{time.time():.6f}",
+            f"{track_ms:.3f}",
+            f"{_ms(sent, tracked):.3f}",
+            f"{_ms(received, sent):.3f}",
+            f"{end_to_end:.3f}",
+            f"{track_ms + end_to_end:.3f}",
+        ]
         self._csv.writerow(["" if v == "nan" else v for v in row])
         self._file.flush()
         self.received += 1
@@ -144,8 +173,14 @@ def create_observer(context: Any, device_id: str | None = None) -> EstimateObser
     config_dir = context.options.config_dir
     network = load_network_config(config_dir)
     device_id = resolve_device_id(device_id or load_monitor_config(config_dir).device_id, context.options.source)
-    return EstimateObserver(context.out_dir, device_id, network.features_endpoint, network.estimates_endpoint,
-                            network.client_options(network.estimates_endpoint), context.stream_session)
+    return EstimateObserver(
+        context.out_dir,
+        device_id,
+        network.features_endpoint,
+        network.estimates_endpoint,
+        network.client_options(network.estimates_endpoint),
+        context.stream_session,
+    )
 
 
 def summary_line(out_dir: Path) -> str:
@@ -156,5 +191,7 @@ def summary_line(out_dir: Path) -> str:
     if table.empty:
         return f"estimates: none received (is `seesys estimator serve` running?); {ESTIMATES_CSV} is empty"
     p50, p99 = table.end_to_end_ms.quantile([0.5, 0.99])
-    return (f"estimates: {len(table)} received, end to end (frame tracked → estimate on the device) p50 "
-            f"{p50:.1f} ms, p99 {p99:.1f} ms ({ESTIMATES_CSV})")
+    return (
+        f"estimates: {len(table)} received, end to end (frame tracked → estimate on the device) p50 "
+        f"{p50:.1f} ms, p99 {p99:.1f} ms ({ESTIMATES_CSV})"
+    )

@@ -27,8 +27,26 @@ from seesys.core.camera_normalisation import CameraNormalisation
 
 #: The 16 pixels of the radius-3 Bresenham circle FAST (and ORB) tests around a corner candidate, as (dx, dy).
 FAST_CIRCLE: np.ndarray = np.array(
-    [(0, -3), (1, -3), (2, -2), (3, -1), (3, 0), (3, 1), (2, 2), (1, 3),
-     (0, 3), (-1, 3), (-2, 2), (-3, 1), (-3, 0), (-3, -1), (-2, -2), (-1, -3)], dtype=np.intp)
+    [
+        (0, -3),
+        (1, -3),
+        (2, -2),
+        (3, -1),
+        (3, 0),
+        (3, 1),
+        (2, 2),
+        (1, 3),
+        (0, 3),
+        (-1, 3),
+        (-2, 2),
+        (-3, 1),
+        (-3, 0),
+        (-3, -1),
+        (-2, -2),
+        (-1, -3),
+    ],
+    dtype=np.intp,
+)
 _RADIUS = 3
 
 
@@ -93,8 +111,8 @@ def keypoint_responses(gray: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
 
     pyorbslam3 does not expose ORB-SLAM3's keypoint responses, so they are recomputed from the image at the
     keypoint positions (rounded to the nearest pixel, edge pixels replicated). The monitor passes the frame at the
-    reference scale and the keypoints as positions in it, so that the circle spans the same angle on any camera. The value is in gray levels
-    (0–255), like the FAST scores ORB-SLAM3 stores, and higher means a more distinctive corner.
+    reference scale and the keypoints as positions in it, so that the circle spans the same angle on any camera. The
+    value is in gray levels (0–255), like the FAST scores ORB-SLAM3 stores, and higher means a more distinctive corner.
     """
     _check_gray(gray)
     kp = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)

@@ -85,7 +85,7 @@ class LocalMap:
         if previous is None or previous.frame_index <= update.frame_index - self.max_age_frames:
             return np.zeros((0, 3))
         # Of a previous update larger than the bound, the map kept the higher keys.
-        keys, points = previous.keys[-self.max_points:], previous.points[-self.max_points:]
+        keys, points = previous.keys[-self.max_points :], previous.points[-self.max_points :]
         # Both key lists are sorted: a binary search finds which of the previous voxels the update refreshed.
         at = np.minimum(np.searchsorted(update.keys, keys), max(len(update.keys) - 1, 0))
         lost = update.keys[at] != keys if len(update.keys) else np.ones(len(keys), dtype=bool)
@@ -121,7 +121,7 @@ class LocalMap:
         cutoff = oldest + int(np.searchsorted(np.cumsum(per_frame), count))  # the frame where the count ends
         drop = alive & (seen < cutoff)
         at_cutoff = np.flatnonzero(alive & (seen == cutoff))
-        drop[at_cutoff[:count - int(np.count_nonzero(drop))]] = True
+        drop[at_cutoff[: count - int(np.count_nonzero(drop))]] = True
         return drop
 
     def clear(self) -> None:

@@ -71,9 +71,18 @@ class MonitorInput:
         follows the session's frames (called once per frame, in order)."""
         state = TrackingState(int(result.state))
         pose_wc = result.pose_wc if state.tracked else None
-        return cls(frame, state, result.pose_cw, pose_wc, previous.step(frame.index, pose_wc),
-                   int(result.num_tracked_points), result.keypoints, result.map_points, bool(result.map_changed),
-                   frames_skipped)
+        return cls(
+            frame,
+            state,
+            result.pose_cw,
+            pose_wc,
+            previous.step(frame.index, pose_wc),
+            int(result.num_tracked_points),
+            result.keypoints,
+            result.map_points,
+            bool(result.map_changed),
+            frames_skipped,
+        )
 
 
 class PreviousPose:
@@ -131,27 +140,54 @@ class FeatureExtractor:
                 # point positions are stale.
                 self.local_map.clear()
             self.local_map.update(item.map_points, index)
-            motion = (relative_motion(item.prev_pose_wc, item.pose_wc) if item.prev_pose_wc is not None
-                      else RelativeMotion.still())
+            motion = (
+                relative_motion(item.prev_pose_wc, item.pose_wc)
+                if item.prev_pose_wc is not None
+                else RelativeMotion.still()
+            )
             slam = slam_features(
-                pose_cw=item.pose_cw, motion=motion, matched_inliers=item.num_tracked_points,
-                keypoints=item.keypoints, matched_points_w=item.map_points,
-                lost_points_w=self.local_map.lost_points(), camera_matrix=intr.matrix(),
-                width=intr.width, height=intr.height, match_gate_px=cfg.features.match_gate_px,
-                min_depth=cfg.features.min_depth)
+                pose_cw=item.pose_cw,
+                motion=motion,
+                matched_inliers=item.num_tracked_points,
+                keypoints=item.keypoints,
+                matched_points_w=item.map_points,
+                lost_points_w=self.local_map.lost_points(),
+                camera_matrix=intr.matrix(),
+                width=intr.width,
+                height=intr.height,
+                match_gate_px=cfg.features.match_gate_px,
+                min_depth=cfg.features.min_depth,
+            )
             channels.update(_slam_channels(slam, normalisation))
-        moved = (np.linalg.inv(item.prev_pose_wc) @ item.pose_wc
-                 if item.pose_wc is not None and item.prev_pose_wc is not None and not item.map_changed else None)
+        moved = (
+            np.linalg.inv(item.prev_pose_wc) @ item.pose_wc
+            if item.pose_wc is not None and item.prev_pose_wc is not None and not item.map_changed
+            else None
+        )
         channels.update(vars(self._depth_quality.frame(frame.depth, frame.gray, intr, moved)))
 
         psd = self._psd(item, slam, normalisation, reference_gray) if cfg.windows.is_psd_frame(index) else None
         # At the stream's resolution (float16 where a value fits): rts.csv, the stream and a dataset hold one value.
         rts = stream_resolution(np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32))
-        return FeatureFrame(cfg.device_id, index, frame.timestamp, item.state, rts, psd, item.frames_skipped,
-                            stream_session=self.stream_session, settings=self.settings)
+        return FeatureFrame(
+            cfg.device_id,
+            index,
+            frame.timestamp,
+            item.state,
+            rts,
+            psd,
+            item.frames_skipped,
+            stream_session=self.stream_session,
+            settings=self.settings,
+        )
 
-    def _psd(self, item: MonitorInput, slam: SlamFeatures | None, normalisation: CameraNormalisation,
-             reference_gray: np.ndarray) -> np.ndarray:
+    def _psd(
+        self,
+        item: MonitorInput,
+        slam: SlamFeatures | None,
+        normalisation: CameraNormalisation,
+        reference_gray: np.ndarray,
+    ) -> np.ndarray:
         intr, cfg = item.frame.intrinsics, self.config
         keypoints = np.asarray(item.keypoints, dtype=np.float64).reshape(-1, 2)
         map_uv, map_z = np.zeros((0, 2)), np.zeros(0)
@@ -160,20 +196,30 @@ class FeatureExtractor:
             points_c = points_c[points_c[:, 2] > cfg.features.min_depth]
             map_uv, map_z = project(points_c, intr.matrix()), points_c[:, 2]
         return build_psd(
-            self._geometry, keypoints=normalisation.reference_px(keypoints),
+            self._geometry,
+            keypoints=normalisation.reference_px(keypoints),
             responses=keypoint_responses(reference_gray, normalisation.resampled_px(keypoints)),
             inliers=slam.inlier_keypoints if slam is not None else np.zeros(len(keypoints), dtype=bool),
-            map_points_uv=normalisation.reference_px(map_uv), map_points_depth=map_z, near_depth=cfg.psd.near_depth)
+            map_points_uv=normalisation.reference_px(map_uv),
+            map_points_depth=map_z,
+            near_depth=cfg.psd.near_depth,
+        )
 
 
 def _slam_channels(slam: SlamFeatures, normalisation: CameraNormalisation) -> dict[str, float]:
     m = slam.motion
     return {
-        "matched_inliers": slam.matched_inliers, "outliers": slam.outliers,
+        "matched_inliers": slam.matched_inliers,
+        "outliers": slam.outliers,
         "matches_before_po": slam.matches_before_po,
-        "rel_tx": m.translation[0], "rel_ty": m.translation[1], "rel_tz": m.translation[2],
-        "rel_roll": m.roll, "rel_pitch": m.pitch, "rel_yaw": m.yaw,
-        "avg_mp_depth": slam.avg_mp_depth, "var_mp_depth": slam.var_mp_depth,
+        "rel_tx": m.translation[0],
+        "rel_ty": m.translation[1],
+        "rel_tz": m.translation[2],
+        "rel_roll": m.roll,
+        "rel_pitch": m.pitch,
+        "rel_yaw": m.yaw,
+        "avg_mp_depth": slam.avg_mp_depth,
+        "var_mp_depth": slam.var_mp_depth,
         "local_mapping_visual_error": slam.reprojection_error_px / normalisation.pixel_ratio,
     }
 
@@ -211,17 +257,23 @@ _STOP = object()
 class RtsMonitor:
     """Device-worker observer: ``on_frame`` from the tracking loop, ``close`` at the end of the session."""
 
-    def __init__(self, config: MonitorConfig, session_dir: Path | None = None,
-                 publisher: FeaturePublisher | None = None, stream_session: int = 0,
-                 settings: DeviceSettings | None = None):
+    def __init__(
+        self,
+        config: MonitorConfig,
+        session_dir: Path | None = None,
+        publisher: FeaturePublisher | None = None,
+        stream_session: int = 0,
+        settings: DeviceSettings | None = None,
+    ):
         self.config = config
         self.session_dir = session_dir
         self.publisher = publisher
         self.stats = MonitorStats()
         self._extractor = FeatureExtractor(config, stream_session, settings)
         self._rts_log = RtsCsvWriter(session_dir / RTS_CSV, settings) if session_dir is not None else None
-        self._psd_log = (PsdLogWriter(session_dir / PSD_DIR, config.log.psd_chunk_records)
-                         if session_dir is not None else None)
+        self._psd_log = (
+            PsdLogWriter(session_dir / PSD_DIR, config.log.psd_chunk_records) if session_dir is not None else None
+        )
         self._queue: queue.Queue = queue.Queue(maxsize=config.queue_size)
         self._previous = PreviousPose()
         self._thread = threading.Thread(target=self._run, name="rts-monitor", daemon=True)
@@ -304,8 +356,9 @@ class RtsMonitor:
         return self.stats
 
 
-def create_observer(context: Any, stream: bool = False, device_id: str | None = None,
-                    end_stride: int | None = None) -> RtsMonitor:
+def create_observer(
+    context: Any, stream: bool = False, device_id: str | None = None, end_stride: int | None = None
+) -> RtsMonitor:
     """Observer factory for :class:`slam_monitor.device_worker.ObserverSpec`: a monitor logging into the
     session folder and, when ``stream`` is true, publishing on ``features_endpoint`` of network.toml (and to the
     estimator service's ``ingest_endpoint``, encrypted, when its ``[curve]`` is set).
@@ -315,8 +368,7 @@ def create_observer(context: Any, stream: bool = False, device_id: str | None = 
     session's stream session and the device's settings (mode, frame rate, ORB features, PSD)."""
     config_dir = context.options.config_dir
     config = load_monitor_config(config_dir)
-    config = replace_fields(config, device_id=resolve_device_id(device_id or config.device_id,
-                                                                 context.options.source))
+    config = replace_fields(config, device_id=resolve_device_id(device_id or config.device_id, context.options.source))
     if end_stride is not None:
         config = replace_fields(config, windows=replace_fields(config.windows, end_stride=end_stride))
     publisher = None

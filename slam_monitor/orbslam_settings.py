@@ -111,13 +111,31 @@ def vocabulary_path(config: SlamConfig) -> Path:
 # Keys ORB-SLAM3 1.0's Settings class requires (it exits when one is missing), by mode.
 REQUIRED_KEYS: dict[SlamMode, tuple[str, ...]] = {
     SlamMode.MONO: (
-        "File.version", "Camera.type", "Camera1.fx", "Camera1.fy", "Camera1.cx", "Camera1.cy",
-        "Camera.width", "Camera.height", "Camera.fps", "Camera.RGB",
-        "ORBextractor.nFeatures", "ORBextractor.scaleFactor", "ORBextractor.nLevels",
-        "ORBextractor.iniThFAST", "ORBextractor.minThFAST",
-        "Viewer.KeyFrameSize", "Viewer.KeyFrameLineWidth", "Viewer.GraphLineWidth", "Viewer.PointSize",
-        "Viewer.CameraSize", "Viewer.CameraLineWidth", "Viewer.ViewpointX", "Viewer.ViewpointY",
-        "Viewer.ViewpointZ", "Viewer.ViewpointF",
+        "File.version",
+        "Camera.type",
+        "Camera1.fx",
+        "Camera1.fy",
+        "Camera1.cx",
+        "Camera1.cy",
+        "Camera.width",
+        "Camera.height",
+        "Camera.fps",
+        "Camera.RGB",
+        "ORBextractor.nFeatures",
+        "ORBextractor.scaleFactor",
+        "ORBextractor.nLevels",
+        "ORBextractor.iniThFAST",
+        "ORBextractor.minThFAST",
+        "Viewer.KeyFrameSize",
+        "Viewer.KeyFrameLineWidth",
+        "Viewer.GraphLineWidth",
+        "Viewer.PointSize",
+        "Viewer.CameraSize",
+        "Viewer.CameraLineWidth",
+        "Viewer.ViewpointX",
+        "Viewer.ViewpointY",
+        "Viewer.ViewpointZ",
+        "Viewer.ViewpointF",
     ),
 }
 REQUIRED_KEYS[SlamMode.RGBD] = REQUIRED_KEYS[SlamMode.MONO] + ("RGBD.DepthMapFactor", "Stereo.ThDepth", "Stereo.b")
@@ -141,36 +159,42 @@ def build_settings(intrinsics: Intrinsics, fps: float, mode: SlamMode, config: S
     }
     if k3:
         settings["Camera1.k3"] = float(k3)
-    settings.update({
-        "Camera.width": intrinsics.width,
-        "Camera.height": intrinsics.height,
-        "Camera.fps": max(1, round(fps)),
-        "Camera.RGB": GRAY_IS_RGB,
-    })
+    settings.update(
+        {
+            "Camera.width": intrinsics.width,
+            "Camera.height": intrinsics.height,
+            "Camera.fps": max(1, round(fps)),
+            "Camera.RGB": GRAY_IS_RGB,
+        }
+    )
     if mode is SlamMode.RGBD:
-        settings.update({
-            "RGBD.DepthMapFactor": DEPTH_IN_METRES_FACTOR,
-            "Stereo.ThDepth": config.rgbd.th_depth,
-            "Stereo.b": config.rgbd.virtual_baseline_m,
-        })
+        settings.update(
+            {
+                "RGBD.DepthMapFactor": DEPTH_IN_METRES_FACTOR,
+                "Stereo.ThDepth": config.rgbd.th_depth,
+                "Stereo.b": config.rgbd.virtual_baseline_m,
+            }
+        )
     orb, viewer = config.orb, config.viewer
-    settings.update({
-        "ORBextractor.nFeatures": orb.features,
-        "ORBextractor.scaleFactor": orb.scale_factor,
-        "ORBextractor.nLevels": orb.levels,
-        "ORBextractor.iniThFAST": orb.ini_fast_threshold,
-        "ORBextractor.minThFAST": orb.min_fast_threshold,
-        "Viewer.KeyFrameSize": viewer.key_frame_size,
-        "Viewer.KeyFrameLineWidth": viewer.key_frame_line_width,
-        "Viewer.GraphLineWidth": viewer.graph_line_width,
-        "Viewer.PointSize": viewer.point_size,
-        "Viewer.CameraSize": viewer.camera_size,
-        "Viewer.CameraLineWidth": viewer.camera_line_width,
-        "Viewer.ViewpointX": viewer.viewpoint_x,
-        "Viewer.ViewpointY": viewer.viewpoint_y,
-        "Viewer.ViewpointZ": viewer.viewpoint_z,
-        "Viewer.ViewpointF": viewer.viewpoint_f,
-    })
+    settings.update(
+        {
+            "ORBextractor.nFeatures": orb.features,
+            "ORBextractor.scaleFactor": orb.scale_factor,
+            "ORBextractor.nLevels": orb.levels,
+            "ORBextractor.iniThFAST": orb.ini_fast_threshold,
+            "ORBextractor.minThFAST": orb.min_fast_threshold,
+            "Viewer.KeyFrameSize": viewer.key_frame_size,
+            "Viewer.KeyFrameLineWidth": viewer.key_frame_line_width,
+            "Viewer.GraphLineWidth": viewer.graph_line_width,
+            "Viewer.PointSize": viewer.point_size,
+            "Viewer.CameraSize": viewer.camera_size,
+            "Viewer.CameraLineWidth": viewer.camera_line_width,
+            "Viewer.ViewpointX": viewer.viewpoint_x,
+            "Viewer.ViewpointY": viewer.viewpoint_y,
+            "Viewer.ViewpointZ": viewer.viewpoint_z,
+            "Viewer.ViewpointF": viewer.viewpoint_f,
+        }
+    )
     return settings
 
 
@@ -215,7 +239,9 @@ def validate_settings_file(path: Path, mode: SlamMode, intrinsics: Intrinsics) -
                 raise SettingsError(f"ORB-SLAM3 settings {path}: {key} must be a number")
         version = storage.getNode("File.version").string()
         if version != SETTINGS_VERSION:
-            raise SettingsError(f"ORB-SLAM3 settings {path}: File.version is {version!r}, expected {SETTINGS_VERSION!r}")
+            raise SettingsError(
+                f"ORB-SLAM3 settings {path}: File.version is {version!r}, expected {SETTINGS_VERSION!r}"
+            )
         camera_type = storage.getNode("Camera.type").string()
         if camera_type != "PinHole":
             raise SettingsError(f"ORB-SLAM3 settings {path}: Camera.type {camera_type!r} is not supported (PinHole)")

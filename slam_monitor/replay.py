@@ -35,6 +35,8 @@ def record_inputs(source: str, mode: SlamMode, max_frames: int | None = None) ->
     does (a bad source, a failed tracker)."""
     recorder = InputRecorder()
     with tempfile.TemporaryDirectory() as tmp:
-        run_device_session(SessionOptions(source=source, mode=mode, out_dir=Path(tmp) / "session",
-                                          max_frames=max_frames, pace=False), observers=[recorder])
+        run_device_session(
+            SessionOptions(source=source, mode=mode, out_dir=Path(tmp) / "session", max_frames=max_frames, pace=False),
+            observers=[recorder],
+        )
     return recorder.inputs

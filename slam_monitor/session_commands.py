@@ -18,8 +18,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``seesys session`` to the command line."""
     session = subparsers.add_parser("session", help="work with a recorded session folder")
     sub = session.add_subparsers(dest="session_command", metavar="SUBCOMMAND")
-    p = sub.add_parser("export-bag", help="write a session's poses, tracking states and estimates as a ROS 2 bag "
-                                          "(topics and storage: configs/export.toml)")
+    p = sub.add_parser(
+        "export-bag",
+        help="write a session's poses, tracking states and estimates as a ROS 2 bag "
+        "(topics and storage: configs/export.toml)",
+    )
     p.add_argument("session", type=Path, metavar="SESSION", help="session folder (seesys track / monitor run / run)")
     p.add_argument("--out", type=Path, required=True, help="the ROS 2 bag folder to create (must not exist)")
     p.set_defaults(func=_export_bag)

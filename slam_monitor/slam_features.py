@@ -97,9 +97,20 @@ class SlamFeatures:
     inlier_keypoints: np.ndarray
 
 
-def slam_features(*, pose_cw: np.ndarray, motion: RelativeMotion, matched_inliers: int, keypoints: np.ndarray,
-                  matched_points_w: np.ndarray, lost_points_w: np.ndarray, camera_matrix: np.ndarray,
-                  width: int, height: int, match_gate_px: float, min_depth: float) -> SlamFeatures:
+def slam_features(
+    *,
+    pose_cw: np.ndarray,
+    motion: RelativeMotion,
+    matched_inliers: int,
+    keypoints: np.ndarray,
+    matched_points_w: np.ndarray,
+    lost_points_w: np.ndarray,
+    camera_matrix: np.ndarray,
+    width: int,
+    height: int,
+    match_gate_px: float,
+    min_depth: float,
+) -> SlamFeatures:
     """All tracking and mapping channels of a frame that has a pose.
 
     ``matched_points_w`` are the frame's matched inlier map points; ``lost_points_w`` the map points matched in

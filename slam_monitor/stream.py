@@ -45,8 +45,13 @@ class FeaturePublisher:
     """Publishes feature frames on a bound PUB socket, counting what it sends; and, where ``service_endpoint`` is
     given, on a PUB socket connected there with ``service_options`` (the device's Curve keys)."""
 
-    def __init__(self, endpoint: str, send_high_water_mark: int, service_endpoint: str | None = None,
-                 service_options: Mapping[int, int | bytes] | None = None):
+    def __init__(
+        self,
+        endpoint: str,
+        send_high_water_mark: int,
+        service_endpoint: str | None = None,
+        service_options: Mapping[int, int | bytes] | None = None,
+    ):
         self.endpoint = endpoint
         ctx = zmq.Context.instance()
         self._socket = publisher(ctx, endpoint, "feature stream", send_high_water_mark)
@@ -56,8 +61,14 @@ class FeaturePublisher:
         #: that sees the handshake a service refuses (``zmq.EVENT_HANDSHAKE_FAILED_AUTH``: a key not allowed).
         self.service_socket: zmq.Socket | None = None
         if service_endpoint is not None:
-            self.service_socket = publisher(ctx, service_endpoint, "estimator service ingest", send_high_water_mark,
-                                            bind=False, options=service_options)
+            self.service_socket = publisher(
+                ctx,
+                service_endpoint,
+                "estimator service ingest",
+                send_high_water_mark,
+                bind=False,
+                options=service_options,
+            )
         self._sockets = [s for s in (self._socket, self.service_socket) if s is not None]
         self.stats = StreamStats()
 
@@ -67,8 +78,12 @@ class FeaturePublisher:
         service's ``ingest_endpoint`` with the device's keys when ``[curve]`` is set."""
         if not network.curve.enabled:
             return cls(network.features_endpoint, network.send_high_water_mark)
-        return cls(network.features_endpoint, network.send_high_water_mark, network.ingest_endpoint,
-                   network.client_options(network.ingest_endpoint))
+        return cls(
+            network.features_endpoint,
+            network.send_high_water_mark,
+            network.ingest_endpoint,
+            network.client_options(network.ingest_endpoint),
+        )
 
     def publish(self, frame: FeatureFrame) -> None:
         parts = messages.encode(frame)
@@ -93,8 +108,9 @@ class FeatureSubscriber:
 
     def __init__(self, endpoint: str, device_id: str | None = None, receive_high_water_mark: int | None = None):
         topic = messages.FEATURE_TOPIC if device_id is None else messages.topic(messages.FEATURE_TOPIC, device_id)
-        self._socket = subscriber(zmq.Context.instance(), endpoint, "feature stream", [topic],
-                                  receive_hwm=receive_high_water_mark)
+        self._socket = subscriber(
+            zmq.Context.instance(), endpoint, "feature stream", [topic], receive_hwm=receive_high_water_mark
+        )
         self.malformed = 0
         self.losses = LossCounter()
 

@@ -88,8 +88,12 @@ def worker_main(options: SessionOptions, events: multiprocessing.Queue, parent_p
         events.put(_Failed("interrupted"))
     except Exception as e:  # a bug: keep the traceback in the log, report one line
         traceback.print_exc()
-        events.put(_Failed(f"internal error in the device worker: {type(e).__name__}: {e} (traceback in "
-                           f"{options.out_dir / session_layout.SLAM_LOG})"))
+        events.put(
+            _Failed(
+                f"internal error in the device worker: {type(e).__name__}: {e} (traceback in "
+                f"{options.out_dir / session_layout.SLAM_LOG})"
+            )
+        )
     else:
         events.put(_Finished(result))
     finally:
@@ -129,8 +133,10 @@ def _ending_message(how: str, frame_index: int, out_dir: Path) -> str:
     said = f' after printing "{said}"' if said else ""
     if frame_index == 0:
         return f"ORB-SLAM3 {how}{said} before the first frame; see {out_dir / session_layout.SLAM_LOG}"
-    return (f"ORB-SLAM3 {how}{said} at frame {frame_index}; the session files up to frame {frame_index - 1} "
-            f"are kept in {out_dir}")
+    return (
+        f"ORB-SLAM3 {how}{said} at frame {frame_index}; the session files up to frame {frame_index - 1} "
+        f"are kept in {out_dir}"
+    )
 
 
 def run_supervised_session(options: SessionOptions, progress: ProgressCallback | None = None) -> SessionResult:
@@ -183,11 +189,13 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
     # The frame being processed when the process died is the first one not in frames.csv.
     next_frame = frames_logged(options.out_dir)
     if stalled:
-        message = _ending_message(f"stopped responding (no frame for {stall_timeout_s:g} s; killed)", next_frame,
-                                  options.out_dir)
+        message = _ending_message(
+            f"stopped responding (no frame for {stall_timeout_s:g} s; killed)", next_frame, options.out_dir
+        )
     else:
         message = _crash_message(child.exitcode, next_frame, options.out_dir)
     if (options.out_dir / session_layout.MANIFEST).exists():
-        session_files.update_manifest(options.out_dir, status="crashed", end_time=session_files.utc_now(),
-                                      error=message, frames=next_frame)
+        session_files.update_manifest(
+            options.out_dir, status="crashed", end_time=session_files.utc_now(), error=message, frames=next_frame
+        )
     raise WorkerCrash(message)

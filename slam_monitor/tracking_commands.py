@@ -34,22 +34,44 @@ def _positive(text: str) -> int:
 def add_session_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of every command that runs a device session."""
     parser.add_argument("--source", required=True, metavar="KIND:PATH", help=f"frame source: {source_kinds_help()}")
-    parser.add_argument("--mode", choices=[m.value for m in SlamMode], default=SlamMode.RGBD.value,
-                        help="ORB-SLAM3 sensor mode (default rgbd)")
+    parser.add_argument(
+        "--mode",
+        choices=[m.value for m in SlamMode],
+        default=SlamMode.RGBD.value,
+        help="ORB-SLAM3 sensor mode (default rgbd)",
+    )
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="session folder to write")
     parser.add_argument("--max-frames", type=_positive, metavar="N", help="stop after N frames")
-    parser.add_argument("--settings", type=Path, metavar="YAML",
-                        help="use this ORB-SLAM3 settings file instead of generating one from configs/slam.toml")
-    parser.add_argument("--vocabulary", type=Path, metavar="FILE",
-                        help="ORB vocabulary (default: $PYORBSLAM3_VOCAB, else configs/slam.toml)")
+    parser.add_argument(
+        "--settings",
+        type=Path,
+        metavar="YAML",
+        help="use this ORB-SLAM3 settings file instead of generating one from configs/slam.toml",
+    )
+    parser.add_argument(
+        "--vocabulary",
+        type=Path,
+        metavar="FILE",
+        help="ORB vocabulary (default: $PYORBSLAM3_VOCAB, else configs/slam.toml)",
+    )
     pacing = parser.add_mutually_exclusive_group()
-    pacing.add_argument("--pace", dest="pace", action="store_true", default=None,
-                        help="feed frames no faster than their timestamps (default: configs/slam.toml [pacing])")
+    pacing.add_argument(
+        "--pace",
+        dest="pace",
+        action="store_true",
+        default=None,
+        help="feed frames no faster than their timestamps (default: configs/slam.toml [pacing])",
+    )
     pacing.add_argument("--no-pace", dest="pace", action="store_false", help="feed frames as fast as SLAM takes them")
-    pacing.add_argument("--real-time", dest="pace", action="store_const", const="real-time",
-                        help="feed frames at their timestamps and never wait for ORB-SLAM3's mapping, as a live camera "
-                             "delivers them (a recording standing in for a camera: what the estimator and the "
-                             "advisory see is then real time)")
+    pacing.add_argument(
+        "--real-time",
+        dest="pace",
+        action="store_const",
+        const="real-time",
+        help="feed frames at their timestamps and never wait for ORB-SLAM3's mapping, as a live camera "
+        "delivers them (a recording standing in for a camera: what the estimator and the "
+        "advisory see is then real time)",
+    )
 
 
 def session_options_from_args(args: argparse.Namespace, observers: Sequence[ObserverSpec] = ()) -> SessionOptions:
@@ -72,9 +94,16 @@ def session_options_from_args(args: argparse.Namespace, observers: Sequence[Obse
 def run_session_with_progress(options: SessionOptions, console: Console | None = None) -> SessionSummary:
     """Run the session in a supervised worker with a progress bar, then summarise the session folder."""
     console = console or Console(stderr=True)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("tracked {task.fields[tracked]}"), TimeElapsedColumn(), console=console,
-                  transient=True, disable=not console.is_terminal) as bar:
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("tracked {task.fields[tracked]}"),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+        disable=not console.is_terminal,
+    ) as bar:
         task = bar.add_task("starting ORB-SLAM3", total=None, tracked=0)
         tracked = 0
 
@@ -96,8 +125,10 @@ def format_summary(summary: SessionSummary) -> str:
         f"tracked: {summary.frames_tracked} ({summary.tracked_percent:.1f} %)",
     ]
     if summary.ate is not None:
-        lines.append(f"ATE:     {summary.ate.rmse_m * CM_PER_M:.2f} cm RMSE ({summary.ate.alignment} alignment, "
-                     f"{summary.ate.pairs} poses, scale {summary.ate.scale:.3f})")
+        lines.append(
+            f"ATE:     {summary.ate.rmse_m * CM_PER_M:.2f} cm RMSE ({summary.ate.alignment} alignment, "
+            f"{summary.ate.pairs} poses, scale {summary.ate.scale:.3f})"
+        )
     else:
         lines.append("ATE:     n/a (no ground truth, or too few tracked poses to align)")
     return "\n".join(lines)
@@ -117,40 +148,59 @@ def vocab_train_command(args: argparse.Namespace) -> int:
     slam_config = load_slam_config()
     training = slam_config.vocabulary_training
     if args.branching or args.levels:
-        training = replace_fields(training, branching=args.branching or training.branching,
-                                  levels=args.levels or training.levels)
+        training = replace_fields(
+            training, branching=args.branching or training.branching, levels=args.levels or training.levels
+        )
     orb = slam_config.orb
     extractor = vocabulary.orb_extractor(orb.features, orb.scale_factor, orb.levels, orb.ini_fast_threshold)
     console = Console(stderr=True)
-    with open_source(parse_source_spec(args.source), load_camera_config(), with_depth=False) as source:
-        with Progress(TextColumn("extracting ORB features"), BarColumn(), MofNCompleteColumn(), console=console,
-                      transient=True, disable=not console.is_terminal) as bar:
-            total = min(filter(None, (source.frame_count, args.max_frames)), default=None)
-            frames = bar.track(itertools.islice(source.frames(), args.max_frames), total=total)
-            descriptors = vocabulary.extract_descriptors(frames, extractor, training.frame_step)
+    with (
+        open_source(parse_source_spec(args.source), load_camera_config(), with_depth=False) as source,
+        Progress(
+            TextColumn("extracting ORB features"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            console=console,
+            transient=True,
+            disable=not console.is_terminal,
+        ) as bar,
+    ):
+        total = min(filter(None, (source.frame_count, args.max_frames)), default=None)
+        frames = bar.track(itertools.islice(source.frames(), args.max_frames), total=total)
+        descriptors = vocabulary.extract_descriptors(frames, extractor, training.frame_step)
     with console.status(f"clustering {sum(len(d) for d in descriptors)} descriptors"):
         trained = vocabulary.train_vocabulary(descriptors, training)
     vocabulary.write_vocabulary(args.out, trained)
     header = vocabulary.validate_vocabulary(args.out)
-    print(f"vocabulary: {args.out} (k={header.branching}, L={header.levels}, {header.words} words, "
-          f"{header.nodes} nodes, trained on {len(descriptors)} images)")
+    print(
+        f"vocabulary: {args.out} (k={header.branching}, L={header.levels}, {header.words} words, "
+        f"{header.nodes} nodes, trained on {len(descriptors)} images)"
+    )
     return 0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``seesys track`` and ``seesys vocab train``."""
-    track = subparsers.add_parser("track", help="run ORB-SLAM3 on a frame source and write a session folder",
-                                  description="Run ORB-SLAM3 on a camera, recording or dataset; write "
-                                              "trajectory.tum, frames.csv and session.json; print a summary.")
+    track = subparsers.add_parser(
+        "track",
+        help="run ORB-SLAM3 on a frame source and write a session folder",
+        description="Run ORB-SLAM3 on a camera, recording or dataset; write "
+        "trajectory.tum, frames.csv and session.json; print a summary.",
+    )
     add_session_arguments(track)
     track.set_defaults(func=track_command)
 
     vocab = subparsers.add_parser("vocab", help="ORB vocabularies for ORB-SLAM3")
     vocab_commands = vocab.add_subparsers(dest="vocab_command", metavar="COMMAND")
-    train = vocab_commands.add_parser("train", help="train a DBoW2 ORB vocabulary from a frame source",
-                                      description="Hierarchical k-majority clustering of ORB descriptors with "
-                                                  "IDF weights, written in ORB-SLAM's DBoW2 text format.")
-    train.add_argument("--source", required=True, metavar="KIND:PATH", help=f"frames to train on: {source_kinds_help()}")
+    train = vocab_commands.add_parser(
+        "train",
+        help="train a DBoW2 ORB vocabulary from a frame source",
+        description="Hierarchical k-majority clustering of ORB descriptors with "
+        "IDF weights, written in ORB-SLAM's DBoW2 text format.",
+    )
+    train.add_argument(
+        "--source", required=True, metavar="KIND:PATH", help=f"frames to train on: {source_kinds_help()}"
+    )
     train.add_argument("--out", required=True, type=Path, metavar="FILE", help="vocabulary file to write")
     train.add_argument("--max-frames", type=_positive, metavar="N", help="use at most N frames")
     train.add_argument("--branching", type=_positive, metavar="K", help="children per node (default configs/slam.toml)")

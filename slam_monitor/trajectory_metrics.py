@@ -50,8 +50,9 @@ def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode
     estimated_poses, reference_poses = read_tum(estimate), read_tum(ground_truth)
     if len(estimated_poses) < 3 or len(reference_poses) < 3:
         return None
-    reference, estimated = sync.associate_trajectories(reference_poses.to_evo(), estimated_poses.to_evo(),
-                                                       max_diff=ASSOCIATION_MAX_DT_S)
+    reference, estimated = sync.associate_trajectories(
+        reference_poses.to_evo(), estimated_poses.to_evo(), max_diff=ASSOCIATION_MAX_DT_S
+    )
     if estimated.num_poses < 3:
         return None
     aligned = copy.deepcopy(estimated)
@@ -62,8 +63,12 @@ def absolute_trajectory_error(ground_truth: Path, estimate: Path, mode: SlamMode
         return None
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((reference, aligned))
-    return AteResult(float(ape.get_statistic(metrics.StatisticsType.rmse)), aligned.num_poses,
-                     "Sim(3)" if with_scale else "SE(3)", float(scale))
+    return AteResult(
+        float(ape.get_statistic(metrics.StatisticsType.rmse)),
+        aligned.num_poses,
+        "Sim(3)" if with_scale else "SE(3)",
+        float(scale),
+    )
 
 
 def summarize_session(folder: Path, mode: SlamMode) -> SessionSummary:

@@ -129,10 +129,14 @@ def _k_majority(bits: np.ndarray, k: int, iterations: int, rng: np.random.Genera
         if assignment is not None and np.array_equal(new_assignment, assignment):
             break
         assignment = new_assignment
-        centres = np.stack([
-            (bits[assignment == c].mean(axis=0) >= 0.5).astype(np.float32) if np.any(assignment == c) else centres[c]
-            for c in range(len(centres))
-        ])
+        centres = np.stack(
+            [
+                (bits[assignment == c].mean(axis=0) >= 0.5).astype(np.float32)
+                if np.any(assignment == c)
+                else centres[c]
+                for c in range(len(centres))
+            ]
+        )
     return [members for c in range(len(centres)) if len(members := np.flatnonzero(assignment == c))]
 
 
@@ -203,9 +207,15 @@ def validate_vocabulary(path: Path) -> VocabularyHeader:
     try:
         branching, levels, scoring, weighting = (int(v) for v in header)
     except ValueError:
-        raise VocabularyError(f"vocabulary {path}: first line is not 'k L scoring weighting' (not a DBoW2 text file)") from None
-    if not (0 <= branching <= MAX_BRANCHING and 1 <= levels <= MAX_LEVELS and 0 <= scoring <= MAX_SCORING
-            and 0 <= weighting <= MAX_WEIGHTING):
+        raise VocabularyError(
+            f"vocabulary {path}: first line is not 'k L scoring weighting' (not a DBoW2 text file)"
+        ) from None
+    if not (
+        0 <= branching <= MAX_BRANCHING
+        and 1 <= levels <= MAX_LEVELS
+        and 0 <= scoring <= MAX_SCORING
+        and 0 <= weighting <= MAX_WEIGHTING
+    ):
         raise VocabularyError(f"vocabulary {path}: header {' '.join(header)} is outside ORB-SLAM3's limits")
     try:
         nodes = pd.read_csv(path, sep=r"\s+", header=None, skiprows=1, dtype=np.float64, engine="c").to_numpy()
@@ -218,9 +228,12 @@ def validate_vocabulary(path: Path) -> VocabularyHeader:
     ids = np.arange(1, len(nodes) + 1)
     bad = (
         np.isnan(nodes).any(axis=1)
-        | (nodes[:, 0] < 0) | (nodes[:, 0] >= ids) | (nodes[:, 0] != np.round(nodes[:, 0]))
+        | (nodes[:, 0] < 0)
+        | (nodes[:, 0] >= ids)
+        | (nodes[:, 0] != np.round(nodes[:, 0]))
         | ~np.isin(nodes[:, 1], (0, 1))
-        | (nodes[:, 2:34] < 0).any(axis=1) | (nodes[:, 2:34] > 255).any(axis=1)
+        | (nodes[:, 2:34] < 0).any(axis=1)
+        | (nodes[:, 2:34] > 255).any(axis=1)
         | (nodes[:, 2:34] != np.round(nodes[:, 2:34])).any(axis=1)
     )
     if bad.any():

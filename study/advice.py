@@ -4,12 +4,12 @@
   sampled every ``speed_sample_s`` first, so that motion-capture jitter (millimetres at 100 Hz) does not add
   length. An advisory that only slows everyone down shows here and in time on task.
 - **False alarms and misses**: each advisory buffer of the task (``advisory.csv``: one per 1/3 s, and one per
-  change) against the true error of the moment it stands for, the mean of the tracking error's pairs (RPE, the
-  study's error, which is the pose-error label the estimates were trained on, monocular included:
-  ``seesys.core.labels.stretch_errors``) that ended in the buffer's window. A buffer *warned* when it played pulses. The false-alarm rate
-  is the share of buffers with a true error below α (silence is right: Equation 2's "error below α") that warned;
-  the miss rate is the share of buffers with a true error of at least ``advice_high_error_m`` that were silent.
-  In the ``none`` condition nothing is played: it misses every high error, which is the baseline. Buffers whose
+  change) against the true error of the moment it stands for, the mean of the tracking error's pairs (RPE, the study's
+  error, which is the pose-error label the estimates were trained on, monocular included:
+  ``seesys.core.labels.stretch_errors``) that ended in the buffer's window. A buffer *warned* when it played pulses. The
+  false-alarm rate is the share of buffers with a true error below α (silence is right: Equation 2's "error below α")
+  that warned; the miss rate is the share of buffers with a true error of at least ``advice_high_error_m`` that were
+  silent. In the ``none`` condition nothing is played: it misses every high error, which is the baseline. Buffers whose
   window holds no pair (tracking lost, before initialisation) count in neither.
 
 The advisory's clock is mapped to the camera's with the session's estimate log (``receipt_time`` against
@@ -36,8 +36,12 @@ class AdviceOutcome:
     high_silent: int = 0
 
     def __add__(self, other: AdviceOutcome) -> AdviceOutcome:
-        return AdviceOutcome(self.low + other.low, self.low_warned + other.low_warned, self.high + other.high,
-                             self.high_silent + other.high_silent)
+        return AdviceOutcome(
+            self.low + other.low,
+            self.low_warned + other.low_warned,
+            self.high + other.high,
+            self.high_silent + other.high_silent,
+        )
 
     @property
     def false_alarm_rate(self) -> float:
@@ -63,9 +67,16 @@ def path_speed(reference: Poses, start_s: float, end_s: float, sample_s: float) 
     return float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum()), float(t[-1] - t[0])
 
 
-def advice_outcome(advisory: pd.DataFrame, pair_times: np.ndarray, pair_errors_m: np.ndarray, clock_offset_s: float,
-                   window_s: float, alpha_m: float, high_error_m: float, task_end_s: float | None = None,
-                   ) -> AdviceOutcome:
+def advice_outcome(
+    advisory: pd.DataFrame,
+    pair_times: np.ndarray,
+    pair_errors_m: np.ndarray,
+    clock_offset_s: float,
+    window_s: float,
+    alpha_m: float,
+    high_error_m: float,
+    task_end_s: float | None = None,
+) -> AdviceOutcome:
     """Count the buffers of ``advisory`` (its ``wall_time`` and ``played_pulses``; ``clock_offset_s`` added to get
     the camera clock) against the error pairs ending in each buffer's last ``window_s``."""
     if advisory.empty or pair_times.size == 0:

@@ -37,16 +37,27 @@ def metrics_command(args: argparse.Namespace) -> int:
 def _scale_record(scale: ScaleFit | str | None) -> dict | None:
     if scale is None or isinstance(scale, str):
         return None if scale is None else {"not_measured": scale}
-    return {"scale": scale.scale, "p10": scale.spread[0], "p90": scale.spread[1], "windows": scale.windows,
-            "depth_scale_error": scale.depth_scale_error}
+    return {
+        "scale": scale.scale,
+        "p10": scale.spread[0],
+        "p90": scale.spread[1],
+        "windows": scale.windows,
+        "depth_scale_error": scale.depth_scale_error,
+    }
 
 
 def camera_scale(slam: Poses, mocap: Poses, cfg: MetricsConfig) -> ScaleFit | str:
     """RGB-D: the SLAM trajectory's scale against the mocap (a depth scale error no estimate shows), on the tracked
     poses, a stretch ending where poses are ``stretch_gap_s`` apart; why not, when it cannot be measured."""
     try:
-        return window_scales(slam, np.ones(len(slam), bool), mocap, cfg.association_max_dt_s, load_scale_settings(),
-                             max_gap_s=cfg.stretch_gap_s)
+        return window_scales(
+            slam,
+            np.ones(len(slam), bool),
+            mocap,
+            cfg.association_max_dt_s,
+            load_scale_settings(),
+            max_gap_s=cfg.stretch_gap_s,
+        )
     except ScaleCheckError as e:
         return f"not measured ({e})"
 
@@ -55,9 +66,16 @@ def calibrate_command(args: argparse.Namespace) -> int:
     from study.mocap.calibrate import calibrate_session, format_calibration
 
     cfg = load_study_config()
-    result = calibrate_session(args.session, cfg.calibration, args.body or cfg.mocap.body, mocap=args.mocap,
-                               marker_camera_from=args.hand_eye_from, monocular=args.mono,
-                               overwrite=args.overwrite, offset_guess_s=args.offset_guess)
+    result = calibrate_session(
+        args.session,
+        cfg.calibration,
+        args.body or cfg.mocap.body,
+        mocap=args.mocap,
+        marker_camera_from=args.hand_eye_from,
+        monocular=args.mono,
+        overwrite=args.overwrite,
+        offset_guess_s=args.offset_guess,
+    )
     print(format_calibration(result))
     print(f"wrote {args.session / 'groundtruth.tum'} and {args.session / 'calibration.json'}")
     return 0
@@ -88,31 +106,48 @@ def mocap_import_command(args: argparse.Namespace) -> int:
 
 
 def register(commands: argparse._SubParsersAction) -> None:
-    p = commands.add_parser("metrics", help="tracking error (evo RPE), completeness, losses of two TUM trajectories",
-                            description="Tracking error (evo RPE, translation part, delta and association from "
-                                        "configs/study.toml, SE(3) alignment or Sim(3) with --mono), completeness, "
-                                        "tracking losses and time on task.")
+    p = commands.add_parser(
+        "metrics",
+        help="tracking error (evo RPE), completeness, losses of two TUM trajectories",
+        description="Tracking error (evo RPE, translation part, delta and association from "
+        "configs/study.toml, SE(3) alignment or Sim(3) with --mono), completeness, "
+        "tracking losses and time on task.",
+    )
     p.add_argument("--slam", required=True, type=Path, metavar="EST.tum", help="SLAM trajectory (TUM)")
     p.add_argument("--mocap", required=True, type=Path, metavar="REF.tum", help="reference trajectory (TUM)")
-    p.add_argument("--frames", type=Path, metavar="frames.csv",
-                   help="the session's frame log: completeness counted on camera frames")
+    p.add_argument(
+        "--frames",
+        type=Path,
+        metavar="frames.csv",
+        help="the session's frame log: completeness counted on camera frames",
+    )
     p.add_argument("--mono", action="store_true", help="monocular SLAM: Sim(3) alignment")
-    p.add_argument("--json", action="store_true",
-                   help="print JSON (keys rpe_mean_m, rpe_rmse_m, pairs, completeness, ...)")
+    p.add_argument(
+        "--json", action="store_true", help="print JSON (keys rpe_mean_m, rpe_rmse_m, pairs, completeness, ...)"
+    )
     p.set_defaults(func=metrics_command)
 
     p = commands.add_parser("calibrate", help="clock offset and hand-eye of a session's mocap; writes groundtruth.tum")
     p.add_argument("session", type=Path, metavar="SESSION")
-    p.add_argument("--mocap", type=Path, metavar="FILE",
-                   help="mocap file (TUM or Vicon CSV; default SESSION/mocap.tum)")
+    p.add_argument(
+        "--mocap", type=Path, metavar="FILE", help="mocap file (TUM or Vicon CSV; default SESSION/mocap.tum)"
+    )
     p.add_argument("--body", help="rigid body in a Vicon CSV (default configs/study.toml)")
-    p.add_argument("--hand-eye-from", type=Path, metavar="calibration.json",
-                   help="reuse the marker-to-camera transform of an earlier (RGB-D) calibration")
+    p.add_argument(
+        "--hand-eye-from",
+        type=Path,
+        metavar="calibration.json",
+        help="reuse the marker-to-camera transform of an earlier (RGB-D) calibration",
+    )
     p.add_argument("--mono", action="store_true", help="monocular trajectory (needs --hand-eye-from)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing groundtruth.tum")
-    p.add_argument("--offset-guess", type=float, metavar="S",
-                   help="search the clock offset around S seconds (default: 0 when the recordings overlap in time, "
-                        "else the difference of their start times)")
+    p.add_argument(
+        "--offset-guess",
+        type=float,
+        metavar="S",
+        help="search the clock offset around S seconds (default: 0 when the recordings overlap in time, "
+        "else the difference of their start times)",
+    )
     p.set_defaults(func=calibrate_command)
 
     mocap = commands.add_parser("mocap", help="live motion-capture logging and file import")

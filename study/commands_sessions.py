@@ -18,8 +18,10 @@ def new_command(args: argparse.Namespace) -> int:
     conditions = args.conditions.split(",") if args.conditions else None
     protocol = make_protocol(cfg, args.per_condition, args.design, args.seed, conditions)
     path = write_protocol(args.study, protocol)
-    print(f"{path}: {protocol.design}-subjects, {len(protocol.participants)} participants, conditions "
-          f"{', '.join(protocol.conditions)}, seed {protocol.assignment_seed}")
+    print(
+        f"{path}: {protocol.design}-subjects, {len(protocol.participants)} participants, conditions "
+        f"{', '.join(protocol.conditions)}, seed {protocol.assignment_seed}"
+    )
     for p in protocol.participants:
         print(f"  {p.id}  {' -> '.join(p.conditions)}")
     return 0
@@ -29,12 +31,25 @@ def run_command(args: argparse.Namespace) -> int:
     from study.operator import OperatorInput
     from study.runner import RunOptions, Session
 
-    options = RunOptions(args.study, args.participant, args.phase, args.condition, args.source, args.mode,
-                         args.replay_estimates, args.restart, args.max_frames, args.pace, args.mocap)
+    options = RunOptions(
+        args.study,
+        args.participant,
+        args.phase,
+        args.condition,
+        args.source,
+        args.mode,
+        args.replay_estimates,
+        args.restart,
+        args.max_frames,
+        args.pace,
+        args.mocap,
+    )
     console = Console(stderr=True)
     result = Session(options, load_study_config(), OperatorInput(), console).run()
-    print(f"{result.attempt}: {result.status}, {result.frames} frames, {result.estimates} estimates, "
-          f"{result.events} events")
+    print(
+        f"{result.attempt}: {result.status}, {result.frames} frames, {result.estimates} estimates, "
+        f"{result.events} events"
+    )
     return 0 if result.status in DONE_STATUSES else 130 if result.status == "interrupted" else 1
 
 
@@ -71,26 +86,38 @@ def register(commands: argparse._SubParsersAction) -> None:
     p.add_argument("--conditions", metavar="A,B,..", help="conditions (none, rotation, seesys)")
     p.set_defaults(func=new_command)
 
-    p = commands.add_parser("run", help="run one participant's session: device, estimates, advisory, mocap, events",
-                            description="Starts the device (seesys monitor run --stream), the advisory in the "
-                                        "participant's condition, the mocap logger and optionally an estimate "
-                                        "replay; logs estimates and the operator's events (keys i, o, n, q) into "
-                                        "a new attempt folder of the participant. q ends the task and stops the "
-                                        "session (stopped, exit 0); Ctrl-C interrupts it (interrupted, exit 130).")
+    p = commands.add_parser(
+        "run",
+        help="run one participant's session: device, estimates, advisory, mocap, events",
+        description="Starts the device (seesys monitor run --stream), the advisory in the "
+        "participant's condition, the mocap logger and optionally an estimate "
+        "replay; logs estimates and the operator's events (keys i, o, n, q) into "
+        "a new attempt folder of the participant. q ends the task and stops the "
+        "session (stopped, exit 0); Ctrl-C interrupts it (interrupted, exit 130).",
+    )
     p.add_argument("study", type=Path, metavar="DIR")
     p.add_argument("--participant", required=True, metavar="ID")
     p.add_argument("--phase", required=True, metavar="PHASE", help="a phase of the protocol (training, task)")
     p.add_argument("--condition", help="within-subjects: this condition instead of the next in the order")
     p.add_argument("--source", metavar="KIND:PATH", help="frame source (default configs/study.toml)")
     p.add_argument("--mode", choices=("rgbd", "mono"), help="SLAM mode (default configs/study.toml)")
-    p.add_argument("--replay-estimates", type=Path, metavar="CSV",
-                   help="publish these estimates (seesys advisory replay) instead of waiting for the estimator")
+    p.add_argument(
+        "--replay-estimates",
+        type=Path,
+        metavar="CSV",
+        help="publish these estimates (seesys advisory replay) instead of waiting for the estimator",
+    )
     p.add_argument("--restart", action="store_true", help="record the phase again; earlier attempts are superseded")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop the device after N frames")
     pace = p.add_mutually_exclusive_group()
-    pace.add_argument("--pace", dest="pace", action="store_true", default=None,
-                      help="feed a recording at camera rate, as the participant's camera would (never waiting for "
-                           "ORB-SLAM3's mapping)")
+    pace.add_argument(
+        "--pace",
+        dest="pace",
+        action="store_true",
+        default=None,
+        help="feed a recording at camera rate, as the participant's camera would (never waiting for "
+        "ORB-SLAM3's mapping)",
+    )
     pace.add_argument("--no-pace", dest="pace", action="store_false")
     mocap = p.add_mutually_exclusive_group()
     mocap.add_argument("--mocap", dest="mocap", action="store_true", default=None, help="log motion capture")

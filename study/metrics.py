@@ -101,8 +101,11 @@ def stretches_from_frames(frames: pd.DataFrame) -> list[Stretch]:
     stretches = []
     previous_stop = None
     for start, stop in tracked_stretches(tracked):
-        new_map = None if previous_stop is None else any(
-            s in (TrackingState.LOST, TrackingState.NOT_INITIALIZED) for s in states[previous_stop:start])
+        new_map = (
+            None
+            if previous_stop is None
+            else any(s in (TrackingState.LOST, TrackingState.NOT_INITIALIZED) for s in states[previous_stop:start])
+        )
         stretches.append(Stretch(float(times[start]), float(times[stop - 1]), new_map))
         previous_stop = stop
     return stretches
@@ -117,8 +120,9 @@ def stretches_from_poses(estimate: Poses, cfg: MetricsConfig) -> list[Stretch]:
     return [Stretch(float(run[0]), float(run[-1]), None) for run in np.split(times, cuts)]
 
 
-def relative_pose_error(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
-                        stretches: list[Stretch] | None = None) -> RpeResult:
+def relative_pose_error(
+    estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig, stretches: list[Stretch] | None = None
+) -> RpeResult:
     """The label's error (:func:`seesys.core.labels.stretch_errors`) of ``estimate`` against ``reference``, each
     stretch (default: :func:`stretches_from_poses`) associated and SE(3) / Sim(3)-aligned on its own, the pairs
     pooled; no pairs (empty arrays) when too few poses associate."""
@@ -150,7 +154,7 @@ def _stretch_rpe(est: Poses, ref: Poses, monocular: bool, cfg: MetricsConfig) ->
         return None
     # evo's non-overlapping pairs (0, Δ), (Δ, 2Δ), ... are every Δ-th of all pairs.
     step = 1 if cfg.all_pairs else cfg.delta_frames
-    return pairs.errors_m[::step], est.timestamps[cfg.delta_frames:][::step]
+    return pairs.errors_m[::step], est.timestamps[cfg.delta_frames :][::step]
 
 
 @dataclass(frozen=True)
@@ -207,8 +211,7 @@ def completeness_from_poses(estimate: Poses, reference: Poses, cfg: MetricsConfi
     return Completeness(fraction, int(round(span / step)), int(len(lost)), float(lost.sum()), float(end - times[0]))
 
 
-def task_span(estimate: Poses, frames: pd.DataFrame | None,
-              end_s: float) -> tuple[Poses, pd.DataFrame | None]:
+def task_span(estimate: Poses, frames: pd.DataFrame | None, end_s: float) -> tuple[Poses, pd.DataFrame | None]:
     """The poses and frames of a recording up to the end of the task (``end_s``, the timestamp of its last frame:
     frames after the operator ended the task are kept in the session but are not the participant's task)."""
     estimate = estimate.take(estimate.timestamps <= end_s)
@@ -217,30 +220,44 @@ def task_span(estimate: Poses, frames: pd.DataFrame | None,
     return estimate, frames
 
 
-def measure(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
-            frames: pd.DataFrame | None = None, task_end_s: float | None = None) -> tuple[RpeResult, Completeness]:
+def measure(
+    estimate: Poses,
+    reference: Poses,
+    monocular: bool,
+    cfg: MetricsConfig,
+    frames: pd.DataFrame | None = None,
+    task_end_s: float | None = None,
+) -> tuple[RpeResult, Completeness]:
     """The error pairs and the completeness of one recording, over the task's span only when it ended at
     ``task_end_s`` (:func:`task_span`); with its frame log (``frames``) the stretches and the completeness come from
     the tracking states, without it from the poses."""
     if task_end_s is not None:
         estimate, frames = task_span(estimate, frames, task_end_s)
     if frames is not None and len(frames):
-        return (relative_pose_error(estimate, reference, monocular, cfg, stretches_from_frames(frames)),
-                completeness_from_frames(frames))
+        return (
+            relative_pose_error(estimate, reference, monocular, cfg, stretches_from_frames(frames)),
+            completeness_from_frames(frames),
+        )
     return relative_pose_error(estimate, reference, monocular, cfg), completeness_from_poses(estimate, reference, cfg)
 
 
-def tracking_metrics(estimate: Poses, reference: Poses, monocular: bool, cfg: MetricsConfig,
-                     frames: pd.DataFrame | None = None, time_on_task_s: float | None = None) -> TrackingMetrics:
+def tracking_metrics(
+    estimate: Poses,
+    reference: Poses,
+    monocular: bool,
+    cfg: MetricsConfig,
+    frames: pd.DataFrame | None = None,
+    time_on_task_s: float | None = None,
+) -> TrackingMetrics:
     """All metrics of one trajectory; ``frames`` (a session's frame log) makes completeness exact, and
     ``time_on_task_s`` (from the operator's events) replaces the first-to-last-frame duration."""
     rpe, done = measure(estimate, reference, monocular, cfg, frames)
-    return combine([rpe], [done], cfg, rpe.alignment,
-                   done.duration_s if time_on_task_s is None else time_on_task_s)
+    return combine([rpe], [done], cfg, rpe.alignment, done.duration_s if time_on_task_s is None else time_on_task_s)
 
 
-def combine(rpes: list[RpeResult], parts: list[Completeness], cfg: MetricsConfig, alignment: str,
-            time_on_task_s: float) -> TrackingMetrics:
+def combine(
+    rpes: list[RpeResult], parts: list[Completeness], cfg: MetricsConfig, alignment: str, time_on_task_s: float
+) -> TrackingMetrics:
     """The metrics of several recordings of one participant's task (a session resumed after a crash): the
     errors of all pairs pooled, completeness weighted by frames, losses and durations summed."""
     errors = np.concatenate([r.errors_m for r in rpes]) if rpes else np.zeros(0)
@@ -248,16 +265,21 @@ def combine(rpes: list[RpeResult], parts: list[Completeness], cfg: MetricsConfig
     nan = float("nan")
     return TrackingMetrics(
         rpe_mean_m=float(errors.mean()) if errors.size else nan,
-        rpe_rmse_m=float(np.sqrt(np.mean(errors ** 2))) if errors.size else nan,
+        rpe_rmse_m=float(np.sqrt(np.mean(errors**2))) if errors.size else nan,
         rpe_median_m=float(np.median(errors)) if errors.size else nan,
         rpe_max_m=float(errors.max()) if errors.size else nan,
         pairs=int(errors.size),
         completeness=float(sum(p.fraction * p.frames for p in parts) / frames) if frames else nan,
-        tracking_losses=sum(p.losses for p in parts), loss_duration_s=float(sum(p.loss_duration_s for p in parts)),
+        tracking_losses=sum(p.losses for p in parts),
+        loss_duration_s=float(sum(p.loss_duration_s for p in parts)),
         map_resets=None if any(p.map_resets is None for p in parts) else sum(p.map_resets for p in parts),
         stretches=sum(r.stretches for r in rpes),
-        time_on_task_s=float(time_on_task_s), alignment=alignment, delta_frames=cfg.delta_frames,
-        all_pairs=cfg.all_pairs, association_max_dt_s=cfg.association_max_dt_s)
+        time_on_task_s=float(time_on_task_s),
+        alignment=alignment,
+        delta_frames=cfg.delta_frames,
+        all_pairs=cfg.all_pairs,
+        association_max_dt_s=cfg.association_max_dt_s,
+    )
 
 
 def read_frame_log(path: Path) -> pd.DataFrame:
@@ -271,14 +293,16 @@ def read_frame_log(path: Path) -> pd.DataFrame:
 
 def format_metrics(m: TrackingMetrics) -> str:
     """The metrics as the lines ``seesys study metrics`` prints."""
-    return "\n".join([
-        f"tracking error (RPE, translation, delta {m.delta_frames} frames, {m.alignment}, "
-        f"{'all pairs' if m.all_pairs else 'non-overlapping pairs'}, "
-        f"association <= {m.association_max_dt_s * 1e3:g} ms):",
-        f"  mean {m.rpe_mean_m * 100:.3f} cm, RMSE {m.rpe_rmse_m * 100:.3f} cm, median {m.rpe_median_m * 100:.3f} cm, "
-        f"max {m.rpe_max_m * 100:.3f} cm over {m.pairs} pairs",
-        f"tracking completeness: {m.completeness * 100:.1f} % ({m.tracking_losses} losses, "
-        f"{m.loss_duration_s:.2f} s lost; map resets {'unknown' if m.map_resets is None else m.map_resets})",
-        f"  the error is over {m.stretches} tracked stretch(es), each aligned on its own",
-        f"time on task: {m.time_on_task_s:.1f} s",
-    ])
+    return "\n".join(
+        [
+            f"tracking error (RPE, translation, delta {m.delta_frames} frames, {m.alignment}, "
+            f"{'all pairs' if m.all_pairs else 'non-overlapping pairs'}, "
+            f"association <= {m.association_max_dt_s * 1e3:g} ms):",
+            f"  mean {m.rpe_mean_m * 100:.3f} cm, RMSE {m.rpe_rmse_m * 100:.3f} cm, "
+            f"median {m.rpe_median_m * 100:.3f} cm, max {m.rpe_max_m * 100:.3f} cm over {m.pairs} pairs",
+            f"tracking completeness: {m.completeness * 100:.1f} % ({m.tracking_losses} losses, "
+            f"{m.loss_duration_s:.2f} s lost; map resets {'unknown' if m.map_resets is None else m.map_resets})",
+            f"  the error is over {m.stretches} tracked stretch(es), each aligned on its own",
+            f"time on task: {m.time_on_task_s:.1f} s",
+        ]
+    )

@@ -62,8 +62,9 @@ class Protocol:
         for p in self.participants:
             if p.id == participant_id:
                 return p
-        raise ProtocolError(f"no participant {participant_id!r} in the protocol "
-                            f"({', '.join(p.id for p in self.participants)})")
+        raise ProtocolError(
+            f"no participant {participant_id!r} in the protocol ({', '.join(p.id for p in self.participants)})"
+        )
 
     def phase_folder(self, study: Path, participant_id: str, phase: str, condition: str) -> Path:
         name = phase if self.design == "between" else f"{phase}-{condition}"
@@ -85,8 +86,13 @@ def williams_orders(k: int) -> list[list[int]]:
     return rows + [row[::-1] for row in rows] if k % 2 else rows
 
 
-def make_protocol(cfg: ProtocolConfig, participants_per_condition: int | None = None, design: str | None = None,
-                  seed: int | None = None, conditions: list[str] | None = None) -> Protocol:
+def make_protocol(
+    cfg: ProtocolConfig,
+    participants_per_condition: int | None = None,
+    design: str | None = None,
+    seed: int | None = None,
+    conditions: list[str] | None = None,
+) -> Protocol:
     """Draw the assignment (see the module docstring); arguments override ``configs/study.toml``."""
     design = design or cfg.design
     conditions = list(conditions or cfg.conditions)
@@ -99,8 +105,9 @@ def make_protocol(cfg: ProtocolConfig, participants_per_condition: int | None = 
         raise ProtocolError(f"unknown design {design!r} (one of {', '.join(DESIGNS)})")
     unknown = [c for c in conditions if c not in KNOWN_CONDITIONS]
     if unknown or len(set(conditions)) != len(conditions) or len(conditions) < 2:
-        raise ProtocolError(f"conditions must be two or more distinct of {', '.join(KNOWN_CONDITIONS)}, "
-                            f"got {conditions}")
+        raise ProtocolError(
+            f"conditions must be two or more distinct of {', '.join(KNOWN_CONDITIONS)}, got {conditions}"
+        )
     rng = np.random.default_rng(seed)
     if design == "between":
         slots = [c for c in conditions for _ in range(per)]
@@ -133,7 +140,8 @@ def read_protocol(study: Path) -> Protocol:
         data["participants"] = [Participant(**p) for p in data["participants"]]
         return Protocol(**data)
     except FileNotFoundError:
-        raise ProtocolError(f"{study} is not a study folder (no {PROTOCOL_JSON}; create one with "
-                            f"`seesys study new`)") from None
+        raise ProtocolError(
+            f"{study} is not a study folder (no {PROTOCOL_JSON}; create one with `seesys study new`)"
+        ) from None
     except (ValueError, TypeError, KeyError) as e:
         raise ProtocolError(f"{path}: malformed protocol ({e})") from None

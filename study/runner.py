@@ -46,8 +46,8 @@ from rich.console import Console
 from rich.live import Live
 from rich.text import Text
 
-from advisory.conditions import Condition
 from advisory import config as advisory_config
+from advisory.conditions import Condition
 from advisory.config import load_advisory_config
 from advisory.estimate_log import read_estimate_log
 from advisory.output import AudioOutput, open_audio_output
@@ -115,8 +115,9 @@ def choose_condition(protocol: Protocol, study: Path, participant: str, phase: s
     person = protocol.participant(participant)
     if condition is not None:
         if condition not in person.conditions:
-            raise ProtocolError(f"{participant} is not assigned condition {condition!r} "
-                                f"({', '.join(person.conditions)})")
+            raise ProtocolError(
+                f"{participant} is not assigned condition {condition!r} ({', '.join(person.conditions)})"
+            )
         return condition
     for c in person.conditions:
         if phase_status(protocol.phase_folder(study, participant, phase, c)) != DONE:
@@ -131,23 +132,29 @@ class Session:
         self.o, self.cfg, self.operator, self.console = options, cfg, operator, console
         self.protocol = read_protocol(options.study)
         if options.phase not in self.protocol.phases:
-            raise ProtocolError(f"unknown phase {options.phase!r} (the protocol's phases: "
-                                f"{', '.join(self.protocol.phases)})")
-        self.condition = choose_condition(self.protocol, options.study, options.participant, options.phase,
-                                          options.condition)
-        self.phase_folder = self.protocol.phase_folder(options.study, options.participant, options.phase,
-                                                       self.condition)
+            raise ProtocolError(
+                f"unknown phase {options.phase!r} (the protocol's phases: {', '.join(self.protocol.phases)})"
+            )
+        self.condition = choose_condition(
+            self.protocol, options.study, options.participant, options.phase, options.condition
+        )
+        self.phase_folder = self.protocol.phase_folder(
+            options.study, options.participant, options.phase, self.condition
+        )
         if phase_status(self.phase_folder) == DONE and not options.restart:
-            raise SeesysError(f"{options.participant} has done {options.phase} ({self.condition}) already "
-                              f"({self.phase_folder}); pass --restart to record it again (the earlier attempts "
-                              f"are kept, marked superseded)")
+            raise SeesysError(
+                f"{options.participant} has done {options.phase} ({self.condition}) already "
+                f"({self.phase_folder}); pass --restart to record it again (the earlier attempts "
+                f"are kept, marked superseded)"
+            )
         self.source = options.source or cfg.runner.source
         # The advisory and the watcher listen to this device alone (or to the replayed log's device id); the id is
         # decided here and given to the device (its configs).
         self.monitor = load_monitor_config()
         self.device_id = resolve_device_id(self.monitor.device_id, self.source)
-        self.estimates_from = (load_advisory_config().replay.replay_device_id
-                               if options.replay_estimates is not None else None)
+        self.estimates_from = (
+            load_advisory_config().replay.replay_device_id if options.replay_estimates is not None else None
+        )
         self.mode = options.mode or cfg.runner.mode
         if options.replay_estimates is not None:
             read_estimate_log(options.replay_estimates)  # a bad log is refused before anything starts
@@ -185,28 +192,55 @@ class Session:
         estimate = "–" if math.isnan(watcher.latest_error_m) else f"{watcher.latest_error_m * 100:.2f} cm"
         # One line of at most ~80 characters: frames and state, estimate, pulses N, mocap rate, frames dropped
         # (skipped by the device + lost in transit), objects reached.
-        return Text(f"{self.o.participant} {self.o.phase}/{self.condition}  {self.frames()} {state}  est {estimate}"
-                    f"  N {self.pulses}  mocap {mocap}  drop {watcher.frames_skipped}+"
-                    f"{watcher.losses.lost_in_transit}  obj {self.objects}")
+        return Text(
+            f"{self.o.participant} {self.o.phase}/{self.condition}  {self.frames()} {state}  est {estimate}"
+            f"  N {self.pulses}  mocap {mocap}  drop {watcher.frames_skipped}+"
+            f"{watcher.losses.lost_in_transit}  obj {self.objects}"
+        )
 
     def _policy(self) -> SupervisionPolicy:
         runner = self.cfg.runner
         # Nothing is restarted: a part that exits during a participant's session ends it or is reported.
-        return SupervisionPolicy(ready_timeout_s=runner.ready_timeout_s, poll_s=runner.status_interval_s,
-                                 restart_delay_s=0.0, max_restarts=0, stop_timeout_s=runner.stop_timeout_s,
-                                 device_stop_timeout_s=runner.device_interrupt_timeout_s)
+        return SupervisionPolicy(
+            ready_timeout_s=runner.ready_timeout_s,
+            poll_s=runner.status_interval_s,
+            restart_delay_s=0.0,
+            max_restarts=0,
+            stop_timeout_s=runner.stop_timeout_s,
+            device_stop_timeout_s=runner.device_interrupt_timeout_s,
+        )
 
     def _start_children(self, supervisor: Supervisor, stop: threading.Event) -> None:
         """The advisory and the mocap logger first; the device once both are running, so that the participant
         never starts without audio or ground truth. KeyboardInterrupt when a signal comes meanwhile."""
-        first = [PartSpec("advisory", ("advisory", "run", "--condition", self.condition, "--out", str(self.attempt)),
-                          ready=lambda: self.advisory_rows() > 0)]
+        first = [
+            PartSpec(
+                "advisory",
+                ("advisory", "run", "--condition", self.condition, "--out", str(self.attempt)),
+                ready=lambda: self.advisory_rows() > 0,
+            )
+        ]
         if self.record_mocap:
-            first.insert(0, PartSpec("mocap", ("study", "mocap", "log", "--out", str(self.attempt)),
-                                     ready=(self.attempt / MOCAP_STATS).exists))
+            first.insert(
+                0,
+                PartSpec(
+                    "mocap",
+                    ("study", "mocap", "log", "--out", str(self.attempt)),
+                    ready=(self.attempt / MOCAP_STATS).exists,
+                ),
+            )
         supervisor.start_ready(first, stop)
-        device = ["monitor", "run", "--source", self.source, "--mode", self.mode, "--out", str(self.attempt),
-                  "--stream"]
+        device = [
+            "monitor",
+            "run",
+            "--source",
+            self.source,
+            "--mode",
+            self.mode,
+            "--out",
+            str(self.attempt),
+            "--stream",
+        ]
         if self.o.max_frames:
             device += ["--max-frames", str(self.o.max_frames)]
         if self.o.pace is not None:
@@ -242,25 +276,34 @@ class Session:
             self.output = open_audio_output(advisory.audio)
             advisory = replace(advisory, audio=self.output.settings(advisory.audio))
             if self.output.unavailable is not None:
-                self.console.print(f"no audio output ({self.output.unavailable}): the advisory plays into a "
-                                   f"{self.output.description}", markup=False, highlight=False)
+                self.console.print(
+                    f"no audio output ({self.output.unavailable}): the advisory plays into a {self.output.description}",
+                    markup=False,
+                    highlight=False,
+                )
             self._event(events, "audio", self.output.description)
             self._run_json(audio=self.output.description)
-        config_dir = (ConfigSet.read()
-                      .replaced(advisory_config.SECTION, replace(advisory, timing=timing))
-                      .replaced(monitor_config.SECTION, replace(self.monitor, device_id=self.device_id))
-                      .write(self.attempt / CONFIGS))
+        config_dir = (
+            ConfigSet.read()
+            .replaced(advisory_config.SECTION, replace(advisory, timing=timing))
+            .replaced(monitor_config.SECTION, replace(self.monitor, device_id=self.device_id))
+            .write(self.attempt / CONFIGS)
+        )
         self.env = {**os.environ, CONFIG_DIR_ENV: str(config_dir), **(self.output.env() if self.output else {})}
 
-    def _wait_for_the_device(self, supervisor: Supervisor, stop: threading.Event, watcher: StreamWatcher,
-                             events: CsvLog) -> str | None:
+    def _wait_for_the_device(
+        self, supervisor: Supervisor, stop: threading.Event, watcher: StreamWatcher, events: CsvLog
+    ) -> str | None:
         """Until the device ends (None), the operator ends the task (``stopped``) or a signal comes
         (``interrupted``)."""
         # The status line is drawn on a terminal only; a script or test gets the summary at the end.
         if self.console.is_terminal:
             self.console.print(f"{self.attempt}: {KEYS_HELP}")
-        with (Live(self._status_line(watcher), console=self.console, transient=True, refresh_per_second=4)
-              if self.console.is_terminal else contextlib.nullcontext()) as live:
+        with (
+            Live(self._status_line(watcher), console=self.console, transient=True, refresh_per_second=4)
+            if self.console.is_terminal
+            else contextlib.nullcontext()
+        ) as live:
             while supervisor.running("device"):
                 if stop.is_set():
                     return "interrupted"
@@ -274,8 +317,9 @@ class Session:
                 except queue.Empty:
                     pass
                 if self.o.replay_estimates and "replay" not in supervisor.parts and self.frames() > 0:
-                    supervisor.start(PartSpec("replay", ("advisory", "replay", "--estimates",
-                                                         str(self.o.replay_estimates))))
+                    supervisor.start(
+                        PartSpec("replay", ("advisory", "replay", "--estimates", str(self.o.replay_estimates)))
+                    )
                 if live is not None:
                     live.update(self._status_line(watcher))
         return None
@@ -298,10 +342,19 @@ class Session:
         self.frames = RowCounter(self.attempt / "frames.csv")
         self.advisory_rows = RowCounter(self.attempt / ADVISORY_CSV)
         self.record_mocap = self.cfg.runner.record_mocap if self.o.record_mocap is None else self.o.record_mocap
-        self._run_json(participant=self.o.participant, phase=self.o.phase, condition=self.condition,
-                       attempt=self.attempt.name, status="running", pid=os.getpid(), started=utc_now(),
-                       source=self.source, mode=self.mode, superseded=False,
-                       replay_estimates=str(self.o.replay_estimates) if self.o.replay_estimates else None)
+        self._run_json(
+            participant=self.o.participant,
+            phase=self.o.phase,
+            condition=self.condition,
+            attempt=self.attempt.name,
+            status="running",
+            pid=os.getpid(),
+            started=utc_now(),
+            source=self.source,
+            mode=self.mode,
+            superseded=False,
+            replay_estimates=str(self.o.replay_estimates) if self.o.replay_estimates else None,
+        )
         events = CsvLog(self.attempt / EVENTS_CSV, EVENT_COLUMNS)
         watcher = StreamWatcher(load_network_config(), self.attempt, self.device_id, self.estimates_from)
         watcher.start()
@@ -338,16 +391,24 @@ class Session:
         self._event(events, "stop", status)
         events.close()
         frames = self.frames()
-        details = {"status": status, "ended": utc_now(), "exit_codes": exits,
-                   "frames": frames, "estimates": watcher.estimates,
-                   "bad_messages": watcher.bad_messages, "watcher_error": watcher.error,
-                   "device_error": None if status in (*DONE_STATUSES, "interrupted") or device is None
-                   else device.child.last_line(), "start_error": start_error}
+        details = {
+            "status": status,
+            "ended": utc_now(),
+            "exit_codes": exits,
+            "frames": frames,
+            "estimates": watcher.estimates,
+            "bad_messages": watcher.bad_messages,
+            "watcher_error": watcher.error,
+            "device_error": None
+            if status in (*DONE_STATUSES, "interrupted") or device is None
+            else device.child.last_line(),
+            "start_error": start_error,
+        }
         if status == "failed" and frames == 0:
             # Nothing was recorded: no attempt of the participant's. The folder is set aside, unnumbered.
             failed = self.attempt
             self.attempt = set_aside_failed_start(failed)
-            message = (start_error or f"the device failed before its first frame: {details['device_error']}")
+            message = start_error or f"the device failed before its first frame: {details['device_error']}"
             message = message.replace(str(failed), str(self.attempt))
             details.update(failed_start=True, start_error=message, calibration="not calibrated")
             self._run_json(**details)
@@ -365,8 +426,13 @@ class Session:
             return "not calibrated"
         rig = self.o.study / CALIBRATION_JSON
         try:
-            calibrate_session(self.attempt, self.cfg.calibration, self.cfg.mocap.body,
-                              marker_camera_from=rig if rig.exists() else None, monocular=self.mode == "mono")
+            calibrate_session(
+                self.attempt,
+                self.cfg.calibration,
+                self.cfg.mocap.body,
+                marker_camera_from=rig if rig.exists() else None,
+                monocular=self.mode == "mono",
+            )
         except SeesysError as e:
             return f"failed: {e} (run `seesys study calibrate {self.attempt}` once fixed)"
         return "groundtruth.tum written from the mocap"

@@ -30,8 +30,8 @@ from seesys.core.session_layout import ADVISORY_CSV
 from seesys.core.trajectory import TrajectoryError
 from seesys.io.logfiles import read_csv_log, write_json_atomically
 from seesys.io.trajectory_files import read_tum
-from study.config import MetricsConfig
 from study.advice import AdviceOutcome, advice_outcome, path_speed
+from study.config import MetricsConfig
 from study.estimates import wall_to_camera_offset
 from study.metrics import RpeResult, TrackingMetrics, combine, measure, read_frame_log
 from study.protocol import Protocol, read_protocol
@@ -171,8 +171,9 @@ def _read_poses(path: Path):
         return None
 
 
-def participant_metrics(attempts: list[Path],
-                        cfg: MetricsConfig) -> tuple[TrackingMetrics, list[AttemptMetrics]] | None:
+def participant_metrics(
+    attempts: list[Path], cfg: MetricsConfig
+) -> tuple[TrackingMetrics, list[AttemptMetrics]] | None:
     """Pooled metrics of ``attempts`` (None when none has a trajectory and a ground truth)."""
     rpes, parts, per_attempt, durations = [], [], [], []
     for attempt in attempts:
@@ -202,8 +203,16 @@ class StudyData:
     attempts: dict[tuple[str, str], list[AttemptMetrics]]
 
 
-METRIC_COLUMNS = ("rpe_mean_m", "rpe_rmse_m", "pairs", "completeness", "tracking_losses", "loss_duration_s",
-                  "map_resets", "time_on_task_s")
+METRIC_COLUMNS = (
+    "rpe_mean_m",
+    "rpe_rmse_m",
+    "pairs",
+    "completeness",
+    "tracking_losses",
+    "loss_duration_s",
+    "map_resets",
+    "time_on_task_s",
+)
 ADVICE_COLUMNS = ("mean_speed_mps", "false_alarm_rate", "miss_rate")
 
 
@@ -223,8 +232,9 @@ def advice_thresholds(directory: Path | None = None) -> AdviceThresholds:
     return AdviceThresholds(cfg.equation2.alpha_m, cfg.timing.window_s)
 
 
-def participant_advice(per_attempt: list[AttemptMetrics], cfg: MetricsConfig,
-                       thresholds: AdviceThresholds) -> dict[str, float]:
+def participant_advice(
+    per_attempt: list[AttemptMetrics], cfg: MetricsConfig, thresholds: AdviceThresholds
+) -> dict[str, float]:
     """Mean speed, false-alarm and miss rates (``study.advice``) of a participant's attempts, pooled."""
     length = duration = 0.0
     outcome = AdviceOutcome()
@@ -245,11 +255,21 @@ def participant_advice(per_attempt: list[AttemptMetrics], cfg: MetricsConfig,
         # An advisory log of another layout (an older advisory's, a hand-made one) is not judged.
         if {"wall_time", "played_pulses"} <= set(log.columns):
             log = log.dropna(subset=["wall_time", "played_pulses"])
-            outcome = outcome + advice_outcome(log, a.rpe.timestamps, a.rpe.errors_m, offset, thresholds.window_s,
-                                               thresholds.alpha_m, cfg.advice_high_error_m,
-                                               None if not np.isfinite(end) else end)
-    return {"mean_speed_mps": length / duration if duration > 0 else np.nan,
-            "false_alarm_rate": outcome.false_alarm_rate, "miss_rate": outcome.miss_rate}
+            outcome = outcome + advice_outcome(
+                log,
+                a.rpe.timestamps,
+                a.rpe.errors_m,
+                offset,
+                thresholds.window_s,
+                thresholds.alpha_m,
+                cfg.advice_high_error_m,
+                None if not np.isfinite(end) else end,
+            )
+    return {
+        "mean_speed_mps": length / duration if duration > 0 else np.nan,
+        "false_alarm_rate": outcome.false_alarm_rate,
+        "miss_rate": outcome.miss_rate,
+    }
 
 
 def collect_study(study: Path, cfg: MetricsConfig, thresholds: AdviceThresholds) -> StudyData:
@@ -261,20 +281,36 @@ def collect_study(study: Path, cfg: MetricsConfig, thresholds: AdviceThresholds)
         for position, condition in enumerate(person.conditions, start=1):
             folder = protocol.phase_folder(study, person.id, protocol.analysed_phase, condition)
             result = participant_metrics(used_attempts(folder), cfg)
-            row = {"participant": person.id, "condition": condition, "position": position,
-                   "status": phase_status(folder), "attempts": len(used_attempts(folder))}
+            row = {
+                "participant": person.id,
+                "condition": condition,
+                "position": position,
+                "status": phase_status(folder),
+                "attempts": len(used_attempts(folder)),
+            }
             if result is None:
-                row.update({c: np.nan for c in METRIC_COLUMNS + ADVICE_COLUMNS})
+                row.update(dict.fromkeys(METRIC_COLUMNS + ADVICE_COLUMNS, np.nan))
             else:
                 metrics, per_attempt = result
                 row.update({c: getattr(metrics, c) for c in METRIC_COLUMNS})
                 row.update(participant_advice(per_attempt, cfg, thresholds))
                 attempts[(person.id, condition)] = per_attempt
                 for a in per_attempt:
-                    pair_rows.append(pd.DataFrame({"participant": person.id, "condition": condition,
-                                                   "attempt": a.folder.name, "timestamp": a.rpe.timestamps,
-                                                   "error_m": a.rpe.errors_m}))
+                    pair_rows.append(
+                        pd.DataFrame(
+                            {
+                                "participant": person.id,
+                                "condition": condition,
+                                "attempt": a.folder.name,
+                                "timestamp": a.rpe.timestamps,
+                                "error_m": a.rpe.errors_m,
+                            }
+                        )
+                    )
             rows.append(row)
-    pairs = pd.concat(pair_rows, ignore_index=True) if pair_rows else \
-        pd.DataFrame(columns=["participant", "condition", "attempt", "timestamp", "error_m"])
+    pairs = (
+        pd.concat(pair_rows, ignore_index=True)
+        if pair_rows
+        else pd.DataFrame(columns=["participant", "condition", "attempt", "timestamp", "error_m"])
+    )
     return StudyData(protocol, pd.DataFrame(rows), pairs, attempts)

@@ -69,9 +69,16 @@ class StreamWatcher(threading.Thread):
         sockets = []
         try:
             network = self._network
-            sockets = [subscriber(ctx, network.estimates_endpoint, "estimates", [self._estimates_topic],
-                                  options=network.client_options(network.estimates_endpoint)),
-                       subscriber(ctx, network.features_endpoint, "features", [topic(FEATURE_TOPIC, self._device)])]
+            sockets = [
+                subscriber(
+                    ctx,
+                    network.estimates_endpoint,
+                    "estimates",
+                    [self._estimates_topic],
+                    options=network.client_options(network.estimates_endpoint),
+                ),
+                subscriber(ctx, network.features_endpoint, "features", [topic(FEATURE_TOPIC, self._device)]),
+            ]
             poller = zmq.Poller()
             for s in sockets:
                 poller.register(s, zmq.POLLIN)
@@ -89,8 +96,14 @@ class StreamWatcher(threading.Thread):
                         if not self._replayed and message.stream_session != self.stream_session:
                             self.foreign_estimates += 1
                             continue
-                        log.write(arrived, message.device_id, message.frame_index, message.timestamp,
-                                  message.error_m, message.model_version)
+                        log.write(
+                            arrived,
+                            message.device_id,
+                            message.frame_index,
+                            message.timestamp,
+                            message.error_m,
+                            message.model_version,
+                        )
                         self.estimates += 1
                         self.latest_error_m = message.error_m
                     elif isinstance(message, FeatureFrame):
@@ -99,7 +112,7 @@ class StreamWatcher(threading.Thread):
                         self.tracked_frames += message.tracking_state.tracked
                         self.last_frame_mono = time.monotonic()
                         self.frames_skipped = message.frames_skipped
-        except Exception as e:  # noqa: BLE001 - reported on the status line and in run.json, the session goes on
+        except Exception as e:
             self.error = f"{type(e).__name__}: {e}"
             self._ready.set()
         finally:

@@ -81,8 +81,9 @@ def _rendered_with_current_preset(folder: Path, environment: str, config: SynthC
         return False
     preset = config.preset(environment)
     model = config.camera_model(preset.camera_model)
-    return (recorded.get("preset") == preset_record(preset, model)
-            and recorded.get("camera_model") == camera_record(model))
+    return recorded.get("preset") == preset_record(preset, model) and recorded.get("camera_model") == camera_record(
+        model
+    )
 
 
 @dataclass(frozen=True)
@@ -120,9 +121,15 @@ class CameraDraw:
         return dict(zip(motions, drawn))
 
 
-def plan_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
-               config: SynthConfig, root: Path, cameras: CameraDraw | None = None
-               ) -> tuple[list[tuple[SequenceSpec, Path, SynthConfig]], list[Path]]:
+def plan_batch(
+    template: SequenceSpec,
+    environments: list[str],
+    motions: list[str],
+    seeds: list[int],
+    config: SynthConfig,
+    root: Path,
+    cameras: CameraDraw | None = None,
+) -> tuple[list[tuple[SequenceSpec, Path, SynthConfig]], list[Path]]:
     """What a batch renders under ``root``: (spec, folder, the config that renders it: its camera model drawn) of
     every sequence to render, in batch order, and the folders already rendered as planned (skipped)."""
     todo, skipped = [], []
@@ -130,8 +137,7 @@ def plan_batch(template: SequenceSpec, environments: list[str], motions: list[st
         for env in environments:
             drawn = cameras.cameras(seed, env, config) if cameras is not None and cameras.models else {}
             for motion in motions:
-                spec = replace(template, environment=env, motion=motion,
-                               seed=sequence_seed(seed, env, motion, config))
+                spec = replace(template, environment=env, motion=motion, seed=sequence_seed(seed, env, motion, config))
                 folder = root / sequence_folder_name(replace(spec, seed=seed))
                 seen = config.seen_through(env, config.camera_model(drawn[motion])) if motion in drawn else config
                 if _rendered_with_current_preset(folder, env, seen):
@@ -141,17 +147,25 @@ def plan_batch(template: SequenceSpec, environments: list[str], motions: list[st
     return todo, skipped
 
 
-def render_into(spec: SequenceSpec, config: SynthConfig, folder: Path, processes: int | None = None,
-                progress=None) -> int:
+def render_into(
+    spec: SequenceSpec, config: SynthConfig, folder: Path, processes: int | None = None, progress=None
+) -> int:
     """Render one sequence of a batch into ``folder`` (whatever an unfinished or outdated render left there is
     removed first); returns its frame count."""
     shutil.rmtree(folder, ignore_errors=True)  # unfinished, or rendered with an older preset
     return len(render_sequence(spec, config, folder, processes, progress=progress))
 
 
-def render_batch(template: SequenceSpec, environments: list[str], motions: list[str], seeds: list[int],
-                 config: SynthConfig, root: Path, processes: int | None = None,
-                 cameras: CameraDraw | None = None) -> BatchResult:
+def render_batch(
+    template: SequenceSpec,
+    environments: list[str],
+    motions: list[str],
+    seeds: list[int],
+    config: SynthConfig,
+    root: Path,
+    processes: int | None = None,
+    cameras: CameraDraw | None = None,
+) -> BatchResult:
     """Render environments × motions × seeds under ``root`` (``template`` gives length, size, lens, blur), each
     sequence through its preset's camera model or, with ``cameras``, the one drawn for it.
 

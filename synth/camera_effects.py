@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from synth.renderer import RayGrid
 from seesys.core.camera import Intrinsics
+from synth.renderer import RayGrid
 
 
 def image_motion(depth: np.ndarray, grid: RayGrid, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -36,8 +36,9 @@ def image_motion(depth: np.ndarray, grid: RayGrid, rotation: np.ndarray, transla
     return flow
 
 
-def motion_blur(image: np.ndarray, grid: RayGrid, flow_start: np.ndarray, flow_end: np.ndarray,
-                max_samples: int) -> tuple[np.ndarray, float]:
+def motion_blur(
+    image: np.ndarray, grid: RayGrid, flow_start: np.ndarray, flow_end: np.ndarray, max_samples: int
+) -> tuple[np.ndarray, float]:
     """Average of the image moved along the flow from exposure start to exposure end.
 
     The image seen at a sub-time is approximated by a backward warp of the sharp render with the flow at the
@@ -55,8 +56,9 @@ def motion_blur(image: np.ndarray, grid: RayGrid, flow_start: np.ndarray, flow_e
     fractions = np.linspace(0.0, 1.0, samples, dtype=np.float32) if samples > 1 else np.array([0.5], np.float32)
     acc = np.zeros_like(image, np.float32)
     for s in fractions:
-        acc += cv2.remap(image, base_x + s * step_x, base_y + s * step_y, cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_REFLECT)
+        acc += cv2.remap(
+            image, base_x + s * step_x, base_y + s * step_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
+        )
     return acc / np.float32(len(fractions)), p99
 
 
@@ -94,8 +96,15 @@ class LensDistortion:
         u, v = np.meshgrid(np.arange(lens.width, dtype=np.float64), np.arange(lens.height, dtype=np.float64))
         distorted = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
         # For each pixel of the distorted image, the point of the undistorted render it shows.
-        undistorted = cv2.undistortPoints(distorted, k, np.array(lens.distortion), None, None, k,
-                                          (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6))
+        undistorted = cv2.undistortPoints(
+            distorted,
+            k,
+            np.array(lens.distortion),
+            None,
+            None,
+            k,
+            (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6),
+        )
         maps = undistorted.reshape(lens.height, lens.width, 2).astype(np.float32)
         return cls(np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]))
 

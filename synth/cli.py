@@ -11,6 +11,7 @@ from synth.batch import expand_environments, expand_motions, render_batch
 from synth.config import load_synth_config
 from synth.sequence import SequenceSpec, render_sequence
 
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -23,8 +24,11 @@ def _size(text: str) -> tuple[int, int]:
 
 def _add_render_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, help="frames per sequence (default: the configured duration)")
-    p.add_argument("--size", type=_size,
-                   help="image size WIDTHxHEIGHT (default: the camera model's, else configs/synth.toml camera)")
+    p.add_argument(
+        "--size",
+        type=_size,
+        help="image size WIDTHxHEIGHT (default: the camera model's, else configs/synth.toml camera)",
+    )
     p.add_argument("--processes", type=int, help="worker processes (default: configs/synth.toml)")
     p.add_argument("--no-blur", action="store_true", help="render without motion blur")
     p.add_argument("--distortion", action="store_true", help="apply the configured lens distortion")
@@ -44,8 +48,10 @@ def _render(args: argparse.Namespace) -> int:
     records = render_sequence(spec, config, args.out, args.processes)
     seconds = time.perf_counter() - start
     workers = args.processes or config.processes
-    print(f"rendered {len(records)} frames to {args.out} in {seconds:.1f} s: {len(records) / seconds:.1f} frames/s "
-          f"on {workers} process(es)")
+    print(
+        f"rendered {len(records)} frames to {args.out} in {seconds:.1f} s: {len(records) / seconds:.1f} frames/s "
+        f"on {workers} process(es)"
+    )
     return 0
 
 
@@ -54,10 +60,19 @@ def _batch(args: argparse.Namespace) -> int:
     environments = expand_environments(args.envs.split(","), config)
     motions = expand_motions(args.motions.split(","), config)
     seeds = [int(s) for s in args.seeds.split(",")]
-    result = render_batch(_template(args, environments[0], motions[0], seeds[0]), environments, motions, seeds,
-                          config, args.out, args.processes)
-    print(f"rendered {len(result.rendered)} sequences ({result.frames} frames, {result.frames_per_second:.1f} "
-          f"frames/s), skipped {len(result.skipped)} already complete, under {args.out}")
+    result = render_batch(
+        _template(args, environments[0], motions[0], seeds[0]),
+        environments,
+        motions,
+        seeds,
+        config,
+        args.out,
+        args.processes,
+    )
+    print(
+        f"rendered {len(result.rendered)} sequences ({result.frames} frames, {result.frames_per_second:.1f} "
+        f"frames/s), skipped {len(result.skipped)} already complete, under {args.out}"
+    )
     return 0
 
 
@@ -77,8 +92,11 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
     p = sub.add_parser("batch", help="render environments × motions × seeds, one folder each (resumable)")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--envs", default="all", help="comma-separated presets, or all (default)")
-    p.add_argument("--motions", default="patrol,aiming,rapid",
-                   help="comma-separated motions: patrol, aiming, rapid, real:<name>, real (every real one), all")
+    p.add_argument(
+        "--motions",
+        default="patrol,aiming,rapid",
+        help="comma-separated motions: patrol, aiming, rapid, real:<name>, real (every real one), all",
+    )
     p.add_argument("--seeds", default="0", help="comma-separated batch seeds")
     _add_render_options(p)
     p.set_defaults(func=_batch)

@@ -117,14 +117,17 @@ class CameraModel:
                 if not low <= v <= high:
                     raise ConfigError(f"{where}: {key} must be within [{low:g}, {high:g}], got {value!r}")
         if self.disparity_step_px > 0 and (self.projector_offset_m == 0 or self.disparity_focal_px == 0):
-            raise ConfigError(f"{where}: disparity_step_px needs the baseline projector_offset_m and the focal "
-                              f"length disparity_focal_px (both non-zero)")
+            raise ConfigError(
+                f"{where}: disparity_step_px needs the baseline projector_offset_m and the focal "
+                f"length disparity_focal_px (both non-zero)"
+            )
         if any(self.resolution_px) and min(self.resolution_px) < 16:
-            raise ConfigError(f"{where}: resolution_px must be [0, 0] (the [camera.lens] sensor) or at least "
-                              f"16 px a side, got {list(self.resolution_px)}")
+            raise ConfigError(
+                f"{where}: resolution_px must be [0, 0] (the [camera.lens] sensor) or at least "
+                f"16 px a side, got {list(self.resolution_px)}"
+            )
         if 0 < self.depth_max_m <= self.depth_min_m:
-            raise ConfigError(f"{where}: depth_max_m {self.depth_max_m:g} must exceed depth_min_m "
-                              f"{self.depth_min_m:g}")
+            raise ConfigError(f"{where}: depth_max_m {self.depth_max_m:g} must exceed depth_min_m {self.depth_min_m:g}")
 
     @property
     def separate_depth_view(self) -> bool:
@@ -134,8 +137,13 @@ class CameraModel:
     @property
     def structured_light(self) -> bool:
         """True when the depth has any fault of a structured-light sensor (synth/structured_light.py)."""
-        return (self.projector_offset_m != 0 or self.disparity_step_px != 0 or self.dark_albedo != 0
-                or self.depth_min_m != 0 or self.depth_max_m != 0)
+        return (
+            self.projector_offset_m != 0
+            or self.disparity_step_px != 0
+            or self.dark_albedo != 0
+            or self.depth_min_m != 0
+            or self.depth_max_m != 0
+        )
 
     @property
     def own_sensor(self) -> bool:
@@ -150,11 +158,19 @@ class CameraModel:
     @property
     def ideal(self) -> bool:
         """True when the model changes nothing: the renders are the ideal camera's, byte for byte."""
-        return (not self.separate_depth_view and not any(self.depth_misregistration_px)
-                and self.rolling_shutter_s == 0 and self.auto_exposure_time_constant_s == 0
-                and self.depth_noise_m_per_m2 == 0 and self.colour_noise_scale == 1
-                and self.depth_scale_error == 0 and not self.told_differs and not self.structured_light
-                and self.jpeg_quality == 0 and not self.own_sensor)
+        return (
+            not self.separate_depth_view
+            and not any(self.depth_misregistration_px)
+            and self.rolling_shutter_s == 0
+            and self.auto_exposure_time_constant_s == 0
+            and self.depth_noise_m_per_m2 == 0
+            and self.colour_noise_scale == 1
+            and self.depth_scale_error == 0
+            and not self.told_differs
+            and not self.structured_light
+            and self.jpeg_quality == 0
+            and not self.own_sensor
+        )
 
 
 # The values a camera model may take (inclusive): wide enough for any real camera, narrow enough to catch a typo
@@ -252,8 +268,9 @@ class SynthConfig:
         replacing the one of its name)."""
         self.preset(environment)  # refuse an unknown preset by name
         models = [m for m in self.camera_models if m.name != model.name] + [model]
-        presets = [dataclasses.replace(p, camera_model=model.name) if p.name == environment else p
-                   for p in self.presets]
+        presets = [
+            dataclasses.replace(p, camera_model=model.name) if p.name == environment else p for p in self.presets
+        ]
         return dataclasses.replace(self, camera_models=models, presets=presets)
 
     def real_trajectory(self, name: str) -> RealTrajectory:

@@ -57,8 +57,17 @@ class Faces:
         return pts
 
     def subset(self, keep: np.ndarray) -> Faces:
-        return Faces(self.axis[keep], self.coord[keep], self.sign[keep], self.lo[keep], self.hi[keep],
-                     self.owner[keep], self.tile[keep], self.texel_m[keep], self.offset[keep])
+        return Faces(
+            self.axis[keep],
+            self.coord[keep],
+            self.sign[keep],
+            self.lo[keep],
+            self.hi[keep],
+            self.owner[keep],
+            self.tile[keep],
+            self.texel_m[keep],
+            self.offset[keep],
+        )
 
 
 @dataclass(frozen=True)
@@ -93,8 +102,18 @@ class Scene:
             return self
         faces = self.faces.subset(~np.isin(self.faces.owner, removed))
         boxes = tuple(b for i, b in enumerate(self.boxes) if i not in removed)
-        return Scene(self.preset, self.seed, self.room, boxes, faces, self.textures, self.lights,
-                     self.light_power, self.falloff_m, self.ambient)
+        return Scene(
+            self.preset,
+            self.seed,
+            self.room,
+            boxes,
+            faces,
+            self.textures,
+            self.lights,
+            self.light_power,
+            self.falloff_m,
+            self.ambient,
+        )
 
 
 def _distance_to_box(points: np.ndarray, box: Box) -> np.ndarray:
@@ -159,12 +178,23 @@ def build_scene(preset: EnvironmentPreset, seed: int, sensor: SensorConfig) -> S
     shapes = max(1, int(round(preset.texture_density * preset.texture_scale_m**2)))
     fixtures = int(round(preset.bare_fixture_density * preset.texture_scale_m**2))
     spread = preset.albedo_spread
-    tiles = [make_tile(rng, size, shapes, preset.texture_contrast, preset.albedo * rng.uniform(1 - spread, 1 + spread),
-                       False)
-             for _ in range(RICH_TILES)]
-    tiles += [make_tile(rng, size, fixtures, preset.texture_contrast,
-                        preset.albedo * rng.uniform(BARE_ALBEDO_GAIN - spread, BARE_ALBEDO_GAIN + spread), True)
-              for _ in range(POOR_TILES)]
+    tiles = [
+        make_tile(
+            rng, size, shapes, preset.texture_contrast, preset.albedo * rng.uniform(1 - spread, 1 + spread), False
+        )
+        for _ in range(RICH_TILES)
+    ]
+    tiles += [
+        make_tile(
+            rng,
+            size,
+            fixtures,
+            preset.texture_contrast,
+            preset.albedo * rng.uniform(BARE_ALBEDO_GAIN - spread, BARE_ALBEDO_GAIN + spread),
+            True,
+        )
+        for _ in range(POOR_TILES)
+    ]
     textures = TexturePyramid.build(tiles, sensor.texture_levels)
     boxes = _place_boxes(rng, preset, room)
 
@@ -180,18 +210,26 @@ def build_scene(preset: EnvironmentPreset, seed: int, sensor: SensorConfig) -> S
         poor |= {i for i, (_, f) in enumerate(rows[:6]) if f[0] == 2}
     poor_owners = {b for b in range(len(boxes)) if rng.uniform() < preset.poor_boxes}
     poor |= {i for i, (owner, _) in enumerate(rows) if owner in poor_owners}
-    tile = np.array([RICH_TILES + rng.integers(0, POOR_TILES) if i in poor else rng.integers(0, RICH_TILES)
-                     for i in range(len(rows))], np.int64)
+    tile = np.array(
+        [
+            RICH_TILES + rng.integers(0, POOR_TILES) if i in poor else rng.integers(0, RICH_TILES)
+            for i in range(len(rows))
+        ],
+        np.int64,
+    )
     faces = _faces(rows, tile, preset.texture_scale_m / size, size, rng)
 
     n_lights = 1 if room[0] * room[1] < 40 else 2
-    lights = np.column_stack([
-        rng.uniform(-room[0] / 4, room[0] / 4, n_lights),
-        rng.uniform(-room[1] / 4, room[1] / 4, n_lights),
-        np.full(n_lights, room[2] - 0.3),
-    ])
-    return Scene(preset, seed, room, tuple(boxes), faces, textures, lights, preset.light, preset.falloff_m,
-                 preset.ambient)
+    lights = np.column_stack(
+        [
+            rng.uniform(-room[0] / 4, room[0] / 4, n_lights),
+            rng.uniform(-room[1] / 4, room[1] / 4, n_lights),
+            np.full(n_lights, room[2] - 0.3),
+        ]
+    )
+    return Scene(
+        preset, seed, room, tuple(boxes), faces, textures, lights, preset.light, preset.falloff_m, preset.ambient
+    )
 
 
 def with_boxes(scene: Scene, boxes: list[Box], rng: np.random.Generator) -> Scene:
@@ -199,8 +237,13 @@ def with_boxes(scene: Scene, boxes: list[Box], rng: np.random.Generator) -> Scen
     faces = scene.faces
     rows = [(len(scene.boxes) + k, f) for k, box in enumerate(boxes) for f in _box_faces(box.lo, box.hi, inward=False)]
     size = scene.textures.size
-    added = _faces(rows, rng.integers(0, RICH_TILES, len(rows)).astype(np.int64),
-                   scene.preset.texture_scale_m / size, size, rng)
-    merged = Faces(*(np.concatenate([getattr(faces, name), getattr(added, name)])
-                     for name in ("axis", "coord", "sign", "lo", "hi", "owner", "tile", "texel_m", "offset")))
+    added = _faces(
+        rows, rng.integers(0, RICH_TILES, len(rows)).astype(np.int64), scene.preset.texture_scale_m / size, size, rng
+    )
+    merged = Faces(
+        *(
+            np.concatenate([getattr(faces, name), getattr(added, name)])
+            for name in ("axis", "coord", "sign", "lo", "hi", "owner", "tile", "texel_m", "offset")
+        )
+    )
     return dataclasses.replace(scene, boxes=scene.boxes + tuple(boxes), faces=merged)

@@ -10,8 +10,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from synth.config import CameraConfig, CameraModel
 from seesys.core.camera import Intrinsics
+from synth.config import CameraConfig, CameraModel
 
 
 def model_camera(camera: CameraConfig, model: CameraModel) -> CameraConfig:
@@ -24,11 +24,16 @@ def model_camera(camera: CameraConfig, model: CameraModel) -> CameraConfig:
         return camera
     lens = camera.lens
     width, height = model.resolution_px if any(model.resolution_px) else (lens.width, lens.height)
-    fov = (math.radians(model.horizontal_fov_deg) if model.horizontal_fov_deg
-           else 2 * math.atan(lens.width / 2 / lens.fx))
+    fov = (
+        math.radians(model.horizontal_fov_deg) if model.horizontal_fov_deg else 2 * math.atan(lens.width / 2 / lens.fx)
+    )
     fx = width / 2 / math.tan(fov / 2)
-    return dataclasses.replace(camera, lens=dataclasses.replace(
-        lens, width=width, height=height, fx=fx, fy=fx * lens.fy / lens.fx, cx=(width - 1) / 2, cy=(height - 1) / 2))
+    return dataclasses.replace(
+        camera,
+        lens=dataclasses.replace(
+            lens, width=width, height=height, fx=fx, fy=fx * lens.fy / lens.fx, cx=(width - 1) / 2, cy=(height - 1) / 2
+        ),
+    )
 
 
 def true_lens(lens: Intrinsics, model: CameraModel, distorted: bool) -> Intrinsics:
@@ -49,6 +54,10 @@ def told_lens(lens: Intrinsics, model: CameraModel, distorted: bool, native_widt
     base = lens if distorted else lens.without_distortion()
     scale = lens.width / native_width
     dx, dy = model.told_principal_point_px
-    return dataclasses.replace(base, fx=base.fx * (1 + model.told_focal_error),
-                               fy=base.fy * (1 + model.told_focal_error),
-                               cx=base.cx + dx * scale, cy=base.cy + dy * scale)
+    return dataclasses.replace(
+        base,
+        fx=base.fx * (1 + model.told_focal_error),
+        fy=base.fy * (1 + model.told_focal_error),
+        cx=base.cx + dx * scale,
+        cy=base.cy + dy * scale,
+    )

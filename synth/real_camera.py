@@ -24,15 +24,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from synth.renderer import RayGrid
 from seesys.core.errors import SeesysError
+from synth.renderer import RayGrid
 
 # Sub-steps per frame of the auto-exposure loop's integration (stable for time constants down to ~1 frame).
 _AE_SUBSTEPS = 20
 
 
-def auto_exposure_response(target_log: np.ndarray, fps: float, time_constant_s: float,
-                           damping: float) -> np.ndarray:
+def auto_exposure_response(target_log: np.ndarray, fps: float, time_constant_s: float, damping: float) -> np.ndarray:
     """The log exposure an auto-exposure loop reaches on each frame while following ``target_log``.
 
     A second-order loop x'' = ω²(target − x) − 2ζω x' with ω = 1 / ``time_constant_s`` and ζ = ``damping``,
@@ -53,8 +52,9 @@ def auto_exposure_response(target_log: np.ndarray, fps: float, time_constant_s: 
     return out
 
 
-def rolling_shutter(image: np.ndarray, grid: RayGrid, flow_first_row: np.ndarray,
-                    flow_last_row: np.ndarray) -> np.ndarray:
+def rolling_shutter(
+    image: np.ndarray, grid: RayGrid, flow_first_row: np.ndarray, flow_last_row: np.ndarray
+) -> np.ndarray:
     """The image of a rolling-shutter sensor from a global-shutter render at the middle row's time.
 
     ``flow_first_row`` / ``flow_last_row`` (H×W×2) are the image motions from the render's pose to the poses at
@@ -73,8 +73,14 @@ def rolling_shutter(image: np.ndarray, grid: RayGrid, flow_first_row: np.ndarray
 def shift_depth(depth: np.ndarray, shift_px: tuple[float, float]) -> np.ndarray:
     """``depth`` moved by (dx, dy) pixels, without interpolating across edges; uncovered pixels have no depth."""
     matrix = np.array([[1.0, 0.0, shift_px[0]], [0.0, 1.0, shift_px[1]]], np.float32)
-    return cv2.warpAffine(depth, matrix, (depth.shape[1], depth.shape[0]), flags=cv2.INTER_NEAREST,
-                          borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    return cv2.warpAffine(
+        depth,
+        matrix,
+        (depth.shape[1], depth.shape[0]),
+        flags=cv2.INTER_NEAREST,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0.0,
+    )
 
 
 def depth_noise(depth: np.ndarray, sigma_m_per_m2: float, rng: np.random.Generator) -> np.ndarray:

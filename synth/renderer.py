@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from seesys.core.camera import Intrinsics
 from synth.config import CameraConfig
 from synth.environments import Scene
-from seesys.core.camera import Intrinsics
 
 
 @dataclass(frozen=True)
@@ -67,8 +67,9 @@ def _clip_near(points_cam: np.ndarray, near: float) -> np.ndarray:
     return np.array(out)
 
 
-def _screen_box(grid: RayGrid, corners_world: np.ndarray, rotation: np.ndarray,
-                centre: np.ndarray) -> tuple[slice, slice] | None:
+def _screen_box(
+    grid: RayGrid, corners_world: np.ndarray, rotation: np.ndarray, centre: np.ndarray
+) -> tuple[slice, slice] | None:
     """The pixel rectangle covering a face, or None when the face is off screen or behind the camera."""
     clipped = _clip_near((corners_world - centre) @ rotation, grid.near_m)
     if len(clipped) == 0:
@@ -112,21 +113,30 @@ def render(scene: Scene, rotation: np.ndarray, centre: np.ndarray, grid: RayGrid
         pb = np.float32(centre[b]) + t * dirs[b][box]
         pc = np.float32(centre[c]) + t * dirs[c][box]
         zb = depth[box]
-        hit = ((t > grid.near_m) & (t < zb) & (pb >= faces.lo[i, b]) & (pb <= faces.hi[i, b])
-               & (pc >= faces.lo[i, c]) & (pc <= faces.hi[i, c]))
+        hit = (
+            (t > grid.near_m)
+            & (t < zb)
+            & (pb >= faces.lo[i, b])
+            & (pb <= faces.hi[i, b])
+            & (pc >= faces.lo[i, c])
+            & (pc <= faces.hi[i, c])
+        )
         th = t[hit]
         zb[hit] = th
         face_id[box][hit] = i
         per_texel = np.float32(1.0 / faces.texel_m[i])
         tex_u[box][hit] = pb[hit] * per_texel + np.float32(faces.offset[i, 0])
         tex_v[box][hit] = pc[hit] * per_texel + np.float32(faces.offset[i, 1])
-        footprint[box][hit] = th * grid.norm2[box][hit] * (per_texel / np.float32(grid.lens.fx)) / np.abs(dirs[a][box][hit])
+        footprint[box][hit] = (
+            th * grid.norm2[box][hit] * (per_texel / np.float32(grid.lens.fx)) / np.abs(dirs[a][box][hit])
+        )
 
     missed = face_id < 0
     fid = np.maximum(face_id, 0)
     depth[missed] = 0.0
-    level = np.clip(np.floor(np.log2(np.maximum(footprint, 1.0)) + np.float32(0.3)), 0,
-                    scene.textures.levels - 1).astype(np.int32)
+    level = np.clip(
+        np.floor(np.log2(np.maximum(footprint, 1.0)) + np.float32(0.3)), 0, scene.textures.levels - 1
+    ).astype(np.int32)
     albedo = scene.textures.sample(faces.tile[fid], tex_u, tex_v, level)
 
     irradiance = np.full(shape, scene.ambient, np.float32)

@@ -29,6 +29,9 @@ import cv2
 import numpy as np
 from rich.progress import Progress
 
+from seesys.core.camera import Intrinsics
+from seesys.core.errors import SeesysError
+from seesys.core.trajectory import tum_line
 from synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
 from synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
 from synth.environments import Scene, build_scene
@@ -51,9 +54,6 @@ from synth.trajectories import (
     load_tum,
     place_real,
 )
-from seesys.core.camera import Intrinsics
-from seesys.core.errors import SeesysError
-from seesys.core.trajectory import tum_line
 
 REAL_PREFIX = "real:"
 
@@ -113,7 +113,7 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     margin = 2 * config.sensor.exposure_max_ms / 1000.0
 
     if spec.motion.startswith(REAL_PREFIX):
-        real = config.real_trajectory(spec.motion[len(REAL_PREFIX):])
+        real = config.real_trajectory(spec.motion[len(REAL_PREFIX) :])
         loader = {"tum": load_tum, "euroc": load_euroc}.get(real.format)
         if loader is None:
             raise TrajectoryError(f"real trajectory {real.name}: unknown format {real.format!r} (tum or euroc)")
@@ -131,8 +131,10 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
         trajectory = generate_motion(spec.motion, motion, lo, hi, config.trajectory, duration + margin, rng)
         group, name = spec.motion, f"{spec.motion}_{spec.seed}"
     else:
-        raise SeesysError(f"unknown motion {spec.motion!r}: use one of {', '.join(MOTION_GROUPS)} or "
-                          f"{REAL_PREFIX}<name> ({', '.join(r.name for r in config.real_trajectories)})")
+        raise SeesysError(
+            f"unknown motion {spec.motion!r}: use one of {', '.join(MOTION_GROUPS)} or "
+            f"{REAL_PREFIX}<name> ({', '.join(r.name for r in config.real_trajectories)})"
+        )
 
     scene = scene.without_boxes_near(trajectory.positions, config.trajectory.box_clearance_m)
     count = int(np.floor(duration * camera.fps)) if spec.frames is None else spec.frames
@@ -141,9 +143,19 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     return plan_frames(spec, config, camera, model, scene, trajectory, group, name, count, rng, native_width)
 
 
-def plan_frames(spec: SequenceSpec, config: SynthConfig, camera: CameraConfig, model: CameraModel, scene: Scene,
-                trajectory: Trajectory, group: str, name: str, count: int, rng: np.random.Generator,
-                native_width: int) -> SequencePlan:
+def plan_frames(
+    spec: SequenceSpec,
+    config: SynthConfig,
+    camera: CameraConfig,
+    model: CameraModel,
+    scene: Scene,
+    trajectory: Trajectory,
+    group: str,
+    name: str,
+    count: int,
+    rng: np.random.Generator,
+    native_width: int,
+) -> SequencePlan:
     """The per-frame exposure, light and noise schedule of ``count`` frames through ``camera`` and ``model``,
     drawn from ``rng`` after the scene and trajectory (the closed-loop study plans its frames the same way, with a
     trajectory that its simulated operator extends as it goes)."""
@@ -160,18 +172,38 @@ def plan_frames(spec: SequenceSpec, config: SynthConfig, camera: CameraConfig, m
     base = _draw_range(rng, sensor.base_exposure_ms) / 1000.0
     target = base * light ** (-sensor.auto_exposure_strength)
     if model.auto_exposure_time_constant_s > 0:
-        target = np.exp(auto_exposure_response(np.log(target), camera.fps, model.auto_exposure_time_constant_s,
-                                               model.auto_exposure_damping))
+        target = np.exp(
+            auto_exposure_response(
+                np.log(target), camera.fps, model.auto_exposure_time_constant_s, model.auto_exposure_damping
+            )
+        )
     exposure = np.clip(target, sensor.exposure_min_ms / 1000.0, sensor.exposure_max_ms / 1000.0)
     gain = _draw_range(rng, sensor.gain)
     signal = sensor.signal_scale * gain * light * exposure / base
     noise = model.colour_noise_scale
-    photometry = Photometry(sensor.signal_scale,
-                            _draw_range(rng, sensor.shot_noise_dn_per_e) * scene.preset.shot_noise_scale * noise**2,
-                            _draw_range(rng, sensor.read_noise_dn) * noise, sensor.black_level_dn)
-    return SequencePlan(spec, camera, scene, trajectory, group, name, frame_times, exposure, light, signal, gain,
-                        photometry, model, true_lens(camera.lens, model, spec.distortion),
-                        told_lens(camera.lens, model, spec.distortion, native_width))
+    photometry = Photometry(
+        sensor.signal_scale,
+        _draw_range(rng, sensor.shot_noise_dn_per_e) * scene.preset.shot_noise_scale * noise**2,
+        _draw_range(rng, sensor.read_noise_dn) * noise,
+        sensor.black_level_dn,
+    )
+    return SequencePlan(
+        spec,
+        camera,
+        scene,
+        trajectory,
+        group,
+        name,
+        frame_times,
+        exposure,
+        light,
+        signal,
+        gain,
+        photometry,
+        model,
+        true_lens(camera.lens, model, spec.distortion),
+        told_lens(camera.lens, model, spec.distortion, native_width),
+    )
 
 
 @dataclass(frozen=True)
@@ -226,8 +258,9 @@ class FrameImages:
     record: FrameRecord
 
 
-def render_images(plan: SequencePlan, grid: RayGrid, lens: LensDistortion | None, max_samples: int, index: int,
-                  trajectory: Trajectory) -> FrameImages:
+def render_images(
+    plan: SequencePlan, grid: RayGrid, lens: LensDistortion | None, max_samples: int, index: int, trajectory: Trajectory
+) -> FrameImages:
     """Frame ``index`` of ``plan`` seen along ``trajectory``, which must cover the frame's exposure, rolling
     shutter and depth capture (a few milliseconds either side of its time)."""
     model = plan.camera_model
@@ -235,16 +268,16 @@ def render_images(plan: SequencePlan, grid: RayGrid, lens: LensDistortion | None
     exposure = plan.exposure_s[index]
     readout = model.rolling_shutter_s
     # Poses: mid-exposure, exposure start and end, first and last row read, depth capture.
-    times = np.array([t, t - exposure / 2, t + exposure / 2, t - readout / 2, t + readout / 2,
-                      t + model.depth_delay_s])
+    times = np.array([t, t - exposure / 2, t + exposure / 2, t - readout / 2, t + readout / 2, t + model.depth_delay_s])
     positions, rotations = trajectory.interpolate(times)
     matrices = rotations.as_matrix()
     sharp = render(plan.scene, matrices[0], positions[0], grid)
     image, streak = sharp.radiance, 0.0
 
     def flow_to(k: int) -> np.ndarray:
-        return image_motion(sharp.depth, grid, matrices[k].T @ matrices[0],
-                            matrices[k].T @ (positions[0] - positions[k]))
+        return image_motion(
+            sharp.depth, grid, matrices[k].T @ matrices[0], matrices[k].T @ (positions[0] - positions[k])
+        )
 
     if plan.spec.blur:
         image, streak = motion_blur(image, grid, flow_to(1), flow_to(2), max_samples)
@@ -271,8 +304,9 @@ def render_images(plan: SequencePlan, grid: RayGrid, lens: LensDistortion | None
         gray = jpeg_roundtrip(gray, model.jpeg_quality)
     # The sensor's depth scale error is in what it reports, not in the depth_factor it says it uses.
     reported = depth * np.float32(1 + model.depth_scale_error) if model.depth_scale_error else depth
-    record = FrameRecord(index, 1000 * exposure, float(plan.light[index]), float(plan.signal_scale[index]), streak,
-                         float(gray.mean()))
+    record = FrameRecord(
+        index, 1000 * exposure, float(plan.light[index]), float(plan.signal_scale[index]), streak, float(gray.mean())
+    )
     return FrameImages(gray, reported, record)
 
 
@@ -292,8 +326,14 @@ def frame_stamp(t: float) -> str:
     return f"{t:.6f}"
 
 
-def render_sequence(spec: SequenceSpec, config: SynthConfig, out: Path, processes: int | None = None,
-                    show_progress: bool = True, progress: Progress | None = None) -> list[FrameRecord]:
+def render_sequence(
+    spec: SequenceSpec,
+    config: SynthConfig,
+    out: Path,
+    processes: int | None = None,
+    show_progress: bool = True,
+    progress: Progress | None = None,
+) -> list[FrameRecord]:
     """Render ``spec`` into the TUM folder ``out`` with ``processes`` worker processes (configured default).
 
     The frames show on a bar of their own, or, given ``progress``, on a bar of that display, removed at the end."""
@@ -315,8 +355,9 @@ def render_sequence(spec: SequenceSpec, config: SynthConfig, out: Path, processe
         else:
             # Spawned, not forked: a fork after OpenCV has started its thread pool can deadlock the child.
             context = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(workers, mp_context=context, initializer=_Worker.setup,
-                                     initargs=(spec, config, out)) as pool:
+            with ProcessPoolExecutor(
+                workers, mp_context=context, initializer=_Worker.setup, initargs=(spec, config, out)
+            ) as pool:
                 for record in pool.map(_Worker.render_frame, range(count), chunksize=4):
                     records.append(record)
                     progress.advance(task)
@@ -345,7 +386,9 @@ def camera_record(model: CameraModel) -> dict | None:
 def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, records: list[FrameRecord]) -> None:
     """The TUM list files, ground truth, calibration, metadata and per-frame render log of a rendered plan."""
     stamps = [frame_stamp(config.start_time_s + t) for t in plan.frame_times]
-    header = f"# synthetic {plan.scene.preset.name} / {plan.trajectory_name} (seesys synth render, seed {plan.spec.seed})\n"
+    header = (
+        f"# synthetic {plan.scene.preset.name} / {plan.trajectory_name} (seesys synth render, seed {plan.spec.seed})\n"
+    )
     with open(out / "rgb.txt", "w") as f:
         f.write("# color images (8-bit grayscale)\n" + header + "# timestamp filename\n")
         f.writelines(f"{s} rgb/{s}.png\n" for s in stamps)
@@ -357,8 +400,10 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
     positions, rotations = plan.trajectory.interpolate(plan.frame_times)
     quats = rotations.as_quat()
     with open(out / "groundtruth.txt", "w") as f:
-        f.write("# ground truth trajectory T_world_camera (camera = optical frame: x right, y down, z forward)\n"
-                "# world: z up, room centre at the origin, floor z=0\n# timestamp tx ty tz qx qy qz qw\n")
+        f.write(
+            "# ground truth trajectory T_world_camera (camera = optical frame: x right, y down, z forward)\n"
+            "# world: z up, room centre at the origin, floor z=0\n# timestamp tx ty tz qx qy qz qw\n"
+        )
         f.writelines(tum_line(s, p, q, decimals=6) for s, p, q in zip(stamps, positions, quats))
     _write_calibration(out / "calibration.yaml", plan, config)
     metadata = {
@@ -387,7 +432,9 @@ def write_sequence_files(plan: SequencePlan, config: SynthConfig, out: Path, rec
     with open(out / "render_log.csv", "w") as f:
         f.write("timestamp,exposure_ms,light,signal_scale,blur_p99_px,mean_gray\n")
         for s, r in zip(stamps, sorted(records, key=lambda r: r.index)):
-            f.write(f"{s},{r.exposure_ms:.3f},{r.light:.4f},{r.signal_scale:.4f},{r.blur_p99_px:.2f},{r.mean_gray:.2f}\n")
+            f.write(
+                f"{s},{r.exposure_ms:.3f},{r.light:.4f},{r.signal_scale:.4f},{r.blur_p99_px:.2f},{r.mean_gray:.2f}\n"
+            )
 
 
 def _write_calibration(path: Path, plan: SequencePlan, config: SynthConfig) -> None:
@@ -400,7 +447,8 @@ def _write_calibration(path: Path, plan: SequencePlan, config: SynthConfig) -> N
         f"fx: {intr.fx:.6f}\nfy: {intr.fy:.6f}\ncx: {intr.cx:.6f}\ncy: {intr.cy:.6f}\n"
         f"distortion: [{dist}]   # k1 k2 p1 p2 k3\n"
         f"fps: {plan.camera.fps}\n"
-        f"depth_factor: {config.camera.depth_factor}   # depth png value / depth_factor = z-depth in metres; 0 = invalid\n"
+        f"depth_factor: {config.camera.depth_factor}   # depth png value / depth_factor = z-depth in metres; 0 "
+        f"= invalid\n"
         "image_channels: 1              # rgb/*.png are 8-bit grayscale\n"
         f"generator: seesys synth render, seed {plan.spec.seed}\n"
     )

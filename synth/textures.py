@@ -50,8 +50,9 @@ def _draw_shapes(rng: np.random.Generator, tile: np.ndarray, count: int, contras
             cv2.putText(tile, word, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, value, max(1, extent // 25), cv2.LINE_AA)
 
 
-def make_tile(rng: np.random.Generator, size: int, shapes: int, contrast: float, albedo: float,
-              poor: bool) -> np.ndarray:
+def make_tile(
+    rng: np.random.Generator, size: int, shapes: int, contrast: float, albedo: float, poor: bool
+) -> np.ndarray:
     """One albedo tile, float32 in [0, 1], mean near ``albedo``.
 
     A rich tile carries ``shapes`` shapes over layered noise; a poor one is bare paint with ``shapes`` fixtures.
@@ -65,8 +66,12 @@ def make_tile(rng: np.random.Generator, size: int, shapes: int, contrast: float,
             _draw_shapes(rng.spawn(1)[0], canvas, shapes, contrast)
             tile += canvas.astype(np.float32) / 255 - 128 / 255
         return np.clip(tile, 0.0, 1.0).astype(np.float32)
-    base = (0.15 * _value_noise(rng, size, 3) + 0.12 * _value_noise(rng, size, 12)
-            + 0.1 * _value_noise(rng, size, 48) + 0.06 * _value_noise(rng, size, 128))
+    base = (
+        0.15 * _value_noise(rng, size, 3)
+        + 0.12 * _value_noise(rng, size, 12)
+        + 0.1 * _value_noise(rng, size, 48)
+        + 0.06 * _value_noise(rng, size, 128)
+    )
     # OpenCV draws text only on 8-bit images; the shapes are drawn on an 8-bit canvas of the noise.
     canvas = np.clip(255 * (0.5 + contrast * base), 0, 255).astype(np.uint8)
     _draw_shapes(rng, canvas, shapes, contrast)
@@ -97,8 +102,7 @@ class TexturePyramid:
             columns.append(x)
             blocks.append(block)
             x += block.shape[1]
-            current = [cv2.resize(t, (t.shape[1] // 2, t.shape[0] // 2), interpolation=cv2.INTER_AREA)
-                       for t in current]
+            current = [cv2.resize(t, (t.shape[1] // 2, t.shape[0] // 2), interpolation=cv2.INTER_AREA) for t in current]
         atlas = np.zeros((blocks[0].shape[0], x), np.float32)
         for col, block in zip(columns, blocks):
             atlas[: block.shape[0], col : col + block.shape[1]] = block
@@ -110,5 +114,6 @@ class TexturePyramid:
         edge = np.float32(self.size) * scale
         x = np.mod(u * scale, edge) + 1.0 + np.asarray(self.columns, np.float32)[level]
         y = np.mod(v * scale, edge) + 1.0 + tile.astype(np.float32) * (edge + 2.0)
-        return cv2.remap(self.atlas, x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_REPLICATE)
+        return cv2.remap(
+            self.atlas, x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        )

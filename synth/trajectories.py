@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from synth.config import MotionGroupConfig, TrajectoryConfig
 from seesys.core.trajectory import Poses, TrajectoryError
 from seesys.io.trajectory_files import read_euroc_groundtruth, read_tum
+from synth.config import MotionGroupConfig, TrajectoryConfig
 
 MOTION_GROUPS = ("patrol", "aiming", "rapid")
 # Sampling rate of generated motion before it is interpolated to frame and exposure times.
@@ -76,8 +76,9 @@ def look_rotation(forward: np.ndarray) -> Rotation:
     return Rotation.from_matrix(np.stack([right, down, f], axis=2))
 
 
-def place_real(trajectory: Trajectory, room_lo: np.ndarray, room_hi: np.ndarray, config: TrajectoryConfig,
-               rng: np.random.Generator) -> Trajectory:
+def place_real(
+    trajectory: Trajectory, room_lo: np.ndarray, room_hi: np.ndarray, config: TrajectoryConfig, rng: np.random.Generator
+) -> Trajectory:
     """Place a real trajectory in a room: turn it about the vertical to face a random heading, scale it down to
     fit and move it inside the room, clear of the walls.
 
@@ -98,14 +99,20 @@ def place_real(trajectory: Trajectory, room_lo: np.ndarray, room_hi: np.ndarray,
     scaled = centred * scale
     lo, hi = scaled.min(axis=0), scaled.max(axis=0)
     # Anywhere the whole path fits horizontally; the height so that the mean lies in the configured range.
-    offset = np.array([rng.uniform(inner_lo[k] - lo[k], max(inner_hi[k] - hi[k], inner_lo[k] - lo[k]))
-                       for k in range(2)] + [rng.uniform(*config.camera_height_m)])
+    offset = np.array(
+        [rng.uniform(inner_lo[k] - lo[k], max(inner_hi[k] - hi[k], inner_lo[k] - lo[k])) for k in range(2)]
+        + [rng.uniform(*config.camera_height_m)]
+    )
     positions = np.clip(scaled + offset, inner_lo, inner_hi)
     return Trajectory(trajectory.times - trajectory.times[0], positions, place * trajectory.rotations)
 
 
-def smooth_noise(rng: np.random.Generator, t: np.ndarray, band_hz: tuple[float, float], components: int = 4,
-                  ) -> np.ndarray:
+def smooth_noise(
+    rng: np.random.Generator,
+    t: np.ndarray,
+    band_hz: tuple[float, float],
+    components: int = 4,
+) -> np.ndarray:
     """Band-limited noise with unit RMS: a sum of sinusoids at random frequencies in ``band_hz``."""
     freqs = rng.uniform(*band_hz, components)
     phases = rng.uniform(0, 2 * np.pi, components)
@@ -130,8 +137,15 @@ def min_jerk(x: np.ndarray) -> np.ndarray:
     return x**3 * (10 - 15 * x + 6 * x**2)
 
 
-def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, room_hi: np.ndarray,
-                    config: TrajectoryConfig, duration: float, rng: np.random.Generator) -> Trajectory:
+def generate_motion(
+    group: str,
+    motion: MotionGroupConfig,
+    room_lo: np.ndarray,
+    room_hi: np.ndarray,
+    config: TrajectoryConfig,
+    duration: float,
+    rng: np.random.Generator,
+) -> Trajectory:
     """Generated handheld motion of one Table 2 group inside a room.
 
     - ``patrol``: walking round the room on a wobbly loop, looking ahead and out towards the walls, with gait bob.
@@ -139,8 +153,8 @@ def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, 
       small arcs around each spot.
     - ``rapid``: walking with fast turns and waving (RMS wave_deg at wave_hz in real time, in bursts).
 
-    All groups add hand shake (shake_deg, shake_m at shake_hz) and rare sudden turns (jerk_rate_hz, jerk_deg). ``speed_scale`` speeds the whole motion up; it is
-    drawn per sequence in its configured range.
+    All groups add hand shake (shake_deg, shake_m at shake_hz) and rare sudden turns (jerk_rate_hz, jerk_deg).
+    ``speed_scale`` speeds the whole motion up; it is drawn per sequence in its configured range.
     """
     if group not in MOTION_GROUPS:
         raise TrajectoryError(f"unknown motion group {group!r} (expected one of {', '.join(MOTION_GROUPS)})")
@@ -171,18 +185,27 @@ def generate_motion(group: str, motion: MotionGroupConfig, room_lo: np.ndarray, 
     yaw, pitch = yaw + bumps[0], pitch + bumps[1]
     shake_hz = motion.shake_hz
     positions = positions + per_axis * motion.shake_m * np.column_stack(
-        [smooth_noise(rng, t, shake_hz) for _ in range(3)])
+        [smooth_noise(rng, t, shake_hz) for _ in range(3)]
+    )
     forward = np.column_stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
     roll = np.radians(3.0) * smooth_noise(rng, s, (0.1, 0.4), 2)
-    shake = per_axis * np.radians(motion.shake_deg) * np.column_stack(
-        [smooth_noise(rng, t, shake_hz) for _ in range(3)])
+    shake = (
+        per_axis * np.radians(motion.shake_deg) * np.column_stack([smooth_noise(rng, t, shake_hz) for _ in range(3)])
+    )
     shake[:, 2] += roll
     rotations = look_rotation(forward) * Rotation.from_rotvec(shake)
     return Trajectory(t, np.clip(positions, inner_lo, inner_hi), rotations)
 
 
-def _walking(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: np.ndarray, walk: float,
-             yaw_rate: float, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _walking(
+    rng: np.random.Generator,
+    s: np.ndarray,
+    centre: np.ndarray,
+    half: np.ndarray,
+    walk: float,
+    yaw_rate: float,
+    height: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A loop round the room at walking speed, looking ahead and turning towards the walls."""
     radii = half[:2] * rng.uniform(0.6, 0.9, 2)
     mean_radius = float(np.mean(radii))
@@ -202,8 +225,15 @@ def _walking(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: 
     return np.column_stack([x, y, z]), yaw, pitch
 
 
-def _aiming(rng: np.random.Generator, s: np.ndarray, centre: np.ndarray, half: np.ndarray, walk: float,
-            yaw_rate: float, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _aiming(
+    rng: np.random.Generator,
+    s: np.ndarray,
+    centre: np.ndarray,
+    half: np.ndarray,
+    walk: float,
+    yaw_rate: float,
+    height: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Standing spots with small arcs, aiming at wall points; re-aims are minimum-jerk turns."""
     spot = centre[:2] + half[:2] * rng.uniform(-0.6, 0.6, 2)
     arc_radius = rng.uniform(0.05, 0.25)

@@ -6,11 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from testkit.audio import jack, make_sandbox  # noqa: F401 (fixtures offered to every test)
-from testkit.deepsee import single_thread, tiny_dataset, trained_runs  # noqa: F401 (fixtures offered to every test)
-from testkit.ray_cluster import local_ray  # noqa: F401 (a fixture offered to every test)
+from testkit.audio import jack, make_sandbox
+from testkit.deepsee import single_thread, tiny_dataset, trained_runs
+from testkit.ray_cluster import local_ray
 from testkit.sample import SAMPLE, copy_tum_subset
-from testkit.service import setup_factory, tiny_head_model, tiny_model  # noqa: F401 (fixtures)
+from testkit.service import setup_factory, tiny_head_model, tiny_model
 
 
 @pytest.fixture(scope="session")

@@ -45,7 +45,7 @@ class ReferenceLocalMap:
         keep = len(keys) - 1 - first_in_reversed
         keep = keep[seen[keep] > frame_index - self.max_age_frames]
         if len(keep) > self.max_points:
-            keep = keep[np.argsort(seen[keep], kind="stable")[-self.max_points:]]
+            keep = keep[np.argsort(seen[keep], kind="stable")[-self.max_points :]]
         self.keys, self.points, self.last_seen = keys[keep], points[keep], seen[keep]
         self.previous_update, self.latest_update = self.latest_update, frame_index
 

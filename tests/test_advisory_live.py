@@ -55,8 +55,12 @@ def hold(sandbox, status: str, n: int, count: int = 3) -> None:
 
     def started() -> int:
         advisory = sandbox.advisory()
-        wanted = advisory[(advisory.buffer_id > after) & (advisory.status == status) & (advisory.n_pulses == n)
-                          & (advisory.trigger == TICK)]
+        wanted = advisory[
+            (advisory.buffer_id > after)
+            & (advisory.status == status)
+            & (advisory.n_pulses == n)
+            & (advisory.trigger == TICK)
+        ]
         return int(sandbox.playback().buffer_id.isin(wanted.buffer_id).sum())
 
     wait_until(lambda: started() >= count, f"{count} {status} tick buffers with N = {n} played")
@@ -67,8 +71,14 @@ def test_pulses_follow_the_estimate_and_go_silent_when_it_stops(jack, make_sandb
     sandbox = make_sandbox(jack, stale_after_s=0.6, no_information_cue=False)  # Equation 2 alone (cue: below)
     start_both(sandbox)
     with Publisher(sandbox.estimates_endpoint, estimate_message) as pub:
-        for value, status, n in ((0.002, LIVE, 0), (0.006, LIVE, 1), (0.010, LIVE, 2), (0.020, LIVE, 3),
-                                 (None, NO_INFORMATION, 0), (0.006, LIVE, 1)):
+        for value, status, n in (
+            (0.002, LIVE, 0),
+            (0.006, LIVE, 1),
+            (0.010, LIVE, 2),
+            (0.020, LIVE, 3),
+            (None, NO_INFORMATION, 0),
+            (0.006, LIVE, 1),
+        ):
             pub.value = value
             hold(sandbox, status, n)
     sandbox.stop_all()
@@ -88,7 +98,7 @@ def test_pulses_follow_the_estimate_and_go_silent_when_it_stops(jack, make_sandb
     assert live.n_pulses.tolist() == [error_pulses(e, eq, buffer_s) for e in live.input_value]
     assert (advisory[advisory.status == NO_INFORMATION].n_pulses == 0).all()
     changes = list(events[events.event.str.startswith("input")].event)
-    changes = changes[changes.index("input live"):]  # before the first estimate it may already be no_information
+    changes = changes[changes.index("input live") :]  # before the first estimate it may already be no_information
     assert changes == ["input live", "input no_information", "input live"]
     # The player started every buffer it received within a block of the time it was scheduled for.
     late_ms = (playback.dac_mono - playback.play_at_mono) * 1000
@@ -172,7 +182,7 @@ def test_each_process_survives_the_others_restart(jack, make_sandbox):
     # The second player's rows follow the first's; its stream samples count from 0 again.
     restart = np.flatnonzero(np.diff(playback.stream_sample.to_numpy()) < 0) + 1
     assert len(restart) == 1
-    first, second = playback.iloc[:restart[0]], playback.iloc[restart[0]:]
+    first, second = playback.iloc[: restart[0]], playback.iloc[restart[0] :]
     # While the generator was down the player played only what the last buffer of the killed generator holds, then
     # silence (heard() checks each buffer's stretch up to the next one: a buffer played again would show).
     before, after = first[first.time_mono < killed_mono], first[first.time_mono >= killed_mono]
@@ -243,10 +253,11 @@ def test_missing_audio_device_is_a_clear_error_at_start(make_sandbox, tmp_path):
     sandbox = make_sandbox(None, output_device="headphones")
     sandbox.env["XDG_CONFIG_HOME"] = str(tmp_path)
     sandbox.env["JACK_DEFAULT_SERVER"] = "no-such-server"
-    for args in (["player", "--out", str(sandbox.session)], ["run", "--condition", "seesys", "--out",
-                                                            str(sandbox.session)]):
-        result = subprocess.run(advisory_command(*args), env=sandbox.env, capture_output=True, text=True,
-                                timeout=60)
+    for args in (
+        ["player", "--out", str(sandbox.session)],
+        ["run", "--condition", "seesys", "--out", str(sandbox.session)],
+    ):
+        result = subprocess.run(advisory_command(*args), env=sandbox.env, capture_output=True, text=True, timeout=60)
         assert result.returncode == 2, result.stderr
         assert "seesys: error: audio output device 'headphones' not found" in result.stderr
         assert "'default'" in result.stderr and "Traceback" not in result.stderr
@@ -258,8 +269,10 @@ def test_a_jack_server_does_not_outlive_a_killed_parent():
     the pool's names (four leaked servers would leave no name for the next run)."""
     if not JackDummy.available():
         pytest.skip("jackd is not installed")
-    code = ("import time; from advisory.sandbox import JackDummy; server = JackDummy(48000, 256); server.start(); "
-            "print(server.pid, flush=True); time.sleep(120)")
+    code = (
+        "import time; from advisory.sandbox import JackDummy; server = JackDummy(48000, 256); server.start(); "
+        "print(server.pid, flush=True); time.sleep(120)"
+    )
     parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     jackd = int(parent.stdout.readline())
     parent.kill()
@@ -271,4 +284,5 @@ def test_a_jack_server_does_not_outlive_a_killed_parent():
         except ProcessLookupError:
             return True
         return False
+
     wait_for(gone, 30, f"jackd {jackd} to exit after its parent was killed")

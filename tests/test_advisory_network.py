@@ -25,8 +25,13 @@ def replay_and_receive(sandbox, log, sent_log) -> tuple[list[Estimate], str]:
     ctx = zmq.Context()
     sub = subscriber(ctx, sandbox.estimates_endpoint, "test estimates", [ESTIMATE_TOPIC])
     received: list[Estimate] = []
-    replay = subprocess.Popen(advisory_command("replay", "--estimates", str(log), "--sent-log", str(sent_log)),
-                              env=sandbox.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    replay = subprocess.Popen(
+        advisory_command("replay", "--estimates", str(log), "--sent-log", str(sent_log)),
+        env=sandbox.env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     while replay.poll() is None or sub.poll(0):
         if sub.poll(100):
             received.append(decode(sub.recv_multipart()))
@@ -74,9 +79,13 @@ def test_replay_refuses_a_sent_log_it_cannot_write(make_sandbox, tmp_path):
     pd.DataFrame({"timestamp": [0.0, 0.1], "error_m": [0.006, 0.006]}).to_csv(log, index=False)
     blocker = tmp_path / "a-file"
     blocker.write_text("")
-    result = subprocess.run(advisory_command("replay", "--estimates", str(log), "--sent-log",
-                                             str(blocker / "sent.csv")), env=sandbox.env, capture_output=True,
-                            text=True, timeout=60)
+    result = subprocess.run(
+        advisory_command("replay", "--estimates", str(log), "--sent-log", str(blocker / "sent.csv")),
+        env=sandbox.env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode == 2
     assert f"seesys: error: cannot write the log {blocker / 'sent.csv'}" in result.stderr
 
@@ -117,9 +126,13 @@ def test_generator_on_a_taken_hand_off_endpoint_is_a_clear_error(make_sandbox):
     port = taken.bind_to_random_port("tcp://127.0.0.1")
     sandbox = make_sandbox(None, endpoint=f"tcp://127.0.0.1:{port}")
     try:
-        result = subprocess.run(advisory_command("generator", "--condition", "seesys", "--out",
-                                                 str(sandbox.session)), env=sandbox.env, capture_output=True,
-                                text=True, timeout=60)
+        result = subprocess.run(
+            advisory_command("generator", "--condition", "seesys", "--out", str(sandbox.session)),
+            env=sandbox.env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
     finally:
         taken.close()
         ctx.term()
@@ -144,13 +157,15 @@ def test_replay_sends_the_logged_frame_index_and_head(make_sandbox):
     t = np.arange(0, 0.5, 1 / 30)
     frames = 40 + 3 * np.arange(t.size)  # a device's estimates: every third frame, from frame 40
     log, sent_log = sandbox.root / "estimates.csv", sandbox.root / "sent.csv"
-    pd.DataFrame({"frame_index": frames, "timestamp": t + 50.0, "error_m": 0.006, "p_ge_0.004": 0.75,
-                  "p_ge_0.008": 0.25}).to_csv(log, index=False)
+    pd.DataFrame(
+        {"frame_index": frames, "timestamp": t + 50.0, "error_m": 0.006, "p_ge_0.004": 0.75, "p_ge_0.008": 0.25}
+    ).to_csv(log, index=False)
     received, _ = replay_and_receive(sandbox, log, sent_log)
     assert [m.frame_index for m in received] == frames.tolist()
     # the log's head travels with every estimate, each probability with its threshold
     assert {tuple((h.threshold_m, h.probability) for h in m.head) for m in received} == {
-        ((float(np.float32(0.004)), 0.75), (float(np.float32(0.008)), 0.25))}
+        ((float(np.float32(0.004)), 0.75), (float(np.float32(0.008)), 0.25))
+    }
     assert pd.read_csv(sent_log).frame_index.tolist() == frames.tolist()
 
 

@@ -35,7 +35,7 @@ def scheduler(start=0.0):
 def test_ticks_every_third_of_a_second_on_schedule_even_when_woken_late():
     s = scheduler()
     times = []
-    for k in range(6):
+    for _k in range(6):
         d = s.tick(s.next_tick + 0.004)  # the caller wakes 4 ms late
         times.append(d.time)
         waiting = WAITING if d.time <= CFG.timing.stale_after_s else NO_INFORMATION  # no input since the start
@@ -105,8 +105,9 @@ def test_the_no_information_cue_is_two_soft_tones_unlike_a_pulse():
     cue, rate = CFG.no_information, CFG.audio.sample_rate
     samples = synthesise_cue(cue, rate, CFG.timing.buffer_s)
     starts = cue_tones(samples, rate, cue)
-    assert len(starts) == 2 and starts[1] - starts[0] == pytest.approx((cue.cue_tone_s + cue.cue_gap_s) * rate,
-                                                                      abs=0.02 * rate)
+    assert len(starts) == 2 and starts[1] - starts[0] == pytest.approx(
+        (cue.cue_tone_s + cue.cue_gap_s) * rate, abs=0.02 * rate
+    )
     pulses = synthesise(3, CFG.equation2, CFG.audio, CFG.timing.buffer_s)
     assert cue_tones(pulses, rate, cue) == []  # pulses are clicks, never taken for the cue
     assert samples[0] == 0 and np.abs(samples).max() <= cue.cue_level  # faded in, never louder than its level
@@ -133,6 +134,7 @@ def test_rotation_speed_is_rms_of_roll_pitch_yaw_in_degrees_per_second():
     assert speed.update(rotation_frame(1, 1 / PUBLISH_HZ, 120.0)) == pytest.approx(120.0, rel=1e-5)
     rts = rotation_frame(2, 0.1, 0.0).rts.copy()
     from seesys.core import rts_schema
+
     rts[rts_schema.index_of("rel_roll")] = 0.03  # RMS of (0.03, 0, 0) = 0.03/√3 rad over 1/30 s
     got = speed.update(FeatureFrame("test-device", 2, 2 / PUBLISH_HZ, TrackingState.OK, rts))
     assert got == pytest.approx(math.degrees(0.03 / math.sqrt(3)) * PUBLISH_HZ, rel=1e-5)
@@ -181,21 +183,37 @@ def test_render_gives_the_pulses_a_listener_hears(tmp_path):
 @pytest.mark.system
 def test_cli_render_writes_a_wav(tmp_path):
     out = tmp_path / "out.wav"
-    result = subprocess.run([sys.executable, "-m", "seesys", "advisory", "render", "--estimates",
-                             str(steps_log(tmp_path)), "--out", str(out)], capture_output=True, text=True)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "advisory",
+            "render",
+            "--estimates",
+            str(steps_log(tmp_path)),
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert result.returncode == 0, result.stderr
     assert "24 pulses" in result.stdout
     x, rate = read_wav(out)
     assert rate == CFG.audio.sample_rate and len(pulse_onsets(x, rate)) == 24
 
 
-@pytest.mark.parametrize("text, message", [
-    ("time,error\n1,0.1\n", "missing column(s) timestamp, error_m"),
-    ("timestamp,error_m\n", "no estimates"),
-    ("timestamp,error_m\n1,0.1\n2,-0.1\n", "row 3: error_m"),
-    ("timestamp,error_m\n1,0.1\n2,abc\n", "row 3: error_m"),
-    ("timestamp,error_m\n2,0.1\n1,0.1\n", "row 3: timestamps go backwards"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("time,error\n1,0.1\n", "missing column(s) timestamp, error_m"),
+        ("timestamp,error_m\n", "no estimates"),
+        ("timestamp,error_m\n1,0.1\n2,-0.1\n", "row 3: error_m"),
+        ("timestamp,error_m\n1,0.1\n2,abc\n", "row 3: error_m"),
+        ("timestamp,error_m\n2,0.1\n1,0.1\n", "row 3: timestamps go backwards"),
+    ],
+)
 def test_bad_estimate_logs_are_named_errors(tmp_path, text, message):
     path = tmp_path / "bad.csv"
     path.write_text(text)
@@ -206,9 +224,21 @@ def test_bad_estimate_logs_are_named_errors(tmp_path, text, message):
 
 @pytest.mark.system
 def test_missing_estimate_log_is_a_clear_cli_error(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "seesys", "advisory", "render", "--estimates",
-                             str(tmp_path / "nope.csv"), "--out", str(tmp_path / "x.wav")], capture_output=True,
-                            text=True)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "advisory",
+            "render",
+            "--estimates",
+            str(tmp_path / "nope.csv"),
+            "--out",
+            str(tmp_path / "x.wav"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert result.returncode == 2 and "seesys: error: estimate log not found" in result.stderr
 
 
@@ -234,8 +264,12 @@ def test_an_estimate_log_whose_timestamps_collapsed_is_refused_in_one_line(tmp_p
         read_estimate_log(path)
     for command in ("render", "replay"):
         args = ["--out", str(tmp_path / "x.wav")] if command == "render" else []
-        result = subprocess.run([sys.executable, "-m", "seesys", "advisory", command, "--estimates", str(path),
-                                 *args], capture_output=True, text=True, timeout=120)
+        result = subprocess.run(
+            [sys.executable, "-m", "seesys", "advisory", command, "--estimates", str(path), *args],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
         assert "lost their precision" in result.stderr
     # Two rows at one time (a duplicate) are no collapse; the frame index column is read when there is one.
@@ -334,8 +368,9 @@ def test_render_plays_the_heads_class_of_an_estimate_log_with_equation_2s_thresh
     assert {(d.n_pulses, d.pulses_from) for d in live} == {(2, "head")}
     by_estimate = dataclasses.replace(CFG, pulses=dataclasses.replace(CFG.pulses, pulses_from="estimate"))
     other = tmp_path / "other.csv"
-    pd.DataFrame({"timestamp": t, "error_m": 0.006, "p_ge_0.004": 0.97, "p_ge_0.009": 0.7,
-                  "p_ge_0.012": 0.1}).to_csv(other, index=False)
+    pd.DataFrame({"timestamp": t, "error_m": 0.006, "p_ge_0.004": 0.97, "p_ge_0.009": 0.7, "p_ge_0.012": 0.1}).to_csv(
+        other, index=False
+    )
     for rendering in (render_estimates(log, by_estimate), render_estimates(read_estimate_log(other), CFG)):
         assert {(d.n_pulses, d.pulses_from) for d in rendering.decisions if d.status == LIVE} == {(1, "estimate")}
 

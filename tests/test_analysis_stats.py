@@ -22,19 +22,32 @@ def made_up_between(path: Path) -> pd.DataFrame:
     """Ten participants per condition, the errors with unequal spreads (as in the paper's means)."""
     rng = np.random.default_rng(3)
     n = 10
-    table = pd.DataFrame({
-        "participant": [f"P{i + 1:02d}" for i in range(3 * n)], "condition": np.repeat(CONDITIONS, n),
-        "rpe_mean_m": np.concatenate([rng.normal(0.012, 0.003, n), rng.normal(0.010, 0.002, n),
-                                      rng.normal(0.009, 0.001, n)]),
-        "completeness": np.clip(np.concatenate([rng.normal(0.706, 0.12, n), rng.normal(0.873, 0.05, n),
-                                                rng.normal(0.887, 0.05, n)]), 0, 1)})
+    table = pd.DataFrame(
+        {
+            "participant": [f"P{i + 1:02d}" for i in range(3 * n)],
+            "condition": np.repeat(CONDITIONS, n),
+            "rpe_mean_m": np.concatenate(
+                [rng.normal(0.012, 0.003, n), rng.normal(0.010, 0.002, n), rng.normal(0.009, 0.001, n)]
+            ),
+            "completeness": np.clip(
+                np.concatenate([rng.normal(0.706, 0.12, n), rng.normal(0.873, 0.05, n), rng.normal(0.887, 0.05, n)]),
+                0,
+                1,
+            ),
+        }
+    )
     table.to_csv(path, index=False)
     return table
 
 
 def analyze(table_csv: Path, out: Path, design: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "seesys", "analyze", "--table", str(table_csv), "--out", str(out),
-                           "--design", design], capture_output=True, text=True, cwd=REPO, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "seesys", "analyze", "--table", str(table_csv), "--out", str(out), "--design", design],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -70,6 +83,7 @@ def test_descriptives_and_assumptions(between):
         assert (r.ci_low, r.ci_high) == pytest.approx(DescrStatsW(x).tconfint_mean(0.05))
         assert row(checks, variable="rpe_mean_m", group=c).p == pytest.approx(stats.shapiro(x).pvalue)
     import pingouin as pg
+
     levene = pg.homoscedasticity(data, dv="value", group="condition", method="levene")
     assert row(checks, variable="rpe_mean_m", check="Levene (median)").p == pytest.approx(float(levene.pval.iloc[0]))
 
@@ -108,16 +122,18 @@ def test_post_hoc_tests(between):
     games = pg.pairwise_gameshowell(data=data, dv="value", between="condition")
     dunn = sp.posthoc_dunn(data, val_col="value", group_col="condition", p_adjust="holm")
     for i, a in enumerate(CONDITIONS):
-        for j, b in enumerate(CONDITIONS[i + 1:], start=i + 1):
-            assert row(posthoc, variable="rpe_mean_m", method="Tukey HSD", a=a, b=b).p_adj == \
-                pytest.approx(tukey.pvalue[i, j], abs=1e-3)  # statsmodels' and scipy's studentized range tables
-            gh = games[(games.A == a) & (games.B == b)].iloc[0]
+        for j, b in enumerate(CONDITIONS[i + 1 :], start=i + 1):
+            assert row(posthoc, variable="rpe_mean_m", method="Tukey HSD", a=a, b=b).p_adj == pytest.approx(
+                tukey.pvalue[i, j], abs=1e-3
+            )  # statsmodels' and scipy's studentized range tables
+            gh = games[(a == games.A) & (b == games.B)].iloc[0]
             r = row(posthoc, variable="rpe_mean_m", method="Games-Howell", a=a, b=b)
             assert r.p_adj == pytest.approx(gh.pval)
             assert r.hedges_g == pytest.approx(gh.hedges)
             assert r.mean_diff == pytest.approx(groups[a].mean() - groups[b].mean())
-            assert row(posthoc, variable="rpe_mean_m", method="Dunn (Holm)", a=a, b=b).p_adj == \
-                pytest.approx(dunn.loc[a, b])
+            assert row(posthoc, variable="rpe_mean_m", method="Dunn (Holm)", a=a, b=b).p_adj == pytest.approx(
+                dunn.loc[a, b]
+            )
 
 
 @pytest.mark.system
@@ -141,9 +157,18 @@ def test_within_subjects_agrees_with_statsmodels_anovarm(tmp_path):
     rng = np.random.default_rng(5)
     people = [f"P{i + 1:02d}" for i in range(12)]
     base = rng.normal(0.011, 0.002, len(people))
-    table = pd.DataFrame([{"participant": p, "condition": c, "position": k + 1,
-                           "rpe_mean_m": b * (1 - 0.1 * k) + rng.normal(0, 0.0008)}
-                          for p, b in zip(people, base) for k, c in enumerate(CONDITIONS)])
+    table = pd.DataFrame(
+        [
+            {
+                "participant": p,
+                "condition": c,
+                "position": k + 1,
+                "rpe_mean_m": b * (1 - 0.1 * k) + rng.normal(0, 0.0008),
+            }
+            for p, b in zip(people, base)
+            for k, c in enumerate(CONDITIONS)
+        ]
+    )
     table.to_csv(tmp_path / "within.csv", index=False)
     done = analyze(tmp_path / "within.csv", tmp_path / "out", "within")
     assert done.returncode == 0, done.stderr
@@ -154,11 +179,13 @@ def test_within_subjects_agrees_with_statsmodels_anovarm(tmp_path):
     assert (rm.value, rm.p) == pytest.approx((reference["F Value"], reference["Pr > F"]))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fried = stats.friedmanchisquare(*[table.loc[table.condition == c].sort_values("participant").value
-                                          for c in CONDITIONS])
+        fried = stats.friedmanchisquare(
+            *[table.loc[table.condition == c].sort_values("participant").value for c in CONDITIONS]
+        )
     r = row(tests, variable="rpe_mean_m", test="Friedman")
     assert (r.value, r.p) == pytest.approx((fried.statistic, fried.pvalue))
     import statsmodels.formula.api as smf
+
     mixed = smf.mixedlm("value ~ C(condition)", table, groups=table["participant"]).fit(reml=True)
     wald = mixed.wald_test_terms(scalar=True).table.loc["C(condition)"]
     r = row(tests, variable="rpe_mean_m", test="mixed model (random intercept)")

@@ -25,32 +25,52 @@ TRUTH = Path(__file__).parent / "data" / "trajectories" / "freiburg1_xyz-groundt
 NOISE_M = {"none": 0.004, "rotation": 0.002, "seesys": 0.001}
 
 
-def fake_attempt(folder: Path, noise_m: float, rng, status: str = "completed", pid: int = 0,
-                 superseded: bool = False) -> None:
+def fake_attempt(
+    folder: Path, noise_m: float, rng, status: str = "completed", pid: int = 0, superseded: bool = False
+) -> None:
     """A session folder like `seesys study run` leaves: SLAM poses = truth + noise, a lost stretch, logs."""
     truth = read_tum(TRUTH)
     truth = truth.take(truth.timestamps < truth.timestamps[0] + 12)
     folder.mkdir(parents=True)
     write_tum(folder / "groundtruth.tum", truth)
     frames_t = np.arange(truth.timestamps[0] + 0.05, truth.timestamps[-1] - 0.05, 1 / 30)
-    states = np.where((np.arange(len(frames_t)) > 100) & (np.arange(len(frames_t)) < 100 + rng.integers(5, 40)),
-                      "LOST", "OK").astype(object)
+    states = np.where(
+        (np.arange(len(frames_t)) > 100) & (np.arange(len(frames_t)) < 100 + rng.integers(5, 40)), "LOST", "OK"
+    ).astype(object)
     states[:5] = "NOT_INITIALIZED"
-    pd.DataFrame({"frame_index": np.arange(len(frames_t)), "timestamp": frames_t, "state": states,
-                  "tracked_points": 100, "track_ms": 20.0}).to_csv(folder / "frames.csv", index=False)
+    pd.DataFrame(
+        {
+            "frame_index": np.arange(len(frames_t)),
+            "timestamp": frames_t,
+            "state": states,
+            "tracked_points": 100,
+            "track_ms": 20.0,
+        }
+    ).to_csv(folder / "frames.csv", index=False)
     tracked = frames_t[states == "OK"]
     idx = np.searchsorted(truth.timestamps, tracked).clip(0, len(truth) - 1)
     rot = truth.rotations[idx] * Rotation.from_rotvec(rng.normal(0, 0.002, (len(idx), 3)))
-    write_tum(folder / "trajectory.tum", Poses.from_rotations(
-        tracked, truth.positions[idx] + rng.normal(0, noise_m, (len(idx), 3)), rot))
+    write_tum(
+        folder / "trajectory.tum",
+        Poses.from_rotations(tracked, truth.positions[idx] + rng.normal(0, noise_m, (len(idx), 3)), rot),
+    )
     wall = 1.8e9
-    pd.DataFrame({"receipt_time": wall + tracked - tracked[0], "device_id": "d", "frame_index": 0,
-                  "timestamp": tracked, "error_m": noise_m * 2, "model_version": "m"}).to_csv(
-        folder / "estimates.csv", index=False)
+    pd.DataFrame(
+        {
+            "receipt_time": wall + tracked - tracked[0],
+            "device_id": "d",
+            "frame_index": 0,
+            "timestamp": tracked,
+            "error_m": noise_m * 2,
+            "model_version": "m",
+        }
+    ).to_csv(folder / "estimates.csv", index=False)
     pd.DataFrame({"wall_time": wall + np.arange(0, 10, 1 / 3), "n_pulses": rng.integers(0, 3, 30)}).to_csv(
-        folder / "advisory.csv", index=False)
-    (folder / "events.csv").write_text(f"{EVENTS_HEADER}\n{wall + 0.2},initialised,\n{wall + 6.0},object,1\n"
-                                       f"{wall + 9.0},object,2\n{wall + 9.5},no")  # a row cut short by a kill
+        folder / "advisory.csv", index=False
+    )
+    (folder / "events.csv").write_text(
+        f"{EVENTS_HEADER}\n{wall + 0.2},initialised,\n{wall + 6.0},object,1\n{wall + 9.0},object,2\n{wall + 9.5},no"
+    )  # a row cut short by a kill
     (folder / "run.json").write_text(json.dumps({"status": status, "pid": pid, "superseded": superseded}))
 
 
@@ -65,12 +85,13 @@ def study(tmp_path_factory):
         if i == 0:
             continue  # pending: never ran
         if i == 1:  # killed while running (the pid is no process), then resumed
-            fake_attempt(task / "attempt-1", NOISE_M[p.conditions[0]], rng, status="running", pid=2 ** 22 + 7)
+            fake_attempt(task / "attempt-1", NOISE_M[p.conditions[0]], rng, status="running", pid=2**22 + 7)
         if i == 2:  # restarted: the first attempt is kept on disk but superseded
             fake_attempt(task / "attempt-1", 0.5, rng, superseded=True)
         fake_attempt(task / f"attempt-{2 if i in (1, 2) else 1}", NOISE_M[p.conditions[0]], rng)
-    done = subprocess.run([sys.executable, "-m", "seesys", "analyze", str(root)], capture_output=True, text=True,
-                          cwd=REPO, timeout=300)
+    done = subprocess.run(
+        [sys.executable, "-m", "seesys", "analyze", str(root)], capture_output=True, text=True, cwd=REPO, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     return root, protocol
 
@@ -125,8 +146,14 @@ def test_a_study_without_data_leaves_no_analysis_folder(tmp_path):
 def test_one_participant_per_condition_prints_no_nan(tmp_path):
     table = tmp_path / "participants.csv"
     pd.DataFrame({"participant": ["p1", "p2"], "condition": ["none", "seesys"], "rpe_mean_m": [0.02, 0.01]}).to_csv(
-        table, index=False)
-    done = subprocess.run([sys.executable, "-m", "seesys", "analyze", "--table", str(table), "--out",
-                           str(tmp_path / "out")], capture_output=True, text=True, cwd=REPO, timeout=300)
+        table, index=False
+    )
+    done = subprocess.run(
+        [sys.executable, "-m", "seesys", "analyze", "--table", str(table), "--out", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     assert "none 2.00 ± – (n=1)" in done.stdout and "nan" not in done.stdout, done.stdout

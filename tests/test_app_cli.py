@@ -27,22 +27,42 @@ def test_a_session_folder_in_use_is_refused(tmp_path):
     (tmp_path / "earlier.csv").write_text("x\n")
     done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--local", "--condition", "none", "--out", str(tmp_path))
     assert done.returncode == 2
-    assert done.stderr.strip() == (f"seesys: error: {tmp_path} exists and is not an empty folder: give a new folder "
-                                   f"for the session")
+    assert done.stderr.strip() == (
+        f"seesys: error: {tmp_path} exists and is not an empty folder: give a new folder for the session"
+    )
 
 
 @pytest.mark.system
 def test_a_bad_estimator_address_leaves_no_session_folder(tmp_path):
-    done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--estimator", "edge-server", "--condition", "none",
-                      "--out", str(tmp_path / "s"))
+    done = run_seesys(
+        "run",
+        "--source",
+        f"tum:{SAMPLE}",
+        "--estimator",
+        "edge-server",
+        "--condition",
+        "none",
+        "--out",
+        str(tmp_path / "s"),
+    )
     assert done.returncode == 2 and "--estimator wants HOST:PORT" in done.stderr
     assert not (tmp_path / "s").exists()
 
 
 @pytest.mark.system
 def test_local_and_remote_estimator_exclude_each_other(tmp_path):
-    done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--local", "--estimator", "h:1", "--condition", "none",
-                      "--out", str(tmp_path / "s"))
+    done = run_seesys(
+        "run",
+        "--source",
+        f"tum:{SAMPLE}",
+        "--local",
+        "--estimator",
+        "h:1",
+        "--condition",
+        "none",
+        "--out",
+        str(tmp_path / "s"),
+    )
     assert done.returncode == 2 and "not allowed with argument" in done.stderr
 
 
@@ -56,13 +76,24 @@ def test_app_config_is_checked(tmp_path):
 def test_an_unreachable_estimator_fails_the_run_at_start(tmp_path):
     configs = write_config_dir(tmp_path / "configs", {"reach_timeout_s": 2.0})
     out = tmp_path / "s"
-    done = run_seesys("run", "--source", f"tum:{SAMPLE}", "--estimator", "127.0.0.1:1", "--condition", "none",
-                      "--out", str(out), env={**os.environ, CONFIG_DIR_ENV: str(configs)})
+    done = run_seesys(
+        "run",
+        "--source",
+        f"tum:{SAMPLE}",
+        "--estimator",
+        "127.0.0.1:1",
+        "--condition",
+        "none",
+        "--out",
+        str(out),
+        env={**os.environ, CONFIG_DIR_ENV: str(configs)},
+    )
     assert done.returncode == 1, done.stdout + done.stderr
     assert done.stderr.strip().splitlines() == [
         f"seesys: error: the estimator at 127.0.0.1:1 cannot be reached: no ZeroMQ peer answered at "
         f"tcp://127.0.0.1:1 within 2 s (is `seesys estimator serve` running there, its estimates_endpoint bound on "
-        f"an address this device reaches, and Curve set alike on both?) (session {out})"]
+        f"an address this device reaches, and Curve set alike on both?) (session {out})"
+    ]
     events = pd.read_csv(out / "app_events.csv")
     assert "device" not in set(events.part)  # nothing was tracked
     started, failed = (events[events.event == e].wall_time.iloc[0] for e in ("started", "failed"))

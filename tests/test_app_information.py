@@ -61,17 +61,31 @@ def root():
     shutil.rmtree(folder, ignore_errors=True)
 
 
-def start_app(root: Path, stretch: int, restart_delay_s: float | None = None,
-              **overrides: object) -> tuple[subprocess.Popen, Path, Path]:
+def start_app(
+    root: Path, stretch: int, restart_delay_s: float | None = None, **overrides: object
+) -> tuple[subprocess.Popen, Path, Path]:
     if restart_delay_s is not None:  # the app's own (advisory.toml has a key of the same name)
         overrides["app.restart_delay_s"] = restart_delay_s
     config_dir, _ = private_configs(root, endpoint=f"ipc://{root}/handoff", stale_after_ms=60000.0, **overrides)
     out = root / "session"
-    command = [sys.executable, "-m", "seesys", "run", "--source", f"tum:{stretched_sample(root / 'source', stretch)}",
-               "--local", "--condition", "seesys", "--out", str(out), "--wav"]
+    command = [
+        sys.executable,
+        "-m",
+        "seesys",
+        "run",
+        "--source",
+        f"tum:{stretched_sample(root / 'source', stretch)}",
+        "--local",
+        "--condition",
+        "seesys",
+        "--out",
+        str(out),
+        "--wav",
+    ]
     log = (root / "app.log").open("w")
-    app = subprocess.Popen(command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT,
-                           env={**os.environ, CONFIG_DIR_ENV: str(config_dir)})
+    app = subprocess.Popen(
+        command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, CONFIG_DIR_ENV: str(config_dir)}
+    )
     STARTED.append(app)
     return app, out, config_dir
 

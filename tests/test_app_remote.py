@@ -41,17 +41,38 @@ def test_a_remote_estimator_feeds_the_app_in_the_rotation_condition():
         pytest.skip("jackd is not installed (apt package jackd2)")
     root = Path(tempfile.mkdtemp(prefix="sapr", dir="/tmp"))  # ipc paths must stay short
     port = free_port()
-    config_dir, endpoints = private_configs(root, endpoint=f"ipc://{root}/handoff",
-                                            estimates_endpoint=f"tcp://127.0.0.1:{port}", stale_after_ms=60000.0)
+    config_dir, endpoints = private_configs(
+        root, endpoint=f"ipc://{root}/handoff", estimates_endpoint=f"tcp://127.0.0.1:{port}", stale_after_ms=60000.0
+    )
     log = root / "serve.log"
     service = start_service(config_dir, default_model(load_service_config(config_dir), None), log=log)
     try:
         wait_ready(service, endpoints["status"], START_TIMEOUT_S, log)
         out = root / "session"
-        done = subprocess.run([sys.executable, "-m", "seesys", "run", "--source", f"tum:{SAMPLE}", "--estimator",
-                               f"127.0.0.1:{port}", "--condition", "rotation", "--wav", "--max-frames",
-                               str(FRAMES), "--out", str(out)], cwd=REPO, capture_output=True, text=True,
-                              env={**os.environ, "SEESYS_CONFIG_DIR": str(config_dir)}, timeout=600)
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "seesys",
+                "run",
+                "--source",
+                f"tum:{SAMPLE}",
+                "--estimator",
+                f"127.0.0.1:{port}",
+                "--condition",
+                "rotation",
+                "--wav",
+                "--max-frames",
+                str(FRAMES),
+                "--out",
+                str(out),
+            ],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            env={**os.environ, "SEESYS_CONFIG_DIR": str(config_dir)},
+            timeout=600,
+        )
         assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
         summary = json.loads((out / "summary.json").read_text())
         assert summary["status"] == "completed" and summary["frames"] == FRAMES

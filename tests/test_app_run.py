@@ -69,15 +69,17 @@ class Pane:
         self.name = name
         self.tmux = shutil.which("tmux") is not None
         if self.tmux:
-            subprocess.run(["tmux", "new-session", "-d", "-s", name, "-x", str(COLUMNS), "-y", str(ROWS), command],
-                           check=True)
+            subprocess.run(
+                ["tmux", "new-session", "-d", "-s", name, "-x", str(COLUMNS), "-y", str(ROWS), command], check=True
+            )
             subprocess.run(["tmux", "set-option", "-t", name, "remain-on-exit", "on"], check=True)
             self.pid = int(self._tmux("display-message", "-p", "-t", name, "#{pane_pid}"))
             return
         master, slave = pty.openpty()
         fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", ROWS, COLUMNS, 0, 0))
-        self._process = subprocess.Popen(["sh", "-c", command], stdin=slave, stdout=slave, stderr=slave,
-                                         start_new_session=True)
+        self._process = subprocess.Popen(
+            ["sh", "-c", command], stdin=slave, stdout=slave, stderr=slave, start_new_session=True
+        )
         os.close(slave)
         self.pid = self._process.pid
         self._output = bytearray()
@@ -135,10 +137,12 @@ class Pane:
 
     def wait(self, condition, what: str, timeout_s: float = 300.0):
         """wait_for ``condition``, failing at once when the app has ended (with its screen)."""
+
         def check():
             value = condition()
             assert value or not self.dead(), f"the app ended before {what}; the pane:\n{self.text()}"
             return value
+
         return wait_for(check, timeout_s, lambda: f"{what}; the pane:\n{self.text()}")
 
 
@@ -159,14 +163,29 @@ def run():
     if not JackDummy.available():
         pytest.skip("jackd is not installed (apt package jackd2)")
     root = Path(tempfile.mkdtemp(prefix="sapp", dir="/tmp"))  # ipc paths must stay short
-    config_dir, _ = private_configs(root, endpoint=f"ipc://{root}/handoff", stale_after_ms=60000.0,
-                                    depth_correction=CORRECTION, **EQUATION2)
+    config_dir, _ = private_configs(
+        root, endpoint=f"ipc://{root}/handoff", stale_after_ms=60000.0, depth_correction=CORRECTION, **EQUATION2
+    )
     source = stretched_sample(root / "source", STRETCH)
     out = root / "session"
-    command = [sys.executable, "-m", "seesys", "run", "--source", f"tum:{source}", "--local", "--condition",
-               "seesys", "--out", str(out), "--wav"]
-    pane = Pane(f"seesys-app-{os.getpid()}", f"cd {shlex.quote(str(REPO))} && SEESYS_CONFIG_DIR="
-                                             f"{shlex.quote(str(config_dir))} exec {shlex.join(command)}")
+    command = [
+        sys.executable,
+        "-m",
+        "seesys",
+        "run",
+        "--source",
+        f"tum:{source}",
+        "--local",
+        "--condition",
+        "seesys",
+        "--out",
+        str(out),
+        "--wav",
+    ]
+    pane = Pane(
+        f"seesys-app-{os.getpid()}",
+        f"cd {shlex.quote(str(REPO))} && SEESYS_CONFIG_DIR={shlex.quote(str(config_dir))} exec {shlex.join(command)}",
+    )
     app = psutil.Process(pane.pid)
     seen: dict[str, object] = {}
     try:
@@ -200,8 +219,10 @@ def test_the_app_says_at_start_the_camera_scale_error_and_the_cameras_its_model_
     assert manifest["config"]["camera"]["scale"]["depth_correction"] == CORRECTION  # the device applied it
     model = events(out).query("part == 'app' and event == 'model'").detail
     assert len(model) == 1, model
-    assert "deepsee.onnx was trained or fine-tuned on the cameras: d435, d435_unaligned, ideal, kinect_v1;" in \
-        model.iloc[0]
+    assert (
+        "deepsee.onnx was trained or fine-tuned on the cameras: d435, d435_unaligned, ideal, kinect_v1;"
+        in model.iloc[0]
+    )
     assert "seesys estimator finetune --sessions" in model.iloc[0]
 
 
@@ -209,8 +230,26 @@ def test_the_app_says_at_start_the_camera_scale_error_and_the_cameras_its_model_
 def test_the_view_shows_tracking_estimate_pulses_latency_drops_and_sparkline(run):
     _, seen = run
     screen = seen["running"]
-    for field in ("tracking", "OK", "fps", "estimate", " cm", "s ago", "received", "pulses", "end to end", "p50",
-                  "p95", "p99", "drops", "skipped", "lost", "estimator", "up, deepsee", "last seconds"):
+    for field in (
+        "tracking",
+        "OK",
+        "fps",
+        "estimate",
+        " cm",
+        "s ago",
+        "received",
+        "pulses",
+        "end to end",
+        "p50",
+        "p95",
+        "p99",
+        "drops",
+        "skipped",
+        "lost",
+        "estimator",
+        "up, deepsee",
+        "last seconds",
+    ):
         assert field in screen, f"{field!r} not on the screen:\n{screen}"
     assert any(c in screen for c in SPARK), screen
 
@@ -244,8 +283,11 @@ def test_the_device_logged_every_frame(run):
 @pytest.mark.system
 def test_ctrl_c_stops_every_child_and_leaves_the_session(run):
     out, seen = run
-    assert not [pid for pid in seen["children"] if psutil.pid_exists(pid) and
-                psutil.Process(pid).status() != psutil.STATUS_ZOMBIE]
+    assert not [
+        pid
+        for pid in seen["children"]
+        if psutil.pid_exists(pid) and psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    ]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted"
     assert "interrupted" in seen["end"]
@@ -270,31 +312,51 @@ def test_the_wav_plays_equation_2_of_the_logged_estimates_buffer_by_buffer(run):
     # device's, the generator's clock is its own: a small tolerance covers the two receipts of one message.
     tolerance_s = 0.1
     for row in live.itertuples():
-        near = logged[(logged.received_unix > row.wall_time - timing.stale_after_s - tolerance_s)
-                      & (logged.received_unix <= row.wall_time + tolerance_s)]
+        near = logged[
+            (logged.received_unix > row.wall_time - timing.stale_after_s - tolerance_s)
+            & (logged.received_unix <= row.wall_time + tolerance_s)
+        ]
         values = near.error_m.to_numpy()
         means = [values[i:j].mean() for i in range(len(values)) for j in range(i + 1, len(values) + 1)]
         assert any(math.isclose(m, row.input_value, abs_tol=1e-7) for m in means), (row, values)
         assert row.n_pulses == error_pulses(row.input_value, eq, timing.buffer_s)
     # The WAV: every buffer the player started holds exactly its pulses, to the sample.
-    playback = pd.read_csv(out / "playback.csv").merge(buffers[["buffer_id", "n_pulses"]], on="buffer_id",
-                                                       suffixes=("", "_generated"))
+    playback = pd.read_csv(out / "playback.csv").merge(
+        buffers[["buffer_id", "n_pulses"]], on="buffer_id", suffixes=("", "_generated")
+    )
     assert (playback.n_pulses == playback.n_pulses_generated).all()
     samples, rate = read_wav(out / "advisory.wav")
     # Until the first estimate (ORB-SLAM3 initialising, the first window filling) the advisory knows nothing and
     # plays its "no information" cue in some buffers, which hold that cue instead of pulses.
-    whole = pulses_per_buffer(samples, rate, playback.stream_sample, playback.played_pulses, eq,
-                              cues=playback.trigger == "cue")
+    whole = pulses_per_buffer(
+        samples, rate, playback.stream_sample, playback.played_pulses, eq, cues=playback.trigger == "cue"
+    )
     assert sum(whole) > 0
 
 
 @pytest.mark.system
 def test_plain_line_and_sparkline():
-    s = Snapshot(elapsed_s=3.0, frames=90, state="OK", fps=30.0, estimates=5, latest_error_m=0.0042,
-                 estimate_age_s=0.2, pulses=[1, 1, 0], latency_ms=(20.0, 35.0, 40.0), estimator="remote x:1")
+    s = Snapshot(
+        elapsed_s=3.0,
+        frames=90,
+        state="OK",
+        fps=30.0,
+        estimates=5,
+        latest_error_m=0.0042,
+        estimate_age_s=0.2,
+        pulses=[1, 1, 0],
+        latency_ms=(20.0, 35.0, 40.0),
+        estimator="remote x:1",
+    )
     line = plain_line(s)
-    for field in ("frames 90 OK 30.0 fps", "estimate 0.42 cm (0.2 s ago)", "pulses 1 1 0",
-                  "p50 20 / p95 35 / p99 40 ms", "drops skipped 0, lost 0, bad 0, estimator ?", "estimator remote"):
+    for field in (
+        "frames 90 OK 30.0 fps",
+        "estimate 0.42 cm (0.2 s ago)",
+        "pulses 1 1 0",
+        "p50 20 / p95 35 / p99 40 ms",
+        "drops skipped 0, lost 0, bad 0, estimator ?",
+        "estimator remote",
+    ):
         assert field in line, line
     assert sparkline([0.0, 0.006, 0.012, 0.02, math.nan], 0.012) == "▁▅██▁"
     assert np.isnan(Snapshot().fps)

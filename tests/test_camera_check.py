@@ -31,8 +31,9 @@ def test_a_trajectory_scaled_by_1_plus_s_gives_a_depth_scale_error_of_s_whatever
     truth = walk(400, 0.01)
     s = 0.07
     moved = Rotation.from_euler("xyz", [0.3, -1.0, 2.0])
-    estimate = Poses(truth.timestamps, moved.apply(truth.positions * (1 + s)) + [5.0, -2.0, 1.0],
-                     truth.quaternions_xyzw)
+    estimate = Poses(
+        truth.timestamps, moved.apply(truth.positions * (1 + s)) + [5.0, -2.0, 1.0], truth.quaternions_xyzw
+    )
     tracked = np.ones(400, bool)
     tracked[200:215] = False  # a loss: no window spans it
     fit = window_scales(estimate, tracked, truth, 0.01, SETTINGS)
@@ -69,10 +70,12 @@ def test_a_monocular_session_is_refused_with_the_reason(tmp_path):
     (tmp_path / "session.json").write_text(json.dumps({"mode": "mono"}))
     with pytest.raises(ScaleCheckError, match="monocular SLAM has no metric scale"):
         session_scale(tmp_path, SETTINGS, 0.05)
-    assert sessions_scale_line([tmp_path], SETTINGS, 0.05).endswith("not measured "
-                                                                    f"({tmp_path}: a mono session; monocular SLAM "
-                                                                    "has no metric scale, so the camera's scale is "
-                                                                    "measured on RGB-D sessions)")
+    assert sessions_scale_line([tmp_path], SETTINGS, 0.05).endswith(
+        "not measured "
+        f"({tmp_path}: a mono session; monocular SLAM "
+        "has no metric scale, so the camera's scale is "
+        "measured on RGB-D sessions)"
+    )
 
 
 @pytest.mark.slam
@@ -99,7 +102,8 @@ def test_a_7_percent_depth_scale_error_is_found_within_1_percent_and_the_suggest
     # What finetune prints of its sessions: fine-tuning cannot learn a scale error.
     assert sessions_scale_line([first], load_scale_settings(), 0.05) == (
         f"camera scale against the ground truth: {describe(measured.fit)}; no model can see a depth scale error: "
-        "correct it (seesys camera check)")
+        "correct it (seesys camera check)"
+    )
 
     # The device applies the correction from camera.toml, records it, and the trajectory is metric again.
     config = write_config_dir(tmp_path / "configs", {"depth_correction": round(correction, 4)})

@@ -48,7 +48,9 @@ def test_bad_draws_are_refused_by_name(tmp_path):
         plan_from_config(load_dataset_config(), synth, TEMPLATE, ["lab"], ["patrol"], [0], cameras=["kinect_v9"])
     # Camera normalisation puts every camera's PSD on the reference camera's grid: sizes may mix.
     assert plan_from_config(load_dataset_config(), synth, TEMPLATE, cameras=["ideal", "phone"]).cameras.models == (
-        "ideal", "phone")
+        "ideal",
+        "phone",
+    )
 
 
 def test_the_plan_renders_each_sequence_through_its_drawn_camera_and_again_when_it_was_seen_through_another(tmp_path):
@@ -65,8 +67,9 @@ def test_the_plan_renders_each_sequence_through_its_drawn_camera_and_again_when_
     folder.mkdir()
     preset = seen.preset("lab")
     model = seen.camera_model(preset.camera_model)
-    (folder / "metadata.json").write_text(json.dumps({"preset": preset_record(preset, model),
-                                                      "camera_model": camera_record(model)}))
+    (folder / "metadata.json").write_text(
+        json.dumps({"preset": preset_record(preset, model), "camera_model": camera_record(model)})
+    )
     todo, skipped = plan_batch(TEMPLATE, ["lab"], ["patrol", "aiming", "rapid"], [0], synth, tmp_path, draw)
     assert skipped == [folder] and len(todo) == 2
     other = "ideal" if drawn[spec.motion] == "d435" else "d435"
@@ -88,9 +91,17 @@ def test_evaluation_judges_each_held_out_camera_as_a_set_of_its_own():
     from estimator.deepsee.data import Windows
     from estimator.deepsee.evaluate import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, _sets, heldout_camera_set
 
-    meta = pd.DataFrame({"run": list("abcdef"), "environment": ["lab", "lab", "hall", "hall", "lab", "hall"],
-                         "camera_model": ["ideal", "kinect_v1", "ideal", "kinect_v1", "d435", "d435"]})
+    meta = pd.DataFrame(
+        {
+            "run": list("abcdef"),
+            "environment": ["lab", "lab", "hall", "hall", "lab", "hall"],
+            "camera_model": ["ideal", "kinect_v1", "ideal", "kinect_v1", "d435", "d435"],
+        }
+    )
     windows = Windows(np.zeros((6, 30, 19), np.float32), np.zeros((6, 4, 8, 8, 3), np.uint8), np.arange(6.0), meta)
     sets = _sets(windows, ["hall"], ["kinect_v1"])
     assert {name: list(data.meta.run) for name, data in sets.items()} == {
-        TEST_TRAJECTORIES: ["a", "e"], HELDOUT_ENVIRONMENTS: ["c", "f"], heldout_camera_set("kinect_v1"): ["b", "d"]}
+        TEST_TRAJECTORIES: ["a", "e"],
+        HELDOUT_ENVIRONMENTS: ["c", "f"],
+        heldout_camera_set("kinect_v1"): ["b", "d"],
+    }

@@ -39,8 +39,7 @@ def test_the_reference_camera_is_the_ideal_camera_and_maps_to_itself():
     wide = CameraNormalisation(REFERENCE, WIDE)
     assert not wide.identity and wide.pixel_ratio == 2.0 and wide.resampled_size() == (640, 360)
     # A direction seen at (u, v) by the wide camera is seen by the reference camera at its own pixel.
-    assert np.allclose(wide.reference_px(np.array([[639.5, 359.5], [1279.5, 719.5]])), [[319.5, 239.5],
-                                                                                          [639.5, 419.5]])
+    assert np.allclose(wide.reference_px(np.array([[639.5, 359.5], [1279.5, 719.5]])), [[319.5, 239.5], [639.5, 419.5]])
 
 
 def _scene(seed: int) -> np.ndarray:
@@ -57,7 +56,7 @@ def _render(scene: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     fine cells it covers, as a sensor integrates its footprint."""
     block = round(FINE * REFERENCE.fx / intrinsics.fx)
     top = round((REFERENCE.cy + 0.5 - (intrinsics.cy + 0.5) * REFERENCE.fy / intrinsics.fy) * FINE)
-    view = scene[top:top + intrinsics.height * block, :intrinsics.width * block]
+    view = scene[top : top + intrinsics.height * block, : intrinsics.width * block]
     means = view.reshape(intrinsics.height, block, intrinsics.width, block).mean(axis=(1, 3))
     return np.rint(means).astype(np.uint8)
 
@@ -80,8 +79,9 @@ def _extract(intrinsics: Intrinsics, gray: np.ndarray, points: np.ndarray, offse
     keypoint ``offset_ref_px`` reference pixels right of its point's projection."""
     keypoints = _project(intrinsics, points) + (offset_ref_px * intrinsics.fx / REFERENCE.fx, 0.0)
     pose = np.eye(4)
-    item = MonitorInput(Frame(0, 0.0, gray, intrinsics), TrackingState.OK, pose, pose, pose, len(points), keypoints,
-                        points, False, 0)
+    item = MonitorInput(
+        Frame(0, 0.0, gray, intrinsics), TrackingState.OK, pose, pose, pose, len(points), keypoints, points, False, 0
+    )
     return FeatureExtractor(CONFIG).extract(item)
 
 
@@ -127,10 +127,15 @@ def test_the_reference_camera_gives_the_inputs_it_gave_before_camera_normalisati
     laplacian = stream_resolution(np.float32([image_features(gray).laplacian]))[0]  # the monitor's row's resolution
     assert got.rts[rts_schema.index_of("laplacian")] == laplacian
     keypoints = _project(SMALL, points) + (0.7, 0.0)
-    before = build_psd(PsdGeometry(640, 480, CONFIG.psd.patch_px, CONFIG.psd.expansion), keypoints=keypoints,
-                       responses=keypoint_responses(gray, keypoints), inliers=np.ones(len(points), bool),
-                       map_points_uv=_project(SMALL, points), map_points_depth=points[:, 2],
-                       near_depth=CONFIG.psd.near_depth)
+    before = build_psd(
+        PsdGeometry(640, 480, CONFIG.psd.patch_px, CONFIG.psd.expansion),
+        keypoints=keypoints,
+        responses=keypoint_responses(gray, keypoints),
+        inliers=np.ones(len(points), bool),
+        map_points_uv=_project(SMALL, points),
+        map_points_depth=points[:, 2],
+        near_depth=CONFIG.psd.near_depth,
+    )
     assert np.array_equal(got.psd, before)
     assert got.settings is None  # settings travel from the device's configs, not the extractor's
 

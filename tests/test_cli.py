@@ -9,8 +9,12 @@ from seesys_app import cli
 
 # The commands a user finds in `seesys --help`, and the part that provides each.
 EXPECTED_COMMANDS = {
-    "track": "slam_monitor", "vocab": "slam_monitor", "monitor": "slam_monitor",
-    "synth": "synth", "dataset": "estimator", "estimator": "estimator",
+    "track": "slam_monitor",
+    "vocab": "slam_monitor",
+    "monitor": "slam_monitor",
+    "synth": "synth",
+    "dataset": "estimator",
+    "estimator": "estimator",
     "advisory": "advisory",
     "study": "study",
     "analyze": "analysis",
@@ -72,8 +76,11 @@ def test_each_command_has_help(name, capsys):
 @pytest.mark.system
 def test_a_user_error_is_one_line_with_status_2(tmp_path):
     missing = tmp_path / "nope"
-    out = subprocess.run([sys.executable, "-m", "seesys", "track", "--source", f"tum:{missing}", "--out",
-                          str(tmp_path / "s")], capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "seesys", "track", "--source", f"tum:{missing}", "--out", str(tmp_path / "s")],
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 2
     assert out.stderr.strip().count("\n") == 0 and out.stderr.startswith("seesys: error: ")
     assert str(missing) in out.stderr
@@ -85,17 +92,21 @@ def test_an_unknown_command_is_a_usage_error():
     assert out.returncode == 2 and "invalid choice: 'frobnicate'" in out.stderr
 
 
-@pytest.mark.parametrize("flags, pace, wait_for_mapping", [
-    ([], None, None),  # slam.toml decides
-    (["--pace"], True, None),  # at camera rate, waiting for mapping where slam.toml says so (offline runs)
-    (["--no-pace"], False, None),
-    (["--real-time"], True, False),  # as a live camera: camera rate, never waiting for mapping
-])
+@pytest.mark.parametrize(
+    "flags, pace, wait_for_mapping",
+    [
+        ([], None, None),  # slam.toml decides
+        (["--pace"], True, None),  # at camera rate, waiting for mapping where slam.toml says so (offline runs)
+        (["--no-pace"], False, None),
+        (["--real-time"], True, False),  # as a live camera: camera rate, never waiting for mapping
+    ],
+)
 def test_pacing_flags_of_a_device_session(flags, pace, wait_for_mapping, tmp_path):
     from slam_monitor.tracking_commands import session_options_from_args
 
-    args = cli.build_parser().parse_args(["monitor", "run", "--source", "tum:data/sample", "--out", str(tmp_path),
-                                          *flags])
+    args = cli.build_parser().parse_args(
+        ["monitor", "run", "--source", "tum:data/sample", "--out", str(tmp_path), *flags]
+    )
     options = session_options_from_args(args)
     assert (options.pace, options.wait_for_mapping) == (pace, wait_for_mapping)
 

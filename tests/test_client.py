@@ -33,8 +33,13 @@ def test_the_client_yields_typed_records_with_equation2_classes_and_skips_what_i
     try:
         with EstimateClient(DEVICE, endpoint=endpoint, stream_session=5) as client:
             # a PUB drops what it sends before the subscription arrives: send until the first record comes through
-            wait_for(lambda: pub.send_multipart(messages.encode(Estimate(DEVICE, 1, 10.0, 0.001, "m1", 2.0, 5)))
-                     or client.receive(0.05), what="the first estimate")
+            wait_for(
+                lambda: (
+                    pub.send_multipart(messages.encode(Estimate(DEVICE, 1, 10.0, 0.001, "m1", 2.0, 5)))
+                    or client.receive(0.05)
+                ),
+                what="the first estimate",
+            )
             pub.send_multipart([messages.topic(messages.ESTIMATE_TOPIC, DEVICE), b"garbage"])
             pub.send_multipart(messages.encode(Estimate("other-device", 5, 10.1, 0.5, "m1", 2.0, 5)))
             pub.send_multipart(messages.encode(Estimate(DEVICE, 6, 10.1, 0.5, "m1", 2.0, 6)))  # another stream session
@@ -74,9 +79,15 @@ def test_the_anchor_placer_defers_while_the_class_is_high_and_survives_a_service
         # Equation 2 with thresholds between the sample's estimates: class 0 below the middle, 3 from it up.
         threshold = (errors[len(errors) // 2 - 1] + errors[len(errors) // 2]) / 2
         low = sum(e < threshold for e in errors)
-        configs = write_config_dir(tmp_path / "example-configs", {
-            "estimates_endpoint": setup.endpoints["estimates"], "alpha_m": threshold / 2, "beta_m": threshold,
-            "pulses_per_metre": 1 / threshold})
+        configs = write_config_dir(
+            tmp_path / "example-configs",
+            {
+                "estimates_endpoint": setup.endpoints["estimates"],
+                "alpha_m": threshold / 2,
+                "beta_m": threshold,
+                "pulses_per_metre": 1 / threshold,
+            },
+        )
         service.stop(signal.SIGKILL)
 
         # The example starts while no service runs, and must get its estimates from the restarted one. It wants
@@ -84,11 +95,25 @@ def test_the_anchor_placer_defers_while_the_class_is_high_and_survives_a_service
         output = tmp_path / "example.out"
         with open(output, "w") as out:
             example = subprocess.Popen(
-                [sys.executable, str(REPO / "examples" / "anchor_placer.py"), "--device", DEVICE,
-                 "--anchors", str(low + 1), "--max-age-s", "60"],
-                env={**os.environ, CONFIG_DIR_ENV: str(configs)}, stdout=out, stderr=subprocess.STDOUT, cwd=tmp_path)
-        wait_for(lambda: any("listening" in line for line in lines(output)) or example.poll() is not None,
-                 what="the example to start")
+                [
+                    sys.executable,
+                    str(REPO / "examples" / "anchor_placer.py"),
+                    "--device",
+                    DEVICE,
+                    "--anchors",
+                    str(low + 1),
+                    "--max-age-s",
+                    "60",
+                ],
+                env={**os.environ, CONFIG_DIR_ENV: str(configs)},
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                cwd=tmp_path,
+            )
+        wait_for(
+            lambda: any("listening" in line for line in lines(output)) or example.poll() is not None,
+            what="the example to start",
+        )
         service = ServiceProcess(setup, model)
         service.wait_ready()
         n = len(frames)
@@ -111,7 +136,9 @@ def test_the_anchor_placer_defers_while_the_class_is_high_and_survives_a_service
         frame, error_class = int(words[1]), int(words[6])
         expected_class = 3 if served[frame] >= threshold else 0
         assert error_class == expected_class, line
-        assert action == ("deferred" if error_class >= 2 else f"placed anchor {sum(a != 'deferred' for a in actions) + 1}")
+        assert action == (
+            "deferred" if error_class >= 2 else f"placed anchor {sum(a != 'deferred' for a in actions) + 1}"
+        )
         actions.append(action)
     # it reacted to the class going down: a placement right after a deferral
     assert any(a == "deferred" and b.startswith("placed") for a, b in zip(actions, actions[1:])), printed

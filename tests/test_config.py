@@ -104,10 +104,12 @@ def test_an_override_key_must_exist_and_name_one_file(tmp_path):
 def test_a_typed_change_for_a_child_is_written_whole_and_read_back_unchanged_elsewhere(tmp_path):
     advisory, monitor = load_advisory_config(), load_monitor_config()
     changed = replace(advisory, timing=replace(advisory.timing, listen_to_device="lab-pc:tum:office"))
-    folder = (ConfigSet.read()
-              .replaced(advisory_config.SECTION, changed)
-              .replaced(monitor_config.SECTION, replace(monitor, device_id="lab-pc:tum:office"))
-              .write(tmp_path / "configs"))
+    folder = (
+        ConfigSet.read()
+        .replaced(advisory_config.SECTION, changed)
+        .replaced(monitor_config.SECTION, replace(monitor, device_id="lab-pc:tum:office"))
+        .write(tmp_path / "configs")
+    )
     assert load_advisory_config(folder) == changed
     # The monitor's settings carry the shared windows of windows.toml, which monitor.toml must not hold.
     assert load_monitor_config(folder) == replace(monitor, device_id="lab-pc:tum:office")

@@ -63,13 +63,15 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def _builder(root: Path, config_dir: Path | None = None) -> DatasetBuilder:
-    return DatasetBuilder(root, load_dataset_config(), load_synth_config(), load_label_config(), load_window_config(),
-                          config_dir)
+    return DatasetBuilder(
+        root, load_dataset_config(), load_synth_config(), load_label_config(), load_window_config(), config_dir
+    )
 
 
 def _plan(environments: list[str], modes: list[str] | None = None):
-    return plan_from_config(load_dataset_config(), load_synth_config(), TEMPLATE, environments, ["patrol"], [0],
-                            modes or ["rgbd"], 1)
+    return plan_from_config(
+        load_dataset_config(), load_synth_config(), TEMPLATE, environments, ["patrol"], [0], modes or ["rgbd"], 1
+    )
 
 
 @pytest.fixture(scope="module")
@@ -99,8 +101,10 @@ def test_build_stores_every_run_with_windows_and_labels(tiny):
         assert json.loads((folder / "run.json").read_text())["format_version"] == FORMAT_VERSION
         assert info.environment in ENVIRONMENTS and info.motion_group == "patrol" and info.mode == "rgbd"
         # Through the camera the default draw gives its sequence (configs/dataset.toml [cameras]).
-        assert info.camera_model == load_dataset_config().cameras.cameras(0, info.environment,
-                                                                           load_synth_config())["patrol"]
+        assert (
+            info.camera_model
+            == load_dataset_config().cameras.cameras(0, info.environment, load_synth_config())["patrol"]
+        )
         assert len(frames) == info.frames == FRAMES
         assert info.seconds >= info.slam_seconds > 0
         # RGB-D runs are paced by the camera rate only (wait_for_mapping_modes = ["mono"]).
@@ -124,8 +128,11 @@ def test_build_stores_every_run_with_windows_and_labels(tiny):
         # The RTS rows of a window are the monitor's rows of frames t-29 … t, its PSDs those of t-30 … t.
         rts_csv = pd.read_csv(session / "rts.csv")
         end = int(samples.frame_index.iloc[-1])
-        np.testing.assert_allclose(rts[rts_rows[-1]], rts_csv[list(rts_schema.CHANNEL_NAMES)].to_numpy(np.float32)[end - 29:end + 1],
-                                   equal_nan=True)
+        np.testing.assert_allclose(
+            rts[rts_rows[-1]],
+            rts_csv[list(rts_schema.CHANNEL_NAMES)].to_numpy(np.float32)[end - 29 : end + 1],
+            equal_nan=True,
+        )
         assert np.load(folder / PSD_FRAMES_NPY)[psd_rows[-1]].tolist() == [end - 30, end - 20, end - 10, end]
 
 
@@ -137,8 +144,9 @@ def test_reader_gives_the_windows_the_assembler_gives(tiny):
     reader = DatasetReader(root)
     run = reader.index.run.iloc[0]
     windows = dataclasses.replace(load_window_config(), end_stride=1)
-    assembled = {w.frame_index: w for w in assemble_windows(read_feature_frames(root / SESSIONS_DIR / run, run),
-                                                            windows)}
+    assembled = {
+        w.frame_index: w for w in assemble_windows(read_feature_frames(root / SESSIONS_DIR / run, run), windows)
+    }
     rows = np.flatnonzero(reader.index.run == run)
     assert sorted(assembled) == reader.index.frame_index.iloc[rows].tolist()
     for i in rows[::7]:
@@ -226,8 +234,9 @@ def test_a_retuned_preset_renders_and_runs_its_sequences_again(tiny, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(root, copy)
     synth = load_synth_config()
-    retuned = dataclasses.replace(synth, presets=[dataclasses.replace(p, albedo=0.3) if p.name == "lab" else p
-                                                  for p in synth.presets])
+    retuned = dataclasses.replace(
+        synth, presets=[dataclasses.replace(p, albedo=0.3) if p.name == "lab" else p for p in synth.presets]
+    )
     builder = DatasetBuilder(copy, load_dataset_config(), retuned, load_label_config(), load_window_config())
     result = builder.build(_plan(ENVIRONMENTS))
     assert result.rendered_frames == FRAMES and [r.run for r in result.runs_done] == ["lab__patrol__s0__rgbd__t0"]
@@ -240,8 +249,12 @@ def test_failed_run_is_recorded_and_skipped(tiny, tmp_path):
     configs = tmp_path / "configs"
     shutil.copytree(REPO / "configs", configs)
     slam = configs / "slam.toml"
-    slam.write_text(slam.read_text().replace('vocabulary = "data/vocabulary/seesys_sample_k10L4.txt"',
-                                             f'vocabulary = "{tmp_path / "missing_vocabulary.txt"}"'))
+    slam.write_text(
+        slam.read_text().replace(
+            'vocabulary = "data/vocabulary/seesys_sample_k10L4.txt"',
+            f'vocabulary = "{tmp_path / "missing_vocabulary.txt"}"',
+        )
+    )
     copy = tmp_path / "copy"
     shutil.copytree(root, copy)
     result = _builder(copy, configs).build(_plan(ENVIRONMENTS[:1], modes=["mono"]))
@@ -297,7 +310,9 @@ def test_dataset_config_rejects_an_unknown_slam_mode(tmp_path):
     configs = tmp_path / "configs"
     shutil.copytree(REPO / "configs", configs)
     path = configs / "dataset.toml"
-    path.write_text(path.read_text().replace('wait_for_mapping_modes = ["mono"]', 'wait_for_mapping_modes = ["monocular"]'))
+    path.write_text(
+        path.read_text().replace('wait_for_mapping_modes = ["mono"]', 'wait_for_mapping_modes = ["monocular"]')
+    )
     with pytest.raises(ConfigError, match="unknown SLAM mode.*monocular"):
         load_dataset_config(configs)
 
@@ -370,7 +385,9 @@ def test_a_held_out_camera_is_test_data_only_and_recorded(tmp_path):
     leaky.train.append(sorted(kinect)[0])
     with pytest.raises(SplitError, match="held-out camera kinect is in train"):
         check_no_leak(splits, runs)
-    with pytest.raises(SplitError, match=r"held-out camera models not in the data: d435 \(the data has ideal, kinect\)"):
+    with pytest.raises(
+        SplitError, match=r"held-out camera models not in the data: d435 \(the data has ideal, kinect\)"
+    ):
         make_splits(runs, SplitConfig(rounds=3, seed=3, heldout_environments=(), heldout_cameras=("d435",)))
 
 
@@ -403,8 +420,9 @@ def test_report_writes_figures_against_targets(tiny, tmp_path):
 def test_feature_correlations_find_a_monotone_feature():
     rng = np.random.default_rng(0)
     errors = rng.lognormal(-5, 1, 400)
-    features = pd.DataFrame({"follows": np.log(errors) + rng.normal(0, 0.3, 400), "noise": rng.normal(size=400),
-                             "constant": np.ones(400)})
+    features = pd.DataFrame(
+        {"follows": np.log(errors) + rng.normal(0, 0.3, 400), "noise": rng.normal(size=400), "constant": np.ones(400)}
+    )
     table = feature_correlations(features, errors, 30)
     assert table.feature.iloc[0] == "follows" and table.spearman_rho.iloc[0] > 0.9
     assert "constant" not in set(table.feature)
@@ -451,20 +469,28 @@ def test_sample_is_rendered_as_a_small_tum_folder(tmp_path):
     assert len(frames) == 4 and frames[0].depth is not None and frames[0].gray.shape == (480, 640)
 
 
-@pytest.mark.parametrize("modes, recorded, refused", [
-    ({"mono"}, "old", "mono_alignment 'sim3-sliding-window' (here 'sim3-per-stretch')"),
-    ({"mono"}, "here", None),
-    ({"rgbd"}, "old", None),  # the RGB-D label did not change with the monocular alignment
-    ({"rgbd"}, "other delta", "delta_frames 20 (here 10)"),
-])
+@pytest.mark.parametrize(
+    "modes, recorded, refused",
+    [
+        ({"mono"}, "old", "mono_alignment 'sim3-sliding-window' (here 'sim3-per-stretch')"),
+        ({"mono"}, "here", None),
+        ({"rgbd"}, "old", None),  # the RGB-D label did not change with the monocular alignment
+        ({"rgbd"}, "other delta", "delta_frames 20 (here 10)"),
+    ],
+)
 def test_a_dataset_labelled_under_another_definition_is_refused_for_its_modes(tmp_path, modes, recorded, refused):
     """A folder built before the monocular label became per stretch records the sliding window's settings and no
     alignment: its monocular runs must not train a model that records today's definition."""
     here = label_definition(load_label_config())
-    old = {k: v for k, v in here.items() if k != "mono_alignment"} | {"mono_scale_window_frames": 90,
-                                                                      "min_alignment_frames": 30}
-    labels = {"old": old, "here": here,
-              "other delta": label_definition(dataclasses.replace(load_label_config(), delta_frames=20))}[recorded]
+    old = {k: v for k, v in here.items() if k != "mono_alignment"} | {
+        "mono_scale_window_frames": 90,
+        "min_alignment_frames": 30,
+    }
+    labels = {
+        "old": old,
+        "here": here,
+        "other delta": label_definition(dataclasses.replace(load_label_config(), delta_frames=20)),
+    }[recorded]
     (tmp_path / DATASET_JSON).write_text(json.dumps({"labels": labels}))
     if refused is None:
         check_label_definition(tmp_path, modes)

@@ -33,8 +33,9 @@ def test_augmentation_changes_only_camera_dependent_inputs_within_bounds():
     config = load_estimator_config().augmentation
     rts, psd = _batch()
     out_rts, out_psd = Augmenter(config)(rts, psd, _gen(1))
-    changed = {rts_schema.CHANNEL_NAMES[i] for i in range(rts.shape[-1])
-               if not torch.equal(out_rts[..., i], rts[..., i])}
+    changed = {
+        rts_schema.CHANNEL_NAMES[i] for i in range(rts.shape[-1]) if not torch.equal(out_rts[..., i], rts[..., i])
+    }
     assert changed == {"brightness", "contrast", "entropy", "laplacian", *COUNT_CHANNELS}
     assert torch.equal(out_rts[:, :5], rts[:, :5])  # missing rows stay zero
     i = rts_schema.index_of("contrast")

@@ -39,13 +39,16 @@ def _pulses(**equation2) -> PulseSettings:
     return dataclasses.replace(pulses, equation2=dataclasses.replace(pulses.equation2, **equation2))
 
 
-@pytest.mark.parametrize("settings, expected", [
-    ({}, BOUNDS),
-    ({"alpha_m": 0.002}, BOUNDS),  # floor(250 * e) is still 0 below 4 mm
-    ({"alpha_m": 0.005}, (0.005, 0.008, 0.012)),
-    ({"beta_m": 0.010}, (0.004, 0.008, 0.010)),
-    ({"pulses_per_metre": 300.0}, (0.004, 0.006666667, 0.01)),  # 2 / 300 rounded up to the 1 nm resolution
-])
+@pytest.mark.parametrize(
+    "settings, expected",
+    [
+        ({}, BOUNDS),
+        ({"alpha_m": 0.002}, BOUNDS),  # floor(250 * e) is still 0 below 4 mm
+        ({"alpha_m": 0.005}, (0.005, 0.008, 0.012)),
+        ({"beta_m": 0.010}, (0.004, 0.008, 0.010)),
+        ({"pulses_per_metre": 300.0}, (0.004, 0.006666667, 0.01)),  # 2 / 300 rounded up to the 1 nm resolution
+    ],
+)
 def test_class_boundaries_are_where_equation_2_adds_a_pulse(settings, expected):
     pulses = _pulses(**settings)
     bounds = class_boundaries_m(pulses)
@@ -57,15 +60,20 @@ def test_class_boundaries_are_where_equation_2_adds_a_pulse(settings, expected):
 
 def test_the_head_class_counts_the_exceeded_thresholds_and_thresholds_match_in_float32():
     assert list(head_class(np.array([[0.2, 0.1, 0.0], [0.5, 0.4, 0.1], [0.9, 0.7, 0.5], [1.0, 0.6, 0.49]]))) == [
-        0, 1, 3, 2]
+        0,
+        1,
+        3,
+        2,
+    ]
     assert same_thresholds(np.float32(BOUNDS).tolist(), BOUNDS)
     assert not same_thresholds((0.004, 0.008), BOUNDS) and not same_thresholds((0.004, 0.009, 0.012), BOUNDS)
 
 
 def _tiny_model(thresholds=BOUNDS, seed=0) -> DeepSEE:
     torch.manual_seed(seed)
-    shape = InputShape(load_window_config().rts_length, rts_schema.NUM_CHANNELS, load_window_config().psd_samples,
-                       *PSD_SHAPE)
+    shape = InputShape(
+        load_window_config().rts_length, rts_schema.NUM_CHANNELS, load_window_config().psd_samples, *PSD_SHAPE
+    )
     return DeepSEE(tiny_config().model, shape, thresholds_m=thresholds).eval()
 
 
@@ -100,8 +108,10 @@ def test_thresholds_follow_the_config_and_a_model_without_a_head_stays_one(tmp_p
 
 def _inputs(model: DeepSEE, batch: int):
     g = torch.Generator().manual_seed(3)
-    return (torch.randn(batch, model.shape.rts_length, model.shape.channels, generator=g),
-            torch.randint(0, 256, (batch, model.shape.psd_samples, *PSD_SHAPE, 3), dtype=torch.uint8, generator=g))
+    return (
+        torch.randn(batch, model.shape.rts_length, model.shape.channels, generator=g),
+        torch.randint(0, 256, (batch, model.shape.psd_samples, *PSD_SHAPE, 3), dtype=torch.uint8, generator=g),
+    )
 
 
 @pytest.mark.system

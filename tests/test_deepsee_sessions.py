@@ -24,8 +24,11 @@ def test_tiny_dataset_has_a_sample_for_every_labelled_frame(tiny_dataset):
     parts = split_windows([tiny_dataset.root], read_splits(tiny_dataset.splits, [tiny_dataset.root]), 0)
     assert {p: len(w) > 100 for p, w in parts.items()} == {"train": True, "validation": True, "test": True}
     shape = parts["train"].input_shape()
-    assert (shape.rts_length, shape.channels, shape.psd_height, shape.psd_width) == (30, rts_schema.NUM_CHANNELS,
-                                                                             *PSD_SHAPE)
+    assert (shape.rts_length, shape.channels, shape.psd_height, shape.psd_width) == (
+        30,
+        rts_schema.NUM_CHANNELS,
+        *PSD_SHAPE,
+    )
     assert np.isfinite(parts["train"].rts).all() and np.abs(parts["train"].rts).max() < 20
 
 

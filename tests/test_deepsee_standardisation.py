@@ -46,13 +46,21 @@ def test_finetune_refits_the_camera_statistics_and_stores_them_in_the_model_and_
     """Sessions of another camera (1.6x the contrast, 2.56x the Laplacian variance of the training sessions): the
     fine-tuned model keeps the base's reference, carries the camera's statistics refitted (unlike the base's), and
     reads the camera's channels back at the reference's level."""
-    sessions = [write_session(tmp_path / "cam" / f"s{k}", seed=300 + k, frames=150, camera_gain=1.6)
-                for k in range(2)]
+    sessions = [write_session(tmp_path / "cam" / f"s{k}", seed=300 + k, frames=150, camera_gain=1.6) for k in range(2)]
     base = trained_runs / "round_0" / "deepsee" / "model.pt"
     base_standardisation = payload_standardisation(load_model(base, TRANSFORM)[1], str(base))
     with Progress(disable=True) as progress:
-        result = finetune(base, sessions, tmp_path / "cam.pt", tmp_path / "cam_run", tiny_config(),
-                          load_window_config(), torch.device("cpu"), progress, {})
+        result = finetune(
+            base,
+            sessions,
+            tmp_path / "cam.pt",
+            tmp_path / "cam_run",
+            tiny_config(),
+            load_window_config(),
+            torch.device("cpu"),
+            progress,
+            {},
+        )
     model, payload = load_model(result.model, TRANSFORM)
     refitted = payload_standardisation(payload, str(result.model))
     assert refitted.channels == CHANNELS and refitted.reference == base_standardisation.reference
@@ -72,12 +80,19 @@ def test_finetune_refits_the_camera_statistics_and_stores_them_in_the_model_and_
         column = rts_schema.index_of(name)
         assert abs(np.median(rows[:, column]) - refitted.reference.median[k]) < 0.1 * refitted.reference.iqr[k]
     # The export carries the same values, and the served model applies them.
-    exported = export_onnx(model, tmp_path / "cam.onnx", load_window_config(), TRANSFORM, payload["compatibility"],
-                           standardisation=refitted)
+    exported = export_onnx(
+        model,
+        tmp_path / "cam.onnx",
+        load_window_config(),
+        TRANSFORM,
+        payload["compatibility"],
+        standardisation=refitted,
+    )
     served = OnnxModel(exported, TRANSFORM)
     assert served.standardisation == refitted
-    np.testing.assert_array_equal(served.standardised(windows[0].rts), refitted.apply(windows[0].rts,
-                                                                                      rts_schema.CHANNEL_NAMES))
+    np.testing.assert_array_equal(
+        served.standardised(windows[0].rts), refitted.apply(windows[0].rts, rts_schema.CHANNEL_NAMES)
+    )
 
 
 def test_the_shipped_model_records_its_training_datas_statistics_in_both_files():
@@ -100,23 +115,34 @@ def test_a_malformed_record_is_refused_in_one_line():
     from estimator.artefact.standardisation import StandardisationError
 
     with pytest.raises(StandardisationError, match=r"^m\.onnx: malformed input standardisation record \(.*\)$"):
-        InputStandardisation.from_record({"channels": ["contrast"], "reference": {"median": [1, 2], "iqr": [1]},
-                                          "camera": None}, "m.onnx")
+        InputStandardisation.from_record(
+            {"channels": ["contrast"], "reference": {"median": [1, 2], "iqr": [1]}, "camera": None}, "m.onnx"
+        )
 
 
 @pytest.mark.system
-def test_the_learning_curve_fine_tunes_each_budget_from_the_base_and_judges_it_on_held_out_sessions(trained_runs,
-                                                                                                     tmp_path):
+def test_the_learning_curve_fine_tunes_each_budget_from_the_base_and_judges_it_on_held_out_sessions(
+    trained_runs, tmp_path
+):
     """A smoke test on tiny sessions (5 s each): budgets of 3 and 6 seconds, the base as 0 minutes."""
     from estimator.deepsee.finetune import CURVE_COLUMNS, learning_curve
     from seesys.io.core_settings import load_pulse_settings
 
-    sessions = [write_session(tmp_path / "cam" / f"s{k}", seed=400 + k, frames=150, camera_gain=1.6)
-                for k in range(3)]
+    sessions = [write_session(tmp_path / "cam" / f"s{k}", seed=400 + k, frames=150, camera_gain=1.6) for k in range(3)]
     base = trained_runs / "round_0" / "deepsee" / "model.pt"
     with Progress(disable=True) as progress:
-        table = learning_curve(base, sessions[:2], sessions[2:], [0.1, 0.05], tmp_path / "curve", tiny_config(),
-                               load_window_config(), torch.device("cpu"), progress, load_pulse_settings())
+        table = learning_curve(
+            base,
+            sessions[:2],
+            sessions[2:],
+            [0.1, 0.05],
+            tmp_path / "curve",
+            tiny_config(),
+            load_window_config(),
+            torch.device("cpu"),
+            progress,
+            load_pulse_settings(),
+        )
     assert list(table.columns) == list(CURVE_COLUMNS) and list(table.minutes) == [0.0, 0.05, 0.1]
     assert table.train_windows.iloc[0] == 0 and 0 < table.train_windows.iloc[1] < table.train_windows.iloc[2]
     assert table[["agreement", "median_ratio"]].notna().all().all()

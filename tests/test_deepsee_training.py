@@ -85,8 +85,10 @@ def test_resume_skips_finished_stages_and_gives_the_same_model(trained, tiny_dat
     transform = LabelTransform(tiny_config().label_transform.k)
     first, _ = load_model(model_path, transform)
     test = _data(tiny_dataset)["test"]
-    np.testing.assert_allclose(predict(first, test, 64, torch.device("cpu")),
-                               predict(load_model(model_path, transform)[0], test, 64, torch.device("cpu")))
+    np.testing.assert_allclose(
+        predict(first, test, 64, torch.device("cpu")),
+        predict(load_model(model_path, transform)[0], test, 64, torch.device("cpu")),
+    )
 
 
 @pytest.mark.system
@@ -115,13 +117,16 @@ def test_an_interrupted_stage_resumes_from_its_last_epoch(trained, tiny_dataset,
     with Progress(disable=True) as progress:
         train_row(copy, row("deepsee"), _data(tiny_dataset), _context(progress))
     resumed = pd.read_csv(copy / METRICS_CSV)
-    np.testing.assert_allclose(resumed[resumed.stage == "d_finetune"].train_loss,
-                               metrics[metrics.stage == "d_finetune"].train_loss, rtol=1e-4)
+    np.testing.assert_allclose(
+        resumed[resumed.stage == "d_finetune"].train_loss, metrics[metrics.stage == "d_finetune"].train_loss, rtol=1e-4
+    )
     transform = LabelTransform(tiny_config().label_transform.k)
     test = _data(tiny_dataset)["test"]
-    np.testing.assert_allclose(predict(load_model(copy / MODEL_PT, transform)[0], test, 64, torch.device("cpu")),
-                               predict(load_model(model_path, transform)[0], test, 64, torch.device("cpu")),
-                               atol=1e-4)
+    np.testing.assert_allclose(
+        predict(load_model(copy / MODEL_PT, transform)[0], test, 64, torch.device("cpu")),
+        predict(load_model(model_path, transform)[0], test, 64, torch.device("cpu")),
+        atol=1e-4,
+    )
 
 
 @pytest.mark.system
@@ -154,8 +159,9 @@ def test_checkpoint_reload_gives_identical_outputs(tiny_dataset, tmp_path):
         path = save_model(tmp_path / "m.pt", model, load_window_config(), LabelTransform(10000.0), {"note": "test"})
         again, payload = load_model(path, LabelTransform(10000.0))
         assert again.variant == variant and payload["training"] == {"note": "test"}
-        np.testing.assert_array_equal(predict(model, test, 64, torch.device("cpu")),
-                                      predict(again, test, 64, torch.device("cpu")))
+        np.testing.assert_array_equal(
+            predict(model, test, 64, torch.device("cpu")), predict(again, test, 64, torch.device("cpu"))
+        )
 
 
 @pytest.mark.system
@@ -253,10 +259,15 @@ def test_augmentation_reaches_every_training_stage(tmp_path, monkeypatch):
     monkeypatch.setattr(stages, "Augmenter", Recording)
     with Progress(disable=True) as progress:
         ctx = _context(progress)
-        train_row(tmp_path / "run", row("deepsee"), {"train": _random_windows(1, 48),
-                                                      "validation": _random_windows(2, 16)}, ctx)
-    assert {"_psd_ssl.<locals>.step", "_rts_ssl.<locals>.step", "_cached_encodings",
-            "supervised.<locals>.step"} <= set(callers), set(callers)
+        train_row(
+            tmp_path / "run",
+            row("deepsee"),
+            {"train": _random_windows(1, 48), "validation": _random_windows(2, 16)},
+            ctx,
+        )
+    assert {"_psd_ssl.<locals>.step", "_rts_ssl.<locals>.step", "_cached_encodings", "supervised.<locals>.step"} <= set(
+        callers
+    ), set(callers)
     views = ctx.config.augmentation.frozen_stage_views
     cached = np.load(tmp_path / "run" / "state" / "cache_train_rts.npy")
     assert views > 1 and cached.shape[:2] == (views, 48)

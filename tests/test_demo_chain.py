@@ -12,8 +12,9 @@ from testkit.sample import SAMPLE, run_seesys
 @pytest.mark.system
 def test_session_labels_feed_the_advisory_renderer(tmp_path):
     session_dir = tmp_path / "session"
-    done = run_seesys("monitor", "run", "--source", f"tum:{SAMPLE}", "--mode", "rgbd", "--out", str(session_dir),
-                      "--max-frames", "60")
+    done = run_seesys(
+        "monitor", "run", "--source", f"tum:{SAMPLE}", "--mode", "rgbd", "--out", str(session_dir), "--max-frames", "60"
+    )
     assert done.returncode == 0, done.stderr
 
     every = tmp_path / "labels.csv"
@@ -27,8 +28,7 @@ def test_session_labels_feed_the_advisory_renderer(tmp_path):
     assert f"{len(labelled)} of 60 frames labelled" in done.stdout
 
     estimates = tmp_path / "estimates.csv"
-    assert run_seesys("dataset", "label", str(session_dir), "--out", str(estimates),
-                      "--labelled-only").returncode == 0
+    assert run_seesys("dataset", "label", str(session_dir), "--out", str(estimates), "--labelled-only").returncode == 0
     pd.testing.assert_frame_equal(pd.read_csv(estimates), labelled.reset_index(drop=True))
 
     wav = tmp_path / "preview.wav"

@@ -38,8 +38,12 @@ def renders(tmp_path_factory) -> dict[str, list[DepthFeatures]]:
     ideal = synth.camera_model("ideal")
     d435 = dataclasses.asdict(synth.camera_model("d435"))
     del d435["name"]
-    cameras = {"ideal": {}, "noise": {"depth_noise_m_per_m2": NOISE}, "misregistered": {"depth_misregistration_px": SHIFT},
-               "d435": d435}
+    cameras = {
+        "ideal": {},
+        "noise": {"depth_noise_m_per_m2": NOISE},
+        "misregistered": {"depth_misregistration_px": SHIFT},
+        "d435": d435,
+    }
     spec = SequenceSpec("office", "patrol", 5, frames=FRAMES, width=WIDTH, height=HEIGHT)
     lens = synth.camera.scaled(WIDTH, HEIGHT).lens
     depth_cfg = load_monitor_config().depth
@@ -50,11 +54,17 @@ def renders(tmp_path_factory) -> dict[str, list[DepthFeatures]]:
         render_sequence(spec, config, folder, processes=1, show_progress=False)
         quality, previous = DepthQuality(depth_cfg), None
         out[name] = []
-        for d, g, pose in zip(sorted((folder / "depth").glob("*.png")), sorted((folder / "rgb").glob("*.png")),
-                              read_tum(folder / "groundtruth.txt").matrices):
+        for d, g, pose in zip(
+            sorted((folder / "depth").glob("*.png")),
+            sorted((folder / "rgb").glob("*.png")),
+            read_tum(folder / "groundtruth.txt").matrices,
+        ):
             moved = np.linalg.inv(previous) @ pose if previous is not None else None
-            out[name].append(quality.frame(_depth(d, synth.camera.depth_factor),
-                                           cv2.imread(str(g), cv2.IMREAD_UNCHANGED), lens, moved))
+            out[name].append(
+                quality.frame(
+                    _depth(d, synth.camera.depth_factor), cv2.imread(str(g), cv2.IMREAD_UNCHANGED), lens, moved
+                )
+            )
             previous = pose
     return out
 
@@ -95,7 +105,7 @@ def _box(shift_px: int = 0) -> tuple[np.ndarray, np.ndarray]:
     the gray one's."""
     depth = np.full((HEIGHT, WIDTH), 3.0, np.float32)
     gray = np.full((HEIGHT, WIDTH), 50, np.uint8)
-    depth[60:180, 80 + shift_px:240 + shift_px] = 1.5
+    depth[60:180, 80 + shift_px : 240 + shift_px] = 1.5
     gray[60:180, 80:240] = 200
     return depth, gray
 
@@ -145,7 +155,7 @@ def _slanted_plane(noise: float, rng: np.random.Generator) -> np.ndarray:
 def test_noise_over_z_squared_is_the_same_at_every_distance():
     rng = np.random.default_rng(3)
     depth = _slanted_plane(NOISE, rng)
-    near, far = depth[:, : WIDTH // 3], depth[:, -WIDTH // 3:]
+    near, far = depth[:, : WIDTH // 3], depth[:, -WIDTH // 3 :]
     assert near.mean() < 2.2 < 3.0 < far.mean()
     for part in (near, far):
         assert noise_over_z2(1.0 / part[4::8, 4::8], 0.1) == pytest.approx(NOISE, rel=0.1)

@@ -24,8 +24,10 @@ from study.sessions import advice_thresholds, participant_advice, participant_me
 TRUTH = Path(__file__).parent / "data" / "trajectories" / "freiburg1_xyz-groundtruth.txt"
 FRAMES = 600  # 20 s at 30 Hz
 LOST = slice(300, 330)  # a loss through LOST: the second stretch is a new map, at another scale and origin
-WORLDS = [Rotation.from_euler("zyx", [40, -10, 5], degrees=True), Rotation.from_euler("zyx", [-70, 20, 3],
-                                                                                          degrees=True)]
+WORLDS = [
+    Rotation.from_euler("zyx", [40, -10, 5], degrees=True),
+    Rotation.from_euler("zyx", [-70, 20, 3], degrees=True),
+]
 OFFSETS = [np.array([2.0, -1.0, 0.5]), np.array([-3.0, 0.5, 1.0])]
 
 
@@ -40,8 +42,9 @@ def _session(folder: Path, monocular: bool) -> None:
     nearest = 50 + 3 * np.arange(FRAMES)
     times = truth.timestamps[nearest]
     rng = np.random.default_rng(7)
-    scale = np.where(np.arange(FRAMES) < LOST.start, np.linspace(0.5, 0.8, FRAMES), 0.3) if monocular \
-        else np.ones(FRAMES)
+    scale = (
+        np.where(np.arange(FRAMES) < LOST.start, np.linspace(0.5, 0.8, FRAMES), 0.3) if monocular else np.ones(FRAMES)
+    )
     second = np.arange(FRAMES) >= LOST.stop
     centre = truth.positions.mean(axis=0)
     positions = np.empty((FRAMES, 3))
@@ -62,8 +65,12 @@ def _session(folder: Path, monocular: bool) -> None:
     (folder / "session.json").write_text(json.dumps({"mode": "mono" if monocular else "rgbd"}))
     (folder / "run.json").write_text(json.dumps({"status": "completed"}))
     # Advisory buffers every 1/3 s on the camera's clock (no estimate log: one clock), warning at random.
-    pd.DataFrame({"wall_time": times[0] + np.arange(0, times[-1] - times[0], 1 / 3),
-                  "played_pulses": rng.integers(0, 2, int(np.ceil((times[-1] - times[0]) * 3)))}).to_csv(folder / "advisory.csv", index=False)
+    pd.DataFrame(
+        {
+            "wall_time": times[0] + np.arange(0, times[-1] - times[0], 1 / 3),
+            "played_pulses": rng.integers(0, 2, int(np.ceil((times[-1] - times[0]) * 3))),
+        }
+    ).to_csv(folder / "advisory.csv", index=False)
 
 
 def _evo_by_hand(folder: Path, stretch: slice, monocular: bool, delta: int, max_dt: float) -> np.ndarray:
@@ -81,8 +88,16 @@ def _evo_by_hand(folder: Path, stretch: slice, monocular: bool, delta: int, max_
     frames = pd.read_csv(folder / session_layout.FRAMES_CSV).timestamp.to_numpy()[stretch]
     est.reduce_to_ids(np.flatnonzero((est.timestamps >= frames[0]) & (est.timestamps <= frames[-1])))
     ref, est = sync.associate_trajectories(ref, est, max_diff=max_dt)
-    return rpe(ref, est, PoseRelation.translation_part, delta=delta, delta_unit=Unit.frames, all_pairs=True,
-               align=True, correct_scale=monocular).np_arrays["error_array"]
+    return rpe(
+        ref,
+        est,
+        PoseRelation.translation_part,
+        delta=delta,
+        delta_unit=Unit.frames,
+        all_pairs=True,
+        align=True,
+        correct_scale=monocular,
+    ).np_arrays["error_array"]
 
 
 @pytest.mark.parametrize("monocular", [True, False])
@@ -97,8 +112,12 @@ def test_the_label_the_study_metrics_and_the_advice_analysis_use_one_error(tmp_p
     assert labelled.sum() == FRAMES - len(range(*LOST.indices(FRAMES))) - 2 * label_cfg.delta_frames
 
     # evo by hand on each tracked stretch.
-    by_hand = np.concatenate([_evo_by_hand(folder, part, monocular, cfg.delta_frames, cfg.association_max_dt_s)
-                              for part in (slice(0, LOST.start), slice(LOST.stop, FRAMES))])
+    by_hand = np.concatenate(
+        [
+            _evo_by_hand(folder, part, monocular, cfg.delta_frames, cfg.association_max_dt_s)
+            for part in (slice(0, LOST.start), slice(LOST.stop, FRAMES))
+        ]
+    )
     np.testing.assert_allclose(labels.error_m[labelled], by_hand, rtol=1e-9, atol=1e-12)
 
     # The study's tracking error: the same pairs, at the same end frames.
@@ -111,8 +130,15 @@ def test_the_label_the_study_metrics_and_the_advice_analysis_use_one_error(tmp_p
     # The advice analysis judges the advisory against the labels: the same false alarms and misses.
     thresholds = advice_thresholds()
     advisory = pd.read_csv(folder / "advisory.csv")
-    from_labels = advice_outcome(advisory, labels.timestamps[labelled], labels.error_m[labelled], 0.0,
-                                 thresholds.window_s, thresholds.alpha_m, cfg.advice_high_error_m)
+    from_labels = advice_outcome(
+        advisory,
+        labels.timestamps[labelled],
+        labels.error_m[labelled],
+        0.0,
+        thresholds.window_s,
+        thresholds.alpha_m,
+        cfg.advice_high_error_m,
+    )
     judged = participant_advice(attempts, cfg, thresholds)
     assert judged["false_alarm_rate"] == from_labels.false_alarm_rate
     assert judged["miss_rate"] == (from_labels.miss_rate if monocular else pytest.approx(np.nan, nan_ok=True))
@@ -120,6 +146,6 @@ def test_the_label_the_study_metrics_and_the_advice_analysis_use_one_error(tmp_p
         # The drift within the first stretch is error: large enough for misses to be counted, and the first
         # stretch's pairs (drifting scale) far above the second's (constant scale, noise only).
         assert from_labels.high > 0 and from_labels.low > 0
-        first = labels.error_m[:LOST.start][labelled[:LOST.start]]
-        second = labels.error_m[LOST.stop:][labelled[LOST.stop:]]
+        first = labels.error_m[: LOST.start][labelled[: LOST.start]]
+        second = labels.error_m[LOST.stop :][labelled[LOST.stop :]]
         assert np.median(first) > 2 * np.median(second)

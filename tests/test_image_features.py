@@ -80,11 +80,11 @@ def test_keypoint_response_is_mean_absolute_circle_difference():
 
 def test_keypoint_response_on_constructed_corners():
     img = np.zeros((30, 30), dtype=np.uint8)
-    img[10, 10] = 200                      # an isolated bright dot: every circle pixel differs by 200
-    img[20:, 20:] = 120                    # a quadrant: its corner pixel sees 120 on the 9 circle pixels outside
+    img[10, 10] = 200  # an isolated bright dot: every circle pixel differs by 200
+    img[20:, 20:] = 120  # a quadrant: its corner pixel sees 120 on the 9 circle pixels outside
     r = keypoint_responses(img, np.array([[10, 10], [5, 25], [20, 20]]))
     assert r[0] == pytest.approx(200.0)
-    assert r[1] == 0.0                     # flat region
+    assert r[1] == 0.0  # flat region
     outside = sum(1 for dx, dy in _circle_offsets() if dx < 0 or dy < 0)
     assert r[2] == pytest.approx(120.0 * outside / 16)
 

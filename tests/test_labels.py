@@ -40,16 +40,20 @@ def ground_truth() -> Poses:
 
 def _moved(series: Poses, rotation: Rotation, translation: np.ndarray, scale: float = 1.0) -> Poses:
     """The same trajectory in another world frame (and, for monocular, another scale)."""
-    return Poses(series.timestamps.copy(), scale * rotation.apply(series.positions) + translation,
-                      (rotation * Rotation.from_quat(series.quaternions_xyzw)).as_quat())
+    return Poses(
+        series.timestamps.copy(),
+        scale * rotation.apply(series.positions) + translation,
+        (rotation * Rotation.from_quat(series.quaternions_xyzw)).as_quat(),
+    )
 
 
 def _evo_rpe(ground_truth: Poses, estimate: Poses, delta: int, sim3: bool) -> tuple[np.ndarray, np.ndarray]:
     """evo's RPE (translation part, all pairs) after evo's SE(3) or Sim(3) alignment: (end ids, errors)."""
     gt, est = ground_truth.to_evo(), copy.deepcopy(estimate.to_evo())
     est.align(gt, correct_scale=sim3)
-    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=delta, delta_unit=metrics.Unit.frames,
-                      all_pairs=True)
+    rpe = metrics.RPE(
+        metrics.PoseRelation.translation_part, delta=delta, delta_unit=metrics.Unit.frames, all_pairs=True
+    )
     rpe.process_data((gt, est))
     return np.asarray(rpe.delta_ids), np.asarray(rpe.error)
 
@@ -85,8 +89,9 @@ def test_random_perturbation_matches_evo_rpe_and_its_known_spread(ground_truth, 
     known √2·√3·2 mm (two independent noisy ends of each pair)."""
     rng = np.random.default_rng(3)
     sigma = 0.002
-    noisy = Poses(ground_truth.timestamps, ground_truth.positions + rng.normal(0, sigma, (600, 3)),
-                       ground_truth.quaternions_xyzw)
+    noisy = Poses(
+        ground_truth.timestamps, ground_truth.positions + rng.normal(0, sigma, (600, 3)), ground_truth.quaternions_xyzw
+    )
     estimate = _moved(noisy, WORLD, OFFSET)
     labels = label_frames(estimate, np.full(600, OK), ground_truth, monocular=False, config=config)
     ids, errors = _evo_rpe(ground_truth, estimate, config.delta_frames, sim3=False)
@@ -101,13 +106,14 @@ def test_monocular_labels_remove_the_unknown_scale(ground_truth, config):
     Sim(3)-aligned RPE, and an exact scaled copy gives zero error and the inverse scale."""
     exact = _moved(ground_truth, WORLD, OFFSET, scale=0.37)
     labels = label_frames(exact, np.full(600, OK), ground_truth, monocular=True, config=config)
-    assert labels.labelled[config.delta_frames:].all()
+    assert labels.labelled[config.delta_frames :].all()
     np.testing.assert_allclose(labels.error_m[labels.labelled], 0.0, atol=1e-9)
     np.testing.assert_allclose(labels.scale[labels.labelled], 1 / 0.37, rtol=1e-9)
 
     rng = np.random.default_rng(4)
-    noisy = Poses(ground_truth.timestamps, ground_truth.positions + rng.normal(0, 0.001, (600, 3)),
-                       ground_truth.quaternions_xyzw)
+    noisy = Poses(
+        ground_truth.timestamps, ground_truth.positions + rng.normal(0, 0.001, (600, 3)), ground_truth.quaternions_xyzw
+    )
     estimate = _moved(noisy, WORLD, OFFSET, scale=0.37)
     labels = label_frames(estimate, np.full(600, OK), ground_truth, monocular=True, config=config)
     ids, errors = _evo_rpe(ground_truth, estimate, config.delta_frames, sim3=True)
@@ -121,8 +127,11 @@ def test_monocular_scale_drift_within_a_stretch_is_labelled(ground_truth, config
     drift = np.linspace(0.5, 0.8, 600)
     drift[330:] = 0.3
     centre = ground_truth.positions.mean(axis=0)
-    drifting = Poses(ground_truth.timestamps, centre + (ground_truth.positions - centre) * drift[:, None],
-                     ground_truth.quaternions_xyzw)
+    drifting = Poses(
+        ground_truth.timestamps,
+        centre + (ground_truth.positions - centre) * drift[:, None],
+        ground_truth.quaternions_xyzw,
+    )
     estimate = _moved(drifting, WORLD, OFFSET)
     states = np.full(600, OK)
     states[300:330] = LOST
@@ -157,15 +166,14 @@ def test_association_tolerance(ground_truth, config):
     shifted = Poses(ground_truth.timestamps + 0.03, ground_truth.positions, ground_truth.quaternions_xyzw)
     keep = np.ones(600, bool)
     keep[400:415] = False
-    gappy = Poses(ground_truth.timestamps[keep], ground_truth.positions[keep],
-                       ground_truth.quaternions_xyzw[keep])
+    gappy = Poses(ground_truth.timestamps[keep], ground_truth.positions[keep], ground_truth.quaternions_xyzw[keep])
     labels = label_frames(shifted, np.full(600, OK), gappy, monocular=False, config=config)
     # Frame k (at t_k + 0.03) is paired with the truth at t_(k+1), 3 ms away; next to the gap, frame 399 falls
     # back on t_399 (30 ms) and frame 413 reaches t_415 (37 ms); frames 400-412 have nothing within 50 ms.
-    assert labels.labelled[config.delta_frames:400].all()
+    assert labels.labelled[config.delta_frames : 400].all()
     assert (labels.status[400:413] == LabelStatus.NO_GROUND_TRUTH.value).all()
     assert (labels.status[413 : 413 + config.delta_frames] == LabelStatus.WARMUP.value).all()
-    assert labels.labelled[413 + config.delta_frames:].all()
+    assert labels.labelled[413 + config.delta_frames :].all()
 
 
 def test_summary_and_bad_input(ground_truth, config):

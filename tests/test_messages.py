@@ -66,10 +66,10 @@ def test_malformed_messages_raise_message_error(mangle, message):
 def test_wrong_channel_count_and_bad_values_are_rejected():
     topic, body = encode(feature())
     head = 4 + 1 + 1 + 8 + 16 + 2 + 4 + 4  # a feature frame's body holds no device id: its topic does
-    wrong = body[:head] + struct.pack("<bH", 2, 3) + body[head + 3:]
+    wrong = body[:head] + struct.pack("<bH", 2, 3) + body[head + 3 :]
     with pytest.raises(MessageError, match="channels"):
         decode([topic, wrong])
-    bad_state = body[:head] + struct.pack("<b", 9) + body[head + 1:]
+    bad_state = body[:head] + struct.pack("<b", 9) + body[head + 1 :]
     with pytest.raises(MessageError, match="tracking state"):
         decode([topic, bad_state])
     t, b = encode(Estimate("d", 1, 1.0, 0.01, "m"))
@@ -83,20 +83,25 @@ def test_psd_that_lies_about_its_shape_is_rejected():
     psd = np.ones((4, 4, 3), np.uint8)
     topic, body = encode(feature(psd))
     i = body.index(struct.pack("<HHH", 4, 4, 3))
-    lying = body[:i] + struct.pack("<HHH", 5, 4, 3) + body[i + 6:]
+    lying = body[:i] + struct.pack("<HHH", 5, 4, 3) + body[i + 6 :]
     with pytest.raises(MessageError, match="PSD"):
         decode([topic, lying])
 
 
 def test_frames_of_another_rts_schema_are_refused_by_name():
     frame = feature()
-    for other in (dataclasses.replace(frame, rts_schema_version=rts_schema.SCHEMA_VERSION + 1),
-                  dataclasses.replace(frame, rts_schema_fingerprint=rts_schema.FINGERPRINT ^ 1)):
+    for other in (
+        dataclasses.replace(frame, rts_schema_version=rts_schema.SCHEMA_VERSION + 1),
+        dataclasses.replace(frame, rts_schema_fingerprint=rts_schema.FINGERPRINT ^ 1),
+    ):
         with pytest.raises(MessageError, match=f"device 'dev-1' uses RTS schema v{other.rts_schema_version}"):
             decode(encode(other))
     out = decode(encode(dataclasses.replace(frame, frames_skipped=12)))
     assert (out.frames_skipped, out.rts_schema_version, out.rts_schema_fingerprint) == (
-        12, rts_schema.SCHEMA_VERSION, rts_schema.FINGERPRINT)
+        12,
+        rts_schema.SCHEMA_VERSION,
+        rts_schema.FINGERPRINT,
+    )
 
 
 @pytest.mark.parametrize("version", [1, 2, 3, 5])
@@ -107,8 +112,9 @@ def test_a_message_of_an_earlier_protocol_version_is_refused(version, kind):
     misread."""
     topic, body = encode(feature() if kind == "feature" else Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1"))
     old = body[:4] + bytes([version]) + body[5:]
-    with pytest.raises(MessageError, match=f"protocol version {version} is not supported .this end speaks "
-                                           f"{messages.PROTOCOL_VERSION}"):
+    with pytest.raises(
+        MessageError, match=f"protocol version {version} is not supported .this end speaks {messages.PROTOCOL_VERSION}"
+    ):
         decode([topic, old])
 
 
@@ -127,8 +133,9 @@ def test_stream_session_and_device_settings_travel_with_every_frame_and_estimate
 
 def test_topics_are_exact_and_device_ids_are_checked():
     assert messages.topic(messages.FEATURE_TOPIC, "dev-1") == b"F/dev-1\x00"
-    assert not messages.topic(messages.FEATURE_TOPIC, "dev-10").startswith(messages.topic(messages.FEATURE_TOPIC,
-                                                                                             "dev-1"))
+    assert not messages.topic(messages.FEATURE_TOPIC, "dev-10").startswith(
+        messages.topic(messages.FEATURE_TOPIC, "dev-1")
+    )
     for bad in ("", "a\x00b"):
         with pytest.raises(ValueError, match="device id"):
             messages.topic(messages.ESTIMATE_TOPIC, bad)
@@ -167,16 +174,17 @@ def test_the_streams_psd_code_keeps_inliers_among_keypoints_and_is_smaller_than_
     assert len(messages.pack_stream_psd(psd)) < 0.9 * len(messages.pack_psd(psd))
 
 
-@pytest.mark.parametrize("cut, message", [("masks", "masks are longer than"),
-                                          ("values", "keypoint values are cut short")])
+@pytest.mark.parametrize(
+    "cut, message", [("masks", "masks are longer than"), ("values", "keypoint values are cut short")]
+)
 def test_a_stream_psd_whose_parts_do_not_fit_is_rejected(cut, message):
     psd = np.zeros((4, 4, 3), np.uint8)
     psd[1, 1], psd[2, 3] = (9, 255, 30), (10, 255, 31)
     packed = messages.pack_stream_psd(psd)
     head = struct.Struct("<HHHBBHHH")
     *shape, nested, constant, a, b, c = head.unpack_from(packed)
-    constants, rest = packed[head.size:head.size + 1], packed[head.size + 1:]  # the inlier layer's 255
-    masks, plain, differences = rest[:a], rest[a:a + b], rest[a + b:]
+    constants, rest = packed[head.size : head.size + 1], packed[head.size + 1 :]  # the inlier layer's 255
+    masks, plain, differences = rest[:a], rest[a : a + b], rest[a + b :]
     if cut == "masks":  # 10 MB of set bits for 48 cells
         bomb = zlib.compressobj(6, zlib.DEFLATED, -15)
         masks = bomb.compress(b"\xff" * 10_000_000) + bomb.flush()
@@ -190,8 +198,9 @@ def test_a_stream_psd_whose_parts_do_not_fit_is_rejected(cut, message):
 
 def test_rts_rows_at_the_streams_resolution_travel_as_float16_exactly_and_others_as_float32():
     rng = np.random.default_rng(6)
-    row = (rng.standard_normal(rts_schema.NUM_CHANNELS) * 10.0 ** rng.integers(-6, 5, rts_schema.NUM_CHANNELS)
-           ).astype(np.float32)
+    row = (rng.standard_normal(rts_schema.NUM_CHANNELS) * 10.0 ** rng.integers(-6, 5, rts_schema.NUM_CHANNELS)).astype(
+        np.float32
+    )
     row[3] = np.nan
     at = messages.stream_resolution(row)
     finite = np.isfinite(row)
@@ -217,7 +226,7 @@ def test_a_feature_frames_device_id_is_its_topics():
 
 
 def test_a_psd_that_inflates_beyond_its_header_is_rejected():
-    bomb = zlib.compress(b"\xff" * 10_000_000)   # 10 MB of "every cell set" for a 4x4x3 header
+    bomb = zlib.compress(b"\xff" * 10_000_000)  # 10 MB of "every cell set" for a 4x4x3 header
     data = struct.pack("<HHHI", 4, 4, 3, len(bomb)) + bomb
     with pytest.raises(MessageError, match="does not fit its header"):
         messages.unpack_psd(data)
@@ -257,13 +266,16 @@ def test_an_estimate_carries_its_heads_thresholds_and_probabilities_and_the_clas
     assert body[-1] == 0 and decode([topic, body]).head == ()  # no head: a count of 0, nothing after it
 
 
-@pytest.mark.parametrize("head, problem", [
-    (((0.008, 0.5), (0.004, 0.5)), "increasing"),
-    (((0.004, 0.5), (0.004, 0.4)), "increasing"),
-    (((-0.004, 0.5),), "positive"),
-    (((0.004, 1.5),), r"\[0, 1\]"),
-    (((0.004, math.nan),), r"\[0, 1\]"),
-])
+@pytest.mark.parametrize(
+    "head, problem",
+    [
+        (((0.008, 0.5), (0.004, 0.5)), "increasing"),
+        (((0.004, 0.5), (0.004, 0.4)), "increasing"),
+        (((-0.004, 0.5),), "positive"),
+        (((0.004, 1.5),), r"\[0, 1\]"),
+        (((0.004, math.nan),), r"\[0, 1\]"),
+    ],
+)
 def test_a_head_that_cannot_be_read_is_refused(head, problem):
     from seesys.core.messages import Exceedance
 

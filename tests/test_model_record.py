@@ -27,10 +27,16 @@ from seesys.io.resources import resolve
 
 # What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now):
 # camera normalisation v1 with the ideal camera as its reference.
-SHIPPED_DEVICE = {"slam_modes": ["rgbd"], "fps": 30, "orb_features": 1000, "psd_patch_px": 10, "psd_expansion": 2,
-                  "near_depth": 0.5, "camera_normalisation": 1,
-                  "reference_camera": {"width": 640, "height": 480, "fx": 525.0, "fy": 525.0, "cx": 319.5,
-                                       "cy": 239.5}}
+SHIPPED_DEVICE = {
+    "slam_modes": ["rgbd"],
+    "fps": 30,
+    "orb_features": 1000,
+    "psd_patch_px": 10,
+    "psd_expansion": 2,
+    "near_depth": 0.5,
+    "camera_normalisation": 1,
+    "reference_camera": {"width": 640, "height": 480, "fx": 525.0, "fy": 525.0, "cx": 319.5, "cy": 239.5},
+}
 
 
 def test_the_shipped_model_carries_the_full_record_in_both_files():
@@ -73,8 +79,9 @@ def test_a_monocular_model_made_under_another_label_definition_is_refused_by_nam
     windows = load_window_config()
     transform = LabelTransform(load_estimator_config().label_transform.k)
     here = ModelSetup.configured()
-    mono = compatibility(windows, transform, ModelSetup(here.delta_frames, {**here.device,
-                                                                            "slam_modes": ["mono", "rgbd"]}))
+    mono = compatibility(
+        windows, transform, ModelSetup(here.delta_frames, {**here.device, "slam_modes": ["mono", "rgbd"]})
+    )
     assert mono["label"] == {"delta_frames": here.delta_frames, "mono_alignment": MONO_ALIGNMENT}
     check_compatible(mono, "the mono model", windows, transform)
     rgbd = compatibility(windows, transform, ModelSetup(here.delta_frames, SHIPPED_DEVICE))
@@ -82,21 +89,31 @@ def test_a_monocular_model_made_under_another_label_definition_is_refused_by_nam
     check_compatible(rgbd, "the RGB-D model", windows, transform)
 
     other = {**mono, "label": {**mono["label"], "mono_alignment": "sim3-window-90"}}
-    with pytest.raises(ModelMismatch, match=r'the mono model was made for other inputs: label\.mono_alignment: '
-                                            r'model "sim3-window-90", here "sim3-per-stretch"\. It cannot'):
+    with pytest.raises(
+        ModelMismatch,
+        match=r"the mono model was made for other inputs: label\.mono_alignment: "
+        r'model "sim3-window-90", here "sim3-per-stretch"\. It cannot',
+    ):
         check_compatible(other, "the mono model", windows, transform)
     before = {**mono, "label": {"delta_frames": here.delta_frames}}
-    with pytest.raises(ModelMismatch, match=r'label\.mono_alignment: model "sim3-sliding-window", here '
-                                            r'"sim3-per-stretch"'):
+    with pytest.raises(
+        ModelMismatch,
+        match=r'label\.mono_alignment: model "sim3-sliding-window", here '
+        r'"sim3-per-stretch"',
+    ):
         check_compatible(before, "the mono model", windows, transform)
 
 
 @pytest.mark.system
 def test_serve_refuses_a_model_whose_near_depth_differs_from_monitor_toml(tiny_model, tmp_path):
     config_dir = write_config_dir(tmp_path / "configs", {"near_depth": 1.0})
-    run = subprocess.run([sys.executable, "-m", "seesys", "estimator", "serve", "--model", str(tiny_model)],
-                         env={**os.environ, CONFIG_DIR_ENV: str(config_dir)}, capture_output=True, text=True,
-                         timeout=300)
+    run = subprocess.run(
+        [sys.executable, "-m", "seesys", "estimator", "serve", "--model", str(tiny_model)],
+        env={**os.environ, CONFIG_DIR_ENV: str(config_dir)},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert run.returncode != 0
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and "device.near_depth: model 0.5, here 1.0" in lines[0], run.stderr
@@ -108,11 +125,15 @@ def test_a_device_is_compared_with_the_model_setting_by_setting():
     assert device == DeviceSettings("rgbd", 30, 1000, 10, 2, 0.5, 1)
     assert settings_differences(model, device) == []
     assert settings_differences(model, dataclasses.replace(device, slam_mode="mono")) == [
-        "slam_mode: device mono, model rgbd"]
+        "slam_mode: device mono, model rgbd"
+    ]
     assert settings_differences(model, dataclasses.replace(device, fps=15, orb_features=1500)) == [
-        "fps: device 15, model 30", "orb_features: device 1500, model 1000"]
+        "fps: device 15, model 30",
+        "orb_features: device 1500, model 1000",
+    ]
     assert settings_differences(model, dataclasses.replace(device, camera_normalisation=0)) == [
-        "camera_normalisation: device 0, model 1"]
+        "camera_normalisation: device 0, model 1"
+    ]
 
 
 def test_a_logged_session_replays_with_the_settings_its_device_stated(tmp_path):

@@ -49,9 +49,15 @@ def scene_points(pose: np.ndarray, n: int = 300, seed: int = 0) -> tuple[np.ndar
 def track_output(index: int, state: TrackingState, pose: np.ndarray | None, points_w, keypoints):
     """A per-frame record with the fields of slam_monitor.tracker.TrackOutput."""
     return types.SimpleNamespace(
-        frame_index=index, state=state, pose_wc=pose, pose_cw=None if pose is None else np.linalg.inv(pose),
-        num_tracked_points=len(points_w), keypoints=np.asarray(keypoints, dtype=np.float32),
-        map_points=np.asarray(points_w, dtype=np.float32), map_changed=False)
+        frame_index=index,
+        state=state,
+        pose_wc=pose,
+        pose_cw=None if pose is None else np.linalg.inv(pose),
+        num_tracked_points=len(points_w),
+        keypoints=np.asarray(keypoints, dtype=np.float32),
+        map_points=np.asarray(points_w, dtype=np.float32),
+        map_changed=False,
+    )
 
 
 def gray(index: int) -> np.ndarray:
@@ -67,8 +73,18 @@ def test_feature_row_of_constructed_frames():
 
     def item(index, state, pose, prev, uv):
         out = track_output(index, state, pose, points_w, uv)
-        return MonitorInput(Frame(index, index / 30, gray(index), INTR), state, out.pose_cw, out.pose_wc, prev,
-                            out.num_tracked_points, out.keypoints, out.map_points, False, 0)
+        return MonitorInput(
+            Frame(index, index / 30, gray(index), INTR),
+            state,
+            out.pose_cw,
+            out.pose_wc,
+            prev,
+            out.num_tracked_points,
+            out.keypoints,
+            out.map_points,
+            False,
+            0,
+        )
 
     row_of = {name: i for i, name in enumerate(rts_schema.CHANNEL_NAMES)}
     f10 = extractor.extract(item(10, TrackingState.OK, first, None, uv0))
@@ -76,7 +92,7 @@ def test_feature_row_of_constructed_frames():
     lost = extractor.extract(item(12, TrackingState.LOST, None, None, uv1))
 
     assert (f10.frame_index, f11.frame_index) == (10, 11) and f11.timestamp == pytest.approx(11 / 30)
-    assert f10.rts[row_of["rel_yaw"]] == 0.0                                  # no previous pose: no motion
+    assert f10.rts[row_of["rel_yaw"]] == 0.0  # no previous pose: no motion
     # Values at the stream's resolution: float16, within 2^-11 of the value
     assert f11.rts[row_of["rel_yaw"]] == pytest.approx(0.02, rel=2**-11)
     assert f11.rts[row_of["rel_tz"]] == pytest.approx(0.05, rel=2**-11)
@@ -84,7 +100,7 @@ def test_feature_row_of_constructed_frames():
     assert f11.rts[row_of["matched_inliers"]] == 300
     assert f11.rts[row_of["local_mapping_visual_error"]] == pytest.approx(0.0, abs=1e-3)
     depth = [row_of[name] for name in rts_schema.channel_names("depth")]
-    assert depth and np.isnan(f11.rts[depth]).all()                          # no depth image: unknown
+    assert depth and np.isnan(f11.rts[depth]).all()  # no depth image: unknown
     assert not np.isnan(np.delete(f10.rts, depth)).any() and not np.isnan(np.delete(f11.rts, depth)).any()
     # PSD on tau-th frames only; all points matched → as many inlier cells as keypoint cells
     assert f10.psd is not None and f11.psd is None and f10.psd.shape == (96, 128, 3)
@@ -99,13 +115,14 @@ def _feed(monitor: RtsMonitor, n: int) -> None:
     pose = pose_wc(0.0, 0.0)
     points_w, uv = scene_points(pose)
     for i in range(n):
-        monitor.on_frame(Frame(i, 100 + i / 30, gray(i % 3), INTR), track_output(i, TrackingState.OK, pose,
-                                                                                 points_w, uv))
+        monitor.on_frame(
+            Frame(i, 100 + i / 30, gray(i % 3), INTR), track_output(i, TrackingState.OK, pose, points_w, uv)
+        )
 
 
 def test_monitor_drops_and_counts_when_behind(tmp_path):
     monitor = RtsMonitor(replace_fields(CONFIG, queue_size=1), tmp_path)
-    _feed(monitor, 200)                       # far faster than the monitor's ~ms of work per frame
+    _feed(monitor, 200)  # far faster than the monitor's ~ms of work per frame
     stats = monitor.close()
     assert stats.frames_seen == 200
     assert stats.frames_dropped > 0
@@ -130,9 +147,9 @@ def test_logs_round_trip_into_windows(tmp_path):
 
 
 def test_psd_chunks_and_a_record_cut_by_a_crash(tmp_path):
-    monitor = RtsMonitor(replace_fields(CONFIG, queue_size=1000, log=dataclasses.replace(CONFIG.log,
-                                                                                         psd_chunk_records=3)),
-                         tmp_path)
+    monitor = RtsMonitor(
+        replace_fields(CONFIG, queue_size=1000, log=dataclasses.replace(CONFIG.log, psd_chunk_records=3)), tmp_path
+    )
     _feed(monitor, 71)
     monitor.close()
     chunks = sorted((tmp_path / "psd").glob("psd_*.bin"))

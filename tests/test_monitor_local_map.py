@@ -15,7 +15,7 @@ def test_points_seen_again_or_nudged_within_a_voxel_are_one_entry():
     m.update(np.array([[0.02, 0.03, 0.04], [5.0, 5.0, 5.0]]), frame_index=1)
     assert len(m) == 3
     nudged = m.points[np.argmin(np.linalg.norm(m.points, axis=1))]
-    np.testing.assert_allclose(nudged, [0.02, 0.03, 0.04])     # the newest position wins
+    np.testing.assert_allclose(nudged, [0.02, 0.03, 0.04])  # the newest position wins
     assert sorted(m.last_seen.tolist()) == [0, 1, 1]
 
 
@@ -25,7 +25,7 @@ def test_old_points_are_forgotten_and_the_size_is_bounded():
         m.update(np.array([[float(i), 0.0, 0.0]]), frame_index=i)
     assert sorted(m.last_seen.tolist()) == [2, 3, 4]
     m.update(np.array([[10.0 + k, 0.0, 0.0] for k in range(3)]), frame_index=5)
-    assert len(m) == 4 and sorted(m.last_seen.tolist()) == [4, 5, 5, 5]   # least recently seen dropped first
+    assert len(m) == 4 and sorted(m.last_seen.tolist()) == [4, 5, 5, 5]  # least recently seen dropped first
 
 
 def test_lost_points_are_those_of_the_previous_update_only():
@@ -63,5 +63,7 @@ def test_frames_kept_aside_merge_into_the_map_merging_every_frame_gives(seed):
         reference.update(points, frame)
         assert same_rows(local_map.lost_points(), reference.lost_points())
         if step % read_every == 0:
-            assert same_rows(np.column_stack([local_map.points, local_map.last_seen]),
-                             np.column_stack([reference.points, reference.last_seen]))
+            assert same_rows(
+                np.column_stack([local_map.points, local_map.last_seen]),
+                np.column_stack([reference.points, reference.last_seen]),
+            )

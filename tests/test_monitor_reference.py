@@ -44,16 +44,20 @@ def test_image_channels_match_the_whole_frame_reference():
 
 def test_local_map_matches_the_frame_by_frame_reference():
     lm = CONFIG.local_map
-    local_map, reference = LocalMap(lm.voxel, lm.max_age_frames, lm.max_points), ReferenceLocalMap(
-        lm.voxel, lm.max_age_frames, lm.max_points)
+    local_map, reference = (
+        LocalMap(lm.voxel, lm.max_age_frames, lm.max_points),
+        ReferenceLocalMap(lm.voxel, lm.max_age_frames, lm.max_points),
+    )
     compared, largest = 0, 0
     for item in tracked_inputs():
         local_map.update(item.map_points, item.frame.index)
         reference.update(item.map_points, item.frame.index)
         assert same_rows(local_map.lost_points(), reference.lost_points())
         if CONFIG.windows.is_psd_frame(item.frame.index):  # the map is read where the PSD reads it
-            assert same_rows(np.column_stack([local_map.points, local_map.last_seen]),
-                             np.column_stack([reference.points, reference.last_seen]))
+            assert same_rows(
+                np.column_stack([local_map.points, local_map.last_seen]),
+                np.column_stack([reference.points, reference.last_seen]),
+            )
             compared += 1
         largest = max(largest, len(reference.points))
     assert largest == lm.max_points and compared > 20  # the size bound was in play
@@ -67,11 +71,19 @@ def test_pairing_matches_brute_force_nearest_keypoints():
     for item in tracked_inputs():
         reference.update(item.map_points, item.frame.index)
         intr, lost_w = item.frame.intrinsics, reference.lost_points()
-        got = slam_features(pose_cw=item.pose_cw, motion=RelativeMotion.still(),
-                            matched_inliers=item.num_tracked_points, keypoints=item.keypoints,
-                            matched_points_w=item.map_points, lost_points_w=lost_w, camera_matrix=intr.matrix(),
-                            width=intr.width, height=intr.height, match_gate_px=features.match_gate_px,
-                            min_depth=features.min_depth)
+        got = slam_features(
+            pose_cw=item.pose_cw,
+            motion=RelativeMotion.still(),
+            matched_inliers=item.num_tracked_points,
+            keypoints=item.keypoints,
+            matched_points_w=item.map_points,
+            lost_points_w=lost_w,
+            camera_matrix=intr.matrix(),
+            width=intr.width,
+            height=intr.height,
+            match_gate_px=features.match_gate_px,
+            min_depth=features.min_depth,
+        )
         keypoints = np.asarray(item.keypoints, dtype=np.float64)
         matched_c = to_camera(item.map_points, item.pose_cw)
         matched_c = matched_c[matched_c[:, 2] > features.min_depth]
@@ -88,7 +100,8 @@ def test_pairing_matches_brute_force_nearest_keypoints():
         assert same_rows(np.unique(keypoints[got.inlier_keypoints], axis=0), np.unique(keypoints[inliers], axis=0))
         assert got.outliers == outliers and got.matches_before_po == item.num_tracked_points + outliers
         assert got.reprojection_error_px == pytest.approx(distance.mean(), rel=1e-12)
-        assert (got.avg_mp_depth, got.var_mp_depth) == pytest.approx((matched_c[:, 2].mean(), matched_c[:, 2].var()),
-                                                                      rel=1e-12)
+        assert (got.avg_mp_depth, got.var_mp_depth) == pytest.approx(
+            (matched_c[:, 2].mean(), matched_c[:, 2].var()), rel=1e-12
+        )
         outliers_seen += outliers
     assert outliers_seen > 0

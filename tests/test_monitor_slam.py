@@ -66,8 +66,9 @@ def ground_truth_motion(session: Path) -> dict[float, np.ndarray]:
     return motion
 
 
-def check_session(session: Path, min_tracked: float, min_rotation_corr: float | None, depth: bool,
-                  min_sign_agreement: float = 0.9) -> None:
+def check_session(
+    session: Path, min_tracked: float, min_rotation_corr: float | None, depth: bool, min_sign_agreement: float = 0.9
+) -> None:
     table = read_rts_csv(session)
     frames = table["frame_index"].to_numpy()
     assert (np.diff(frames) == 1).all()
@@ -79,7 +80,7 @@ def check_session(session: Path, min_tracked: float, min_rotation_corr: float | 
     if depth:  # every RGB-D frame has them; the registration once tracked frames have given it enough depth edges
         assert not table[["depth_holes", "depth_noise"]].isna().any().any()
         registration = table["depth_registration"]
-        assert np.isnan(registration.iloc[0]) and registration.iloc[len(table) // 4:].notna().all()
+        assert np.isnan(registration.iloc[0]) and registration.iloc[len(table) // 4 :].notna().all()
         # An ideal render: 16-bit depth quantisation only, and depth edges on the colour edges (f = 525 px).
         assert (table["depth_noise"] < 1e-3).all()
         assert registration.max() < 0.5 / 525, registration.max() * 525
@@ -98,8 +99,11 @@ def check_session(session: Path, min_tracked: float, min_rotation_corr: float | 
     # previous frame was tracked (the first frame after a gap has zero motion by definition)
     gt = ground_truth_motion(session)
     continuing = tracked[tracked["frame_index"].isin(tracked["frame_index"] + 1)]
-    rows = [(gt[round(t, 4)], r) for t, r in zip(continuing["timestamp"], continuing[list(ROTATIONS)].to_numpy())
-            if round(t, 4) in gt]
+    rows = [
+        (gt[round(t, 4)], r)
+        for t, r in zip(continuing["timestamp"], continuing[list(ROTATIONS)].to_numpy())
+        if round(t, 4) in gt
+    ]
     truth, measured = (np.array(x) for x in zip(*rows))
     for k, name in enumerate(ROTATIONS):
         strong = np.abs(truth[:, k]) > 0.004
@@ -120,8 +124,9 @@ def test_rgbd_session_logs_and_streams_every_frame(tmp_path):
     collector = Collector(publisher.bound_endpoint)
     collector.start()
     monitor = RtsMonitor(load_monitor_config(), out, publisher)
-    result = run_device_session(SessionOptions(source=f"tum:{SAMPLE}", mode=SlamMode.RGBD, out_dir=out),
-                                observers=[monitor])
+    result = run_device_session(
+        SessionOptions(source=f"tum:{SAMPLE}", mode=SlamMode.RGBD, out_dir=out), observers=[monitor]
+    )
     collector.stop.set()
     collector.join()
     stats = monitor.stats
@@ -146,9 +151,12 @@ def configs_with_endpoint(tmp_path: Path, endpoint: str) -> Path:
     configs = tmp_path / "configs"
     shutil.copytree(config_dir(), configs)
     network = (configs / "network.toml").read_text().splitlines()
-    (configs / "network.toml").write_text("\n".join(
-        f'features_endpoint = "{endpoint}"' if line.startswith("features_endpoint") else line for line in network)
-        + "\n")
+    (configs / "network.toml").write_text(
+        "\n".join(
+            f'features_endpoint = "{endpoint}"' if line.startswith("features_endpoint") else line for line in network
+        )
+        + "\n"
+    )
     return configs
 
 
@@ -166,9 +174,29 @@ def test_monitor_run_command_mono_with_stream(tmp_path):
     collector.start()
     out = tmp_path / "mono"
     run = subprocess.run(
-        [sys.executable, "-m", "seesys", "monitor", "run", "--source", f"tum:{SAMPLE}", "--mode", "mono",
-         "--out", str(out), "--max-frames", "90", "--stream", "--device-id", "phone-1"],
-        capture_output=True, text=True, timeout=300, env={**os.environ, "SEESYS_CONFIG_DIR": str(configs)})
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "monitor",
+            "run",
+            "--source",
+            f"tum:{SAMPLE}",
+            "--mode",
+            "mono",
+            "--out",
+            str(out),
+            "--max-frames",
+            "90",
+            "--stream",
+            "--device-id",
+            "phone-1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "SEESYS_CONFIG_DIR": str(configs)},
+    )
     collector.stop.set()
     collector.join()
     assert run.returncode == 0, run.stderr
@@ -187,9 +215,25 @@ def test_stream_endpoint_in_use_is_a_one_line_error(tmp_path):
     squatter = FeaturePublisher("tcp://127.0.0.1:*", send_high_water_mark=1)
     configs = configs_with_endpoint(tmp_path, squatter.bound_endpoint)
     run = subprocess.run(
-        [sys.executable, "-m", "seesys", "monitor", "run", "--source", f"tum:{SAMPLE}", "--out", str(tmp_path / "s"),
-         "--max-frames", "5", "--stream"],
-        capture_output=True, text=True, timeout=300, env={**os.environ, "SEESYS_CONFIG_DIR": str(configs)})
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "monitor",
+            "run",
+            "--source",
+            f"tum:{SAMPLE}",
+            "--out",
+            str(tmp_path / "s"),
+            "--max-frames",
+            "5",
+            "--stream",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "SEESYS_CONFIG_DIR": str(configs)},
+    )
     squatter.close()
     assert run.returncode == 2
     assert run.stderr.strip().splitlines()[-1].startswith("seesys: error: cannot bind the feature stream endpoint")

@@ -20,7 +20,9 @@ INTRINSICS = Intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 @pytest.fixture
 def generated(tmp_path):
     def make(mode, intrinsics=INTRINSICS):
-        return write_settings(tmp_path / f"{mode.value}.yaml", build_settings(intrinsics, 30.0, mode, load_slam_config()))
+        return write_settings(
+            tmp_path / f"{mode.value}.yaml", build_settings(intrinsics, 30.0, mode, load_slam_config())
+        )
 
     return make
 

@@ -29,10 +29,12 @@ STALL_TIMEOUT_S = 97.0  # not the default: a session's session.json shows which 
 
 
 def _build(root: Path, configs: Path, executor=None):
-    builder = DatasetBuilder(root, load_dataset_config(), load_synth_config(), load_label_config(),
-                             load_window_config(), configs)
-    plan = plan_from_config(load_dataset_config(), load_synth_config(), TEMPLATE, ENVIRONMENTS, ["patrol"], [0],
-                            ["rgbd"], 1)
+    builder = DatasetBuilder(
+        root, load_dataset_config(), load_synth_config(), load_label_config(), load_window_config(), configs
+    )
+    plan = plan_from_config(
+        load_dataset_config(), load_synth_config(), TEMPLATE, ENVIRONMENTS, ["patrol"], [0], ["rgbd"], 1
+    )
     return builder.build(plan, executor)
 
 
@@ -41,7 +43,7 @@ def _files(root: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def builds(local_ray, tmp_path_factory):  # noqa: F811
+def builds(local_ray, tmp_path_factory):
     """The tiny dataset built here and on Ray (one SLAM CPU per run, so that both runs share the 2 CPUs)."""
     base = tmp_path_factory.mktemp("ray_dataset")
     configs = write_config_dir(base / "configs", {"slam.stall_timeout_s": STALL_TIMEOUT_S, "slam_cpus": 1})
@@ -54,18 +56,23 @@ def builds(local_ray, tmp_path_factory):  # noqa: F811
 def test_ray_writes_the_local_builds_files_and_schema(builds):
     base, _, local, remote = builds
     assert _files(base / "ray") == _files(base / "local")
-    assert [r.run for r in remote.runs_done] == [r.run for r in local.runs_done] == [
-        "lab__patrol__s0__rgbd__t0", "office__patrol__s0__rgbd__t0"]
+    assert (
+        [r.run for r in remote.runs_done]
+        == [r.run for r in local.runs_done]
+        == ["lab__patrol__s0__rgbd__t0", "office__patrol__s0__rgbd__t0"]
+    )
     assert (remote.sequences, remote.rendered_frames, remote.runs_skipped) == (2, 120, 0)
     for sequence in (base / "local" / SEQUENCES_DIR).iterdir():  # rendering is deterministic
         for path in sequence.rglob("*"):
             if path.is_file():
                 assert path.read_bytes() == (base / "ray" / path.relative_to(base / "local")).read_bytes(), path
-    assert (json.loads((base / "ray" / DATASET_JSON).read_text())
-            == json.loads((base / "local" / DATASET_JSON).read_text()))
+    assert json.loads((base / "ray" / DATASET_JSON).read_text()) == json.loads(
+        (base / "local" / DATASET_JSON).read_text()
+    )
     log = [json.loads(line) for line in (base / "ray" / "build_log.jsonl").read_text().splitlines()]
     assert [(e["phase"], sorted(e)) for e in log] == [
-        (e["phase"], sorted(e)) for e in map(json.loads, (base / "local" / "build_log.jsonl").read_text().splitlines())]
+        (e["phase"], sorted(e)) for e in map(json.loads, (base / "local" / "build_log.jsonl").read_text().splitlines())
+    ]
     for info in remote.runs_done:
         here, there = base / "local" / RUNS_DIR / info.run, base / "ray" / RUNS_DIR / info.run
         assert json.loads((there / RUN_JSON).read_text()).keys() == json.loads((here / RUN_JSON).read_text()).keys()
@@ -86,7 +93,7 @@ def test_every_task_ran_with_the_drivers_settings(builds):
 
 
 @pytest.mark.system
-def test_a_rerun_on_ray_does_only_the_missing_run_as_a_local_rerun_would(builds, local_ray):  # noqa: F811
+def test_a_rerun_on_ray_does_only_the_missing_run_as_a_local_rerun_would(builds, local_ray):
     base, configs, _, _ = builds
     copy = base / "resumed"
     shutil.copytree(base / "ray", copy)

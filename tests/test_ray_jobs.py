@@ -75,7 +75,7 @@ def broken_job(env):
 
 
 @pytest.fixture(scope="module")
-def ray_module(local_ray):  # noqa: F811
+def ray_module(local_ray):
     """The local Ray, with this module's job functions sent by value (its workers cannot import a test module)."""
     local_ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     return local_ray
@@ -103,8 +103,9 @@ def test_results_come_in_job_order_and_each_end_is_reported(ray_module, configs)
     jobs = [Job(name, counting_job, (name, 3)) for name in ("a", "b", "c")]
     ended = []
     progress = RecordingProgress()
-    results = RayExecutor(ray_module).run(jobs, progress, lambda job, result: ended.append((job.name, result[0])),
-                                          configs)
+    results = RayExecutor(ray_module).run(
+        jobs, progress, lambda job, result: ended.append((job.name, result[0])), configs
+    )
     assert [r[0] for r in results] == ["a", "b", "c"] and sorted(ended) == [("a", "a"), ("b", "b"), ("c", "c")]
     added = {c[2] for c in progress.calls if c[0] == "add_task"}
     assert added == {"a", "b", "c"} and sum(c[0] == "remove_task" for c in progress.calls) == 3
@@ -131,8 +132,11 @@ def test_a_failed_task_is_the_same_error_as_a_failed_local_job(ray_module):
 @pytest.mark.system
 def test_a_job_no_node_can_take_is_refused_at_once(ray_module):
     executor = RayExecutor(ray_module)
-    with pytest.raises(SeesysError, match=r"^big needs 3 CPU \+ 0 GPU on one node; the Ray cluster's nodes have 2 "
-                                          r"CPU \+ 0 GPU$"):
+    with pytest.raises(
+        SeesysError,
+        match=r"^big needs 3 CPU \+ 0 GPU on one node; the Ray cluster's nodes have 2 "
+        r"CPU \+ 0 GPU$",
+    ):
         executor.run([Job("big", write_job, (None, ""), cpus=3)], RecordingProgress())
     with pytest.raises(SeesysError, match=r"needs 1 CPU \+ 1 GPU"):
         executor.run([Job("gpu", write_job, (None, ""), gpus=1)], RecordingProgress())
@@ -165,12 +169,24 @@ def test_an_unreachable_or_malformed_address_is_a_one_line_error(tmp_path):
     port = _closed_port()
     result = run_seesys("dataset", "build", "--out", str(out), "--envs", "lab", "--ray", f"127.0.0.1:{port}")
     assert result.returncode == 2, result.stderr
-    assert result.stderr.strip().splitlines() == [f"seesys: error: cannot reach the Ray cluster at 127.0.0.1:{port}: "
-                                                  f"Connection refused (is `ray start --head` running there?)"]
+    assert result.stderr.strip().splitlines() == [
+        f"seesys: error: cannot reach the Ray cluster at 127.0.0.1:{port}: "
+        f"Connection refused (is `ray start --head` running there?)"
+    ]
     assert not out.exists()
     (tmp_path / "splits.json").write_text(Splits([], []).to_json())
-    result = run_seesys("estimator", "train-table", "--data", str(out), "--splits", str(tmp_path / "splits.json"),
-                        "--runs", str(tmp_path / "runs"), "--ray", "headnode")
+    result = run_seesys(
+        "estimator",
+        "train-table",
+        "--data",
+        str(out),
+        "--splits",
+        str(tmp_path / "splits.json"),
+        "--runs",
+        str(tmp_path / "runs"),
+        "--ray",
+        "headnode",
+    )
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
     assert "--ray headnode: expected auto or HOST:PORT" in result.stderr
     assert not (tmp_path / "runs").exists()
@@ -178,8 +194,10 @@ def test_an_unreachable_or_malformed_address_is_a_one_line_error(tmp_path):
 
 @pytest.mark.system
 def test_commands_import_ray_only_when_asked_to():
-    code = ("import sys; from seesys_app.cli import build_parser; build_parser(); "
-            "import estimator.dataset.build, estimator.deepsee.table, estimator.jobs; "
-            "print('ray' in sys.modules)")
+    code = (
+        "import sys; from seesys_app.cli import build_parser; build_parser(); "
+        "import estimator.dataset.build, estimator.deepsee.table, estimator.jobs; "
+        "print('ray' in sys.modules)"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert result.stdout.strip() == "False", result.stderr

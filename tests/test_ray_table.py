@@ -22,13 +22,12 @@ from seesys_app.cli import main
 pytestmark = pytest.mark.usefixtures("single_thread")
 
 
-
 def _files(root) -> list[str]:
     return sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file())
 
 
 @pytest.fixture(scope="module")
-def ray_runs(local_ray, tiny_dataset, tmp_path_factory):  # noqa: F811
+def ray_runs(local_ray, tiny_dataset, tmp_path_factory):
     """The rows of ``trained_runs`` trained on Ray (one CPU and one torch thread a row)."""
     runs = tmp_path_factory.mktemp("ray_table") / "runs"
     spec = TrainSpec(tiny_config(), "reduced", load_window_config(), "cpu", 1, {"data": ["tiny"]})
@@ -47,8 +46,10 @@ def test_ray_trains_the_same_run_folders_as_the_local_run(ray_runs, trained_runs
         here, there = trained_runs / "round_0" / name, runs / "round_0" / name
         config_here, config_there = (json.loads((f / CONFIG_JSON).read_text()) for f in (here, there))
         if name == "wo_psd":  # waited for DeepSEE's encoders, as the local run's ablation starts from them
-            assert (config_here["pretrained"], config_there["pretrained"]) == (str(trained_runs / "round_0" / "deepsee"),
-                                                                                str(runs / "round_0" / "deepsee"))
+            assert (config_here["pretrained"], config_there["pretrained"]) == (
+                str(trained_runs / "round_0" / "deepsee"),
+                str(runs / "round_0" / "deepsee"),
+            )
             config_here["pretrained"] = config_there["pretrained"]
         assert config_there == config_here
         if (here / METRICS_CSV).exists():  # seeded training on one thread: the same losses
@@ -58,7 +59,7 @@ def test_ray_trains_the_same_run_folders_as_the_local_run(ray_runs, trained_runs
 
 
 @pytest.mark.system
-def test_a_rerun_on_ray_trains_nothing_again(ray_runs, local_ray):  # noqa: F811
+def test_a_rerun_on_ray_trains_nothing_again(ray_runs, local_ray):
     runs, jobs, _ = ray_runs
     before = {name: len(pd.read_csv(runs / "round_0" / name / METRICS_CSV)) for name in ("deepsee", "wo_psd", "lstm")}
     with Progress(disable=True) as progress:
@@ -68,16 +69,32 @@ def test_a_rerun_on_ray_trains_nothing_again(ray_runs, local_ray):  # noqa: F811
 
 
 @pytest.mark.system
-def test_the_command_trains_rows_on_ray(local_ray, tiny_dataset, tmp_path, capsys, monkeypatch):  # noqa: F811
+def test_the_command_trains_rows_on_ray(local_ray, tiny_dataset, tmp_path, capsys, monkeypatch):
     """``seesys estimator train-table --ray`` (Ray already initialised here: the command uses it as it is)."""
     configs = tiny_config_dir(tmp_path / "configs")
     monkeypatch.setenv("SEESYS_CONFIG_DIR", str(configs))
-    args = ["estimator", "train-table", "--data", str(tiny_dataset.root), "--splits", str(tiny_dataset.splits),
-            "--rows", "lstm,random_forest", "--runs", str(tmp_path / "runs"), "--threads", "1", "--ray"]
+    args = [
+        "estimator",
+        "train-table",
+        "--data",
+        str(tiny_dataset.root),
+        "--splits",
+        str(tiny_dataset.splits),
+        "--rows",
+        "lstm,random_forest",
+        "--runs",
+        str(tmp_path / "runs"),
+        "--threads",
+        "1",
+        "--ray",
+    ]
     assert main(args) == 0
     assert "round 0: 2 rows trained under" in capsys.readouterr().out
-    assert _files(tmp_path / "runs" / "round_0" / "lstm") and (tmp_path / "runs" / "round_0" / "random_forest" /
-                                                                 "model.pkl").is_file()
+    assert (
+        _files(tmp_path / "runs" / "round_0" / "lstm")
+        and (tmp_path / "runs" / "round_0" / "random_forest" / "model.pkl").is_file()
+    )
     assert main(args[:-1] + ["--device", "cuda", "--ray"]) == 2  # no node has a GPU: said at once, in one line
-    assert capsys.readouterr().err.strip() == ("seesys: error: round 0: lstm needs 1 CPU + 1 GPU on one node; the Ray "
-                                               "cluster's nodes have 2 CPU + 0 GPU")
+    assert capsys.readouterr().err.strip() == (
+        "seesys: error: round 0: lstm needs 1 CPU + 1 GPU on one node; the Ray cluster's nodes have 2 CPU + 0 GPU"
+    )

@@ -58,7 +58,8 @@ def test_a_depth_scale_error_multiplies_the_written_depth_and_leaves_the_calibra
         expected = np.clip(np.rint(z * np.float32(1.07) * config.camera.depth_factor), 0, 65535)
         assert np.array_equal(written, expected)
         assert written[z > 0].astype(float).sum() / np.rint(z * config.camera.depth_factor).sum() == pytest.approx(
-            1.07, abs=1e-4)
+            1.07, abs=1e-4
+        )
     assert calibration(folder)["depth_factor"] == config.camera.depth_factor
     assert [g.tobytes() for g in grays(folder)] == [g.tobytes() for g in grays(ideal)]
 
@@ -143,12 +144,23 @@ def test_an_unknown_option_or_a_value_out_of_range_is_a_one_line_error_naming_it
     percent = write_config_dir(tmp_path / "percent", {"depth_scale_error": 2.0})  # the first model's: ideal
     with pytest.raises(ConfigError) as caught:
         load_synth_config(percent)
-    assert str(caught.value) == ("synth.toml: camera model 'ideal': depth_scale_error must be within [-0.3, 0.3], "
-                                 "got 2.0")
-    out = run_seesys("synth", "render", "--env", "lab", "--motion", "patrol", "--out", str(tmp_path / "x"),
-                     env={CONFIG_DIR_ENV: str(percent)})
+    assert str(caught.value) == (
+        "synth.toml: camera model 'ideal': depth_scale_error must be within [-0.3, 0.3], got 2.0"
+    )
+    out = run_seesys(
+        "synth",
+        "render",
+        "--env",
+        "lab",
+        "--motion",
+        "patrol",
+        "--out",
+        str(tmp_path / "x"),
+        env={CONFIG_DIR_ENV: str(percent)},
+    )
     assert out.returncode == 2 and out.stderr.strip().splitlines()[-1].endswith(
-        "depth_scale_error must be within [-0.3, 0.3], got 2.0")
+        "depth_scale_error must be within [-0.3, 0.3], got 2.0"
+    )
 
 
 def _kinect_depth(config, **effects):
@@ -206,8 +218,10 @@ def test_structured_light_leaves_holes_beside_depth_edges_and_on_dark_surfaces(c
         rows, cols = np.nonzero((measured == 0) & (exact > 0))
         holes += len(rows)
         padded = np.pad(exact.astype(float), ((0, 0), (0, band)), constant_values=np.inf)
-        nearer = [padded[r, c + 1:c + 1 + band][padded[r, c + 1:c + 1 + band] > 0].min() < exact[r, c]
-                  for r, c in zip(rows, cols)]
+        nearer = [
+            padded[r, c + 1 : c + 1 + band][padded[r, c + 1 : c + 1 + band] > 0].min() < exact[r, c]
+            for r, c in zip(rows, cols)
+        ]
         assert all(nearer)
         assert np.array_equal(measured[measured > 0], exact[measured > 0])
     assert holes > 50  # 79 in these 2 frames of 160×120 (0.2 % of the pixels)
@@ -238,8 +252,7 @@ def test_jpeg_changes_the_gray_image_by_its_compression_and_leaves_the_depth(con
 
 
 @pytest.mark.system
-def test_a_camera_model_with_its_own_sensor_and_field_of_view_writes_matching_images_and_calibration(config,
-                                                                                                     tmp_path):
+def test_a_camera_model_with_its_own_sensor_and_field_of_view_writes_matching_images_and_calibration(config, tmp_path):
     """1280×720 at 90° horizontal: fx = 640 / tan(45°) = 640 px, centre (639.5, 359.5), and images of that
     size; at --size 320x180 the same lens scaled (fx 160). A field of view alone keeps [camera.lens]'s sensor;
     every ray of the render leaves at the angle the calibration says (the edge pixels' rays at ±45°)."""
@@ -253,8 +266,9 @@ def test_a_camera_model_with_its_own_sensor_and_field_of_view_writes_matching_im
     grid = RayGrid.for_camera(plan_sequence(SequenceSpec("lab", "rapid", 7, frames=1), wide).camera)
     assert np.degrees(np.arctan(grid.x[0, [0, -1]] * 1280 / 1279)) == pytest.approx([-45.0, 45.0])
 
-    small = _render(SequenceSpec("lab", "rapid", 7, frames=1, width=320, height=180, blur=False), wide,
-                    tmp_path / "small")
+    small = _render(
+        SequenceSpec("lab", "rapid", 7, frames=1, width=320, height=180, blur=False), wide, tmp_path / "small"
+    )
     assert calibration(small)["fx"] == pytest.approx(160.0) and grays(small)[0].shape == (180, 320)
     narrow = with_camera(config, horizontal_fov_deg=60.0)
     said = calibration(_render(_sharp(), narrow, tmp_path / "narrow"))
@@ -263,8 +277,7 @@ def test_a_camera_model_with_its_own_sensor_and_field_of_view_writes_matching_im
 
 @pytest.mark.parametrize("name", ["d435_unaligned", "kinect_v1", "phone"])
 @pytest.mark.system
-def test_every_shipped_camera_model_renders_deterministically_and_says_which_camera_made_it(config, tmp_path,
-                                                                                           name):
+def test_every_shipped_camera_model_renders_deterministically_and_says_which_camera_made_it(config, tmp_path, name):
     """Each preset renders the same bytes on 1 and 2 processes, differs from the ideal camera, writes its own
     sensor's size and records itself in full in metadata.json."""
     model = config.seen_through("lab", config.camera_model(name))
@@ -282,8 +295,7 @@ def test_every_shipped_camera_model_renders_deterministically_and_says_which_cam
 def _umeyama_scale(estimate: Path, ground_truth: Path) -> float:
     """The scale of the Sim(3) that best maps the estimated positions onto the true ones at the same stamps."""
     est, gt = read_tum(estimate), read_tum(ground_truth)
-    common, at_est, at_gt = np.intersect1d(np.round(est.timestamps, 6), np.round(gt.timestamps, 6),
-                                           return_indices=True)
+    common, at_est, at_gt = np.intersect1d(np.round(est.timestamps, 6), np.round(gt.timestamps, 6), return_indices=True)
     assert len(common) > 100
     return float(umeyama_alignment(est.positions[at_est].T, gt.positions[at_gt].T, with_scale=True)[2])
 

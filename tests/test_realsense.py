@@ -34,7 +34,8 @@ def test_recording_plays_back_every_frame_with_intrinsics_and_metric_depth(tmp_p
         assert (source.intrinsics.fx, source.intrinsics.cx, source.intrinsics.height) == (525.0, 319.5, 480)
         assert source.fps == 30.0
         got = list(source.frames())
-    # pipeline playback of a .db3 may drop the first frameset (seen with librealsense 2.59's software-device recordings); no other loss
+    # pipeline playback of a .db3 may drop the first frameset (seen with librealsense 2.59's software-device
+    # recordings); no other loss
     assert len(got) >= len(frames) - 1
     assert [f.index for f in got] == list(range(len(got)))
     recorded = [round(f.timestamp * 30) for f in got]
@@ -82,8 +83,16 @@ def test_track_cli_on_a_recording_tracks_like_the_dataset(tmp_path):
     camera = configs / "camera.toml"
     camera.write_text(camera.read_text().replace("real_time = true", "real_time = false"))
     out = tmp_path / "session"
-    result = run_seesys("track", "--source", f"rsbag:{path}", "--mode", "rgbd", "--out", str(out),
-                        env={"SEESYS_CONFIG_DIR": str(configs)})
+    result = run_seesys(
+        "track",
+        "--source",
+        f"rsbag:{path}",
+        "--mode",
+        "rgbd",
+        "--out",
+        str(out),
+        env={"SEESYS_CONFIG_DIR": str(configs)},
+    )
     assert result.returncode == 0, result.stderr
     rows = (out / "frames.csv").read_text().splitlines()[1:]
     assert len(rows) >= 44  # the first frameset of a .db3 may be dropped by pipeline playback

@@ -50,8 +50,9 @@ def test_a_bag_yields_the_frames_depth_intrinsics_and_ground_truth_of_the_folder
             assert np.abs(ours.depth - theirs.depth).max() <= 0.0005
         truth, expected = bag.ground_truth(), tum.ground_truth()
     assert np.allclose(truth.timestamps, expected.timestamps, atol=1e-9, rtol=0)
-    assert np.allclose(truth.positions, expected.positions) and np.allclose(truth.quaternions_xyzw,
-                                                                            expected.quaternions_xyzw)
+    assert np.allclose(truth.positions, expected.positions) and np.allclose(
+        truth.quaternions_xyzw, expected.quaternions_xyzw
+    )
 
 
 def test_a_ros2_storage_file_opens_its_bag_folder(tmp_path, small_tum):
@@ -68,8 +69,11 @@ def test_a_bag_without_an_image_topic_is_a_one_line_error_naming_its_topics(tmp_
     assert result.returncode == 2
     message = result.stderr.strip()
     assert len(message.splitlines()) == 1 and "no image topic" in message
-    for topic in ("/camera/aligned_depth_to_color/image_raw (sensor_msgs/msg/Image)", "/mocap/camera_pose",
-                  "/camera/color/camera_info"):
+    for topic in (
+        "/camera/aligned_depth_to_color/image_raw (sensor_msgs/msg/Image)",
+        "/mocap/camera_pose",
+        "/camera/color/camera_info",
+    ):
         assert topic in message
 
 
@@ -99,8 +103,11 @@ def test_a_bag_tracks_every_frame_and_labels_like_its_tum_folder(sample_bag, tmp
     summary = summarize_session(out, SlamMode.RGBD)
     assert (summary.frames, summary.frames_tracked) == (150, 150)
     frames = pd.read_csv(out / session_layout.FRAMES_CSV)
-    listed = [float(line.split()[0]) for line in (SAMPLE / "rgb.txt").read_text().splitlines()
-              if line and not line.startswith("#")]
+    listed = [
+        float(line.split()[0])
+        for line in (SAMPLE / "rgb.txt").read_text().splitlines()
+        if line and not line.startswith("#")
+    ]
     assert frames.timestamp.to_numpy() == pytest.approx(listed, abs=1e-6)
 
     labels_csv = tmp_path / "labels.csv"
@@ -123,15 +130,20 @@ def write_session(folder, frames=20):
     folder.mkdir()
     times = 1000.0 + np.arange(frames) / 30
     states = ["NOT_INITIALIZED"] * 3 + ["OK"] * (frames - 3)
-    pd.DataFrame({"frame_index": range(frames), "timestamp": times, "state": states, "tracked_points": 100,
-                  "track_ms": 10.0}).to_csv(folder / session_layout.FRAMES_CSV, index=False)
+    pd.DataFrame(
+        {"frame_index": range(frames), "timestamp": times, "state": states, "tracked_points": 100, "track_ms": 10.0}
+    ).to_csv(folder / session_layout.FRAMES_CSV, index=False)
     tum = "".join(f"{t:.6f} {0.01 * i} 0.5 {-0.02 * i} 0 0 0.6 0.8\n" for i, t in enumerate(times) if i >= 3)
     (folder / session_layout.TRAJECTORY).write_text("# timestamp tx ty tz qx qy qz qw\n" + tum)
     (folder / session_layout.GROUND_TRUTH).write_text(tum)
     ends = list(range(5, frames, 5))
-    estimates = {column: 0.0 for column in session_layout.ESTIMATE_COLUMNS}
-    estimates.update(frame_index=ends, timestamp=times[ends], error_m=[0.004 * (k + 1) for k in range(len(ends))],
-                     model_version="deepsee-test")
+    estimates = dict.fromkeys(session_layout.ESTIMATE_COLUMNS, 0.0)
+    estimates.update(
+        frame_index=ends,
+        timestamp=times[ends],
+        error_m=[0.004 * (k + 1) for k in range(len(ends))],
+        model_version="deepsee-test",
+    )
     pd.DataFrame(estimates).to_csv(folder / session_layout.ESTIMATES_CSV, index=False)
     return times
 
@@ -149,9 +161,13 @@ def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
         read = {}
         for connection, ns, raw in reader.messages():
             read.setdefault(connection.topic, []).append((ns, reader.deserialize(raw, connection.msgtype)))
-    assert types == {"/seesys/pose": "geometry_msgs/msg/PoseStamped", "/seesys/path": "nav_msgs/msg/Path",
-                     "/seesys/ground_truth": "geometry_msgs/msg/PoseStamped",
-                     "/seesys/tracking_state": "std_msgs/msg/String", "/seesys/pose_error": "std_msgs/msg/Float64"}
+    assert types == {
+        "/seesys/pose": "geometry_msgs/msg/PoseStamped",
+        "/seesys/path": "nav_msgs/msg/Path",
+        "/seesys/ground_truth": "geometry_msgs/msg/PoseStamped",
+        "/seesys/tracking_state": "std_msgs/msg/String",
+        "/seesys/pose_error": "std_msgs/msg/Float64",
+    }
     poses = read["/seesys/pose"]
     assert len(poses) == 17 and poses[0][0] == round(times[3] * 1e9)
     first = poses[1][1]

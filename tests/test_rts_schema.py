@@ -16,7 +16,7 @@ def test_channel_names_unique_and_unknown_names_named():
 
 def test_a_reordered_schema_of_the_same_size_is_refused():
     channels = list(rts_schema.CHANNELS)
-    channels[7], channels[8] = channels[8], channels[7]     # rel_tx <-> rel_ty: same count, other meaning
+    channels[7], channels[8] = channels[8], channels[7]  # rel_tx <-> rel_ty: same count, other meaning
     reordered = rts_schema.fingerprint(tuple(channels))
     assert reordered != rts_schema.FINGERPRINT
     with pytest.raises(rts_schema.SchemaMismatch, match=f"model.onnx uses RTS schema v{rts_schema.SCHEMA_VERSION}"):
@@ -26,7 +26,9 @@ def test_a_reordered_schema_of_the_same_size_is_refused():
 
 def test_changing_the_channels_without_a_new_version_fails_at_import(tmp_path, monkeypatch):
     source = Path(rts_schema.__file__).read_text()
-    changed = source.replace('"identity", 0.25)', '"identity", 0.3)', 1)      # contrast's scale
+    contrast = source.index('"contrast",')
+    scale = source.index("0.25", contrast)  # contrast's scale, the first number after its name
+    changed = source[:scale] + "0.3" + source[scale + len("0.25") :]
     assert changed != source
     path = tmp_path / "rts_schema_changed.py"
     path.write_text(changed)
@@ -73,15 +75,17 @@ def test_a_model_takes_its_own_channels_from_a_later_schemas_rows():
     reordered = [names[1], names[0]]
     columns = rts_schema.columns_of(reordered, rts_schema.fingerprint((v1[1], v1[0])), "x")
     assert list(columns) == [1, 0]
-    with pytest.raises(rts_schema.SchemaMismatch, match="model.onnx takes RTS channels this SEESys does not have: "
-                                                        "sonar_range"):
+    with pytest.raises(
+        rts_schema.SchemaMismatch, match="model.onnx takes RTS channels this SEESys does not have: sonar_range"
+    ):
         rts_schema.columns_of([*names, "sonar_range"], 0, "model.onnx")
     # Schema v3 replaced v2's per-frame depth_edge_offset: a model that took it is refused, not fed the new channel.
     v2_names = [*names, "depth_holes", "depth_noise", "depth_edge_offset"]
     with pytest.raises(rts_schema.SchemaMismatch, match="does not have: depth_edge_offset"):
         rts_schema.columns_of(v2_names, 0xC231583F, "v2.onnx")
-    with pytest.raises(rts_schema.SchemaMismatch, match="model.onnx takes RTS channels brightness, contrast "
-                                                        "defined otherwise"):
+    with pytest.raises(
+        rts_schema.SchemaMismatch, match="model.onnx takes RTS channels brightness, contrast defined otherwise"
+    ):
         rts_schema.columns_of(names[:2], 0x1234, "model.onnx")
     rows = np.arange(2 * rts_schema.NUM_CHANNELS, dtype=np.float64).reshape(2, -1)
     rows[0, rts_schema.index_of("depth_noise")] = np.nan  # not among the model's channels: not counted

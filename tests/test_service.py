@@ -42,7 +42,7 @@ def bad_messages(count: int, max_bytes: int) -> tuple[list[list[bytes]], dict[st
             out.append([rng.bytes(int(rng.integers(0, 200))) for _ in range(int(rng.integers(1, 4)))])
             kinds["malformed"] += 1
         elif kind == 1:  # a valid message cut short
-            out.append([valid[0], valid[1][:int(rng.integers(0, len(valid[1])))]])
+            out.append([valid[0], valid[1][: int(rng.integers(0, len(valid[1])))]])
             kinds["malformed"] += 1
         elif kind == 2:  # another protocol version
             body = bytearray(valid[1])
@@ -66,12 +66,16 @@ def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exa
         client = Client(setup, [messages.topic(messages.ESTIMATE_TOPIC, "dev-1")])
         probe = messages.encode(device_frames("probe", 1)[0])
         # PUB connects asynchronously: a valid probe frame is repeated until the service has seen one.
-        wait_for(lambda: client.pub.send_multipart(probe) or "probe" in (service.status() or {}).get("devices", {}),
-                 what="the client to connect")
+        wait_for(
+            lambda: client.pub.send_multipart(probe) or "probe" in (service.status() or {}).get("devices", {}),
+            what="the client to connect",
+        )
         for parts in flood:
             client.pub.send_multipart(parts)
-        status = wait_for(lambda: (s := service.status()) and sum(s["rejected"].values()) == 10_000 and s,
-                          what="every bad message to be counted")
+        status = wait_for(
+            lambda: (s := service.status()) and sum(s["rejected"].values()) == 10_000 and s,
+            what="every bad message to be counted",
+        )
         assert status["rejected"] == kinds
         assert list(status["devices"]) == ["probe"]  # nothing refused reached a worker
 
@@ -79,10 +83,17 @@ def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exa
         estimates = serve_in_lockstep(client, frames)
         expected = expected_errors(tiny_model, frames)
         assert [e.frame_index for e in estimates] == sorted(expected)
-        np.testing.assert_allclose([e.error_m for e in estimates], [expected[e.frame_index] for e in estimates],
-                                   rtol=1e-4)
-        assert all(e.device_id == "dev-1" and e.model_version.startswith("tiny-") and e.server_ms >= 0
-                   and e.timestamp == frames[e.frame_index].timestamp and e.head == () for e in estimates)
+        np.testing.assert_allclose(
+            [e.error_m for e in estimates], [expected[e.frame_index] for e in estimates], rtol=1e-4
+        )
+        assert all(
+            e.device_id == "dev-1"
+            and e.model_version.startswith("tiny-")
+            and e.server_ms >= 0
+            and e.timestamp == frames[e.frame_index].timestamp
+            and e.head == ()
+            for e in estimates
+        )
         status = service.status()
         assert status["devices"]["dev-1"]["estimates"] >= len(estimates)
         assert status["devices"]["dev-1"]["server_ms"]["p99"] is not None
@@ -91,8 +102,13 @@ def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exa
         assert all(stages_ms[s]["p50"] >= 0 for s in STAGES if s != "hops") and stages_ms["inference"]["p50"] > 0
         # Each stage is a part of every estimate's total, so none of its percentiles exceeds the total's.
         assert all(stages_ms[s]["p99"] <= stages_ms["server"]["p99"] + 1e-3 for s in STAGES)
-        shown = subprocess.run([sys.executable, "-m", "seesys", "estimator", "status"], env=setup.env,
-                               capture_output=True, text=True, timeout=120)
+        shown = subprocess.run(
+            [sys.executable, "-m", "seesys", "estimator", "status"],
+            env=setup.env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert shown.returncode == 0, shown.stderr
         assert f"oversized {kinds['oversized']}, wrong_version {kinds['wrong_version']}" in shown.stdout
         assert any(line.startswith("dev-1 ") and "local-0" in line for line in shown.stdout.splitlines())
@@ -110,17 +126,22 @@ def test_with_curve_a_client_not_allowed_gets_nothing_and_is_not_served(setup_fa
     _, server_secret = make_key_pair(keys / "server", "server")
     allowed_public, allowed_secret = make_key_pair(keys / "clients", "device")
     _, stranger_secret = make_key_pair(keys / "strangers", "stranger")
-    setup = setup_factory(server_secret_key=str(server_secret),
-                          allowed_clients=str(allowed_public.parent))
+    setup = setup_factory(server_secret_key=str(server_secret), allowed_clients=str(allowed_public.parent))
     server_public = server_secret.with_suffix(".key")
     service = ServiceProcess(setup, tiny_model)
     try:
         assert service.wait_ready()["curve"] is True
-        stranger = Client(setup, [messages.ESTIMATE_TOPIC],  # every device's estimates
-                          ClientKeys(stranger_secret, server_public).socket_options())
+        stranger = Client(
+            setup,
+            [messages.ESTIMATE_TOPIC],  # every device's estimates
+            ClientKeys(stranger_secret, server_public).socket_options(),
+        )
         plain = Client(setup, [messages.ESTIMATE_TOPIC])  # no Curve at all
-        device = Client(setup, [messages.topic(messages.ESTIMATE_TOPIC, "dev-ok")],
-                        ClientKeys(allowed_secret, server_public).socket_options())
+        device = Client(
+            setup,
+            [messages.topic(messages.ESTIMATE_TOPIC, "dev-ok")],
+            ClientKeys(allowed_secret, server_public).socket_options(),
+        )
         for frame in device_frames("intruder", 80, seed=1):
             stranger.send(frame)
             plain.send(frame)
@@ -148,9 +169,12 @@ def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(set
     extra = None
     try:
         service.wait_ready()
-        extra = subprocess.Popen([sys.executable, "-m", "seesys", "estimator", "worker", "--model", str(tiny_model),
-                                  "--name", "extra"], env=setup.env, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.DEVNULL)
+        extra = subprocess.Popen(
+            [sys.executable, "-m", "seesys", "estimator", "worker", "--model", str(tiny_model), "--name", "extra"],
+            env=setup.env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         wait_for(lambda: len(service.status()["workers"]) == 2, what="the second worker to join")
         names = [f"dev-{k}" for k in range(6)]
         client = Client(setup, [messages.ESTIMATE_TOPIC])
@@ -167,6 +191,7 @@ def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(set
                 if estimate.device_id in seen:
                     seen[estimate.device_id].append(estimate.frame_index)
             return all(s and s[-1] == last_end for s in seen.values())
+
         wait_for(all_received, what="the last estimate of every device")
         for name, indices in seen.items():
             assert indices == sorted(set(indices)), f"{name}: out of order {indices}"
@@ -177,6 +202,7 @@ def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(set
         def accounted():
             devices = service.status()["devices"]
             return all(len(seen[n]) + devices[n]["dropped"]["stale"] == windows for n in names)
+
         wait_for(accounted, what="every window served or counted as stale")
         status = service.status()
         per_worker = sorted(len(w["devices"]) for w in status["workers"])
@@ -192,8 +218,13 @@ def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(set
 
 def test_default_endpoints_are_loopback():
     config, network = load_service_config(), load_network_config()
-    endpoints = [network.ingest_endpoint, config.worker_endpoint, config.status_endpoint,
-                 network.estimates_endpoint, network.features_endpoint]
+    endpoints = [
+        network.ingest_endpoint,
+        config.worker_endpoint,
+        config.status_endpoint,
+        network.estimates_endpoint,
+        network.features_endpoint,
+    ]
     for endpoint in endpoints:
         host = urlparse(endpoint).hostname
         assert ipaddress.ip_address(host).is_loopback, endpoint
@@ -216,6 +247,7 @@ def test_stale_windows_are_dropped_and_counted_never_served(setup_factory, tiny_
                 client.send(frame)
             device = service.status()["devices"].get("dev-s")
             return device and device["dropped"]["stale"] >= ends
+
         wait_for(counted, what="stale windows to be counted")
         assert client.receive(0) is None
         assert service.status()["devices"]["dev-s"]["estimates"] == 0
@@ -247,8 +279,9 @@ def test_the_served_model_fits_any_end_stride_but_not_another_window(tiny_model)
 
 
 @pytest.mark.system
-def test_a_model_with_a_head_serves_its_thresholds_and_probabilities_with_every_estimate(setup_factory,
-                                                                                         tiny_head_model):
+def test_a_model_with_a_head_serves_its_thresholds_and_probabilities_with_every_estimate(
+    setup_factory, tiny_head_model
+):
     setup = setup_factory()
     service = ServiceProcess(setup, tiny_head_model)
     try:
@@ -259,8 +292,10 @@ def test_a_model_with_a_head_serves_its_thresholds_and_probabilities_with_every_
         client.close()
         model = ServedModel.load(tiny_head_model, load_window_config())
         assert model.thresholds_m == (0.004, 0.008, 0.012)
-        expected = {w.frame_index: model.estimate_batch([w]).probabilities[0]
-                    for w in assemble_windows(frames, load_window_config())}
+        expected = {
+            w.frame_index: model.estimate_batch([w]).probabilities[0]
+            for w in assemble_windows(frames, load_window_config())
+        }
         assert len(estimates) > 3
         for e in estimates:
             assert [h.threshold_m for h in e.head] == [float(np.float32(t)) for t in model.thresholds_m]

@@ -27,8 +27,13 @@ from study.watch import StreamWatcher
 
 def observer_for(network, folder, device_id: str) -> EstimateObserver:
     folder.mkdir()
-    return EstimateObserver(folder, device_id, network.features_endpoint, network.estimates_endpoint,
-                            network.client_options(network.estimates_endpoint))
+    return EstimateObserver(
+        folder,
+        device_id,
+        network.features_endpoint,
+        network.estimates_endpoint,
+        network.client_options(network.estimates_endpoint),
+    )
 
 
 @pytest.mark.system
@@ -38,12 +43,18 @@ def test_with_curve_from_network_toml_only_the_allowed_device_is_served(tiny_mod
     server_public = server_secret.with_suffix(".key")
     allowed_public, allowed_secret = make_key_pair(keys / "clients", "device")
     _, stranger_secret = make_key_pair(keys / "strangers", "stranger")
-    setup = ServiceSetup(server_secret_key=str(server_secret), allowed_clients=str(allowed_public.parent),
-                         server_public_key=str(server_public), client_secret_key=str(allowed_secret))
+    setup = ServiceSetup(
+        server_secret_key=str(server_secret),
+        allowed_clients=str(allowed_public.parent),
+        server_public_key=str(server_public),
+        client_secret_key=str(allowed_secret),
+    )
     network = load_network_config(setup.config_dir)
     stranger_network = dataclasses.replace(
-        network, features_endpoint=f"ipc://{setup.folder}/stranger-features",
-        curve=ClientCurveConfig(str(server_public), str(stranger_secret)))
+        network,
+        features_endpoint=f"ipc://{setup.folder}/stranger-features",
+        curve=ClientCurveConfig(str(server_public), str(stranger_secret)),
+    )
     # The stranger connects before the service is up (ZeroMQ retries), so that its socket monitor is in place
     # before the handshake the service refuses.
     stranger = FeaturePublisher.for_network(stranger_network)
@@ -67,6 +78,7 @@ def test_with_curve_from_network_toml_only_the_allowed_device_is_served(tiny_mod
                 stranger.publish(intruding)
                 device.publish(frame)
             return device_observer.received >= 2 and watcher.estimates >= 2
+
         wait_for(stream_until_estimated, what="estimates at the allowed device and the study logger")
         assert refused.poll(60_000), "the service did not refuse the stranger's handshake"
         for frame in theirs:  # again, now that its handshake was certainly refused

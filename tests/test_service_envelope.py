@@ -22,10 +22,19 @@ def _frame(with_psd: bool, with_settings: bool) -> FeatureFrame:
     psd = rng.integers(0, 255, (96, 128, 3), dtype=np.uint8) if with_psd else None
     settings = DeviceSettings("mono", 15, 1200, 16, 2, 0.75, 1) if with_settings else None
     # Every field away from its default, so that one the envelope leaves out shows.
-    return FeatureFrame("dev-7", 12345, 411.5, TrackingState.RECENTLY_LOST,
-                        rng.normal(size=rts_schema.NUM_CHANNELS).astype(np.float32), psd, frames_skipped=3,
-                        rts_schema_version=rts_schema.SCHEMA_VERSION, rts_schema_fingerprint=0xABCDEF12,
-                        stream_session=0xFEEDFACE12345678, settings=settings)
+    return FeatureFrame(
+        "dev-7",
+        12345,
+        411.5,
+        TrackingState.RECENTLY_LOST,
+        rng.normal(size=rts_schema.NUM_CHANNELS).astype(np.float32),
+        psd,
+        frames_skipped=3,
+        rts_schema_version=rts_schema.SCHEMA_VERSION,
+        rts_schema_fingerprint=0xABCDEF12,
+        stream_session=0xFEEDFACE12345678,
+        settings=settings,
+    )
 
 
 @pytest.mark.parametrize(("with_psd", "with_settings"), [(True, True), (False, True), (True, False)])

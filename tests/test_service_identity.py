@@ -23,8 +23,13 @@ from seesys.io.core_settings import load_device_settings, load_window_config
 
 
 def shown_status(setup: ServiceSetup) -> str:
-    shown = subprocess.run([sys.executable, "-m", "seesys", "estimator", "status"], env=setup.env,
-                           capture_output=True, text=True, timeout=120)
+    shown = subprocess.run(
+        [sys.executable, "-m", "seesys", "estimator", "status"],
+        env=setup.env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert shown.returncode == 0, shown.stderr
     return shown.stdout
 
@@ -46,6 +51,7 @@ def test_a_second_device_with_the_same_id_is_refused_and_the_first_is_served_unt
         def refused():
             second.send(other[0])
             return service.status()["devices"]["dev-same"]["dropped"]["id_in_use"] > 0
+
         wait_for(refused, what="the second stream to reach the service")
         windows = load_window_config()
         for i in range(31, 150):  # both devices stream the same id, frame by frame interleaved
@@ -57,8 +63,9 @@ def test_a_second_device_with_the_same_id_is_refused_and_the_first_is_served_unt
                 estimates.append(estimate)
         expected = expected_errors(tiny_model, mine)
         assert [e.frame_index for e in estimates] == sorted(expected)
-        np.testing.assert_allclose([e.error_m for e in estimates], [expected[e.frame_index] for e in estimates],
-                                   rtol=1e-4)
+        np.testing.assert_allclose(
+            [e.error_m for e in estimates], [expected[e.frame_index] for e in estimates], rtol=1e-4
+        )
         assert {e.stream_session for e in estimates} == {0x1111}
         assert all(e.stream_session == 0x1111 for e in iter(lambda: second.receive(0), None))
         device = service.status()["devices"]["dev-same"]
@@ -67,8 +74,12 @@ def test_a_second_device_with_the_same_id_is_refused_and_the_first_is_served_unt
         assert "id_in_use" in device_line(shown_status(setup), "dev-same")
         first.close()
         second.close()
-        wait_for(lambda: "frames of stream session 2222 refused: the id is in use by stream session 1111"
-                 in service.output(), what="the refusal in the service's log")
+        wait_for(
+            lambda: (
+                "frames of stream session 2222 refused: the id is in use by stream session 1111" in service.output()
+            ),
+            what="the refusal in the service's log",
+        )
 
 
 @pytest.mark.system
@@ -105,8 +116,9 @@ def test_every_drop_reason_is_named_in_status_and_nonfinite_values_are_counted(s
         served = serve_in_lockstep(client, nan_frames)  # also: the connection is up
         assert [e.frame_index for e in served] == [30, 35, 40, 45, 50, 55, 60]
         wide = device_frames("dev-848", 80, psd_shape=(96, 170, 3))
-        far = device_frames("dev-far", 80, settings=dataclasses.replace(load_device_settings("rgbd", 30.0),
-                                                                         near_depth=1.0))
+        far = device_frames(
+            "dev-far", 80, settings=dataclasses.replace(load_device_settings("rgbd", 30.0), near_depth=1.0)
+        )
         gaps = [f for f in device_frames("dev-gap", 80) if f.frame_index != 42]
         for frame in wide + far + gaps:
             client.send(frame)
@@ -114,10 +126,14 @@ def test_every_drop_reason_is_named_in_status_and_nonfinite_values_are_counted(s
 
         def counted():
             devices = service.status()["devices"]
-            return (len(devices) == 4 and devices["dev-848"]["dropped"]["shape_mismatch"] == ends
-                    and devices["dev-far"]["dropped"]["settings_mismatch"] == 80
-                    and devices["dev-gap"]["dropped"]["missing_rts"] > 0
-                    and devices["dev-nan"]["nonfinite"] >= 2 * windows.rts_length * len(served))
+            return (
+                len(devices) == 4
+                and devices["dev-848"]["dropped"]["shape_mismatch"] == ends
+                and devices["dev-far"]["dropped"]["settings_mismatch"] == 80
+                and devices["dev-gap"]["dropped"]["missing_rts"] > 0
+                and devices["dev-nan"]["nonfinite"] >= 2 * windows.rts_length * len(served)
+            )
+
         wait_for(counted, what="every drop to be counted")
         devices = service.status()["devices"]
         # Frame 42 is in the RTS windows ending at 45 ... 70: six refused for a missing row, the rest served.
@@ -126,8 +142,17 @@ def test_every_drop_reason_is_named_in_status_and_nonfinite_values_are_counted(s
         assert devices["dev-far"]["settings_refused"] == "near_depth: device 1, model 0.5"
         assert devices["dev-848"]["estimates"] == devices["dev-far"]["estimates"] == 0
         for device in devices.values():  # every reason by name, for the app's view too
-            assert {"shape_mismatch", "settings_mismatch", "missing_rts", "missing_psd", "stale", "queue_full",
-                    "no_worker", "out_of_order", "id_in_use"} <= set(device["dropped"])
+            assert {
+                "shape_mismatch",
+                "settings_mismatch",
+                "missing_rts",
+                "missing_psd",
+                "stale",
+                "queue_full",
+                "no_worker",
+                "out_of_order",
+                "id_in_use",
+            } <= set(device["dropped"])
         text = shown_status(setup)
         assert f"shape_mismatch {ends}" in device_line(text, "dev-848")
         assert "settings_mismatch 80" in device_line(text, "dev-far")
@@ -135,13 +160,16 @@ def test_every_drop_reason_is_named_in_status_and_nonfinite_values_are_counted(s
         assert "dev-far: frames refused, settings differ from the model's: near_depth: device 1, model 0.5" in text
         assert f"dev-nan: {devices['dev-nan']['nonfinite']} RTS values not finite" in text
         client.close()
-        assert "device 'dev-far' (stream session 0): frames refused, its settings differ from the model's: " \
-               "near_depth: device 1, model 0.5" in service.output()
+        assert (
+            "device 'dev-far' (stream session 0): frames refused, its settings differ from the model's: "
+            "near_depth: device 1, model 0.5" in service.output()
+        )
 
 
 @pytest.mark.parametrize(("offset_s", "stale_after_ms", "served"), [(1.0, 900.0, True), (-1.0, 0.0, False)])
-def test_a_worker_whose_clock_is_a_second_off_judges_staleness_on_its_own_clock(setup_factory, tiny_model, offset_s,
-                                                                                 stale_after_ms, served):
+def test_a_worker_whose_clock_is_a_second_off_judges_staleness_on_its_own_clock(
+    setup_factory, tiny_model, offset_s, stale_after_ms, served
+):
     """A broker and a worker whose wall clocks differ by a second: a worker ahead still serves every window within
     the limit, and a worker behind still drops what is older than the limit (0 ms: every window)."""
     from estimator.service.broker import Broker
@@ -153,8 +181,14 @@ def test_a_worker_whose_clock_is_a_second_off_judges_staleness_on_its_own_clock(
     config, network = load_service_config(setup.config_dir), load_network_config(setup.config_dir)
     windows = load_window_config(setup.config_dir)
     broker = Broker(config, network)
-    worker = Worker(broker.endpoints["workers"], ServedModel.load(tiny_model, windows), windows, config, "skewed",
-                    clock=lambda: time.time() + offset_s)
+    worker = Worker(
+        broker.endpoints["workers"],
+        ServedModel.load(tiny_model, windows),
+        windows,
+        config,
+        "skewed",
+        clock=lambda: time.time() + offset_s,
+    )
     threads = [threading.Thread(target=worker.run, daemon=True)]
     threads[0].start()
     client = None
@@ -176,6 +210,7 @@ def test_a_worker_whose_clock_is_a_second_off_judges_staleness_on_its_own_clock(
                     client.send(frame)
                 device = query_status(setup.endpoints["status"], 5000)["devices"].get("dev-clock")
                 return device and device["dropped"]["stale"] >= 7
+
             wait_for(all_stale, what="every window to be dropped as stale")
             assert client.receive(0) is None
     finally:

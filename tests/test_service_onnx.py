@@ -37,8 +37,9 @@ print(json.dumps({"torch": "torch" in sys.modules, "onnx": "onnx" in sys.modules
 @pytest.mark.system
 def test_loading_the_onnx_model_imports_no_torch(tiny_model):
     """A worker's start-up (the worker module, the served model, the ONNX predictor) never imports PyTorch."""
-    result = subprocess.run([sys.executable, "-c", _LOAD_WITHOUT_TORCH, str(tiny_model)], capture_output=True,
-                            text=True, check=True)
+    result = subprocess.run(
+        [sys.executable, "-c", _LOAD_WITHOUT_TORCH, str(tiny_model)], capture_output=True, text=True, check=True
+    )
     loaded = json.loads(result.stdout)
     assert loaded == {"torch": False, "onnx": False, "provider": choose_providers("auto")[0], "kind": "onnx"}
 

@@ -56,10 +56,15 @@ def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, re
     frames = back_and_forth(tmp_path / "source")
     out = tmp_path / "session"
     # at camera rate as a live camera, never waiting for ORB-SLAM3's mapping (which made this run last minutes)
-    options = SessionOptions(source=f"tum:{tmp_path / 'source'}", mode=SlamMode.RGBD, out_dir=out, pace=True,
-                             wait_for_mapping=False, config_dir=setup.config_dir,
-                             observers=(ObserverSpec(MONITOR_FACTORY, {"stream": True}),
-                                        ObserverSpec(ESTIMATES_FACTORY)))
+    options = SessionOptions(
+        source=f"tum:{tmp_path / 'source'}",
+        mode=SlamMode.RGBD,
+        out_dir=out,
+        pace=True,
+        wait_for_mapping=False,
+        config_dir=setup.config_dir,
+        observers=(ObserverSpec(MONITOR_FACTORY, {"stream": True}), ObserverSpec(ESTIMATES_FACTORY)),
+    )
     service = ServiceProcess(setup, tiny_model)
     restarted = None
     outcome: dict = {}
@@ -69,6 +74,7 @@ def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, re
             outcome["result"] = run_supervised_session(options)
         except BaseException as e:  # reported by the assertion below
             outcome["error"] = e
+
     thread = threading.Thread(target=device)
     try:
         workers = [w["pid"] for w in service.wait_ready()["workers"]]
@@ -84,8 +90,11 @@ def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, re
         restarted = ServiceProcess(setup, tiny_model)
         restarted.wait_ready()
         ready_at = time.time()
-        wait_for(lambda: (rows(out).received_unix > ready_at).any() or not thread.is_alive(), 300,
-                 "estimates after the restart")
+        wait_for(
+            lambda: (rows(out).received_unix > ready_at).any() or not thread.is_alive(),
+            300,
+            "estimates after the restart",
+        )
         thread.join()
     finally:
         for s in (service, restarted):
@@ -105,8 +114,10 @@ def test_sigkill_of_the_service_mid_stream_then_restart(tmp_path, tiny_model, re
     resumed_s = float(after.received_unix.min() - ready_at)
     record_property("estimates_resumed_after_restart_s", resumed_s)
     record_property("estimate_gap_s", float(after.received_unix.min() - killed_at))
-    print(f"estimates: {before} before the kill, {len(after)} after the restart; first {resumed_s:.3f} s after the "
-          f"restarted service was ready, {after.received_unix.min() - killed_at:.1f} s after the kill")
+    print(
+        f"estimates: {before} before the kill, {len(after)} after the restart; first {resumed_s:.3f} s after the "
+        f"restarted service was ready, {after.received_unix.min() - killed_at:.1f} s after the kill"
+    )
     assert log.frame_index.is_monotonic_increasing
     assert (log.frame_index % load_window_config().end_stride == 0).all()
     assert log.end_to_end_ms.notna().sum() > 0 and (log.error_m >= 0).all()

@@ -10,8 +10,13 @@ RATE_HZ = 30.0
 
 def _window_end_times(devices: int, spread_s: float) -> np.ndarray:
     windows = load_window_config()
-    return np.array(sorted(due for due, _, k in send_schedule(devices, 300, RATE_HZ, spread_s)
-                           if k >= windows.history and windows.is_psd_frame(k)))
+    return np.array(
+        sorted(
+            due
+            for due, _, k in send_schedule(devices, 300, RATE_HZ, spread_s)
+            if k >= windows.history and windows.is_psd_frame(k)
+        )
+    )
 
 
 def test_every_device_sends_every_frame_at_the_camera_rate_in_time_order():

@@ -37,14 +37,28 @@ SHORT = ["--objects", "1", "--max-task-s", "2.5"]
 
 def _operator(cfg, number: int, seed: int) -> SimulatedOperator:
     synth = load_synth_config()
-    task = build_scan_task(synth.preset(cfg.task.environment), synth.sensor, cfg.task, cfg.operator.scan_distance_m[1],
-                           cfg.operator.scan_arc_deg[1])
+    task = build_scan_task(
+        synth.preset(cfg.task.environment),
+        synth.sensor,
+        cfg.task,
+        cfg.operator.scan_distance_m[1],
+        cfg.operator.scan_arc_deg[1],
+    )
     traits = draw_traits(np.random.default_rng([1, number]), cfg.operator, cfg.response)
     traits = dataclasses.replace(traits, compliance=1.0)
     goals = [Goal(o.aim, task.viewpoint(o.number, traits.scan_distance_m)) for o in task.objects]
     start = np.append(goals[0].stand + task.objects[0].facing, goals[0].aim[2] + 0.15)
-    return SimulatedOperator(traits, goals, start, cfg.task.settle_s, 60.0,
-                             getattr(synth.motion, traits.motion_group), cfg.operator, cfg.response, seed)
+    return SimulatedOperator(
+        traits,
+        goals,
+        start,
+        cfg.task.settle_s,
+        60.0,
+        getattr(synth.motion, traits.motion_group),
+        cfg.operator,
+        cfg.response,
+        seed,
+    )
 
 
 @pytest.mark.system
@@ -132,8 +146,23 @@ def test_running_the_study_again_resumes_and_other_settings_are_refused(reduced_
     assert main(["study", "simulate", "--out", str(reduced_study), "--participants", "2", *SHORT]) == 0
     assert sorted(p for p in reduced_study.rglob("attempt-*")) == before
     assert "6 of 6 sessions done" in capsys.readouterr().out
-    assert main(["study", "simulate", "--out", str(reduced_study), "--participants", "2", "--objects", "2",
-                 "--max-task-s", "2.5"]) == 2
+    assert (
+        main(
+            [
+                "study",
+                "simulate",
+                "--out",
+                str(reduced_study),
+                "--participants",
+                "2",
+                "--objects",
+                "2",
+                "--max-task-s",
+                "2.5",
+            ]
+        )
+        == 2
+    )
     assert "task.objects" in capsys.readouterr().err
 
 
@@ -141,14 +170,16 @@ def test_running_the_study_again_resumes_and_other_settings_are_refused(reduced_
 def test_the_same_operator_moves_differently_after_a_warning_than_in_silence(tmp_path, monkeypatch):
     """The loop is closed: pulses the advisory played (all windows warn: alpha is set very low) change the
     participant's motion from the moment it reacts, and not before."""
-    configs = write_config_dir(tmp_path / "configs", {"alpha_m": 0.0002, "compliance": [1.0, 1.0],
-                                                      "pulses_from": "estimate"})
+    configs = write_config_dir(
+        tmp_path / "configs", {"alpha_m": 0.0002, "compliance": [1.0, 1.0], "pulses_from": "estimate"}
+    )
     monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
     cfg = load_simulate_config(configs)
     cfg = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, objects=2, max_task_s=3.5))
     model = default_model(load_service_config(configs), None)
-    runs = {c: simulate_session(cfg, Participant("P01", 1, c), tmp_path / c, model, configs)
-            for c in ("none", "seesys")}
+    runs = {
+        c: simulate_session(cfg, Participant("P01", 1, c), tmp_path / c, model, configs) for c in ("none", "seesys")
+    }
     quiet, warned = (read_tum(runs[c].folder / "groundtruth.tum") for c in ("none", "seesys"))
     advisory = pd.read_csv(runs["seesys"].folder / "advisory.csv")
     first = float(advisory.loc[advisory.played_pulses > 0, "play_at_mono"].min())
@@ -166,10 +197,31 @@ def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
     """Started as a shell script's background job (SIGINT ignored), stopped by SIGTERM once both sessions track:
     each session ends `interrupted` with its logs whole, the command exits 130, and both sessions are still to do."""
     study = tmp_path / "study"
-    command = [sys.executable, "-m", "seesys", "study", "simulate", "--out", str(study), "--participants", "1",
-               "--conditions", "none,seesys", "--objects", "3", "--max-task-s", "60"]
-    process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    command = [
+        sys.executable,
+        "-m",
+        "seesys",
+        "study",
+        "simulate",
+        "--out",
+        str(study),
+        "--participants",
+        "1",
+        "--conditions",
+        "none,seesys",
+        "--objects",
+        "3",
+        "--max-task-s",
+        "60",
+    ]
+    process = subprocess.Popen(
+        command,
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
 
     def tracking() -> list[Path]:
         frames = list(study.glob("participants/*/task/attempt-1/frames.csv"))
@@ -197,9 +249,26 @@ def test_a_session_that_reports_no_frame_is_killed_as_hung_and_the_study_says_so
     the study ends with status 1 naming each one."""
     configs = write_config_dir(tmp_path / "configs", {"simulate.stall_timeout_s": 0.2, "retries": 0})
     study = tmp_path / "study"
-    done = subprocess.run([sys.executable, "-m", "seesys", "study", "simulate", "--out", str(study),
-                           "--participants", "1", "--conditions", "none,seesys", *SHORT], cwd=REPO,
-                          capture_output=True, text=True, env={**os.environ, CONFIG_DIR_ENV: str(configs)})
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "study",
+            "simulate",
+            "--out",
+            str(study),
+            "--participants",
+            "1",
+            "--conditions",
+            "none,seesys",
+            *SHORT,
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        env={**os.environ, CONFIG_DIR_ENV: str(configs)},
+    )
     assert done.returncode == 1, done.stderr
     said = " ".join(done.stdout.split())
     assert "0 of 2 sessions done" in said

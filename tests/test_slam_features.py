@@ -60,7 +60,7 @@ def test_rotation_signs_agree_with_image_motion(angle):
 
 
 def test_translation_is_the_displacement_in_the_current_camera():
-    step = np.array([0.02, -0.01, 0.1])       # right, up, forward in the camera's own axes
+    step = np.array([0.02, -0.01, 0.1])  # right, up, forward in the camera's own axes
     before = pose(BASE, [1.0, 2.0, 3.0])
     after = pose(BASE @ about("y", 0.2), np.array([1.0, 2.0, 3.0]) + BASE @ about("y", 0.2) @ step)
     np.testing.assert_allclose(relative_motion(before, after).translation, step, atol=1e-12)
@@ -81,35 +81,61 @@ def scene():
     nodes = np.stack(np.meshgrid(np.arange(24, W - 16, 16), np.arange(24, H - 16, 16)), axis=-1).reshape(-1, 2)
     nodes = rng.permutation(nodes)[:265] + rng.uniform(-2, 2, (265, 2))
     depth = rng.uniform(1.0, 4.0, 265)
-    pc = np.column_stack([(nodes[:, 0] - K[0, 2]) * depth / K[0, 0], (nodes[:, 1] - K[1, 2]) * depth / K[1, 1],
-                          depth])
+    pc = np.column_stack([(nodes[:, 0] - K[0, 2]) * depth / K[0, 0], (nodes[:, 1] - K[1, 2]) * depth / K[1, 1], depth])
     points_w = pc @ pose_wc[:3, :3].T + pose_wc[:3, 3]
-    behind_w = (np.column_stack([rng.uniform(-1, 1, 10), rng.uniform(-1, 1, 10), -rng.uniform(1, 3, 10)])
-                @ pose_wc[:3, :3].T + pose_wc[:3, 3])
+    behind_w = (
+        np.column_stack([rng.uniform(-1, 1, 10), rng.uniform(-1, 1, 10), -rng.uniform(1, 3, 10)]) @ pose_wc[:3, :3].T
+        + pose_wc[:3, 3]
+    )
     noise = rng.uniform(-0.5, 0.5, (200, 2))
     distractors = rng.permutation(nodes + 8.0)[:150]
     keypoints = np.vstack([nodes[:200] + noise, nodes[200:240] + rng.uniform(-1, 1, (40, 2)), distractors])
-    return dict(pose_wc=pose_wc, keypoints=keypoints.astype(np.float32), matched_w=points_w[:200].astype(np.float32),
-                noise=noise, depth=depth[:200], lost_w=np.vstack([points_w[200:], behind_w]))
+    return {
+        "pose_wc": pose_wc,
+        "keypoints": keypoints.astype(np.float32),
+        "matched_w": points_w[:200].astype(np.float32),
+        "noise": noise,
+        "depth": depth[:200],
+        "lost_w": np.vstack([points_w[200:], behind_w]),
+    }
 
 
 def test_features_of_a_constructed_scene(scene):
-    f = slam_features(pose_cw=np.linalg.inv(scene["pose_wc"]), motion=RelativeMotion.still(), matched_inliers=200,
-                      keypoints=scene["keypoints"], matched_points_w=scene["matched_w"],
-                      lost_points_w=scene["lost_w"], camera_matrix=K, width=W, height=H, match_gate_px=3.0,
-                      min_depth=0.01)
+    f = slam_features(
+        pose_cw=np.linalg.inv(scene["pose_wc"]),
+        motion=RelativeMotion.still(),
+        matched_inliers=200,
+        keypoints=scene["keypoints"],
+        matched_points_w=scene["matched_w"],
+        lost_points_w=scene["lost_w"],
+        camera_matrix=K,
+        width=W,
+        height=H,
+        match_gate_px=3.0,
+        min_depth=0.01,
+    )
     expected_inliers = np.zeros(len(scene["keypoints"]), dtype=bool)
     expected_inliers[:200] = True
     np.testing.assert_array_equal(f.inlier_keypoints, expected_inliers)
     assert f.reprojection_error_px == pytest.approx(np.linalg.norm(scene["noise"], axis=1).mean(), abs=1e-3)
     assert f.avg_mp_depth == pytest.approx(scene["depth"].mean(), rel=1e-5)
     assert f.var_mp_depth == pytest.approx(scene["depth"].var(), rel=1e-4)
-    assert f.outliers == 40                  # lost points behind the camera or with no keypoint do not count
+    assert f.outliers == 40  # lost points behind the camera or with no keypoint do not count
     assert f.matched_inliers == 200 and f.matches_before_po == 240
 
 
 def test_no_keypoints_and_no_points():
-    f = slam_features(pose_cw=np.eye(4), motion=RelativeMotion.still(), matched_inliers=0,
-                      keypoints=np.zeros((0, 2)), matched_points_w=np.zeros((0, 3)), lost_points_w=np.zeros((0, 3)),
-                      camera_matrix=K, width=W, height=H, match_gate_px=3.0, min_depth=0.01)
+    f = slam_features(
+        pose_cw=np.eye(4),
+        motion=RelativeMotion.still(),
+        matched_inliers=0,
+        keypoints=np.zeros((0, 2)),
+        matched_points_w=np.zeros((0, 3)),
+        lost_points_w=np.zeros((0, 3)),
+        camera_matrix=K,
+        width=W,
+        height=H,
+        match_gate_px=3.0,
+        min_depth=0.01,
+    )
     assert f.outliers == 0 and np.isnan(f.avg_mp_depth) and np.isnan(f.reprojection_error_px)

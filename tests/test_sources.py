@@ -20,8 +20,11 @@ def test_tum_sample_yields_gray_metric_depth_and_ground_truth():
         frames = list(itertools.islice(source.frames(), 3))
         truth = source.ground_truth()
     assert [f.index for f in frames] == [0, 1, 2]
-    listed = [float(line.split()[0]) for line in (SAMPLE / "rgb.txt").read_text().splitlines()
-              if line and not line.startswith("#")]
+    listed = [
+        float(line.split()[0])
+        for line in (SAMPLE / "rgb.txt").read_text().splitlines()
+        if line and not line.startswith("#")
+    ]
     assert [f.timestamp for f in frames] == pytest.approx(listed[:3], abs=1e-6)
     assert frames[1].timestamp - frames[0].timestamp == pytest.approx(1 / 30, abs=1e-5)
     assert frames[0].gray.dtype == np.uint8 and frames[0].gray.shape == (480, 640)
@@ -59,8 +62,9 @@ def make_euroc(root, frames):
     gt = root / "mav0" / "state_groundtruth_estimate0"
     gt.mkdir()
     rows = [f"{int(round(f.timestamp * 1e9))},{f.index * 0.01},0,0,1,0,0,0" for f in frames]
-    (gt / "data.csv").write_text("#timestamp,p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w,q_RS_x,q_RS_y,q_RS_z\n"
-                                 + "\n".join(rows) + "\n")
+    (gt / "data.csv").write_text(
+        "#timestamp,p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w,q_RS_x,q_RS_y,q_RS_z\n" + "\n".join(rows) + "\n"
+    )
 
 
 def test_euroc_reads_cam0_intrinsics_distortion_and_camera_ground_truth(tmp_path):
@@ -149,9 +153,8 @@ def test_bad_depth_is_reported(small_tum, damage, message):
     name = (small_tum / "depth.txt").read_text().splitlines()[0].split()[1]
     raw = cv2.imread(str(small_tum / name), cv2.IMREAD_UNCHANGED)
     cv2.imwrite(str(small_tum / name), damage(raw))
-    with open_spec(f"tum:{small_tum}", with_depth=True) as source:
-        with pytest.raises(SourceError, match=message):
-            next(source.frames())
+    with open_spec(f"tum:{small_tum}", with_depth=True) as source, pytest.raises(SourceError, match=message):
+        next(source.frames())
 
 
 @pytest.mark.parametrize(

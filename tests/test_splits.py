@@ -33,8 +33,10 @@ def _runs() -> pd.DataFrame:
 
 
 def _config(**changes) -> SplitConfig:
-    return dataclasses.replace(SplitConfig(rounds=3, seed=1, heldout_environments=(), heldout_cameras=(),
-                                           heldout_environments_per_round=2), **changes)
+    return dataclasses.replace(
+        SplitConfig(rounds=3, seed=1, heldout_environments=(), heldout_cameras=(), heldout_environments_per_round=2),
+        **changes,
+    )
 
 
 def test_held_out_rooms_rotate_and_no_room_is_held_out_twice():
@@ -84,8 +86,9 @@ def test_the_lockbox_is_recorded_with_its_hash_and_refused_when_changed(tmp_path
     for path in config_dir().glob("*.toml"):
         (configs / path.name).write_text(path.read_text())
     text = (configs / "dataset.toml").read_text()
-    (configs / "dataset.toml").write_text(text.replace(f'environment = "{lockbox.environment}"',
-                                                       'environment = "office"'))
+    (configs / "dataset.toml").write_text(
+        text.replace(f'environment = "{lockbox.environment}"', 'environment = "office"')
+    )
     with pytest.raises(ConfigError, match="does not match its recorded sha256"):
         load_dataset_config(configs)
 
@@ -93,9 +96,20 @@ def test_the_lockbox_is_recorded_with_its_hash_and_refused_when_changed(tmp_path
 def _write_build(root: Path, runs: pd.DataFrame) -> None:
     """Dataset folders whose run records say what ``runs`` says (the splits read only the records)."""
     for row in runs.itertuples():
-        record_crashed_run(root, RunInfo(row.run, row.run.rsplit("__", 1)[0], row.environment, row.motion_group,
-                                         row.trajectory, "rgbd", int(row.run[-1]), COMPLETED,
-                                         camera_model=row.camera_model))
+        record_crashed_run(
+            root,
+            RunInfo(
+                row.run,
+                row.run.rsplit("__", 1)[0],
+                row.environment,
+                row.motion_group,
+                row.trajectory,
+                "rgbd",
+                int(row.run[-1]),
+                COMPLETED,
+                camera_model=row.camera_model,
+            ),
+        )
 
 
 def test_a_splits_file_records_its_build_and_is_refused_on_another(tmp_path):
@@ -109,8 +123,11 @@ def test_a_splits_file_records_its_build_and_is_refused_on_another(tmp_path):
     assert json.loads(path.read_text())["build"]["name"] == build_fingerprint(runs).name
     assert read_splits(path, [root]).build.runs == len(runs)
     made = build_fingerprint(runs).name
-    with pytest.raises(SplitError, match=rf"^{path} was made from {made} \({len(runs)} runs\), the dataset folders "
-                                         rf"are build-\w{{12}} \({len(runs) - 1} runs\)"):
+    with pytest.raises(
+        SplitError,
+        match=rf"^{path} was made from {made} \({len(runs)} runs\), the dataset folders "
+        rf"are build-\w{{12}} \({len(runs) - 1} runs\)",
+    ):
         read_splits(path, [other])
     # A splits file written before builds were recorded is still checked for leaks on every read.
     legacy = json.loads(path.read_text())

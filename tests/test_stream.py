@@ -14,17 +14,30 @@ from seesys.io.transport import LossCounter, TransportError, bound_endpoint, pub
 from slam_monitor.stream import FeaturePublisher, FeatureSubscriber
 
 
-def feature_frame(i: int, psd: bool, device: str = "dev-7", noisy_psd: bool = False, skipped: int = 0,
-                  schema_version: int = rts_schema.SCHEMA_VERSION) -> FeatureFrame:
+def feature_frame(
+    i: int,
+    psd: bool,
+    device: str = "dev-7",
+    noisy_psd: bool = False,
+    skipped: int = 0,
+    schema_version: int = rts_schema.SCHEMA_VERSION,
+) -> FeatureFrame:
     rng = np.random.default_rng(i)
     matrix = np.zeros((96, 128, 3), dtype=np.uint8)
     if noisy_psd:  # does not compress: ~37 kB a message
         matrix = rng.integers(0, 256, matrix.shape, dtype=np.uint8)
     else:
         matrix[24:72, 32:96][rng.random((48, 64)) < 0.2] = 200
-    return FeatureFrame(device, i, 10.0 + i / 30, TrackingState.OK,
-                        rng.normal(size=rts_schema.NUM_CHANNELS).astype(np.float32), matrix if psd else None,
-                        frames_skipped=skipped, rts_schema_version=schema_version)
+    return FeatureFrame(
+        device,
+        i,
+        10.0 + i / 30,
+        TrackingState.OK,
+        rng.normal(size=rts_schema.NUM_CHANNELS).astype(np.float32),
+        matrix if psd else None,
+        frames_skipped=skipped,
+        rts_schema_version=schema_version,
+    )
 
 
 @pytest.fixture
@@ -36,8 +49,9 @@ def feature_publisher():
 
 def connect(pub: FeaturePublisher, device: str | None = "dev-7") -> FeatureSubscriber:
     sub = FeatureSubscriber(pub.bound_endpoint, device)
-    wait_until_subscribed(lambda: pub.publish(feature_frame(0, psd=False, device=device or "dev-7")), sub,
-                          device or "dev-7")
+    wait_until_subscribed(
+        lambda: pub.publish(feature_frame(0, psd=False, device=device or "dev-7")), sub, device or "dev-7"
+    )
     return sub
 
 
@@ -59,7 +73,7 @@ def test_frames_arrive_intact_and_in_order(feature_publisher):
 
 
 def test_publishing_with_nobody_listening_never_blocks(feature_publisher):
-    for i in range(500):                              # a blocking send would hang here (pytest timeout)
+    for i in range(500):  # a blocking send would hang here (pytest timeout)
         feature_publisher.publish(feature_frame(i, psd=True))
     assert feature_publisher.stats.messages == 500
     assert feature_publisher.stats.wire_bytes > feature_publisher.stats.payload_bytes > 500 * 100
@@ -76,7 +90,7 @@ def test_a_device_subscription_does_not_match_a_longer_device_id():
     mine = [sub.receive(timeout_ms=5000) for _ in range(20)]
     assert {f.device_id for f in mine} == {"dev-1"}
     assert [f.frame_index for f in mine] == list(range(1, 21))
-    assert sub.receive(timeout_ms=200) is None        # nothing of dev-10 is queued behind them
+    assert sub.receive(timeout_ms=200) is None  # nothing of dev-10 is queued behind them
     both = [everyone.receive(timeout_ms=5000) for _ in range(40)]
     assert sorted({f.device_id for f in both}) == ["dev-1", "dev-10"]
     for s in (sub, everyone):
@@ -106,7 +120,7 @@ def test_a_subscriber_that_stops_reading_counts_what_it_lost():
     sub = FeatureSubscriber(pub.bound_endpoint, "dev-7", receive_high_water_mark=5)
     wait_until_subscribed(lambda: pub.publish(feature_frame(0, psd=False)), sub, "dev-7")
     sent = 300
-    for i in range(1, sent + 1):        # the subscriber reads nothing meanwhile; ~11 MB cannot all be buffered
+    for i in range(1, sent + 1):  # the subscriber reads nothing meanwhile; ~11 MB cannot all be buffered
         pub.publish(feature_frame(i, psd=True, noisy_psd=True))
     received = []
     while (frame := sub.receive(timeout_ms=1000)) is not None:

@@ -20,12 +20,15 @@ from study.metrics import completeness_from_frames, completeness_from_poses, tra
 
 DATA = Path(__file__).parent / "data" / "trajectories"
 REPO = Path(__file__).resolve().parent.parent
-PAIRS = [("freiburg1_xyz-rgbdslam.txt", "freiburg1_xyz-groundtruth.txt", False),
-         ("fr2_desk_ORB.txt", "fr2_desk_groundtruth.txt", True)]
+PAIRS = [
+    ("freiburg1_xyz-rgbdslam.txt", "freiburg1_xyz-groundtruth.txt", False),
+    ("fr2_desk_ORB.txt", "fr2_desk_groundtruth.txt", True),
+]
 
 
-def evo_rpe_errors(estimate: Path, reference: Path, monocular: bool, delta: int, max_dt: float,
-                   all_pairs: bool) -> np.ndarray:
+def evo_rpe_errors(
+    estimate: Path, reference: Path, monocular: bool, delta: int, max_dt: float, all_pairs: bool
+) -> np.ndarray:
     """evo alone, from its own TUM reader on: the reference result."""
     from evo.core import sync
     from evo.core.metrics import PoseRelation
@@ -36,8 +39,16 @@ def evo_rpe_errors(estimate: Path, reference: Path, monocular: bool, delta: int,
     ref = file_interface.read_tum_trajectory_file(str(reference))
     est = file_interface.read_tum_trajectory_file(str(estimate))
     ref, est = sync.associate_trajectories(ref, est, max_diff=max_dt)
-    result = rpe(ref, est, PoseRelation.translation_part, delta=delta, delta_unit=Unit.frames, all_pairs=all_pairs,
-                 align=True, correct_scale=monocular)
+    result = rpe(
+        ref,
+        est,
+        PoseRelation.translation_part,
+        delta=delta,
+        delta_unit=Unit.frames,
+        all_pairs=all_pairs,
+        align=True,
+        correct_scale=monocular,
+    )
     return result.np_arrays["error_array"]
 
 
@@ -47,25 +58,43 @@ def test_tracking_error_equals_evo_rpe(estimate, reference, monocular, all_pairs
     cfg = load_study_config().metrics
     cfg = type(cfg)(**{**cfg.__dict__, "all_pairs": all_pairs})
     ours = tracking_metrics(read_tum(DATA / estimate), read_tum(DATA / reference), monocular, cfg)
-    evo = evo_rpe_errors(DATA / estimate, DATA / reference, monocular, cfg.delta_frames, cfg.association_max_dt_s,
-                         all_pairs)
+    evo = evo_rpe_errors(
+        DATA / estimate, DATA / reference, monocular, cfg.delta_frames, cfg.association_max_dt_s, all_pairs
+    )
     assert ours.pairs == len(evo) > 50
     assert ours.rpe_mean_m == pytest.approx(float(np.mean(evo)), rel=1e-9)
-    assert ours.rpe_rmse_m == pytest.approx(float(np.sqrt(np.mean(evo ** 2))), rel=1e-9)
+    assert ours.rpe_rmse_m == pytest.approx(float(np.sqrt(np.mean(evo**2))), rel=1e-9)
     assert ours.alignment == ("Sim(3)" if monocular else "SE(3)")
 
 
 @pytest.mark.system
 def test_metrics_command_json_keys_and_values():
     estimate, reference, _ = PAIRS[0]
-    out = subprocess.run([sys.executable, "-m", "seesys", "study", "metrics", "--slam", str(DATA / estimate),
-                          "--mocap", str(DATA / reference), "--json"], capture_output=True, text=True, cwd=REPO,
-                         env=os.environ, timeout=120, check=True).stdout
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "study",
+            "metrics",
+            "--slam",
+            str(DATA / estimate),
+            "--mocap",
+            str(DATA / reference),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        env=os.environ,
+        timeout=120,
+        check=True,
+    ).stdout
     data = json.loads(out)
     evo = evo_rpe_errors(DATA / estimate, DATA / reference, False, 10, data["association_max_dt_s"], True)
     assert data["pairs"] == len(evo)
     assert data["rpe_mean_m"] == pytest.approx(float(np.mean(evo)), rel=1e-9)
-    assert data["rpe_rmse_m"] == pytest.approx(float(np.sqrt(np.mean(evo ** 2))), rel=1e-9)
+    assert data["rpe_rmse_m"] == pytest.approx(float(np.sqrt(np.mean(evo**2))), rel=1e-9)
     assert 0.9 < data["completeness"] <= 1.0
     # TUM's fr1/xyz (a Kinect v1 whose depth TUM calibrated) through RGB-D SLAM: metric within 2 %
     scale = data["camera_scale"]
@@ -135,12 +164,23 @@ def _evo_stretch_errors(estimate: Poses, reference: Poses, cfg) -> np.ndarray:
     from evo.main_rpe import rpe
 
     def evo(p: Poses) -> PoseTrajectory3D:
-        return PoseTrajectory3D(positions_xyz=p.positions, orientations_quat_wxyz=p.quaternions_xyzw[:, [3, 0, 1, 2]],
-                                timestamps=p.timestamps)
+        return PoseTrajectory3D(
+            positions_xyz=p.positions,
+            orientations_quat_wxyz=p.quaternions_xyzw[:, [3, 0, 1, 2]],
+            timestamps=p.timestamps,
+        )
 
     ref, est = sync.associate_trajectories(evo(reference), evo(estimate), max_diff=cfg.association_max_dt_s)
-    return rpe(ref, est, PoseRelation.translation_part, delta=cfg.delta_frames, delta_unit=Unit.frames,
-               all_pairs=cfg.all_pairs, align=True, correct_scale=False).np_arrays["error_array"]
+    return rpe(
+        ref,
+        est,
+        PoseRelation.translation_part,
+        delta=cfg.delta_frames,
+        delta_unit=Unit.frames,
+        all_pairs=cfg.all_pairs,
+        align=True,
+        correct_scale=False,
+    ).np_arrays["error_array"]
 
 
 @pytest.mark.parametrize("with_frame_log", [True, False])
@@ -155,7 +195,7 @@ def test_a_loss_and_a_new_map_give_the_per_stretch_evo_rpe(with_frame_log):
     expected = np.concatenate([_evo_stretch_errors(p, reference, cfg) for p in parts])
     assert result.pairs == len(expected)
     assert result.rpe_mean_m == pytest.approx(float(expected.mean()), rel=1e-9)
-    assert result.rpe_rmse_m == pytest.approx(float(np.sqrt(np.mean(expected ** 2))), rel=1e-9)
+    assert result.rpe_rmse_m == pytest.approx(float(np.sqrt(np.mean(expected**2))), rel=1e-9)
     assert result.stretches == 2
     # 1 mm of noise per pose: the error is that of each map, not of the reset between them.
     assert result.rpe_max_m < 0.01

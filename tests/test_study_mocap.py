@@ -27,6 +27,8 @@ from study.mocap.importers import MocapImportError, read_vicon_csv
 from study.mocap.logger import MocapUnavailable, connect
 
 REPO = Path(__file__).resolve().parent.parent
+
+
 @pytest.fixture
 def simulated_session(tmp_path):
     return write_simulated_session(tmp_path)
@@ -53,9 +55,21 @@ def test_offset_and_hand_eye_recovered_and_ground_truth_is_the_camera(simulated_
 @pytest.mark.system
 def test_calibrate_command_keeps_existing_ground_truth(simulated_session):
     (simulated_session / "groundtruth.tum").write_text("# kept\n")
-    run = lambda *extra: subprocess.run([sys.executable, "-m", "seesys", "study", "calibrate",  # noqa: E731
-                                         str(simulated_session), *extra], capture_output=True, text=True,
-                                        cwd=REPO, timeout=120)
+    run = lambda *extra: subprocess.run(  # noqa: E731
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "study",
+            "calibrate",
+            str(simulated_session),
+            *extra,
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
     refused = run()
     assert refused.returncode == 2 and "--overwrite" in refused.stderr
     assert (simulated_session / "groundtruth.tum").read_text() == "# kept\n"
@@ -76,9 +90,19 @@ def test_a_body_that_does_not_rotate_cannot_give_an_offset():
 def test_vicon_csv_import(tmp_path):
     """The Nexus layout: blocks, rate, Subject:Segment, helical angles in degrees, millimetres, occlusion gaps."""
     rotvec_deg = np.array([10.0, -20.0, 30.0])
-    rows = ["Devices", "1000", "", "Frame,Sub Frame", "", "", "Segments", "100",
-            ",,handheld:handheld,,,,,,other:other", "Frame,Sub Frame,RX,RY,RZ,TX,TY,TZ,RX,RY,RZ,TX,TY,TZ",
-            ",,deg,deg,deg,mm,mm,mm,deg,deg,deg,mm,mm,mm"]
+    rows = [
+        "Devices",
+        "1000",
+        "",
+        "Frame,Sub Frame",
+        "",
+        "",
+        "Segments",
+        "100",
+        ",,handheld:handheld,,,,,,other:other",
+        "Frame,Sub Frame,RX,RY,RZ,TX,TY,TZ,RX,RY,RZ,TX,TY,TZ",
+        ",,deg,deg,deg,mm,mm,mm,deg,deg,deg,mm,mm,mm",
+    ]
     for frame in range(1, 6):
         pose = "" if frame == 3 else ",".join(map(str, [*rotvec_deg, 100.0 * frame, 200.0, 1500.0]))
         rows.append(f"{frame},0,{pose or ',,,,,'},0,0,0,0,0,0")
@@ -96,9 +120,14 @@ def test_vicon_csv_import(tmp_path):
 @pytest.mark.system
 def test_live_logging_with_the_mock_backend_stamps_on_receipt(tmp_path):
     before = time.time()
-    done = subprocess.run([sys.executable, "-m", "seesys", "study", "mocap", "log", "--out", str(tmp_path),
-                           "--duration", "0.5"], capture_output=True, text=True, cwd=REPO, timeout=120,
-                          env=os.environ)
+    done = subprocess.run(
+        [sys.executable, "-m", "seesys", "study", "mocap", "log", "--out", str(tmp_path), "--duration", "0.5"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+        env=os.environ,
+    )
     after = time.time()
     assert done.returncode == 0, done.stderr
     poses = read_tum(tmp_path / "mocap.tum")
@@ -123,8 +152,11 @@ def test_an_export_timed_from_the_capture_start_is_found(simulated_session):
     cfg = load_study_config()
     markers = read_tum(simulated_session / "mocap.tum")
     capture_start = markers.timestamps[0] - 0.4  # the capture started 0.4 s before the first pose logged
-    write_tum(simulated_session / "export.tum", Poses(markers.timestamps - capture_start, markers.positions,
-                                                      markers.quaternions_xyzw))
-    result = calibrate_session(simulated_session, cfg.calibration, cfg.mocap.body,
-                               mocap=simulated_session / "export.tum")
+    write_tum(
+        simulated_session / "export.tum",
+        Poses(markers.timestamps - capture_start, markers.positions, markers.quaternions_xyzw),
+    )
+    result = calibrate_session(
+        simulated_session, cfg.calibration, cfg.mocap.body, mocap=simulated_session / "export.tum"
+    )
     assert abs(result.clock.offset_s - (OFFSET_S + capture_start)) < 0.002

@@ -23,7 +23,7 @@ REPO = Path(__file__).resolve().parent.parent
 def test_between_subjects_assignment_is_balanced_and_seeded():
     cfg = load_study_config().protocol
     a = make_protocol(cfg, participants_per_condition=10)
-    assert Counter(p.conditions[0] for p in a.participants) == {c: 10 for c in cfg.conditions}
+    assert Counter(p.conditions[0] for p in a.participants) == dict.fromkeys(cfg.conditions, 10)
     assert [p.id for p in a.participants][:2] == ["P01", "P02"]
     assert make_protocol(cfg, participants_per_condition=10) == a
     assert make_protocol(cfg, participants_per_condition=10, seed=1) != a
@@ -65,16 +65,26 @@ def test_operator_events_from_a_pipe():
     reader = OperatorInput(io.StringIO("i\no\nbogus\nn scanned the back\no\nq\ni\n"))
     reader.record = recorded.append
     reader.run()
-    assert [(e.kind, e.detail) for e in recorded] == [("initialised", ""), ("object", "1"),
-                                                      ("note", "scanned the back"), ("object", "2"), ("end", "")]
+    assert [(e.kind, e.detail) for e in recorded] == [
+        ("initialised", ""),
+        ("object", "1"),
+        ("note", "scanned the back"),
+        ("object", "2"),
+        ("end", ""),
+    ]
     assert all(a.time <= b.time for a, b in itertools.pairwise(recorded))
     assert reader.events.qsize() == 5
 
 
 @pytest.mark.system
 def test_new_and_status_commands(tmp_path):
-    run = lambda *a: subprocess.run([sys.executable, "-m", "seesys", "study", *a], capture_output=True,  # noqa: E731
-                                    text=True, cwd=REPO, timeout=120)
+    run = lambda *a: subprocess.run(  # noqa: E731
+        [sys.executable, "-m", "seesys", "study", *a],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
     made = run("new", str(tmp_path / "s"), "--per-condition", "2", "--design", "within")
     assert made.returncode == 0, made.stderr
     assert "within-subjects, 6 participants" in made.stdout
@@ -108,7 +118,11 @@ def test_operator_keys_on_a_terminal():
         os.write(master, b"io" + b"nback side\n" + b"xq")
         reader.join(timeout=30)
         assert not reader.is_alive()
-        assert [(e.kind, e.detail) for e in recorded] == [("initialised", ""), ("object", "1"),
-                                                          ("note", "back side"), ("end", "")]
+        assert [(e.kind, e.detail) for e in recorded] == [
+            ("initialised", ""),
+            ("object", "1"),
+            ("note", "back side"),
+            ("end", ""),
+        ]
         assert termios.tcgetattr(slave) == before
     os.close(master)

@@ -51,23 +51,52 @@ def sandbox(tmp_path_factory):
     errors = 0.006 + 0.005 * np.sin(np.arange(len(times)) / 8)
     pd.DataFrame({"timestamp": times, "error_m": errors}).to_csv(root / "estimates.csv", index=False)
     with JackDummy(cfg.audio.sample_rate, cfg.audio.blocksize) as jack:
-        configs = write_config_dir(root / "configs", {
-            "host_api": JACK_HOST_API, "endpoint": f"ipc://{root}/handoff",
-            "estimates_endpoint": f"ipc://{root}/estimates", "features_endpoint": f"ipc://{root}/features"})
+        configs = write_config_dir(
+            root / "configs",
+            {
+                "host_api": JACK_HOST_API,
+                "endpoint": f"ipc://{root}/handoff",
+                "estimates_endpoint": f"ipc://{root}/estimates",
+                "features_endpoint": f"ipc://{root}/features",
+            },
+        )
         yield root, process_env(configs, jack)
 
 
 def seesys(env: dict, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "seesys", *args], capture_output=True, text=True, cwd=REPO,
-                          env=env, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "seesys", *args], capture_output=True, text=True, cwd=REPO, env=env, timeout=600
+    )
 
 
 def start_run(root: Path, env: dict, participant: str, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "seesys", "study", "run", str(root / "study"), "--participant",
-                             participant, "--phase", "task", "--source", f"tum:{SAMPLE}", "--max-frames",
-                             str(FRAMES), "--replay-estimates", str(root / "estimates.csv"), *extra],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=REPO, env=env)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "study",
+            "run",
+            str(root / "study"),
+            "--participant",
+            participant,
+            "--phase",
+            "task",
+            "--source",
+            f"tum:{SAMPLE}",
+            "--max-frames",
+            str(FRAMES),
+            "--replay-estimates",
+            str(root / "estimates.csv"),
+            *extra,
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+        env=env,
+    )
 
 
 def frames_logged(attempt: Path) -> int:
@@ -82,8 +111,7 @@ def run_with_events(root: Path, env: dict, participant: str, attempt: Path, *ext
     proc = start_run(root, env, participant, *extra)
     proc.stdin.write("i\n")
     proc.stdin.flush()
-    wait_for(lambda: frames_logged(attempt) >= 20 or proc.poll() is not None, 300, "20 frames tracked",
-             interval_s=0.05)
+    wait_for(lambda: frames_logged(attempt) >= 20 or proc.poll() is not None, 300, "20 frames tracked", interval_s=0.05)
     proc.stdin.write("o\n")
     proc.stdin.flush()
     out, err = proc.communicate(timeout=600)
@@ -91,8 +119,9 @@ def run_with_events(root: Path, env: dict, participant: str, attempt: Path, *ext
     assert "completed" in out
 
 
-def kill_at_random(root: Path, env: dict, participant: str, attempt: Path, rng: random.Random,
-                   during_tracking: bool) -> float:
+def kill_at_random(
+    root: Path, env: dict, participant: str, attempt: Path, rng: random.Random, during_tracking: bool
+) -> float:
     """SIGKILL the runner at a random moment (of its start-up, or while the device tracks); returns the time."""
     proc = start_run(root, env, participant)
     proc.stdin.write("i\nn before the kill\n")
@@ -145,7 +174,9 @@ def test_study_end_to_end_with_kills(sandbox):
     assert done.returncode == 0, done.stderr
     protocol = json.loads((root / "study" / "protocol.json").read_text())
     people = [p["id"] for p in protocol["participants"]]
-    task = lambda p, n: root / "study" / "participants" / p / "task" / f"attempt-{n}"  # noqa: E731
+
+    def task(p: str, n: int) -> Path:
+        return root / "study" / "participants" / p / "task" / f"attempt-{n}"
 
     # P01: killed during start-up or tracking, then resumed: both attempts count.
     killed = kill_at_random(root, env, people[0], task(people[0], 1), rng, during_tracking=rng.random() < 0.5)
@@ -186,7 +217,14 @@ def test_study_end_to_end_with_kills(sandbox):
     assert table.loc[table.participant == people[0], "attempts"].item() == resumed
     assert table.rpe_mean_m.between(0, 0.05).all() and table.completeness.gt(0.5).all()
     report = (out / "report.md").read_text()
-    for heading in ("No audio", "Audio (Rotation)", "Audio (SEESys)", "Tracking error (cm)",
-                    "Tracking completeness (%)", "(n = 1)", "fewer than two conditions with two or more"):
+    for heading in (
+        "No audio",
+        "Audio (Rotation)",
+        "Audio (SEESys)",
+        "Tracking error (cm)",
+        "Tracking completeness (%)",
+        "(n = 1)",
+        "fewer than two conditions with two or more",
+    ):
         assert heading in report
     assert (out / "report.html").exists() and (out / "figures" / "trajectories_seesys.png").exists()

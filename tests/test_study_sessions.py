@@ -72,8 +72,12 @@ def test_a_done_phase_needs_restart(within):
     with pytest.raises(SeesysError, match="--restart"):
         Session(options, load_study_config(), OperatorInput(io.StringIO("")), Console(file=io.StringIO()))
     with pytest.raises(SeesysError, match="unknown phase"):
-        Session(RunOptions(study, person.id, "warmup"), load_study_config(), OperatorInput(io.StringIO("")),
-                Console(file=io.StringIO()))
+        Session(
+            RunOptions(study, person.id, "warmup"),
+            load_study_config(),
+            OperatorInput(io.StringIO("")),
+            Console(file=io.StringIO()),
+        )
 
 
 def test_attempt_states(tmp_path):
@@ -83,7 +87,7 @@ def test_attempt_states(tmp_path):
     assert read_run(a1)["status"] == INCOMPLETE  # killed before run.json
     (a1 / "run.json").write_text(json.dumps({"status": "running", "pid": os.getpid()}))
     assert read_run(a1)["status"] == "running"  # its process lives
-    (a1 / "run.json").write_text(json.dumps({"status": "running", "pid": 2 ** 22 + 11}))
+    (a1 / "run.json").write_text(json.dumps({"status": "running", "pid": 2**22 + 11}))
     assert phase_status(phase) == INCOMPLETE
     a2 = next_attempt_folder(phase)
     assert a2.name == "attempt-2"
@@ -94,13 +98,18 @@ def test_attempt_states(tmp_path):
 def test_status_line_reads_the_growing_logs(within):
     study, protocol = within
     person = protocol.participants[0]
-    session = Session(RunOptions(study, person.id, "task"), load_study_config(), OperatorInput(io.StringIO("")),
-                      Console(file=io.StringIO()))
+    session = Session(
+        RunOptions(study, person.id, "task"),
+        load_study_config(),
+        OperatorInput(io.StringIO("")),
+        Console(file=io.StringIO()),
+    )
     session.attempt = next_attempt_folder(session.phase_folder)
     session.frames = RowCounter(session.attempt / "frames.csv")
     session.record_mocap = True
-    (session.attempt / "frames.csv").write_text("frame_index,timestamp,state,tracked_points,track_ms\n"
-                                                "0,1.0,OK,300,20.0\n1,1.03,LOST,0,20.0\n2,1.06,O")  # half a row
+    (session.attempt / "frames.csv").write_text(
+        "frame_index,timestamp,state,tracked_points,track_ms\n0,1.0,OK,300,20.0\n1,1.03,LOST,0,20.0\n2,1.06,O"
+    )  # half a row
     (session.attempt / MOCAP_STATS).write_text(json.dumps({"rate_hz": 99.6, "last_pose_time": time.time()}))
     watcher = StreamWatcher(load_network_config(), session.attempt, "device")
     line = session._status_line(watcher).plain
@@ -128,8 +137,12 @@ def test_end_of_session_calibration_writes_the_ground_truth(within, tmp_path):
     from testkit.mocap import OFFSET_S, write_simulated_session
 
     study, protocol = within
-    session = Session(RunOptions(study, protocol.participants[0].id, "task"), load_study_config(),
-                      OperatorInput(io.StringIO("")), Console(file=io.StringIO()))
+    session = Session(
+        RunOptions(study, protocol.participants[0].id, "task"),
+        load_study_config(),
+        OperatorInput(io.StringIO("")),
+        Console(file=io.StringIO()),
+    )
     session.record_mocap = True
     (tmp_path / "moving").mkdir()
     session.attempt = write_simulated_session(tmp_path / "moving")
@@ -140,8 +153,9 @@ def test_end_of_session_calibration_writes_the_ground_truth(within, tmp_path):
 
     (tmp_path / "still").mkdir()
     session.attempt = write_simulated_session(tmp_path / "still")
-    (session.attempt / "mocap.tum").write_text("# t x y z qx qy qz qw\n" + "".join(
-        f"{1000 + i / 100:.2f} 0.1 0.2 1.5 0 0 0 1\n" for i in range(3000)))
+    (session.attempt / "mocap.tum").write_text(
+        "# t x y z qx qy qz qw\n" + "".join(f"{1000 + i / 100:.2f} 0.1 0.2 1.5 0 0 0 1\n" for i in range(3000))
+    )
     outcome = session._calibrate()
     assert outcome.startswith("failed: a trajectory does not rotate") and "seesys study calibrate" in outcome
     assert not (session.attempt / "groundtruth.tum").exists()
@@ -170,12 +184,15 @@ def _recorded_attempt(folder, task_end_frame: int | None, frames: int = 240):
     tracked = states == "OK"
     write_tum(folder / "groundtruth.tum", Poses(t, truth, quats))
     write_tum(folder / "trajectory.tum", Poses(t[tracked], estimate[tracked], quats[tracked]))
-    pd.DataFrame({"frame_index": np.arange(frames), "timestamp": t, "state": states, "tracked_points": 300,
-                  "track_ms": 20.0}).to_csv(folder / "frames.csv", index=False)
+    pd.DataFrame(
+        {"frame_index": np.arange(frames), "timestamp": t, "state": states, "tracked_points": 300, "track_ms": 20.0}
+    ).to_csv(folder / "frames.csv", index=False)
     run = {"status": "completed"}
     if task_end_frame is not None:
-        run = {"status": "stopped", "task_end": {"time": 0.0, "frame_index": task_end_frame,
-                                                 "timestamp": float(t[task_end_frame])}}
+        run = {
+            "status": "stopped",
+            "task_end": {"time": 0.0, "frame_index": task_end_frame, "timestamp": float(t[task_end_frame])},
+        }
     (folder / "run.json").write_text(json.dumps(run))
     return folder, t
 
@@ -194,8 +211,9 @@ def test_the_metrics_use_the_task_span_only(tmp_path):
     assert whole.completeness < 0.9 and whole.rpe_max_m > 0.02  # what the frames after the end would have added
     frames = read_frame_log(stopped / "frames.csv")
     assert len(frames) == 240  # the frames after the end are kept in the session
-    (stopped / "run.json").write_text(json.dumps({"status": "stopped", "task_end": {"time": 0.0, "frame_index": None,
-                                                                                      "timestamp": None}}))
+    (stopped / "run.json").write_text(
+        json.dumps({"status": "stopped", "task_end": {"time": 0.0, "frame_index": None, "timestamp": None}})
+    )
     nothing, _ = participant_metrics([stopped], cfg)
     assert nothing.pairs == 0  # ended before the device logged a frame: no frame was in the task
 
@@ -213,10 +231,19 @@ def no_sound_card(monkeypatch):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         closed_port = s.getsockname()[1]
-    configs = write_config_dir(root / "configs", {
-        "endpoint": f"ipc://{root}/handoff", "estimates_endpoint": f"ipc://{root}/estimates",
-        "features_endpoint": f"ipc://{root}/features", "output_device": "no-such-sound-card",
-        "backend": "vicon", "hostname": "127.0.0.1", "port": closed_port, "connect_timeout_s": 2.0})
+    configs = write_config_dir(
+        root / "configs",
+        {
+            "endpoint": f"ipc://{root}/handoff",
+            "estimates_endpoint": f"ipc://{root}/estimates",
+            "features_endpoint": f"ipc://{root}/features",
+            "output_device": "no-such-sound-card",
+            "backend": "vicon",
+            "hostname": "127.0.0.1",
+            "port": closed_port,
+            "connect_timeout_s": 2.0,
+        },
+    )
     monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
     yield root
     shutil.rmtree(root, ignore_errors=True)
@@ -232,15 +259,19 @@ def test_a_failed_start_is_no_attempt_and_no_sound_card_means_a_jack_dummy(no_so
     write_protocol(study, protocol)
     person = next(p for p in protocol.participants if p.conditions == ["seesys"])
     console = io.StringIO()
-    session = Session(RunOptions(study, person.id, "task", source=f"tum:{SAMPLE}", record_mocap=True),
-                      load_study_config(), OperatorInput(io.StringIO("")), Console(file=console))
+    session = Session(
+        RunOptions(study, person.id, "task", source=f"tum:{SAMPLE}", record_mocap=True),
+        load_study_config(),
+        OperatorInput(io.StringIO("")),
+        Console(file=console),
+    )
     with pytest.raises(SeesysError) as e:
         session.run()
     message = str(e.value)
     assert "mocap" in message and "failed start, not counted as an attempt" in message and "\n" not in message
     phase = session.phase_folder
     assert attempt_folders(phase) == [] and phase_status(phase) == "pending"
-    (aside,) = [p for p in phase.iterdir()]
+    (aside,) = list(phase.iterdir())
     assert aside.name.startswith("failed-start-") and str(aside) in message
     run = json.loads((aside / "run.json").read_text())
     assert run["status"] == "failed" and run["failed_start"] is True and str(aside / "logs") in run["start_error"]
@@ -259,10 +290,8 @@ def test_a_device_that_ignores_sigint_is_terminated_after_the_timeout(tmp_path):
 
     from seesys.io.children import Child
 
-    code = ("import signal; signal.signal(signal.SIGINT, signal.SIG_IGN); print('ready', flush=True); "
-            "signal.pause()")
-    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
-                               start_new_session=True)
+    code = "import signal; signal.signal(signal.SIGINT, signal.SIG_IGN); print('ready', flush=True); signal.pause()"
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, start_new_session=True)
     assert process.stdout.readline().strip() == "ready"
     device = Child("device", process, tmp_path / "device.log")
     assert device.interrupt(0.5) == -15 and not device.running  # SIGTERM ended it
@@ -273,6 +302,10 @@ def test_a_collapsed_replay_log_is_refused_before_anything_starts(within, tmp_pa
     log = tmp_path / "est.csv"
     log.write_text("timestamp,error_m\n" + "1.3050311e+09,0.01\n" * 10)
     with pytest.raises(SeesysError, match="lost their precision"):
-        Session(RunOptions(study, protocol.participants[0].id, "task", replay_estimates=log), load_study_config(),
-                OperatorInput(io.StringIO("")), Console(file=io.StringIO()))
+        Session(
+            RunOptions(study, protocol.participants[0].id, "task", replay_estimates=log),
+            load_study_config(),
+            OperatorInput(io.StringIO("")),
+            Console(file=io.StringIO()),
+        )
     assert not list(study.rglob("attempt-*"))

@@ -42,13 +42,20 @@ def study():
     if not JackDummy.available():
         pytest.skip("jackd is not installed (apt package jackd2)")
     root = Path(tempfile.mkdtemp(prefix="sstop", dir="/tmp"))  # ipc paths are at most 107 bytes
-    configs = write_config_dir(root / "configs", {
-        "endpoint": f"ipc://{root}/handoff", "estimates_endpoint": f"ipc://{root}/estimates",
-        "features_endpoint": f"ipc://{root}/features", "output_device": "no-such-sound-card"})
+    configs = write_config_dir(
+        root / "configs",
+        {
+            "endpoint": f"ipc://{root}/handoff",
+            "estimates_endpoint": f"ipc://{root}/estimates",
+            "features_endpoint": f"ipc://{root}/features",
+            "output_device": "no-such-sound-card",
+        },
+    )
     source = stretched_sample(root / "source", STRETCH)
     times = [float(line.split()[0]) for line in (source / "rgb.txt").read_text().splitlines() if line[:1] != "#"]
     pd.DataFrame({"frame_index": range(len(times)), "timestamp": times, "error_m": 0.006}).to_csv(
-        root / "estimates.csv", index=False)
+        root / "estimates.csv", index=False
+    )
     protocol = make_protocol(load_study_config(configs).protocol, participants_per_condition=2)
     write_protocol(root / "study", protocol)
     people = [p.id for p in protocol.participants if p.conditions == ["seesys"]]
@@ -65,15 +72,40 @@ def frames_logged(attempt: Path) -> int:
 
 def run_until_frame(root: Path, env: dict, source: Path, participant: str) -> tuple[subprocess.Popen, Path]:
     attempt = root / "study" / "participants" / participant / "task" / "attempt-1"
-    runner = subprocess.Popen([sys.executable, "-m", "seesys", "study", "run", str(root / "study"), "--participant",
-                               participant, "--phase", "task", "--source", f"tum:{source}", "--pace", "--no-mocap",
-                               "--replay-estimates", str(root / "estimates.csv")],
-                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              cwd=REPO, env=env)
+    runner = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "study",
+            "run",
+            str(root / "study"),
+            "--participant",
+            participant,
+            "--phase",
+            "task",
+            "--source",
+            f"tum:{source}",
+            "--pace",
+            "--no-mocap",
+            "--replay-estimates",
+            str(root / "estimates.csv"),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+        env=env,
+    )
     runner.stdin.write("i\n")
     runner.stdin.flush()
-    wait_for(lambda: frames_logged(attempt) >= STOP_AT or runner.poll() is not None, 300,
-             f"{STOP_AT} frames tracked", interval_s=0.05)
+    wait_for(
+        lambda: frames_logged(attempt) >= STOP_AT or runner.poll() is not None,
+        300,
+        f"{STOP_AT} frames tracked",
+        interval_s=0.05,
+    )
     assert runner.poll() is None, runner.communicate()[1][-3000:]
     return runner, attempt
 
@@ -83,8 +115,10 @@ def check_the_device_stopped(attempt: Path, told_at: float) -> dict:
     manifest = json.loads((attempt / "session.json").read_text())
     ended = datetime.fromisoformat(manifest["end_time"]).timestamp()  # to the second
     # For the record (-s); a loaded machine may take longer, so the bound below is on frames, not seconds.
-    print(f"{attempt}: the device ended {ended - told_at:+.1f} s (end_time to the second) after it was told, with "
-          f"{frames_logged(attempt)} frames")
+    print(
+        f"{attempt}: the device ended {ended - told_at:+.1f} s (end_time to the second) after it was told, with "
+        f"{frames_logged(attempt)} frames"
+    )
     assert manifest["status"] == "interrupted", manifest
     stats = json.loads((attempt / "monitor_stats.json").read_text())
     assert stats["frames_seen"] == frames_logged(attempt)

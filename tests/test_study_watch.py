@@ -24,13 +24,17 @@ OURS, THEIRS, SESSION, EARLIER = "mine", "theirs", 7, 3
 
 
 def _frame(device: str, index: int, state: TrackingState, session: int) -> FeatureFrame:
-    return FeatureFrame(device, index, index / 30, state, np.zeros(rts_schema.NUM_CHANNELS, np.float32),
-                        stream_session=session)
+    return FeatureFrame(
+        device, index, index / 30, state, np.zeros(rts_schema.NUM_CHANNELS, np.float32), stream_session=session
+    )
 
 
 def test_the_watcher_takes_its_devices_estimates_of_its_stream_session_only(tmp_path):
-    network = dataclasses.replace(load_network_config(), features_endpoint=f"ipc://{tmp_path}/features",
-                                  estimates_endpoint=f"ipc://{tmp_path}/estimates")
+    network = dataclasses.replace(
+        load_network_config(),
+        features_endpoint=f"ipc://{tmp_path}/features",
+        estimates_endpoint=f"ipc://{tmp_path}/estimates",
+    )
     ctx = zmq.Context()
     features = open_socket(ctx, zmq.PUB, network.features_endpoint, "features", bind=True)
     estimates = open_socket(ctx, zmq.PUB, network.estimates_endpoint, "estimates", bind=True)
@@ -48,13 +52,20 @@ def test_the_watcher_takes_its_devices_estimates_of_its_stream_session_only(tmp_
             features.send_multipart(encode(_frame(OURS, index, state, SESSION)))
             features.send_multipart(encode(_frame(THEIRS, index, TrackingState.OK, 99)))
             for device, session, error in ((OURS, SESSION, 0.004), (OURS, EARLIER, 0.5), (THEIRS, 99, 0.9)):
-                estimates.send_multipart(encode(Estimate(device, index, index / 30, error, "m", stream_session=session)))
+                estimates.send_multipart(
+                    encode(Estimate(device, index, index / 30, error, "m", stream_session=session))
+                )
             return condition()
 
-        wait_for(lambda: publish_until(lambda: watcher.stream_session == SESSION and watcher.estimates >= 3
-                                       and watcher.foreign_estimates >= 3),
-                 what=lambda: f"session {watcher.stream_session}, {watcher.estimates} estimates, "
-                              f"{watcher.foreign_estimates} foreign, error {watcher.error}")
+        wait_for(
+            lambda: publish_until(
+                lambda: watcher.stream_session == SESSION and watcher.estimates >= 3 and watcher.foreign_estimates >= 3
+            ),
+            what=lambda: (
+                f"session {watcher.stream_session}, {watcher.estimates} estimates, "
+                f"{watcher.foreign_estimates} foreign, error {watcher.error}"
+            ),
+        )
         assert watcher.error is None
         assert 0 < watcher.tracked_frames < index  # the tracked ones of our device only (every other is LOST)
         assert watcher.last_frame_mono is not None and watcher.last_frame_mono <= time.monotonic()

@@ -81,8 +81,9 @@ def test_generated_motion_groups_stay_in_the_room_and_differ_in_speed(config):
     speeds = {group: [] for group in MOTION_GROUPS}
     for seed in range(3):
         for group in MOTION_GROUPS:
-            traj = generate_motion(group, getattr(config.motion, group), lo, hi, config.trajectory, 20.0,
-                                   np.random.default_rng(seed))
+            traj = generate_motion(
+                group, getattr(config.motion, group), lo, hi, config.trajectory, 20.0, np.random.default_rng(seed)
+            )
             margin = config.trajectory.wall_margin_m
             assert (traj.positions >= lo + margin - 1e-9).all() and (traj.positions <= hi - margin + 1e-9).all()
             rel = traj.rotations[:-1].inv() * traj.rotations[1:]
@@ -106,8 +107,9 @@ def test_real_trajectories_are_placed_inside_the_smallest_room(config):
         placed = place_real(full.window(0.0, 30.0), lo, hi, config.trajectory, np.random.default_rng(1))
         assert (placed.positions >= lo + margin - 1e-9).all() and (placed.positions <= hi - margin + 1e-9).all()
         # Only turned about the vertical: the camera's tilt (z of its viewing direction) is kept.
-        np.testing.assert_allclose(placed.rotations.as_matrix()[:, 2, 2],
-                                   full.window(0.0, 30.0).rotations.as_matrix()[:, 2, 2], atol=1e-9)
+        np.testing.assert_allclose(
+            placed.rotations.as_matrix()[:, 2, 2], full.window(0.0, 30.0).rotations.as_matrix()[:, 2, 2], atol=1e-9
+        )
         # Placement is a similarity: relative rotations are kept.
         rel_full = (full.rotations[0].inv() * full.rotations[5]).magnitude()
         rel_placed = (placed.rotations[0].inv() * placed.rotations[5]).magnitude()
@@ -134,8 +136,15 @@ def test_sequence_is_deterministic_tum_layout_with_metadata(config, tmp_path):
     render_sequence(_tiny("rapid", distortion=True), config, two, processes=2, show_progress=False)
     assert png_bytes(one) == png_bytes(two) and len(png_bytes(one)) == 12
 
-    for name in ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "calibration.yaml",
-                 "metadata.json", "render_log.csv"):
+    for name in (
+        "rgb.txt",
+        "depth.txt",
+        "associations.txt",
+        "groundtruth.txt",
+        "calibration.yaml",
+        "metadata.json",
+        "render_log.csv",
+    ):
         assert (one / name).is_file(), name
     assoc = [line.split() for line in (one / "associations.txt").read_text().splitlines()]
     assert len(assoc) == 6
@@ -161,8 +170,10 @@ def test_a_batch_folder_is_the_same_sequence_whatever_else_the_batch_renders(con
     render_batch(template, ["basement"], ["aiming"], [0], config, tmp_path / "alone", processes=1)
     render_batch(template, ["lab", "basement"], ["rapid", "aiming"], [0], config, tmp_path / "wide", processes=1)
     alone, wide = tmp_path / "alone" / "basement__aiming__s0", tmp_path / "wide" / "basement__aiming__s0"
-    assert json.loads((alone / "metadata.json").read_text())["seed"] == json.loads(
-        (wide / "metadata.json").read_text())["seed"]
+    assert (
+        json.loads((alone / "metadata.json").read_text())["seed"]
+        == json.loads((wide / "metadata.json").read_text())["seed"]
+    )
     assert png_bytes(alone) == png_bytes(wide)
     lab_rapid = json.loads((tmp_path / "wide" / "lab__rapid__s0" / "metadata.json").read_text())
     assert lab_rapid["seed"] != json.loads((wide / "metadata.json").read_text())["seed"]
@@ -176,8 +187,11 @@ def test_motion_blur_comes_from_the_true_motion(config, tmp_path):
     assert max(r.blur_p99_px for r in blurred) > 0.5
 
     def lapvar(folder: Path) -> float:
-        return float(np.mean([cv2.Laplacian(cv2.imread(str(p), 0), cv2.CV_64F).var()
-                              for p in sorted((folder / "rgb").glob("*.png"))]))
+        return float(
+            np.mean(
+                [cv2.Laplacian(cv2.imread(str(p), 0), cv2.CV_64F).var() for p in sorted((folder / "rgb").glob("*.png"))]
+            )
+        )
 
     assert lapvar(tmp_path / "b") < lapvar(tmp_path / "s")
 
@@ -185,25 +199,53 @@ def test_motion_blur_comes_from_the_true_motion(config, tmp_path):
 @pytest.mark.system
 def test_cli_render_diversity_and_errors(tmp_path):
     seesys = [sys.executable, "-m", "seesys", "synth"]
-    out = subprocess.run(seesys + ["render", "--env", "gallery", "--motion", "real:tum_fr1_xyz", "--seed", "1",
-                                   "--out", str(tmp_path / "seqs" / "a"), "--frames", "5", "--size", "64x48",
-                                   "--processes", "1"], capture_output=True, text=True)
+    out = subprocess.run(
+        seesys
+        + [
+            "render",
+            "--env",
+            "gallery",
+            "--motion",
+            "real:tum_fr1_xyz",
+            "--seed",
+            "1",
+            "--out",
+            str(tmp_path / "seqs" / "a"),
+            "--frames",
+            "5",
+            "--size",
+            "64x48",
+            "--processes",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 0, out.stderr
     assert "frames/s" in out.stdout
     meta = json.loads((tmp_path / "seqs" / "a" / "metadata.json").read_text())
     assert meta["trajectory"] == "tum_fr1_xyz" and meta["motion_group"] == "aiming"
 
-    out = subprocess.run(seesys + ["diversity", str(tmp_path / "seqs"), "--out", str(tmp_path / "rep"),
-                                   "--stride", "1"], capture_output=True, text=True)
+    out = subprocess.run(
+        seesys + ["diversity", str(tmp_path / "seqs"), "--out", str(tmp_path / "rep"), "--stride", "1"],
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "rep" / "diversity.png").stat().st_size > 1000
     assert "| gallery | 5 |" in (tmp_path / "rep" / "diversity.md").read_text()
 
-    out = subprocess.run(seesys + ["render", "--env", "moon", "--motion", "patrol", "--out", str(tmp_path / "x")],
-                         capture_output=True, text=True)
+    out = subprocess.run(
+        seesys + ["render", "--env", "moon", "--motion", "patrol", "--out", str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 2 and "unknown environment preset 'moon'" in out.stderr
-    out = subprocess.run(seesys + ["render", "--env", "lab", "--motion", "jumping", "--out", str(tmp_path / "x")],
-                         capture_output=True, text=True)
+    out = subprocess.run(
+        seesys + ["render", "--env", "lab", "--motion", "jumping", "--out", str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 2 and "unknown motion 'jumping'" in out.stderr
 
 
@@ -226,8 +268,13 @@ def test_camera_models_off_render_as_before_and_on_are_deterministic(config, tmp
 
 def test_misregistered_depth_is_shifted_by_the_configured_pixels(config, tmp_path):
     render_sequence(_tiny("rapid"), config, tmp_path / "ideal", processes=1, show_progress=False)
-    render_sequence(_tiny("rapid"), with_camera(config, depth_misregistration_px=(3.0, 2.0)), tmp_path / "shifted",
-                    processes=1, show_progress=False)
+    render_sequence(
+        _tiny("rapid"),
+        with_camera(config, depth_misregistration_px=(3.0, 2.0)),
+        tmp_path / "shifted",
+        processes=1,
+        show_progress=False,
+    )
     for ideal, shifted in zip(depths(tmp_path / "ideal"), depths(tmp_path / "shifted")):
         assert np.array_equal(shifted[2:, 3:], ideal[:-2, :-3])  # every depth edge moved by (3, 2) px
         assert not shifted[:2].any() and not shifted[:, :3].any()  # uncovered pixels have no depth
@@ -286,14 +333,15 @@ def test_auto_exposure_lag_shows_in_the_exposure_schedule(config):
     lagged = plan_sequence(spec, with_camera(config, auto_exposure_time_constant_s=0.5, auto_exposure_damping=0.5))
     assert lagged.exposure_s[0] == pytest.approx(ideal.exposure_s[0]) and np.array_equal(lagged.light, ideal.light)
     # The exposure trails the light: it is best matched by the ideal schedule some frames earlier.
-    errors = [np.abs(lagged.exposure_s[30 + d:] - ideal.exposure_s[30:300 - d]).mean() for d in range(0, 30)]
+    errors = [np.abs(lagged.exposure_s[30 + d :] - ideal.exposure_s[30 : 300 - d]).mean() for d in range(0, 30)]
     assert int(np.argmin(errors)) >= 5
 
 
 def test_depth_noise_grows_with_the_square_of_depth():
     rng = np.random.default_rng(0)
-    flat = np.concatenate([np.full((100, 100), 1.0, np.float32), np.full((100, 100), 2.0, np.float32),
-                           np.zeros((10, 100), np.float32)])
+    flat = np.concatenate(
+        [np.full((100, 100), 1.0, np.float32), np.full((100, 100), 2.0, np.float32), np.zeros((10, 100), np.float32)]
+    )
     noisy = depth_noise(flat, 0.0042, rng)
     assert np.std(noisy[:100]) == pytest.approx(0.0042, rel=0.05)
     assert np.std(noisy[100:200]) == pytest.approx(4 * 0.0042, rel=0.05)
@@ -318,8 +366,9 @@ def test_a_resumed_batch_renders_again_only_what_a_retuned_preset_changes(config
     before = png_bytes(lab)
     again = render_batch(template, ["lab", "basement"], ["aiming"], [0], config, tmp_path, processes=1)
     assert again.rendered == [] and len(again.skipped) == 2
-    retuned = dataclasses.replace(config, presets=[dataclasses.replace(p, albedo=0.3) if p.name == "lab" else p
-                                                   for p in config.presets])
+    retuned = dataclasses.replace(
+        config, presets=[dataclasses.replace(p, albedo=0.3) if p.name == "lab" else p for p in config.presets]
+    )
     third = render_batch(template, ["lab", "basement"], ["aiming"], [0], retuned, tmp_path, processes=1)
     assert third.rendered == [lab] and third.skipped == [tmp_path / "basement__aiming__s0"]
     assert png_bytes(lab) != before and json.loads((lab / "metadata.json").read_text())["preset"]["albedo"] == 0.3

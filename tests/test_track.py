@@ -37,7 +37,9 @@ def test_rgbd_on_the_sample_tracks_every_frame_within_2_cm(tmp_path):
 
 def test_a_session_that_never_initialised_has_no_ate_instead_of_an_error(tmp_path):
     truth, estimate = tmp_path / "groundtruth.tum", tmp_path / "trajectory.tum"
-    truth.write_text("".join(f"{1000 + i / 30:.6f} {i * 0.01} {(i % 7) * 0.003} {(i % 5) * 0.002} 0 0 0 1\n" for i in range(30)))
+    truth.write_text(
+        "".join(f"{1000 + i / 30:.6f} {i * 0.01} {(i % 7) * 0.003} {(i % 5) * 0.002} 0 0 0 1\n" for i in range(30))
+    )
     estimate.write_text("# timestamp tx ty tz qx qy qz qw\n")
     assert absolute_trajectory_error(truth, estimate, SlamMode.RGBD) is None
     estimate.write_text(truth.read_text())
@@ -120,8 +122,17 @@ def test_max_frames_and_explicit_settings_file(tmp_path):
     first = tmp_path / "first"
     assert run_seesys("track", "--source", f"tum:{SAMPLE}", "--out", str(first), "--max-frames", "5").returncode == 0
     again = tmp_path / "again"
-    result = run_seesys("track", "--source", f"tum:{SAMPLE}", "--out", str(again), "--max-frames", "8",
-                        "--settings", str(first / session_layout.SETTINGS))
+    result = run_seesys(
+        "track",
+        "--source",
+        f"tum:{SAMPLE}",
+        "--out",
+        str(again),
+        "--max-frames",
+        "8",
+        "--settings",
+        str(first / session_layout.SETTINGS),
+    )
     assert result.returncode == 0, result.stderr
     assert "frames:  8" in result.stdout
     assert session_files.read_manifest(again)["settings_file"] == str(first / session_layout.SETTINGS)
@@ -179,8 +190,11 @@ def test_pacer_waits_for_busy_background_threads_up_to_the_limit(busy, contentio
     demand, stop = background_thread(busy)
     try:
         # a 20 ms window: a busy thread gets more than 10 % of it even on a CPU shared with other work
-        pacer = FramePacer(pacing(max_mapping_wait_s=0.3, idle_window_s=0.02, contention_fraction=contention_fraction),
-                           enabled=True, background=demand)
+        pacer = FramePacer(
+            pacing(max_mapping_wait_s=0.3, idle_window_s=0.02, contention_fraction=contention_fraction),
+            enabled=True,
+            background=demand,
+        )
         pacer.wait(10.0)
         pacer.wait(10.01)
     finally:

@@ -104,8 +104,9 @@ def test_settings_missing_a_key(small_tum, tmp_path):
     text = write_settings(settings, valid).read_text()
     settings.write_text("".join(line + "\n" for line in text.splitlines() if not line.startswith("Stereo.b:")))
     out = tmp_path / "s"
-    line = assert_one_line_error(track(f"tum:{small_tum}", out, "--settings", str(settings)),
-                                 "lack the required key Stereo.b (rgbd mode)")
+    line = assert_one_line_error(
+        track(f"tum:{small_tum}", out, "--settings", str(settings)), "lack the required key Stereo.b (rgbd mode)"
+    )
     assert_failed_session(out, 0, line)
 
 

@@ -2,6 +2,7 @@
 session files written before it stay valid. The crash is caused inside the real worker by an observer built from a spec,
 exactly where a crash inside ORB-SLAM3's track call would happen."""
 
+import contextlib
 import ctypes
 import os
 import shutil
@@ -70,8 +71,12 @@ def counter(context):
 @pytest.mark.system
 def test_crash_is_a_clear_error_and_keeps_the_logged_frames(tmp_path, how, expected):
     out = tmp_path / "s"
-    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out,
-                             observers=(ObserverSpec("test_track_isolation:crasher", {"at_frame": 6, "how": how}),))
+    options = SessionOptions(
+        f"tum:{SAMPLE}",
+        SlamMode.RGBD,
+        out,
+        observers=(ObserverSpec("test_track_isolation:crasher", {"at_frame": 6, "how": how}),),
+    )
     with pytest.raises(WorkerCrash) as error:
         run_supervised_session(options)
     message = str(error.value)
@@ -92,8 +97,13 @@ def test_a_hung_worker_is_killed_after_the_stall_timeout_and_keeps_the_logged_fr
     slam = configs / "slam.toml"
     slam.write_text(slam.read_text().replace("stall_timeout_s = 60.0", "stall_timeout_s = 3.0"))
     out = tmp_path / "s"
-    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out, config_dir=configs,
-                             observers=(ObserverSpec("test_track_isolation:crasher", {"at_frame": 6, "how": "hang"}),))
+    options = SessionOptions(
+        f"tum:{SAMPLE}",
+        SlamMode.RGBD,
+        out,
+        config_dir=configs,
+        observers=(ObserverSpec("test_track_isolation:crasher", {"at_frame": 6, "how": "hang"}),),
+    )
     with pytest.raises(WorkerCrash) as error:
         run_supervised_session(options)
     message = str(error.value)
@@ -108,8 +118,9 @@ def test_a_hung_worker_is_killed_after_the_stall_timeout_and_keeps_the_logged_fr
 @pytest.mark.system
 def test_observer_specs_are_built_in_the_worker(tmp_path):
     out = tmp_path / "s"
-    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out, max_frames=7,
-                             observers=(ObserverSpec("test_track_isolation:counter"),))
+    options = SessionOptions(
+        f"tum:{SAMPLE}", SlamMode.RGBD, out, max_frames=7, observers=(ObserverSpec("test_track_isolation:counter"),)
+    )
     events = []
     result = run_supervised_session(options, progress=events.append)
     assert result.frames == 7 and (out / "observed.txt").read_text() == "7"
@@ -123,8 +134,9 @@ def crash_at_start(context):
 @pytest.mark.system
 def test_crash_before_the_first_frame(tmp_path):
     out = tmp_path / "s"
-    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out,
-                             observers=(ObserverSpec("test_track_isolation:crash_at_start"),))
+    options = SessionOptions(
+        f"tum:{SAMPLE}", SlamMode.RGBD, out, observers=(ObserverSpec("test_track_isolation:crash_at_start"),)
+    )
     with pytest.raises(WorkerCrash, match=r"^ORB-SLAM3 exited with status 255 .*before the first frame; see "):
         run_supervised_session(options)
     assert session_files.read_manifest(out)["status"] == "crashed"
@@ -147,12 +159,21 @@ def faulty(context):
 @pytest.mark.system
 def test_a_bug_in_the_worker_is_reported_in_one_line_and_the_session_marked_failed(tmp_path):
     out = tmp_path / "s"
-    options = SessionOptions(f"tum:{SAMPLE}", SlamMode.RGBD, out, observers=(ObserverSpec("test_track_isolation:faulty"),))
-    with pytest.raises(SeesysError, match=r"^internal error in the device worker: ZeroDivisionError: observer bug "
-                                          r"\(traceback in .*orbslam3.log\)$"):
+    options = SessionOptions(
+        f"tum:{SAMPLE}", SlamMode.RGBD, out, observers=(ObserverSpec("test_track_isolation:faulty"),)
+    )
+    with pytest.raises(
+        SeesysError,
+        match=r"^internal error in the device worker: ZeroDivisionError: observer bug "
+        r"\(traceback in .*orbslam3.log\)$",
+    ):
         run_supervised_session(options)
     manifest = session_files.read_manifest(out)
-    assert (manifest["status"], manifest["error"], manifest["frames"]) == ("failed", "ZeroDivisionError: observer bug", 3)
+    assert (manifest["status"], manifest["error"], manifest["frames"]) == (
+        "failed",
+        "ZeroDivisionError: observer bug",
+        3,
+    )
     assert "Traceback" in (out / session_layout.SLAM_LOG).read_text()
 
 
@@ -161,9 +182,24 @@ def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
     """``kill -9`` of a running ``seesys track`` (no chance to clean up) must not leave its ORB-SLAM3 worker
     running: the worker dies with it, and the frames logged until then stay readable."""
     out = tmp_path / "session"
-    command = subprocess.Popen([sys.executable, "-m", "seesys", "track", "--source", f"tum:{SAMPLE}", "--mode",
-                                "rgbd", "--pace", "--out", str(out)], cwd=REPO, stdout=subprocess.DEVNULL,
-                               stderr=subprocess.DEVNULL)
+    command = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "seesys",
+            "track",
+            "--source",
+            f"tum:{SAMPLE}",
+            "--mode",
+            "rgbd",
+            "--pace",
+            "--out",
+            str(out),
+        ],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     frames_csv = out / session_layout.FRAMES_CSV
     workers = []
     try:
@@ -171,8 +207,9 @@ def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
         while frames_logged(out) < 10:  # the worker is tracking, at camera rate (150 frames take 5 s)
             assert command.poll() is None and time.monotonic() < deadline, "seesys track never got going"
             time.sleep(0.05)
-        workers = [p for p in psutil.Process(command.pid).children(recursive=True)
-                   if "spawn_main" in " ".join(p.cmdline())]
+        workers = [
+            p for p in psutil.Process(command.pid).children(recursive=True) if "spawn_main" in " ".join(p.cmdline())
+        ]
         assert len(workers) == 1
         command.kill()
         command.wait()
@@ -180,9 +217,7 @@ def test_killing_the_command_takes_the_orbslam3_worker_with_it(tmp_path):
         assert not alive, "the ORB-SLAM3 worker outlived its command"
     finally:
         for process in [command, *workers]:  # nothing left running when the test fails
-            try:
+            with contextlib.suppress(ProcessLookupError, psutil.NoSuchProcess):
                 process.kill()
-            except (ProcessLookupError, psutil.NoSuchProcess):
-                pass
     logged = pd.read_csv(frames_csv)
     assert 10 <= len(logged) < 150  # it stopped with the command, not at the end of the sample

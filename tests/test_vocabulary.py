@@ -23,8 +23,9 @@ def descriptors():
 
 def test_trained_tree_is_valid_dbow2_text(tmp_path, descriptors):
     assert len(descriptors) == 3 and all(d.shape[1] == 32 and d.dtype == np.uint8 for d in descriptors)
-    vocabulary = train_vocabulary(descriptors, TrainingConfig(branching=5, levels=3, max_iterations=10,
-                                                              frame_step=1, seed=0))
+    vocabulary = train_vocabulary(
+        descriptors, TrainingConfig(branching=5, levels=3, max_iterations=10, frame_step=1, seed=0)
+    )
     path = write_vocabulary(tmp_path / "voc.txt", vocabulary)
     text = path.read_text()
     assert not text.endswith("\n")  # a trailing newline is a phantom node for ORB-SLAM3's loader

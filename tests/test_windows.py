@@ -47,13 +47,14 @@ def test_windows_of_a_complete_stream():
 
 def test_missing_and_untracked_rows():
     frames = [frame(i) for i in range(0, 61) if i not in (45, 46)]
-    frames = [frame(i, TrackingState.RECENTLY_LOST) if i == 50 else f for i, f in
-              zip([f.frame_index for f in frames], frames)]
+    frames = [
+        frame(i, TrackingState.RECENTLY_LOST) if i == 50 else f for i, f in zip([f.frame_index for f in frames], frames)
+    ]
     s = {w.frame_index: w for w in assemble_windows(frames, CFG)}
     assert s[60].missing_rts == 3
     row = list(s[60].rts_frame_indices).index(45)
-    assert np.isnan(s[60].rts[row]).all()       # a missing frame is a NaN row, not its neighbour's row
-    assert 50 not in s                          # the end frame must be tracked
+    assert np.isnan(s[60].rts[row]).all()  # a missing frame is a NaN row, not its neighbour's row
+    assert 50 not in s  # the end frame must be tracked
 
 
 def test_too_many_missing_rows_or_a_missing_psd_gives_no_window():
@@ -65,12 +66,14 @@ def test_too_many_missing_rows_or_a_missing_psd_gives_no_window():
 
 def test_a_window_end_refused_once_its_history_arrived_is_named():
     """A receiver counts such windows by reason; the windows before the first full history are not refusals."""
+
     def reasons(frames):
         assembler, out = WindowAssembler(CFG), {}
         for f in frames:
             if assembler.add(f) is None and assembler.refused is not None:
                 out[f.frame_index] = assembler.refused
         return out
+
     assert reasons(frame(i) for i in range(0, 61)) == {}
     assert reasons(frame(i) for i in range(0, 61) if not 52 <= i <= 55) == {60: MISSING_RTS}
     assert reasons(frame(i) for i in range(0, 61) if i != 20) == {30: MISSING_PSD, 40: MISSING_PSD, 50: MISSING_PSD}
@@ -99,9 +102,17 @@ def test_end_stride_one_gives_a_window_on_every_frame_with_the_same_content():
     """With end_stride 1 a window ends on every frame; the windows that also end on a multiple of 10 are exactly
     the windows of the device's stride: only how often a window is formed changes, not what it holds."""
     every = dataclasses.replace(CFG, end_stride=1)
-    frames = [FeatureFrame("dev", i, 100.0 + i / 30, TrackingState.OK,
-                           np.full(rts_schema.NUM_CHANNELS, i, dtype=np.float32),
-                           np.full((96, 128, 3), i % 256, dtype=np.uint8)) for i in range(0, 61)]
+    frames = [
+        FeatureFrame(
+            "dev",
+            i,
+            100.0 + i / 30,
+            TrackingState.OK,
+            np.full(rts_schema.NUM_CHANNELS, i, dtype=np.float32),
+            np.full((96, 128, 3), i % 256, dtype=np.uint8),
+        )
+        for i in range(0, 61)
+    ]
     dense = {s.frame_index: s for s in assemble_windows(frames, every)}
     assert sorted(dense) == list(range(30, 61))
     assert dense[37].psd_frame_indices.tolist() == [7, 17, 27, 37]

@@ -94,8 +94,12 @@ def test_calibration_by_hand():
 
 def _meta(runs: int, windows_per_run: int) -> pd.DataFrame:
     """Windows 0.1 s apart in each run."""
-    return pd.DataFrame({"run": np.repeat([f"r{k}" for k in range(runs)], windows_per_run),
-                         "timestamp": np.tile(np.arange(windows_per_run) * 0.1, runs)})
+    return pd.DataFrame(
+        {
+            "run": np.repeat([f"r{k}" for k in range(runs)], windows_per_run),
+            "timestamp": np.tile(np.arange(windows_per_run) * 0.1, runs),
+        }
+    )
 
 
 @pytest.mark.system
@@ -118,8 +122,17 @@ def test_score_of_a_perfect_and_of_a_constant_estimator():
 def test_bootstrap_over_runs_resamples_whole_runs():
     # Two runs: all of run a right, all of run b wrong. A resample of runs draws a, b or both: agreement 0, 1/2 or
     # 1 in whole runs' steps, never between (as a resample of bins would).
-    judged = Judged(np.array(["a", "a", "b", "b"]), np.ones(4), np.ones(4), np.zeros(4), np.array(["a", "b"]),
-                    np.ones(2), np.ones(2), np.array([1, 1]), np.array([1, 0]))
+    judged = Judged(
+        np.array(["a", "a", "b", "b"]),
+        np.ones(4),
+        np.ones(4),
+        np.zeros(4),
+        np.array(["a", "b"]),
+        np.ones(2),
+        np.ones(2),
+        np.array([1, 1]),
+        np.array([1, 0]),
+    )
     seen = set()
 
     def statistic(j: Judged) -> dict[str, float]:
@@ -142,7 +155,7 @@ def _windows(motion_per_run: list[float], truth_per_run: list[float], windows_pe
     sign = np.where(np.arange(30) % 2 == 0, 1.0, -1.0)
     scale = rts_schema.CHANNELS[rts_schema.index_of("rel_ty")].scale
     for k, m in enumerate(motion_per_run):
-        rts[k * windows_per_run:(k + 1) * windows_per_run, :, rts_schema.index_of("rel_ty")] = m * sign / scale
+        rts[k * windows_per_run : (k + 1) * windows_per_run, :, rts_schema.index_of("rel_ty")] = m * sign / scale
     truth = np.repeat(truth_per_run, windows_per_run).astype(float)
     return Windows(rts, None, truth, _meta(runs, windows_per_run))
 
@@ -160,8 +173,21 @@ def test_reference_rows_are_fitted_on_training_windows():
     np.testing.assert_allclose(estimates[ALWAYS_TOP], 0.012)
     # Isotonic: between the training points it interpolates (0.0015 → 0.004), beyond them it clips (0.02 → 0.02).
     np.testing.assert_allclose(estimates[MOTION_ISOTONIC][::30], [0.004, 0.02, 0.02], rtol=1e-6)
-    top = yardsticks(Judged(np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(0), np.zeros(0),
-                            np.zeros(0), np.zeros(0, int), np.zeros(0, int)), 4, 0.012)
+    top = yardsticks(
+        Judged(
+            np.zeros(1),
+            np.zeros(1),
+            np.zeros(1),
+            np.zeros(1),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros(0, int),
+            np.zeros(0, int),
+        ),
+        4,
+        0.012,
+    )
     assert np.isnan(top["agreement"]) and np.isnan(top["kappa"])
 
 
@@ -183,11 +209,27 @@ def test_the_ceiling_is_the_other_trials_truth_at_the_same_frame(tmp_path):
         folder = write_session(tmp_path / "sessions" / name, seed=seed, frames=120)
         arrays = label_run(folder, SlamMode.RGBD, load_label_config(), windows)
         sequence, _, trial = name.rsplit("__", 2)
-        write_run(root, RunInfo(name, sequence, "lab", "patrol", sequence.split("__")[1], "rgbd", int(trial[1:]),
-                                COMPLETED, frames=120, frames_tracked=120, samples=len(arrays.samples),
-                                camera_normalisation=camera_normalisation.VERSION), arrays)
-    data = reader_windows(DatasetReader([root], runs=["lab__traj__s0__rgbd__t0", "lab__once__s0__rgbd__t0"],
-                                        usable_only=True))
+        write_run(
+            root,
+            RunInfo(
+                name,
+                sequence,
+                "lab",
+                "patrol",
+                sequence.split("__")[1],
+                "rgbd",
+                int(trial[1:]),
+                COMPLETED,
+                frames=120,
+                frames_tracked=120,
+                samples=len(arrays.samples),
+                camera_normalisation=camera_normalisation.VERSION,
+            ),
+            arrays,
+        )
+    data = reader_windows(
+        DatasetReader([root], runs=["lab__traj__s0__rgbd__t0", "lab__once__s0__rgbd__t0"], usable_only=True)
+    )
     ceiling = ceiling_estimates([root], data)
     other = DatasetReader([root], runs=["lab__traj__s0__rgbd__t1"]).frame_labels().set_index("frame_index").error_m
     twice = (data.meta.run == "lab__traj__s0__rgbd__t0").to_numpy()

@@ -45,8 +45,14 @@ WINDOW_FIELDS = ("rts_length", "psd_samples", "psd_stride", "max_missing_rts")
 # The device settings every device of an installation shares (its configs), with the camera normalisation's version
 # and reference camera; the SLAM mode and the frame rate are a device's own and are checked on its frames
 # (seesys.core.device_settings).
-INSTALLATION_DEVICE_FIELDS = ("orb_features", "psd_patch_px", "psd_expansion", "near_depth", "camera_normalisation",
-                              "reference_camera")
+INSTALLATION_DEVICE_FIELDS = (
+    "orb_features",
+    "psd_patch_px",
+    "psd_expansion",
+    "near_depth",
+    "camera_normalisation",
+    "reference_camera",
+)
 ORDINAL_HEAD = "ordinal_head"
 # The monocular SLAM mode (one of seesys.core.device_settings.SLAM_MODES): its models record the label's alignment.
 MONO = "mono"
@@ -85,19 +91,28 @@ class ModelSetup:
         return cls(load_label_config(directory).delta_frames, load_model_device_record(directory))
 
 
-def compatibility(windows: WindowConfig, transform: LabelTransform, setup: ModelSetup | None = None,
-                  rts_channels: Sequence[str] | None = None, head_thresholds_m: Sequence[float] = ()) -> dict:
+def compatibility(
+    windows: WindowConfig,
+    transform: LabelTransform,
+    setup: ModelSetup | None = None,
+    rts_channels: Sequence[str] | None = None,
+    head_thresholds_m: Sequence[float] = (),
+) -> dict:
     """What a model's inputs and outputs mean, as plain data (``setup``: this installation's by default;
     ``rts_channels``: the channels it takes, every channel of the schema by default; ``head_thresholds_m``: its
     ordinal head's thresholds, none without a head)."""
     setup = setup or ModelSetup.configured()
     names = list(rts_channels) if rts_channels is not None else list(rts_schema.CHANNEL_NAMES)
     channels = tuple(rts_schema.CHANNELS[rts_schema.index_of(name)] for name in names)
-    record = {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_fingerprint": rts_schema.fingerprint(channels),
-              "rts_channels": names,
-              "windows": {name: getattr(windows, name) for name in WINDOW_FIELDS},
-              "label_transform": transform.describe(), "label": _label_record(setup),
-              "device": dict(setup.device)}
+    record = {
+        "rts_schema_version": rts_schema.SCHEMA_VERSION,
+        "rts_fingerprint": rts_schema.fingerprint(channels),
+        "rts_channels": names,
+        "windows": {name: getattr(windows, name) for name in WINDOW_FIELDS},
+        "label_transform": transform.describe(),
+        "label": _label_record(setup),
+        "device": dict(setup.device),
+    }
     if head_thresholds_m:
         record[ORDINAL_HEAD] = {"thresholds_m": [float(t) for t in head_thresholds_m]}
     return record
@@ -148,13 +163,19 @@ def differences(record: dict, here: dict) -> list[str]:
     try:
         rts_columns(record)
     except rts_schema.SchemaMismatch as e:
-        out.append(f"RTS channels (model of schema v{record.get('rts_schema_version')}, here "
-                   f"v{here['rts_schema_version']}): {e}")
+        out.append(
+            f"RTS channels (model of schema v{record.get('rts_schema_version')}, here "
+            f"v{here['rts_schema_version']}): {e}"
+        )
     if record.get("label_transform") != here["label_transform"]:
-        out.append(f"label transform: model {_show(record.get('label_transform'))}, here "
-                   f"{_show(here['label_transform'])}")
-    checked = ([("windows", name) for name in WINDOW_FIELDS] + [("label", "delta_frames")]
-               + [("device", name) for name in INSTALLATION_DEVICE_FIELDS])
+        out.append(
+            f"label transform: model {_show(record.get('label_transform'))}, here {_show(here['label_transform'])}"
+        )
+    checked = (
+        [("windows", name) for name in WINDOW_FIELDS]
+        + [("label", "delta_frames")]
+        + [("device", name) for name in INSTALLATION_DEVICE_FIELDS]
+    )
     for part, name in checked:
         model_value = (record.get(part) or {}).get(name)
         here_value = here[part][name]
@@ -184,11 +205,14 @@ def check_normalisation(record: dict, versions: Iterable[object], source: str) -
             raise ModelMismatch(str(e)) from None
 
 
-def check_compatible(record: dict, source: str, windows: WindowConfig, transform: LabelTransform,
-                     setup: ModelSetup | None = None) -> None:
+def check_compatible(
+    record: dict, source: str, windows: WindowConfig, transform: LabelTransform, setup: ModelSetup | None = None
+) -> None:
     """Raise :class:`ModelMismatch` naming every field in which ``record`` differs from this installation (its
     windows, label transform and ``setup``, this installation's configs by default)."""
     found = differences(record, compatibility(windows, transform, setup))
     if found:
-        raise ModelMismatch(f"{source} was made for other inputs: {'; '.join(found)}. It cannot be used here; "
-                            f"retrain it, or fine-tune a model made for this configuration")
+        raise ModelMismatch(
+            f"{source} was made for other inputs: {'; '.join(found)}. It cannot be used here; "
+            f"retrain it, or fine-tune a model made for this configuration"
+        )

@@ -53,8 +53,10 @@ def choose_providers(setting: str, available: list[str] | None = None) -> list[s
         raise ConfigError(f"providers must be one of {', '.join(PROVIDER_SETTINGS)}, got {setting!r}")
     available = ort.get_available_providers() if available is None else available
     if setting == "cuda" and CUDA not in available:
-        raise ConfigError(f"providers = 'cuda', but this ONNX Runtime offers only {', '.join(available)} "
-                          f"(install onnxruntime-gpu, or use 'auto' or 'cpu')")
+        raise ConfigError(
+            f"providers = 'cuda', but this ONNX Runtime offers only {', '.join(available)} "
+            f"(install onnxruntime-gpu, or use 'auto' or 'cpu')"
+        )
     if setting != "cpu" and CUDA in available:
         return [CUDA, CPU]
     return [CPU]
@@ -86,8 +88,15 @@ class OnnxModel:
     :class:`~seesys.core.errors.ConfigError` for an unknown or unavailable ``providers`` setting.
     """
 
-    def __init__(self, path: Path, transform: LabelTransform, windows: WindowConfig | None = None, threads: int = 1,
-                 providers: str = "cpu", setup: ModelSetup | None = None):
+    def __init__(
+        self,
+        path: Path,
+        transform: LabelTransform,
+        windows: WindowConfig | None = None,
+        threads: int = 1,
+        providers: str = "cpu",
+        setup: ModelSetup | None = None,
+    ):
         path = Path(path)
         chosen = choose_providers(providers)
         try:
@@ -117,7 +126,8 @@ class OnnxModel:
         self.rts_columns: np.ndarray = rts_columns(self.record, str(path))
         #: The per-camera input standardisation to apply to the selected columns before :meth:`__call__`.
         self.standardisation = InputStandardisation.from_record(
-            json.loads(meta[METADATA_KEY]) if METADATA_KEY in meta else None, str(path))
+            json.loads(meta[METADATA_KEY]) if METADATA_KEY in meta else None, str(path)
+        )
         self.session = session
         self.provider: str = session.get_providers()[0]
         rts, psd = (i.shape[1:] for i in session.get_inputs())
@@ -127,8 +137,10 @@ class OnnxModel:
         outputs = {o.name: o.shape for o in session.get_outputs()}
         head_columns = outputs[PROBABILITIES][1] if PROBABILITIES in outputs else 0
         if head_columns != len(self.thresholds_m):
-            raise ModelMismatch(f"{path} records {len(self.thresholds_m)} head threshold(s) but its graph gives "
-                                f"{head_columns} head probabilities")
+            raise ModelMismatch(
+                f"{path} records {len(self.thresholds_m)} head threshold(s) but its graph gives "
+                f"{head_columns} head probabilities"
+            )
 
     def standardised(self, rts: np.ndarray) -> np.ndarray:
         """Normalised RTS windows of the model's columns as the model takes them (its input standardisation)."""
@@ -138,8 +150,9 @@ class OnnxModel:
         """The transformed errors (B,) and the head's probabilities (B, K), None for a model without a head;
         ``rts``: the model's input, standardised (:meth:`standardised`)."""
         names = [Y, PROBABILITIES] if self.thresholds_m else [Y]
-        out = self.session.run(names, {"rts": np.ascontiguousarray(rts, np.float32),
-                                       "psd": np.ascontiguousarray(psd, np.uint8)})
+        out = self.session.run(
+            names, {"rts": np.ascontiguousarray(rts, np.float32), "psd": np.ascontiguousarray(psd, np.uint8)}
+        )
         return out[0], (out[1] if self.thresholds_m else None)
 
     def __call__(self, rts: np.ndarray, psd: np.ndarray) -> np.ndarray:

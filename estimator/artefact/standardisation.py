@@ -110,6 +110,7 @@ class InputStandardisation:
     def as_record(self) -> dict:
         def stats(s: ChannelStatistics | None) -> dict | None:
             return None if s is None else {"median": list(s.median), "iqr": list(s.iqr)}
+
         return {"channels": list(self.channels), "reference": stats(self.reference), "camera": stats(self.camera)}
 
     @classmethod
@@ -127,6 +128,7 @@ class InputStandardisation:
                 if len(out.median) != len(channels) or len(out.iqr) != len(channels):
                     raise ValueError(f"{len(channels)} channels but {len(out.median)} medians, {len(out.iqr)} IQRs")
                 return out
+
             return cls(channels, stats(record["reference"]), stats(record["camera"]))
         except (KeyError, TypeError, ValueError) as e:
             raise StandardisationError(f"{source}: malformed input standardisation record ({e})") from None
@@ -136,8 +138,9 @@ def _columns(model_channels: Sequence[str], channels: Sequence[str]) -> list[int
     names = list(model_channels)
     missing = [c for c in channels if c not in names]
     if missing:
-        raise StandardisationError(f"the input standardisation names channels the model does not take: "
-                                   f"{', '.join(missing)}")
+        raise StandardisationError(
+            f"the input standardisation names channels the model does not take: {', '.join(missing)}"
+        )
     return [names.index(c) for c in channels]
 
 

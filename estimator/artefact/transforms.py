@@ -20,8 +20,11 @@ from seesys.core import psd as psd_layers
 from seesys.core import rts_schema
 
 RTS_CATEGORIES = ("sensor_input", "tracking", "mapping", "depth")
-PSD_LAYERS = {"keypoint": psd_layers.KEYPOINT_LAYER, "inlier": psd_layers.INLIER_LAYER,
-              "map_point": psd_layers.MAP_POINT_LAYER}
+PSD_LAYERS = {
+    "keypoint": psd_layers.KEYPOINT_LAYER,
+    "inlier": psd_layers.INLIER_LAYER,
+    "map_point": psd_layers.MAP_POINT_LAYER,
+}
 
 
 @dataclass(frozen=True)

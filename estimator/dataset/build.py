@@ -47,9 +47,6 @@ from estimator.dataset.store import (
     write_run,
 )
 from estimator.jobs import Job, JobEnv, LocalExecutor, RayExecutor, load_ray_settings
-from synth.batch import CameraDraw, expand_environments, expand_motions, plan_batch, render_into
-from synth.config import SynthConfig
-from synth.sequence import SequenceSpec
 from seesys.core import camera_normalisation, rts_schema, session_layout
 from seesys.core.errors import SeesysError
 from seesys.core.labels import LabelConfig, LabelStatus
@@ -60,6 +57,9 @@ from seesys.io.session_labels import label_session
 from slam_monitor.device_worker import FrameTracked, ObserverSpec, SessionOptions, SessionStarted
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.supervisor import run_supervised_session
+from synth.batch import CameraDraw, expand_environments, expand_motions, plan_batch, render_into
+from synth.config import SynthConfig
+from synth.sequence import SequenceSpec
 
 SEQUENCES_DIR = "sequences"
 SESSIONS_DIR = "sessions"
@@ -67,8 +67,7 @@ BUILD_LOG = "build_log.jsonl"
 SEQUENCE_METADATA = "metadata.json"
 MONITOR_OBSERVER = "slam_monitor.monitor:create_observer"
 # What a sample is: a later build into the same folder must agree on all of these.
-DEFINITION_KEYS = ("rts_channels", "rts_schema_version", "windows", "labels", "pace",
-                   "wait_for_mapping_modes")
+DEFINITION_KEYS = ("rts_channels", "rts_schema_version", "windows", "labels", "pace", "wait_for_mapping_modes")
 PROGRESS_COLUMNS = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
 
 
@@ -101,10 +100,18 @@ class BuildResult:
         return [r for r in self.runs_done if r.status in (CRASHED, PARTIAL)]
 
 
-def plan_from_config(config: DatasetConfig, synth: SynthConfig, template: SequenceSpec,
-                     environments: list[str] | None = None, motions: list[str] | None = None,
-                     seeds: list[int] | None = None, modes: list[str] | None = None, trials: int | None = None,
-                     render_processes: int | None = None, cameras: list[str] | None = None) -> BuildPlan:
+def plan_from_config(
+    config: DatasetConfig,
+    synth: SynthConfig,
+    template: SequenceSpec,
+    environments: list[str] | None = None,
+    motions: list[str] | None = None,
+    seeds: list[int] | None = None,
+    modes: list[str] | None = None,
+    trials: int | None = None,
+    render_processes: int | None = None,
+    cameras: list[str] | None = None,
+) -> BuildPlan:
     """The build plan: arguments given override configs/dataset.toml (``cameras``: models drawn with equal
     weights; an empty list: each preset's own camera); names are checked here, before any work."""
     trials = config.trials if trials is None else trials
@@ -117,9 +124,16 @@ def plan_from_config(config: DatasetConfig, synth: SynthConfig, template: Sequen
     draw = config.cameras if cameras is None else CameraDraw(tuple(cameras), (1.0,) * len(cameras))
     for name in draw.models:  # refuses an unknown model by name, before any work
         synth.camera_model(name)
-    return BuildPlan(template, expand_environments(list(environments or config.environments), synth),
-                     expand_motions(list(motions or config.motions), synth), list(seeds or config.seeds),
-                     slam_modes, trials, render_processes, draw if draw.models else None)
+    return BuildPlan(
+        template,
+        expand_environments(list(environments or config.environments), synth),
+        expand_motions(list(motions or config.motions), synth),
+        list(seeds or config.seeds),
+        slam_modes,
+        trials,
+        render_processes,
+        draw if draw.models else None,
+    )
 
 
 def _sequence_metadata(folder: Path) -> dict:
@@ -140,8 +154,9 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
     """
     labels = label_session(session_dir, mode is SlamMode.MONO, label_config).to_frame()
     states = pd.read_csv(session_dir / session_layout.FRAMES_CSV)
-    frames = pd.concat([states[["frame_index", "state"]].reset_index(drop=True),
-                        labels.drop(columns="timestamp")], axis=1)
+    frames = pd.concat(
+        [states[["frame_index", "state"]].reset_index(drop=True), labels.drop(columns="timestamp")], axis=1
+    )
     frames.insert(1, "timestamp", labels.timestamp)
     row_of_frame = {int(f): k for k, f in enumerate(frames.frame_index)}
     logged = list(read_feature_frames(session_dir, session_dir.name))
@@ -152,12 +167,23 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
     for window in assemble_windows(logged, windows):
         label = frames.iloc[row_of_frame[window.frame_index]]
         usable = label.status == LabelStatus.LABELLED.value and window.missing_rts <= windows.max_missing_rts
-        rows.append((len(rows), window.frame_index, window.timestamp, label.error_m, label.status, label.scale,
-                     window.missing_rts, usable))
+        rows.append(
+            (
+                len(rows),
+                window.frame_index,
+                window.timestamp,
+                label.error_m,
+                label.status,
+                label.scale,
+                window.missing_rts,
+                usable,
+            )
+        )
         rts_rows.append([rts_row.get(int(i), -1) for i in window.rts_frame_indices])
         psd_rows.append([psd_row[int(i)] for i in window.psd_frame_indices])
-    samples = pd.DataFrame(rows, columns=["sample", "frame_index", "timestamp", "error_m", "status", "scale",
-                                          "missing_rts", "usable"])
+    samples = pd.DataFrame(
+        rows, columns=["sample", "frame_index", "timestamp", "error_m", "status", "scale", "missing_rts", "usable"]
+    )
     return RunArrays(
         rts=(np.stack([f.rts for f in logged]) if logged else np.zeros((0, rts_schema.NUM_CHANNELS), np.float32)),
         rts_frames=np.array([f.frame_index for f in logged], np.int64),
@@ -165,7 +191,9 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
         psd_frames=np.array([f.frame_index for f in with_psd], np.int64),
         sample_rts_rows=np.array(rts_rows, np.int32).reshape(-1, windows.rts_length),
         sample_psd_rows=np.array(psd_rows, np.int32).reshape(-1, windows.psd_samples),
-        samples=samples, frames=frames)
+        samples=samples,
+        frames=frames,
+    )
 
 
 def _merge_plans(earlier: dict, later: dict) -> dict:
@@ -185,8 +213,15 @@ class DatasetBuilder:
     ``windows`` are the model windows; their end stride is replaced by ``window_end_stride`` of dataset.toml
     (1: a sample for every labelled frame), and the monitor of every run computes the PSD on those frames."""
 
-    def __init__(self, root: Path, config: DatasetConfig, synth: SynthConfig, label_config: LabelConfig,
-                 windows: WindowConfig, config_dir: Path | None = None):
+    def __init__(
+        self,
+        root: Path,
+        config: DatasetConfig,
+        synth: SynthConfig,
+        label_config: LabelConfig,
+        windows: WindowConfig,
+        config_dir: Path | None = None,
+    ):
         self.root = Path(root)
         self.config = config
         self.synth = synth
@@ -205,35 +240,64 @@ class DatasetBuilder:
         self.root.mkdir(parents=True, exist_ok=True)
         self._write_description(plan)
         processes = plan.render_processes or self.synth.processes
-        renders, rendered_before = plan_batch(plan.template, plan.environments, plan.motions, plan.seeds, self.synth,
-                                              self.root / SEQUENCES_DIR, plan.cameras)
-        render_jobs = [Job(folder.name, render_job, (spec, seen, folder, processes), cpus=processes)
-                       for spec, folder, seen in renders]
+        renders, rendered_before = plan_batch(
+            plan.template,
+            plan.environments,
+            plan.motions,
+            plan.seeds,
+            self.synth,
+            self.root / SEQUENCES_DIR,
+            plan.cameras,
+        )
+        render_jobs = [
+            Job(folder.name, render_job, (spec, seen, folder, processes), cpus=processes)
+            for spec, folder, seen in renders
+        ]
         start = time.perf_counter()
         with Progress(*PROGRESS_COLUMNS, disable=not render_jobs) as progress:
             renders_task = progress.add_task("renders", total=len(render_jobs))
-            frames = sum(executor.run(render_jobs, progress, lambda job, _: progress.advance(renders_task),
-                                      self.config_dir))
+            frames = sum(
+                executor.run(render_jobs, progress, lambda job, _: progress.advance(renders_task), self.config_dir)
+            )
         render_seconds = time.perf_counter() - start
-        self._log({"phase": "render", "render_processes": processes, "rendered_frames": frames,
-                   "render_seconds": render_seconds})
+        self._log(
+            {
+                "phase": "render",
+                "render_processes": processes,
+                "rendered_frames": frames,
+                "render_seconds": render_seconds,
+            }
+        )
         for _, folder, _ in renders:
             self._drop_runs_of(folder.name)
         sequences = sorted([folder for _, folder, _ in renders] + rendered_before)
         jobs = [(seq, mode, trial) for seq in sequences for mode in plan.modes for trial in range(plan.trials)]
-        todo = [job for job in jobs if read_run_info(run_folder(self.root, run_name(job[0].name, job[1].value,
-                                                                                     job[2]))) is None]
+        todo = [
+            job
+            for job in jobs
+            if read_run_info(run_folder(self.root, run_name(job[0].name, job[1].value, job[2]))) is None
+        ]
         slam_cpus = load_ray_settings(self.config_dir).slam_cpus if isinstance(executor, RayExecutor) else 1
-        slam_jobs = [Job(run_name(seq.name, mode.value, trial), slam_job, (self, seq, mode, trial), cpus=slam_cpus)
-                     for seq, mode, trial in todo]
+        slam_jobs = [
+            Job(run_name(seq.name, mode.value, trial), slam_job, (self, seq, mode, trial), cpus=slam_cpus)
+            for seq, mode, trial in todo
+        ]
         start = time.perf_counter()
         with Progress(*PROGRESS_COLUMNS) as progress:
             runs_task = progress.add_task("SLAM runs", total=len(todo))
             done = executor.run(slam_jobs, progress, lambda job, _: progress.advance(runs_task), self.config_dir)
-        result = BuildResult(len(sequences), frames, render_seconds, done, len(jobs) - len(todo),
-                             time.perf_counter() - start)
-        self._log({"phase": "runs", "runs": len(result.runs_done), "crashed": len(result.crashed),
-                   "slam_frames": sum(r.frames for r in result.runs_done), "slam_seconds": result.slam_seconds})
+        result = BuildResult(
+            len(sequences), frames, render_seconds, done, len(jobs) - len(todo), time.perf_counter() - start
+        )
+        self._log(
+            {
+                "phase": "runs",
+                "runs": len(result.runs_done),
+                "crashed": len(result.crashed),
+                "slam_frames": sum(r.frames for r in result.runs_done),
+                "slam_seconds": result.slam_seconds,
+            }
+        )
         return result
 
     def with_config_dir(self, config_dir: Path | None) -> DatasetBuilder:
@@ -260,48 +324,78 @@ class DatasetBuilder:
 
         A build into an existing dataset adds runs to it, so it must use the same definitions; the plan recorded is
         the union of every build's plan."""
-        description = json.loads(json.dumps({
-            FORMAT_KEY: FORMAT_VERSION,
-            "rts_channels": list(rts_schema.CHANNEL_NAMES),
-            "rts_schema_version": rts_schema.SCHEMA_VERSION,
-            "windows": asdict(self.windows),
-            "labels": label_definition(self.label_config),
-            "pace": self.config.pace,
-            "wait_for_mapping_modes": list(self.config.wait_for_mapping_modes),
-            "plan": {"template": asdict(plan.template), "environments": plan.environments, "motions": plan.motions,
-                     "seeds": plan.seeds, "modes": [m.value for m in plan.modes], "trials": plan.trials,
-                     "cameras": asdict(plan.cameras) if plan.cameras else None},
-        }))
+        description = json.loads(
+            json.dumps(
+                {
+                    FORMAT_KEY: FORMAT_VERSION,
+                    "rts_channels": list(rts_schema.CHANNEL_NAMES),
+                    "rts_schema_version": rts_schema.SCHEMA_VERSION,
+                    "windows": asdict(self.windows),
+                    "labels": label_definition(self.label_config),
+                    "pace": self.config.pace,
+                    "wait_for_mapping_modes": list(self.config.wait_for_mapping_modes),
+                    "plan": {
+                        "template": asdict(plan.template),
+                        "environments": plan.environments,
+                        "motions": plan.motions,
+                        "seeds": plan.seeds,
+                        "modes": [m.value for m in plan.modes],
+                        "trials": plan.trials,
+                        "cameras": asdict(plan.cameras) if plan.cameras else None,
+                    },
+                }
+            )
+        )
         path = self.root / DATASET_JSON
         if path.exists():
             earlier = json.loads(path.read_text())
             if earlier.get(FORMAT_KEY, 1) != FORMAT_VERSION:
-                raise SeesysError(f"{path}: dataset format {earlier.get(FORMAT_KEY, 1)}, this builder writes format "
-                                  f"{FORMAT_VERSION}; build into a new folder (move {self.root / SEQUENCES_DIR} "
-                                  f"into it first to reuse the rendered sequences)")
+                raise SeesysError(
+                    f"{path}: dataset format {earlier.get(FORMAT_KEY, 1)}, this builder writes format "
+                    f"{FORMAT_VERSION}; build into a new folder (move {self.root / SEQUENCES_DIR} "
+                    f"into it first to reuse the rendered sequences)"
+                )
             changed = [key for key in DEFINITION_KEYS if earlier.get(key) != description[key]]
             if earlier.get("plan", {}).get("template") != description["plan"]["template"]:
                 changed.append("render template (frames, size, blur, distortion)")
             if changed:
-                raise SeesysError(f"{path}: the dataset there was built with a different {', '.join(changed)}; "
-                                  f"build into a new folder (samples of two definitions must not mix)")
+                raise SeesysError(
+                    f"{path}: the dataset there was built with a different {', '.join(changed)}; "
+                    f"build into a new folder (samples of two definitions must not mix)"
+                )
             description["plan"] = _merge_plans(earlier["plan"], description["plan"])
         path.write_text(json.dumps(description, indent=2) + "\n")
 
     def _run(self, sequence: Path, mode: SlamMode, trial: int, on_event) -> RunInfo:
         meta = _sequence_metadata(sequence)
         name = run_name(sequence.name, mode.value, trial)
-        info = RunInfo(name, sequence.name, meta["environment"], meta["motion_group"], meta["trajectory"],
-                       mode.value, trial, COMPLETED,
-                       camera_model=meta.get("camera_model", {}).get("name", "ideal"),  # ideal: not recorded
-                       camera_normalisation=camera_normalisation.VERSION)  # what this process's monitor applies
+        info = RunInfo(
+            name,
+            sequence.name,
+            meta["environment"],
+            meta["motion_group"],
+            meta["trajectory"],
+            mode.value,
+            trial,
+            COMPLETED,
+            camera_model=meta.get("camera_model", {}).get("name", "ideal"),  # ideal: not recorded
+            camera_normalisation=camera_normalisation.VERSION,
+        )  # what this process's monitor applies
         session_dir = self.root / SESSIONS_DIR / name
         shutil.rmtree(session_dir, ignore_errors=True)
-        options = SessionOptions(f"tum:{sequence}", mode, session_dir, pace=self.config.pace,
-                                 wait_for_mapping=mode.value in self.config.wait_for_mapping_modes,
-                                 config_dir=self.config_dir,
-                                 observers=(ObserverSpec(MONITOR_OBSERVER, {"stream": False, "device_id": name,
-                                                                     "end_stride": self.windows.end_stride}),))
+        options = SessionOptions(
+            f"tum:{sequence}",
+            mode,
+            session_dir,
+            pace=self.config.pace,
+            wait_for_mapping=mode.value in self.config.wait_for_mapping_modes,
+            config_dir=self.config_dir,
+            observers=(
+                ObserverSpec(
+                    MONITOR_OBSERVER, {"stream": False, "device_id": name, "end_stride": self.windows.end_stride}
+                ),
+            ),
+        )
         start = time.perf_counter()
         try:
             result = run_supervised_session(options, progress=on_event)
@@ -309,8 +403,14 @@ class DatasetBuilder:
             return self._store_failed(replace(info, status=CRASHED, error=str(e)), session_dir, mode, start)
         slam_seconds = time.perf_counter() - start
         arrays = label_run(session_dir, mode, self.label_config, self.windows)
-        info = replace(info, frames=result.frames, frames_tracked=result.frames_tracked, samples=len(arrays.samples),
-                       slam_seconds=slam_seconds, seconds=time.perf_counter() - start)
+        info = replace(
+            info,
+            frames=result.frames,
+            frames_tracked=result.frames_tracked,
+            samples=len(arrays.samples),
+            slam_seconds=slam_seconds,
+            seconds=time.perf_counter() - start,
+        )
         return self._store(info, arrays, session_dir)
 
     def _store(self, info: RunInfo, arrays: RunArrays, session_dir: Path) -> RunInfo:
@@ -329,8 +429,14 @@ class DatasetBuilder:
             return crashed
         arrays = label_run(session_dir, mode, self.label_config, self.windows)
         tracked = int((arrays.frames.status != LabelStatus.NOT_TRACKED.value).sum())
-        partial = replace(crashed, status=PARTIAL, frames=len(arrays.frames), frames_tracked=tracked,
-                          samples=len(arrays.samples), seconds=time.perf_counter() - start)
+        partial = replace(
+            crashed,
+            status=PARTIAL,
+            frames=len(arrays.frames),
+            frames_tracked=tracked,
+            samples=len(arrays.samples),
+            seconds=time.perf_counter() - start,
+        )
         return self._store(partial, arrays, session_dir)
 
 

@@ -6,10 +6,10 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from synth.batch import CameraDraw
 from seesys.core.errors import ConfigError
 from seesys.io.config import load_section
 from slam_monitor.orbslam_settings import SlamMode
+from synth.batch import CameraDraw
 
 
 @dataclass(frozen=True)
@@ -52,8 +52,10 @@ class LockboxConfig:
 
     def __post_init__(self) -> None:
         if lockbox_hash(self.environment, self.camera_model) != self.sha256:
-            raise ValueError(f"lockbox {self.environment}|{self.camera_model} does not match its recorded sha256: "
-                             f"the lockbox was chosen once and must not change")
+            raise ValueError(
+                f"lockbox {self.environment}|{self.camera_model} does not match its recorded sha256: "
+                f"the lockbox was chosen once and must not change"
+            )
 
 
 def lockbox_hash(environment: str, camera_model: str) -> str:
@@ -94,6 +96,7 @@ def load_dataset_config(directory: Path | None = None) -> DatasetConfig:
     known = {mode.value for mode in SlamMode}
     unknown = sorted(set(config.modes + config.wait_for_mapping_modes) - known)
     if unknown:
-        raise ConfigError(f"configs/dataset.toml: unknown SLAM mode(s) {', '.join(unknown)} "
-                          f"(known: {', '.join(sorted(known))})")
+        raise ConfigError(
+            f"configs/dataset.toml: unknown SLAM mode(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})"
+        )
     return config

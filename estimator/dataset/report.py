@@ -30,7 +30,7 @@ from seesys.core import rts_schema
 from seesys.core.labels import LabelStatus, LabelSummary
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402  (after choosing the file-only backend)
+import matplotlib.pyplot as plt
 
 MM_PER_M = 1000.0
 WINDOW_STATISTICS = {"mean": np.nanmean, "min": np.nanmin, "max": np.nanmax, "std": np.nanstd}
@@ -81,9 +81,16 @@ def summary_table(frames: pd.DataFrame, by: list[str], thresholds_m: tuple[float
     for key, group in frames.groupby(by, sort=True):
         s = LabelSummary.of(group, thresholds_m)
         row = dict(zip(by, key if isinstance(key, tuple) else (key,)))
-        row.update(runs=group.run.nunique(), frames=s.frames, labelled=s.labelled,
-                   tracked_pct=100 * s.tracked_fraction, median_mm=MM_PER_M * s.median_m,
-                   p90_mm=MM_PER_M * s.p90_m, p99_mm=MM_PER_M * s.p99_m, max_mm=MM_PER_M * s.max_m)
+        row.update(
+            runs=group.run.nunique(),
+            frames=s.frames,
+            labelled=s.labelled,
+            tracked_pct=100 * s.tracked_fraction,
+            median_mm=MM_PER_M * s.median_m,
+            p90_mm=MM_PER_M * s.p90_m,
+            p99_mm=MM_PER_M * s.p99_m,
+            max_mm=MM_PER_M * s.max_m,
+        )
         for t in thresholds_m:
             row[f"above_{MM_PER_M * t:g}mm_pct"] = 100 * s.fraction_above[t]
         rows.append(row)
@@ -92,25 +99,46 @@ def summary_table(frames: pd.DataFrame, by: list[str], thresholds_m: tuple[float
 
 def check_targets(summary: LabelSummary, best_rho: float, targets: TargetConfig) -> list[TargetCheck]:
     """The issue's acceptance figures for a batch of RGB-D runs, each against its target."""
+
     def within(value: float, bounds: tuple[float, float]) -> bool:
         return bool(bounds[0] <= value <= bounds[1])
 
     mm = MM_PER_M
     above = summary.fraction_above.get(0.012, float("nan"))
     return [
-        TargetCheck("median (mm)", mm * summary.median_m, f"{mm * targets.median_m[0]:g}–{mm * targets.median_m[1]:g}",
-                    within(summary.median_m, targets.median_m)),
-        TargetCheck("p90 (mm)", mm * summary.p90_m, f"{mm * targets.p90_m[0]:g}–{mm * targets.p90_m[1]:g}",
-                    within(summary.p90_m, targets.p90_m)),
-        TargetCheck("p99 (mm)", mm * summary.p99_m, f"≥ {mm * targets.p99_min_m:g}",
-                    bool(summary.p99_m >= targets.p99_min_m)),
-        TargetCheck("frames > 12 mm (%)", 100 * above,
-                    f"{100 * targets.above_12mm_fraction[0]:g}–{100 * targets.above_12mm_fraction[1]:g}",
-                    within(above, targets.above_12mm_fraction)),
-        TargetCheck("frames tracked (%)", 100 * summary.tracked_fraction, f"≥ {100 * targets.tracked_min_fraction:g}",
-                    bool(summary.tracked_fraction >= targets.tracked_min_fraction)),
-        TargetCheck("best Spearman ρ, absolute", abs(best_rho), f"≥ {targets.spearman_min_abs:g}",
-                    bool(abs(best_rho) >= targets.spearman_min_abs)),
+        TargetCheck(
+            "median (mm)",
+            mm * summary.median_m,
+            f"{mm * targets.median_m[0]:g}–{mm * targets.median_m[1]:g}",
+            within(summary.median_m, targets.median_m),
+        ),
+        TargetCheck(
+            "p90 (mm)",
+            mm * summary.p90_m,
+            f"{mm * targets.p90_m[0]:g}–{mm * targets.p90_m[1]:g}",
+            within(summary.p90_m, targets.p90_m),
+        ),
+        TargetCheck(
+            "p99 (mm)", mm * summary.p99_m, f"≥ {mm * targets.p99_min_m:g}", bool(summary.p99_m >= targets.p99_min_m)
+        ),
+        TargetCheck(
+            "frames > 12 mm (%)",
+            100 * above,
+            f"{100 * targets.above_12mm_fraction[0]:g}–{100 * targets.above_12mm_fraction[1]:g}",
+            within(above, targets.above_12mm_fraction),
+        ),
+        TargetCheck(
+            "frames tracked (%)",
+            100 * summary.tracked_fraction,
+            f"≥ {100 * targets.tracked_min_fraction:g}",
+            bool(summary.tracked_fraction >= targets.tracked_min_fraction),
+        ),
+        TargetCheck(
+            "best Spearman ρ, absolute",
+            abs(best_rho),
+            f"≥ {targets.spearman_min_abs:g}",
+            bool(abs(best_rho) >= targets.spearman_min_abs),
+        ),
     ]
 
 
@@ -158,13 +186,22 @@ def label_report(roots: list[Path], config: ReportConfig, targets: TargetConfig)
         correlations = feature_correlations(mode_features, errors[in_mode], config.min_samples)
         summary = LabelSummary.of(mode_frames, config.thresholds_m)
         best = float(correlations.spearman_rho.iloc[0]) if len(correlations) else float("nan")
-        modes.append(ModeReport(mode, summary, correlations, check_targets(summary, best, targets), mode_features,
-                                errors[in_mode]))
+        modes.append(
+            ModeReport(
+                mode, summary, correlations, check_targets(summary, best, targets), mode_features, errors[in_mode]
+            )
+        )
     by_camera = summary_table(frames, ["mode", "camera_model"], config.thresholds_m)
     by_group = summary_table(frames, ["mode", "camera_model", "environment", "motion_group"], config.thresholds_m)
     by_trial = summary_table(frames, ["mode", "trial"], config.thresholds_m)
-    return LabelReport(modes, by_camera, depth_by_camera(features, errors, reader.index, config.min_samples),
-                       by_group, by_trial, frames)
+    return LabelReport(
+        modes,
+        by_camera,
+        depth_by_camera(features, errors, reader.index, config.min_samples),
+        by_group,
+        by_trial,
+        frames,
+    )
 
 
 def depth_by_camera(features: pd.DataFrame, errors: np.ndarray, index: pd.DataFrame, min_samples: int) -> pd.DataFrame:
@@ -176,8 +213,11 @@ def depth_by_camera(features: pd.DataFrame, errors: np.ndarray, index: pd.DataFr
         rows = group.index.to_numpy()
         table = feature_correlations(features.loc[rows, columns].reset_index(drop=True), errors[rows], min_samples)
         tables.append(table.assign(mode=mode, camera_model=camera))
-    return (pd.concat(tables, ignore_index=True) if tables
-            else pd.DataFrame(columns=["feature", "spearman_rho", "p_value", "samples", "mode", "camera_model"]))
+    return (
+        pd.concat(tables, ignore_index=True)
+        if tables
+        else pd.DataFrame(columns=["feature", "spearman_rho", "p_value", "samples", "mode", "camera_model"])
+    )
 
 
 def _markdown_table(table: pd.DataFrame, digits: int = 1) -> str:
@@ -195,28 +235,58 @@ def render_markdown(report: LabelReport, config: ReportConfig) -> str:
         s = m.summary
         out += [f"## {m.mode}: {s.labelled} labelled of {s.frames} frames", ""]
         if m.mode == ACCEPTANCE_MODE:
-            checks = pd.DataFrame([(c.name, c.value, c.target, "yes" if c.met else "NO") for c in m.checks],
-                                  columns=["figure", "value", "target", "met"])
-            out += ["Acceptance figures for this batch of RGB-D runs (10-frame translation RPE, labelled frames):",
-                    "", _markdown_table(checks), ""]
+            checks = pd.DataFrame(
+                [(c.name, c.value, c.target, "yes" if c.met else "NO") for c in m.checks],
+                columns=["figure", "value", "target", "met"],
+            )
+            out += [
+                "Acceptance figures for this batch of RGB-D runs (10-frame translation RPE, labelled frames):",
+                "",
+                _markdown_table(checks),
+                "",
+            ]
         else:
-            out += [f"median {MM_PER_M * s.median_m:.1f} mm, p90 {MM_PER_M * s.p90_m:.1f} mm, "
-                    f"p99 {MM_PER_M * s.p99_m:.1f} mm, tracked {100 * s.tracked_fraction:.1f} %, "
-                    + ", ".join(f"> {MM_PER_M * t:g} mm {100 * v:.1f} %" for t, v in s.fraction_above.items()), ""]
+            out += [
+                f"median {MM_PER_M * s.median_m:.1f} mm, p90 {MM_PER_M * s.p90_m:.1f} mm, "
+                f"p99 {MM_PER_M * s.p99_m:.1f} mm, tracked {100 * s.tracked_fraction:.1f} %, "
+                + ", ".join(f"> {MM_PER_M * t:g} mm {100 * v:.1f} %" for t, v in s.fraction_above.items()),
+                "",
+            ]
         top = m.correlations.head(config.top_features)
-        out += [f"RTS window features with the largest |Spearman ρ| against the label ({m.mode}, usable samples):",
-                "", _markdown_table(top[["feature", "spearman_rho", "samples"]], digits=3), ""]
-    out += ["## Per camera model", "", "Label figures per mode and camera model of the renderer:", "",
-            _markdown_table(report.by_camera), ""]
+        out += [
+            f"RTS window features with the largest |Spearman ρ| against the label ({m.mode}, usable samples):",
+            "",
+            _markdown_table(top[["feature", "spearman_rho", "samples"]], digits=3),
+            "",
+        ]
+    out += [
+        "## Per camera model",
+        "",
+        "Label figures per mode and camera model of the renderer:",
+        "",
+        _markdown_table(report.by_camera),
+        "",
+    ]
     if len(report.depth_correlations):
-        top = (report.depth_correlations.assign(strength=report.depth_correlations.spearman_rho.abs())
-               .sort_values(["mode", "camera_model", "strength"], ascending=[True, True, False])
-               .groupby(["mode", "camera_model"]).head(config.top_features))
-        out += ["Depth channels' window features against the label within each camera model (usable samples; "
-                "monocular runs have no depth):", "",
-                _markdown_table(top[["mode", "camera_model", "feature", "spearman_rho", "samples"]], digits=3), ""]
-    out += ["## Per mode and trial (each trial of every sequence is one batch)", "", _markdown_table(report.by_trial),
-            ""]
+        top = (
+            report.depth_correlations.assign(strength=report.depth_correlations.spearman_rho.abs())
+            .sort_values(["mode", "camera_model", "strength"], ascending=[True, True, False])
+            .groupby(["mode", "camera_model"])
+            .head(config.top_features)
+        )
+        out += [
+            "Depth channels' window features against the label within each camera model (usable samples; "
+            "monocular runs have no depth):",
+            "",
+            _markdown_table(top[["mode", "camera_model", "feature", "spearman_rho", "samples"]], digits=3),
+            "",
+        ]
+    out += [
+        "## Per mode and trial (each trial of every sequence is one batch)",
+        "",
+        _markdown_table(report.by_trial),
+        "",
+    ]
     out += ["## Per mode, camera model, environment and motion group", "", _markdown_table(report.by_group), ""]
     return "\n".join(out)
 
@@ -227,8 +297,13 @@ def plot_histogram(frames: pd.DataFrame, config: ReportConfig, path: Path) -> No
     fig, ax = plt.subplots(figsize=(7, 4))
     for mode, group in frames.groupby("mode", sort=True):
         errors = _labelled_errors(group)
-        ax.hist(np.clip(errors, bins[0], bins[-1]), bins=bins, histtype="step", lw=1.5,
-                label=f"{mode} ({len(errors)} frames)")
+        ax.hist(
+            np.clip(errors, bins[0], bins[-1]),
+            bins=bins,
+            histtype="step",
+            lw=1.5,
+            label=f"{mode} ({len(errors)} frames)",
+        )
     for t in config.thresholds_m:
         ax.axvline(t, color="gray", ls="--", lw=1)
         ax.text(t, ax.get_ylim()[1] * 0.95, f" {MM_PER_M * t:g} mm", color="gray", va="top")
@@ -252,7 +327,7 @@ def plot_correlations(mode: ModeReport, config: ReportConfig, path: Path) -> Non
         ax.set_yscale("log")
         ax.set_title(f"{name}  ρ = {rho:+.2f}", fontsize=9)
         ax.set_ylabel("error (m)")
-    for ax in axes.ravel()[len(top):]:
+    for ax in axes.ravel()[len(top) :]:
         ax.axis("off")
     fig.suptitle(f"{mode.mode}: label vs RTS window features")
     fig.tight_layout()

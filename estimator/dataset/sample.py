@@ -15,10 +15,10 @@ from pathlib import Path
 import cv2
 
 from estimator.dataset.config import SampleSequenceConfig
-from synth.config import SynthConfig
-from synth.sequence import SequenceSpec, render_sequence
 from seesys.core.errors import SeesysError
 from slam_monitor.orbslam_settings import load_slam_config
+from synth.config import SynthConfig
+from synth.sequence import SequenceSpec, render_sequence
 
 RGB_LISTS = ("rgb.txt", "associations.txt")
 README = "README.md"
@@ -35,8 +35,9 @@ def _reencode(folder: Path, jpeg_quality: int) -> None:
     """Gray PNG frames → JPEG (the list files follow); depth PNGs → maximum lossless compression."""
     for png in sorted((folder / "rgb").glob("*.png")):
         image = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
-        if image is None or not cv2.imwrite(str(png.with_suffix(".jpg")), image,
-                                            [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]):
+        if image is None or not cv2.imwrite(
+            str(png.with_suffix(".jpg")), image, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
+        ):
             raise SeesysError(f"cannot re-encode {png} as JPEG")
         png.unlink()
     for png in sorted((folder / "depth").glob("*.png")):
@@ -80,7 +81,8 @@ def make_sample(config: SampleSequenceConfig, synth: SynthConfig, out: Path) -> 
         f"- `groundtruth.txt`: T_world_camera, camera optical frame; `calibration.yaml`; `metadata.json`: the "
         f"environment, trajectory and sensor draws.\n\n"
         f"The project's vocabulary (`vocabulary` of configs/slam.toml) is trained on the embedded sample's frames: "
-        f"`seesys vocab train --source tum:data/sample --out {vocabulary}`.\n")
+        f"`seesys vocab train --source tum:data/sample --out {vocabulary}`.\n"
+    )
     shutil.rmtree(out, ignore_errors=True)
     staging.rename(out)
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())

@@ -87,8 +87,10 @@ class Splits:
         split_round = self.rounds[round_index]
         environments = split_round.heldout_environments
         cameras = split_round.heldout_cameras
-        return (self.heldout_environments if environments is None else environments,
-                self.heldout_cameras if cameras is None else cameras)
+        return (
+            self.heldout_environments if environments is None else environments,
+            self.heldout_cameras if cameras is None else cameras,
+        )
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2) + "\n"
@@ -97,9 +99,13 @@ class Splits:
     def from_json(cls, text: str) -> Splits:
         data = json.loads(text)
         # Splits written before held-out cameras hold none; before builds and lockboxes, neither.
-        return cls(data["heldout_environments"], [SplitRound(**r) for r in data["rounds"]],
-                   data.get("heldout_cameras", []), Build(**data["build"]) if data.get("build") else None,
-                   Lockbox(**data["lockbox"]) if data.get("lockbox") else None)
+        return cls(
+            data["heldout_environments"],
+            [SplitRound(**r) for r in data["rounds"]],
+            data.get("heldout_cameras", []),
+            Build(**data["build"]) if data.get("build") else None,
+            Lockbox(**data["lockbox"]) if data.get("lockbox") else None,
+        )
 
 
 def build_fingerprint(runs: pd.DataFrame) -> Build:
@@ -113,8 +119,12 @@ def build_fingerprint(runs: pd.DataFrame) -> Build:
 def run_table(roots: list[Path]) -> pd.DataFrame:
     """One row per run with samples of the dataset folders: run, environment, motion group, trajectory, camera
     model."""
-    rows = [(i.run, i.environment, i.motion_group, i.trajectory, i.camera_model) for root in roots
-            for i in list_runs(root) if i.status in WITH_SAMPLES]
+    rows = [
+        (i.run, i.environment, i.motion_group, i.trajectory, i.camera_model)
+        for root in roots
+        for i in list_runs(root)
+        if i.status in WITH_SAMPLES
+    ]
     table = pd.DataFrame(rows, columns=["run", "environment", "motion_group", "trajectory", "camera_model"])
     duplicated = table.run[table.run.duplicated()]
     if len(duplicated):
@@ -140,12 +150,14 @@ def _heldout_rooms(runs: pd.DataFrame, config: SplitConfig) -> list[list[str]]:
     rooms = sorted(set(runs.environment))
     needed = config.rounds * config.heldout_environments_per_round
     if needed > len(rooms):
-        raise SplitError(f"{config.rounds} rounds of {config.heldout_environments_per_round} held-out rooms need "
-                         f"{needed} rooms, the build has {len(rooms)} outside the lockbox (a room is never held out "
-                         f"twice): ask for fewer rounds or fewer rooms per round")
+        raise SplitError(
+            f"{config.rounds} rounds of {config.heldout_environments_per_round} held-out rooms need "
+            f"{needed} rooms, the build has {len(rooms)} outside the lockbox (a room is never held out "
+            f"twice): ask for fewer rounds or fewer rooms per round"
+        )
     order = [rooms[i] for i in np.random.default_rng(config.seed).permutation(len(rooms))]
     k = config.heldout_environments_per_round
-    return [sorted(order[r * k:(r + 1) * k]) for r in range(config.rounds)]
+    return [sorted(order[r * k : (r + 1) * k]) for r in range(config.rounds)]
 
 
 def _heldout_cameras(config: SplitConfig, round_index: int) -> list[str]:
@@ -153,8 +165,13 @@ def _heldout_cameras(config: SplitConfig, round_index: int) -> list[str]:
     return [cameras[round_index % len(cameras)]] if cameras else []
 
 
-def _next_eligible(names: list[str], start: int, eligible: AbstractSet[str], avoid: AbstractSet[str],
-                   prefer_not: AbstractSet[str] = frozenset()) -> str:
+def _next_eligible(
+    names: list[str],
+    start: int,
+    eligible: AbstractSet[str],
+    avoid: AbstractSet[str],
+    prefer_not: AbstractSet[str] = frozenset(),
+) -> str:
     """The first of ``names`` from position ``start`` on (cyclically) that is eligible, not avoided and, where one
     is left, not in ``prefer_not``."""
     ordered = [names[(start + k) % len(names)] for k in range(len(names))]
@@ -176,11 +193,15 @@ def make_splits(runs: pd.DataFrame, config: SplitConfig, lockbox: LockboxConfig 
         raise SplitError(f"held-out environments not in the data: {', '.join(unknown)}")
     unknown = sorted(set(config.heldout_cameras) - set(runs.camera_model))
     if unknown:
-        raise SplitError(f"held-out camera models not in the data: {', '.join(unknown)} (the data has "
-                         f"{', '.join(sorted(set(runs.camera_model)))})")
+        raise SplitError(
+            f"held-out camera models not in the data: {', '.join(unknown)} (the data has "
+            f"{', '.join(sorted(set(runs.camera_model)))})"
+        )
     rooms = _heldout_rooms(runs, config)
-    heldout = [runs.environment.isin(rooms[r]) | runs.camera_model.isin(_heldout_cameras(config, r))
-               for r in range(config.rounds)]
+    heldout = [
+        runs.environment.isin(rooms[r]) | runs.camera_model.isin(_heldout_cameras(config, r))
+        for r in range(config.rounds)
+    ]
     # A trajectory seen only in held-out runs of a round is always test data in it; the others rotate through
     # the rounds in the order of a seeded permutation of every trajectory that is ever outside the held-out runs.
     shared = [set(runs.trajectory[~h]) for h in heldout]
@@ -194,14 +215,18 @@ def make_splits(runs: pd.DataFrame, config: SplitConfig, lockbox: LockboxConfig 
         for group, names in candidates.items():
             count = len(eligible & set(names))
             if count < 3:
-                raise SplitError(f"motion group {group} has {count} trajectories outside the held-out runs of round "
-                                 f"{r}; a round needs 3 (one each for train, validation and test)")
+                raise SplitError(
+                    f"motion group {group} has {count} trajectories outside the held-out runs of round "
+                    f"{r}; a round needs 3 (one each for train, validation and test)"
+                )
     # Round r validates on the r-th trajectory of each group's permutation and tests on the next, so that n
     # rounds test every trajectory once; more rounds than the smallest group has trajectories would repeat one.
     distinct = min((len(names) for names in candidates.values()), default=0)
     if config.rounds > distinct:
-        raise SplitError(f"{config.rounds} rounds asked, but a motion group has only {distinct} trajectories "
-                         f"outside the held-out runs (at most {distinct} distinct rounds)")
+        raise SplitError(
+            f"{config.rounds} rounds asked, but a motion group has only {distinct} trajectories "
+            f"outside the held-out runs (at most {distinct} distinct rounds)"
+        )
     rounds = []
     tested: dict[str, set[str]] = {group: set() for group in candidates}
     for r in range(config.rounds):
@@ -216,9 +241,18 @@ def make_splits(runs: pd.DataFrame, config: SplitConfig, lockbox: LockboxConfig 
         is_validation = runs.trajectory.isin(validation_traj) & ~heldout[r]
         is_train = ~runs.trajectory.isin(validation_traj + test_traj) & ~heldout[r]
         excluded = ~(is_test | is_validation | is_train)
-        rounds.append(SplitRound(validation_traj, test_traj, sorted(runs.run[is_train]),
-                                 sorted(runs.run[is_validation]), sorted(runs.run[is_test]),
-                                 sorted(runs.run[excluded]), rooms[r], _heldout_cameras(config, r)))
+        rounds.append(
+            SplitRound(
+                validation_traj,
+                test_traj,
+                sorted(runs.run[is_train]),
+                sorted(runs.run[is_validation]),
+                sorted(runs.run[is_test]),
+                sorted(runs.run[excluded]),
+                rooms[r],
+                _heldout_cameras(config, r),
+            )
+        )
     splits = Splits(sorted(set().union(*rooms)) if rooms else [], rounds, sorted(config.heldout_cameras), build, box)
     check_no_leak(splits, runs)
     return splits
@@ -257,9 +291,11 @@ def check_splits(splits: Splits, roots: list[Path], source: str) -> None:
     if splits.build is not None:
         build = build_fingerprint(runs)
         if build.name != splits.build.name:
-            raise SplitError(f"{source} was made from {splits.build.name} ({splits.build.runs} runs), the dataset "
-                             f"folders are {build.name} ({build.runs} runs): make splits of this build with "
-                             f"`seesys dataset splits`")
+            raise SplitError(
+                f"{source} was made from {splits.build.name} ({splits.build.runs} runs), the dataset "
+                f"folders are {build.name} ({build.runs} runs): make splits of this build with "
+                f"`seesys dataset splits`"
+            )
     check_no_leak(splits, runs)
 
 

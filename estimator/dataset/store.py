@@ -115,13 +115,20 @@ class RunArrays:
         n = len(self.samples)
         problems = []
         if len(self.rts) != len(self.rts_frames) or len(self.psd) != len(self.psd_frames):
-            problems.append(f"{len(self.rts)} RTS rows for {len(self.rts_frames)} frame indices, "
-                            f"{len(self.psd)} PSD matrices for {len(self.psd_frames)}")
+            problems.append(
+                f"{len(self.rts)} RTS rows for {len(self.rts_frames)} frame indices, "
+                f"{len(self.psd)} PSD matrices for {len(self.psd_frames)}"
+            )
         if len(self.sample_rts_rows) != n or len(self.sample_psd_rows) != n:
-            problems.append(f"{len(self.sample_rts_rows)} RTS and {len(self.sample_psd_rows)} PSD windows for "
-                            f"{n} sample rows")
-        if n and (self.sample_rts_rows.max() >= len(self.rts) or self.sample_psd_rows.max() >= len(self.psd)
-                  or self.sample_rts_rows.min() < -1 or self.sample_psd_rows.min() < 0):
+            problems.append(
+                f"{len(self.sample_rts_rows)} RTS and {len(self.sample_psd_rows)} PSD windows for {n} sample rows"
+            )
+        if n and (
+            self.sample_rts_rows.max() >= len(self.rts)
+            or self.sample_psd_rows.max() >= len(self.psd)
+            or self.sample_rts_rows.min() < -1
+            or self.sample_psd_rows.min() < 0
+        ):
             problems.append("a window points outside the stored rows")
         if problems:
             raise DatasetError(f"run {run}: {'; '.join(problems)}")
@@ -150,11 +157,16 @@ def check_label_definition(root: Path, modes: set[str]) -> None:
     here = label_definition(load_label_config())
     keys = [k for k in here if k != "mono_alignment" or MONO in modes]
     defaults = {"mono_alignment": BEFORE_MONO_ALIGNMENT}
-    differ = [f"{k} {recorded.get(k, defaults.get(k))!r} (here {here[k]!r})" for k in keys
-              if recorded.get(k, defaults.get(k)) != here[k]]
+    differ = [
+        f"{k} {recorded.get(k, defaults.get(k))!r} (here {here[k]!r})"
+        for k in keys
+        if recorded.get(k, defaults.get(k)) != here[k]
+    ]
     if differ:
-        raise DatasetError(f"{path}: its {'/'.join(sorted(modes))} labels were made under another definition: "
-                           f"{', '.join(differ)}; build the runs again into a new folder")
+        raise DatasetError(
+            f"{path}: its {'/'.join(sorted(modes))} labels were made under another definition: "
+            f"{', '.join(differ)}; build the runs again into a new folder"
+        )
 
 
 def gather_rts(rts: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -186,10 +198,12 @@ def read_run_info(folder: Path) -> RunInfo | None:
     except (ValueError, TypeError) as e:
         raise DatasetError(f"{path}: not a run record: {e}") from None
     if version != FORMAT_VERSION:
-        raise DatasetError(f"{path}: run stored in dataset format {version}; this SEESys reads format "
-                           f"{FORMAT_VERSION} (one sample per labelled frame, each PSD stored once). Rebuild the "
-                           f"dataset into a new folder with `seesys dataset build`; its rendered sequences can be "
-                           f"reused by moving {folder.parent.parent / 'sequences'} into the new folder first")
+        raise DatasetError(
+            f"{path}: run stored in dataset format {version}; this SEESys reads format "
+            f"{FORMAT_VERSION} (one sample per labelled frame, each PSD stored once). Rebuild the "
+            f"dataset into a new folder with `seesys dataset build`; its rendered sequences can be "
+            f"reused by moving {folder.parent.parent / 'sequences'} into the new folder first"
+        )
     return info
 
 
@@ -199,10 +213,14 @@ def _write_folder(folder: Path, info: RunInfo, arrays: RunArrays | None) -> None
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
     if arrays is not None:
-        for name, array, dtype in ((RTS_NPY, arrays.rts, np.float32), (RTS_FRAMES_NPY, arrays.rts_frames, np.int64),
-                                   (PSD_NPY, arrays.psd, np.uint8), (PSD_FRAMES_NPY, arrays.psd_frames, np.int64),
-                                   (SAMPLE_RTS_ROWS_NPY, arrays.sample_rts_rows, np.int32),
-                                   (SAMPLE_PSD_ROWS_NPY, arrays.sample_psd_rows, np.int32)):
+        for name, array, dtype in (
+            (RTS_NPY, arrays.rts, np.float32),
+            (RTS_FRAMES_NPY, arrays.rts_frames, np.int64),
+            (PSD_NPY, arrays.psd, np.uint8),
+            (PSD_FRAMES_NPY, arrays.psd_frames, np.int64),
+            (SAMPLE_RTS_ROWS_NPY, arrays.sample_rts_rows, np.int32),
+            (SAMPLE_PSD_ROWS_NPY, arrays.sample_psd_rows, np.int32),
+        ):
             np.save(partial / name, np.ascontiguousarray(array, dtype=dtype))
         arrays.samples.to_csv(partial / SAMPLES_CSV, index=False)
         arrays.frames.to_csv(partial / FRAMES_CSV, index=False)
@@ -271,8 +289,9 @@ class DatasetReader:
         tables = []
         self._folders: dict[str, Path] = {}
         for root in roots:
-            included = [info for info in list_runs(root)
-                        if info.status in WITH_SAMPLES and (runs is None or info.run in runs)]
+            included = [
+                info for info in list_runs(root) if info.status in WITH_SAMPLES and (runs is None or info.run in runs)
+            ]
             check_label_definition(root, {info.mode for info in included})
             for info in included:
                 if info.run in self._folders:
@@ -284,15 +303,26 @@ class DatasetReader:
                 if missing:
                     raise DatasetError(f"{folder / SAMPLES_CSV}: missing columns {sorted(missing)}")
                 meta = asdict(info)
-                for key in ("run", "sequence", "environment", "motion_group", "trajectory", "mode", "trial",
-                            "camera_model", "camera_normalisation"):
+                for key in (
+                    "run",
+                    "sequence",
+                    "environment",
+                    "motion_group",
+                    "trajectory",
+                    "mode",
+                    "trial",
+                    "camera_model",
+                    "camera_normalisation",
+                ):
                     table[key] = meta[key]
                 tables.append(table)
         if runs is not None:
             unknown = sorted(set(runs) - set(self._folders))
             if unknown:
-                raise DatasetError(f"runs not found (or without samples) in {', '.join(map(str, roots))}: "
-                                   f"{', '.join(unknown[:5])}{' …' if len(unknown) > 5 else ''}")
+                raise DatasetError(
+                    f"runs not found (or without samples) in {', '.join(map(str, roots))}: "
+                    f"{', '.join(unknown[:5])}{' …' if len(unknown) > 5 else ''}"
+                )
         index = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame(columns=list(SAMPLE_COLUMNS))
         if usable_only:
             index = index[index.usable.astype(bool)].reset_index(drop=True)
@@ -307,8 +337,11 @@ class DatasetReader:
             folder = self._folders[run]
             try:
                 self._arrays[run] = _StoredRun(
-                    np.load(folder / RTS_NPY, mmap_mode="r"), np.load(folder / PSD_NPY, mmap_mode="r"),
-                    np.load(folder / SAMPLE_RTS_ROWS_NPY), np.load(folder / SAMPLE_PSD_ROWS_NPY))
+                    np.load(folder / RTS_NPY, mmap_mode="r"),
+                    np.load(folder / PSD_NPY, mmap_mode="r"),
+                    np.load(folder / SAMPLE_RTS_ROWS_NPY),
+                    np.load(folder / SAMPLE_PSD_ROWS_NPY),
+                )
             except (OSError, ValueError) as e:
                 raise DatasetError(f"cannot open the arrays of run {folder}: {e}") from None
         return self._arrays[run]
@@ -319,8 +352,14 @@ class DatasetReader:
         row = self.index.iloc[i]
         stored = self._run_arrays(row.run)
         k = int(row["sample"])
-        return Sample(gather_rts(stored.rts, stored.rts_rows[k]), np.asarray(stored.psd[stored.psd_rows[k]]),
-                      float(row.error_m), str(row.status), bool(row.usable), row.to_dict())
+        return Sample(
+            gather_rts(stored.rts, stored.rts_rows[k]),
+            np.asarray(stored.psd[stored.psd_rows[k]]),
+            float(row.error_m),
+            str(row.status),
+            bool(row.usable),
+            row.to_dict(),
+        )
 
     def rts_windows(self) -> np.ndarray:
         """Every indexed sample's RTS window, (N, T, C) float32 (small: the PSD windows are what is large)."""
@@ -338,7 +377,7 @@ class DatasetReader:
     def frame_labels(self) -> pd.DataFrame:
         """Per-frame labels of the indexed runs (every frame, not only window ends), with run metadata."""
         tables = []
-        for run, folder in self._folders.items():
+        for _run, folder in self._folders.items():
             table = pd.read_csv(folder / FRAMES_CSV)
             info = read_run_info(folder)
             for key in ("run", "environment", "motion_group", "trajectory", "mode", "trial", "camera_model"):

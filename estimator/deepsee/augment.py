@@ -54,18 +54,21 @@ class Augmenter:
     def _symmetric(half_width: float, n: int, generator: torch.Generator) -> torch.Tensor:
         return (2 * torch.rand(n, generator=generator, dtype=torch.float64) - 1).float() * half_width
 
-    def __call__(self, rts: torch.Tensor, psd: torch.Tensor,
-                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    def __call__(
+        self, rts: torch.Tensor, psd: torch.Tensor, generator: torch.Generator
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         if not self.config.enabled:
             return rts, psd
         c, n = self.config, rts.shape[0]
         # every draw is made whether or not the PSD is used, so an ablation sees the same RTS changes as DeepSEE
-        draws = {"brightness": self._symmetric(c.brightness_offset, n, generator) / self._brightness[1],
-                 "contrast": self._log_uniform(c.contrast_gain, n, generator),
-                 "entropy": self._symmetric(c.entropy_offset_bits, n, generator) / self._entropy[1],
-                 "laplacian": torch.log(self._log_uniform(c.laplacian_gain, n, generator)) / self._laplacian[1],
-                 "counts": self._log_uniform(c.count_gain, n, generator),
-                 "keypoint": self._log_uniform(c.keypoint_response_gain, n, generator)}
+        draws = {
+            "brightness": self._symmetric(c.brightness_offset, n, generator) / self._brightness[1],
+            "contrast": self._log_uniform(c.contrast_gain, n, generator),
+            "entropy": self._symmetric(c.entropy_offset_bits, n, generator) / self._entropy[1],
+            "laplacian": torch.log(self._log_uniform(c.laplacian_gain, n, generator)) / self._laplacian[1],
+            "counts": self._log_uniform(c.count_gain, n, generator),
+            "keypoint": self._log_uniform(c.keypoint_response_gain, n, generator),
+        }
         draws = {k: v.to(rts.device).view(n, 1) for k, v in draws.items()}
         present = (rts != 0).any(dim=-1)  # (B, T): missing rows stay all zero
         out = rts.clone()

@@ -25,21 +25,28 @@ def window_statistics(rts: np.ndarray) -> np.ndarray:
     return np.concatenate([rts.mean(axis=1), rts.std(axis=1), rts.min(axis=1), rts.max(axis=1), rts[:, -1]], axis=1)
 
 
-def fit_random_forest(rts: np.ndarray, targets: np.ndarray, config: RandomForestConfig, seed: int,
-                      jobs: int) -> RandomForestRegressor:
+def fit_random_forest(
+    rts: np.ndarray, targets: np.ndarray, config: RandomForestConfig, seed: int, jobs: int
+) -> RandomForestRegressor:
     """The forest on the :func:`window_statistics` of (N, T, C) normalised windows (:func:`fit_forest`)."""
     return fit_forest(window_statistics(rts), targets, config, seed, jobs)
 
 
-def fit_forest(features: np.ndarray, targets: np.ndarray, config: RandomForestConfig, seed: int,
-               jobs: int) -> RandomForestRegressor:
+def fit_forest(
+    features: np.ndarray, targets: np.ndarray, config: RandomForestConfig, seed: int, jobs: int
+) -> RandomForestRegressor:
     """Fit on the (N, F) ``features`` of at most ``max_train_samples`` windows (a seeded subset). Serve with
     ``n_jobs=1``: at batch 1 the joblib dispatch of more jobs costs more than the trees."""
     index = np.arange(len(features))
     if 0 < config.max_train_samples < len(features):
         index = np.sort(np.random.default_rng(seed).choice(len(features), config.max_train_samples, replace=False))
-    forest = RandomForestRegressor(n_estimators=config.trees, min_samples_leaf=config.min_samples_leaf,
-                                   max_features=config.max_features, n_jobs=jobs, random_state=seed)
+    forest = RandomForestRegressor(
+        n_estimators=config.trees,
+        min_samples_leaf=config.min_samples_leaf,
+        max_features=config.max_features,
+        n_jobs=jobs,
+        random_state=seed,
+    )
     forest.fit(features[index], targets[index])
     forest.set_params(n_jobs=1)
     return forest
@@ -52,8 +59,9 @@ class LstmBaseline(nn.Module):
         super().__init__()
         self.config, self.channels = config, channels
         self.lstm = nn.LSTM(channels, config.hidden, num_layers=config.layers, batch_first=True)
-        self.head = nn.Sequential(nn.Linear(config.hidden, config.head_hidden), nn.GELU(),
-                                  nn.Linear(config.head_hidden, 1))
+        self.head = nn.Sequential(
+            nn.Linear(config.hidden, config.head_hidden), nn.GELU(), nn.Linear(config.head_hidden, 1)
+        )
 
     def forward(self, rts: torch.Tensor, psd: torch.Tensor) -> torch.Tensor:
         out, _ = self.lstm(rts)

@@ -30,7 +30,6 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from estimator.deepsee.baselines import LstmBaseline
 from estimator.artefact.compatibility import (
     InputShape,
     ModelMismatch,
@@ -39,11 +38,12 @@ from estimator.artefact.compatibility import (
     compatibility_hash,
     rts_columns,
 )
+from estimator.artefact.standardisation import CHECKPOINT_KEY, InputStandardisation
+from estimator.artefact.transforms import LabelTransform
+from estimator.deepsee.baselines import LstmBaseline
 from estimator.deepsee.config import FusionConfig, LstmConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
 from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant
-from estimator.artefact.standardisation import CHECKPOINT_KEY, InputStandardisation
-from estimator.artefact.transforms import LabelTransform
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_window_config
 
@@ -52,8 +52,12 @@ FORMAT_VERSION = 1
 
 def _spec(model: nn.Module) -> dict:
     if isinstance(model, DeepSEE):
-        spec = {"kind": "deepsee", "config": asdict(model.config), "shape": asdict(model.shape),
-                "variant": asdict(model.variant)}
+        spec = {
+            "kind": "deepsee",
+            "config": asdict(model.config),
+            "shape": asdict(model.shape),
+            "variant": asdict(model.variant),
+        }
         # Only a model with a head records thresholds: a model without one keeps the spec it always had.
         return {**spec, "ordinal_thresholds_m": list(model.thresholds_m)} if model.thresholds_m else spec
     if isinstance(model, LstmBaseline):
@@ -66,8 +70,13 @@ def _build(spec: dict, rts_channels: tuple[str, ...]) -> nn.Module:
     if spec["kind"] == "lstm":
         return LstmBaseline(LstmConfig(**spec["config"]), spec["channels"])
     variant = Variant(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec["variant"].items()})
-    return DeepSEE(_model_config(spec["config"]), InputShape(**spec["shape"]), variant,
-                   tuple(spec.get("ordinal_thresholds_m", ())), rts_channels)
+    return DeepSEE(
+        _model_config(spec["config"]),
+        InputShape(**spec["shape"]),
+        variant,
+        tuple(spec.get("ordinal_thresholds_m", ())),
+        rts_channels,
+    )
 
 
 def save_atomic(obj: object, path: Path) -> Path:
@@ -81,17 +90,29 @@ def save_atomic(obj: object, path: Path) -> Path:
     return path
 
 
-def save_model(path: Path, model: nn.Module, windows: WindowConfig, transform: LabelTransform,
-               training: dict, rts_channels: list[str] | None = None,
-               standardisation: InputStandardisation | None = None) -> Path:
+def save_model(
+    path: Path,
+    model: nn.Module,
+    windows: WindowConfig,
+    transform: LabelTransform,
+    training: dict,
+    rts_channels: list[str] | None = None,
+    standardisation: InputStandardisation | None = None,
+) -> Path:
     """Save ``model`` with its compatibility record and its input ``standardisation`` (none: its input as it is);
     ``rts_channels``: the RTS channels it takes (a fine-tuned model keeps its base's), every channel of the schema
     by default."""
-    record = compatibility(windows, transform, rts_channels=rts_channels,
-                           head_thresholds_m=getattr(model, "thresholds_m", ()))
-    payload = {"format": FORMAT_VERSION, "compatibility": record, "compatibility_hash": compatibility_hash(record),
-               "model": _spec(model),
-               "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "training": training}
+    record = compatibility(
+        windows, transform, rts_channels=rts_channels, head_thresholds_m=getattr(model, "thresholds_m", ())
+    )
+    payload = {
+        "format": FORMAT_VERSION,
+        "compatibility": record,
+        "compatibility_hash": compatibility_hash(record),
+        "model": _spec(model),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "training": training,
+    }
     if standardisation is not None:
         payload[CHECKPOINT_KEY] = standardisation.as_record()
     return save_atomic(payload, path)
@@ -103,8 +124,12 @@ def payload_standardisation(payload: dict, source: str) -> InputStandardisation:
 
 
 def _model_config(data: dict) -> ModelConfig:
-    return ModelConfig(data["dim"], PsdEncoderConfig(**data["psd"]), RtsEncoderConfig(**data["rts"]),
-                       FusionConfig(**{**data["fusion"], "head_hidden": tuple(data["fusion"]["head_hidden"])}))
+    return ModelConfig(
+        data["dim"],
+        PsdEncoderConfig(**data["psd"]),
+        RtsEncoderConfig(**data["rts"]),
+        FusionConfig(**{**data["fusion"], "head_hidden": tuple(data["fusion"]["head_hidden"])}),
+    )
 
 
 def load_payload(path: Path) -> dict:

@@ -148,8 +148,10 @@ class EvaluationConfig:
 
     def __post_init__(self) -> None:
         if self.bootstrap_resamples < 0 or not 0 < self.confidence < 1:
-            raise ValueError(f"evaluation: bootstrap_resamples must be >= 0 and confidence in (0, 1), got "
-                             f"{self.bootstrap_resamples} and {self.confidence}")
+            raise ValueError(
+                f"evaluation: bootstrap_resamples must be >= 0 and confidence in (0, 1), got "
+                f"{self.bootstrap_resamples} and {self.confidence}"
+            )
 
 
 @dataclass(frozen=True)
@@ -228,12 +230,16 @@ def load_estimator_config(directory: Path | None = None) -> EstimatorConfig:
     config = load_section(SECTION, EstimatorConfig, directory)
     check_model_config(config.model)
     if config.ordinal_head.bce_weight < 0:
-        raise ConfigError(f"configs/estimator.toml: ordinal_head.bce_weight must not be negative, got "
-                          f"{config.ordinal_head.bce_weight}")
+        raise ConfigError(
+            f"configs/estimator.toml: ordinal_head.bce_weight must not be negative, got "
+            f"{config.ordinal_head.bce_weight}"
+        )
     unknown = sorted(set(config.input_standardisation.camera_channels) - set(rts_schema.CHANNEL_NAMES))
     if unknown:
-        raise ConfigError(f"configs/estimator.toml: input_standardisation.camera_channels names unknown RTS "
-                          f"channels {', '.join(unknown)}")
+        raise ConfigError(
+            f"configs/estimator.toml: input_standardisation.camera_channels names unknown RTS "
+            f"channels {', '.join(unknown)}"
+        )
     return config
 
 
@@ -241,5 +247,6 @@ def check_model_config(model: ModelConfig) -> None:
     """Raise :class:`ConfigError` when the widths do not divide into the attention heads."""
     for where, heads in (("psd", model.psd.heads), ("fusion", model.fusion.heads)):
         if model.dim % heads:
-            raise ConfigError(f"configs/estimator.toml: model.dim {model.dim} is not a multiple of "
-                              f"{where}.heads {heads}")
+            raise ConfigError(
+                f"configs/estimator.toml: model.dim {model.dim} is not a multiple of {where}.heads {heads}"
+            )

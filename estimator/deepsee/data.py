@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator.dataset.splits import Splits, check_splits
-from estimator.dataset.store import DatasetReader
 from estimator.artefact.compatibility import InputShape
 from estimator.artefact.transforms import prepare_rts
+from estimator.dataset.splits import Splits, check_splits
+from estimator.dataset.store import DatasetReader
 from seesys.core import rts_schema, session_layout
 from seesys.core.errors import SeesysError
 from seesys.core.labels import LabelStatus
@@ -97,14 +97,16 @@ def reader_windows(reader: DatasetReader) -> Windows:
     return Windows(rts, reader, reader.index.error_m.to_numpy(np.float64), reader.index.reset_index(drop=True))
 
 
-def split_windows(roots: list[Path], splits: Splits, round_index: int,
-                  parts: tuple[str, ...] = PARTS) -> dict[str, Windows]:
+def split_windows(
+    roots: list[Path], splits: Splits, round_index: int, parts: tuple[str, ...] = PARTS
+) -> dict[str, Windows]:
     """Usable windows of the given parts (train, validation, test) of one cross-validation round."""
     if not 0 <= round_index < len(splits.rounds):
         raise DataError(f"round {round_index} not in the splits ({len(splits.rounds)} rounds)")
     split_round = splits.rounds[round_index]
-    return {part: reader_windows(DatasetReader(roots, runs=getattr(split_round, part), usable_only=True))
-            for part in parts}
+    return {
+        part: reader_windows(DatasetReader(roots, runs=getattr(split_round, part), usable_only=True)) for part in parts
+    }
 
 
 def read_splits(path: Path, roots: list[Path]) -> Splits:
@@ -163,15 +165,22 @@ def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Wind
         by_frame = labels.set_index("frame_index")
         end = by_frame.reindex(meta.frame_index)
         max_missing = windows.max_missing_rts
-        usable = ((end.status == LabelStatus.LABELLED.value).to_numpy()
-                  & (meta.missing_rts <= max_missing).to_numpy())
+        usable = (end.status == LabelStatus.LABELLED.value).to_numpy() & (meta.missing_rts <= max_missing).to_numpy()
         error = end.error_m.to_numpy(np.float64)
         keep = np.flatnonzero(usable)
-        rts, psd, error, meta = ([rts[k] for k in keep], [psd[k] for k in keep], error[keep],
-                                 meta.iloc[keep].reset_index(drop=True))
+        rts, psd, error, meta = (
+            [rts[k] for k in keep],
+            [psd[k] for k in keep],
+            error[keep],
+            meta.iloc[keep].reset_index(drop=True),
+        )
     if not rts:
-        return Windows(np.zeros((0, windows.rts_length, rts_schema.NUM_CHANNELS), np.float32),
-                       np.zeros((0, windows.psd_samples, 0, 0, 3), np.uint8), error, meta)
+        return Windows(
+            np.zeros((0, windows.rts_length, rts_schema.NUM_CHANNELS), np.float32),
+            np.zeros((0, windows.psd_samples, 0, 0, 3), np.uint8),
+            error,
+            meta,
+        )
     return Windows(prepare_rts(np.stack(rts)), np.stack(psd), error, meta)
 
 
@@ -181,5 +190,9 @@ def concat(parts: list[Windows]) -> Windows:
     if not parts:
         raise DataError("no usable windows in the given sessions")
     psd = np.concatenate([np.stack([p.psd_at(i) for i in range(len(p))]) for p in parts])
-    return Windows(np.concatenate([p.rts for p in parts]), psd, np.concatenate([p.error_m for p in parts]),
-                   pd.concat([p.meta for p in parts], ignore_index=True))
+    return Windows(
+        np.concatenate([p.rts for p in parts]),
+        psd,
+        np.concatenate([p.error_m for p in parts]),
+        pd.concat([p.meta for p in parts], ignore_index=True),
+    )

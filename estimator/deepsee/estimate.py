@@ -26,8 +26,13 @@ def estimate_session(predictor: Predictor, session: Path, windows: WindowConfig,
     if not len(data):
         raise DataError(f"{session}: no complete model window in its monitor logs (too short, or never tracked)")
     estimates = predictor.estimates(data)
-    table = pd.DataFrame({"frame_index": data.meta.frame_index.to_numpy(np.int64),
-                          "timestamp": data.meta.timestamp.to_numpy(np.float64), "error_m": estimates.metres})
+    table = pd.DataFrame(
+        {
+            "frame_index": data.meta.frame_index.to_numpy(np.int64),
+            "timestamp": data.meta.timestamp.to_numpy(np.float64),
+            "error_m": estimates.metres,
+        }
+    )
     if estimates.probabilities is not None:
         for k, threshold in enumerate(predictor.thresholds_m):
             table[probability_column(threshold)] = estimates.probabilities[:, k].astype(np.float64)

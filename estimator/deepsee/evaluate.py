@@ -85,8 +85,10 @@ def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windo
         return {}
     names = [Path(s).name for s in sessions]
     if len(set(names)) != len(names):
-        raise SeesysError(f"two out-of-domain sessions share a folder name ({', '.join(names)}): each is reported "
-                          "under its folder's name, give folders with distinct names")
+        raise SeesysError(
+            f"two out-of-domain sessions share a folder name ({', '.join(names)}): each is reported "
+            "under its folder's name, give folders with distinct names"
+        )
     each = [session_windows(s, windows, labelled=True) for s in sessions]
     sets = {OUT_OF_DOMAIN: concat(each)}
     if len(each) > 1:
@@ -100,8 +102,10 @@ def _sets(test: Windows, environments: list[str], cameras: list[str]) -> dict[st
     camera = test.meta.camera_model.to_numpy() if len(test.meta) else np.zeros(0, str)
     unseen_camera = np.isin(camera, cameras)
     in_heldout = test.meta.environment.isin(environments).to_numpy() & ~unseen_camera
-    sets = {TEST_TRAJECTORIES: test.subset(np.flatnonzero(~in_heldout & ~unseen_camera)),
-            HELDOUT_ENVIRONMENTS: test.subset(np.flatnonzero(in_heldout))}
+    sets = {
+        TEST_TRAJECTORIES: test.subset(np.flatnonzero(~in_heldout & ~unseen_camera)),
+        HELDOUT_ENVIRONMENTS: test.subset(np.flatnonzero(in_heldout)),
+    }
     for name in cameras:
         sets[heldout_camera_set(name)] = test.subset(np.flatnonzero(camera == name))
     return sets
@@ -117,26 +121,59 @@ class _Tables:
     calibration: list = field(default_factory=list)
 
 
-def judge(tables: _Tables, key: dict, data: Windows, estimate_m: np.ndarray, probabilities: np.ndarray | None,
-          motion: np.ndarray, config: EstimatorConfig, pulses: PulseSettings) -> None:
+def judge(
+    tables: _Tables,
+    key: dict,
+    data: Windows,
+    estimate_m: np.ndarray,
+    probabilities: np.ndarray | None,
+    motion: np.ndarray,
+    config: EstimatorConfig,
+    pulses: PulseSettings,
+) -> None:
     """Score one row's estimates of one set (``key``: set, row, round) into ``tables``."""
-    tables.scores.append({**key, **asdict(score(data.meta, estimate_m, data.error_m, config.evaluation, pulses,
-                                                 probabilities, motion))})
-    tables.predictions.append(pd.DataFrame({**key, "run": data.meta.run.to_numpy(),
-                                            "frame_index": data.meta.frame_index.to_numpy(),
-                                            "timestamp": data.meta.timestamp.to_numpy(),
-                                            "true_m": data.error_m, "estimate_m": estimate_m}))
+    tables.scores.append(
+        {**key, **asdict(score(data.meta, estimate_m, data.error_m, config.evaluation, pulses, probabilities, motion))}
+    )
+    tables.predictions.append(
+        pd.DataFrame(
+            {
+                **key,
+                "run": data.meta.run.to_numpy(),
+                "frame_index": data.meta.frame_index.to_numpy(),
+                "timestamp": data.meta.timestamp.to_numpy(),
+                "true_m": data.error_m,
+                "estimate_m": estimate_m,
+            }
+        )
+    )
     if "camera_model" in data.meta and len(data):
         for camera, rows in data.meta.groupby("camera_model").groups.items():
             rows = np.asarray(rows)
-            tables.cameras.append({**key, "camera_model": camera, "windows": len(rows),
-                                   "median_ratio": median_ratio(estimate_m[rows], data.error_m[rows])})
+            tables.cameras.append(
+                {
+                    **key,
+                    "camera_model": camera,
+                    "windows": len(rows),
+                    "median_ratio": median_ratio(estimate_m[rows], data.error_m[rows]),
+                }
+            )
     if probabilities is not None:
         for k, threshold in enumerate(class_boundaries_m(pulses)):
             fit = calibration(probabilities[:, k], data.error_m, threshold)
-            tables.calibration.append(pd.DataFrame({**key, "threshold_m": threshold, "brier": fit.brier,
-                                                    "ece": fit.ece, "confidence": fit.confidence,
-                                                    "observed": fit.observed, "windows": fit.count}))
+            tables.calibration.append(
+                pd.DataFrame(
+                    {
+                        **key,
+                        "threshold_m": threshold,
+                        "brier": fit.brier,
+                        "ece": fit.ece,
+                        "confidence": fit.confidence,
+                        "observed": fit.observed,
+                        "windows": fit.count,
+                    }
+                )
+            )
 
 
 @dataclass(frozen=True)
@@ -150,8 +187,15 @@ class _Judging:
     device: torch.device
 
 
-def _judge_round(tables: _Tables, r: int, sets: dict[str, Windows], dataset_sets: set[str], train: Windows,
-                 models: list[tuple[str, Path]], how: _Judging) -> None:
+def _judge_round(
+    tables: _Tables,
+    r: int,
+    sets: dict[str, Windows],
+    dataset_sets: set[str],
+    train: Windows,
+    models: list[tuple[str, Path]],
+    how: _Judging,
+) -> None:
     """The reference rows (fitted on ``train``), the ceiling (on the dataset sets) and every model of ``models``
     ((row name, model file)) on every set of round ``r``."""
     config, pulses = how.config, how.pulses
@@ -160,34 +204,68 @@ def _judge_round(tables: _Tables, r: int, sets: dict[str, Windows], dataset_sets
     references = fit_references(train, pulses)
     for name, data in sets.items():
         for row_name, estimate in references.estimates(data).items():
-            judge(tables, {"set": name, "row": row_name, "round": r}, data, estimate, None, motion[name], config,
-                  pulses)
+            judge(
+                tables, {"set": name, "row": row_name, "round": r}, data, estimate, None, motion[name], config, pulses
+            )
         if name in dataset_sets:
             ceiling = ceiling_estimates(how.roots, data)
             kept = np.flatnonzero(np.isfinite(ceiling))
             if len(kept):
-                judge(tables, {"set": name, "row": CEILING, "round": r}, data.subset(kept), ceiling[kept], None,
-                      motion[name][kept], config, pulses)
+                judge(
+                    tables,
+                    {"set": name, "row": CEILING, "round": r},
+                    data.subset(kept),
+                    ceiling[kept],
+                    None,
+                    motion[name][kept],
+                    config,
+                    pulses,
+                )
     for row_name, path in models:
         predictor = load_predictor(path, transform, config.evaluation.batch_size, how.device, how.windows)
         for name, data in sets.items():
             estimates = predictor.estimates(data)
             head = equation2_head(estimates.probabilities, predictor.thresholds_m, pulses)
-            judge(tables, {"set": name, "row": row_name, "round": r}, data, estimates.metres, head, motion[name],
-                  config, pulses)
+            judge(
+                tables,
+                {"set": name, "row": row_name, "round": r},
+                data,
+                estimates.metres,
+                head,
+                motion[name],
+                config,
+                pulses,
+            )
 
 
 def _evaluation(tables: _Tables, runs: Path) -> Evaluation:
-    calibrated = pd.concat(tables.calibration, ignore_index=True) if tables.calibration else pd.DataFrame(
-        columns=["set", "row", "round", "threshold_m", "brier", "ece", "confidence", "observed", "windows"])
-    return Evaluation(pd.DataFrame(tables.scores), pd.concat(tables.predictions, ignore_index=True), Path(runs),
-                      pd.DataFrame(tables.cameras, columns=["set", "row", "round", "camera_model", "windows",
-                                                            "median_ratio"]), calibrated)
+    calibrated = (
+        pd.concat(tables.calibration, ignore_index=True)
+        if tables.calibration
+        else pd.DataFrame(
+            columns=["set", "row", "round", "threshold_m", "brier", "ece", "confidence", "observed", "windows"]
+        )
+    )
+    return Evaluation(
+        pd.DataFrame(tables.scores),
+        pd.concat(tables.predictions, ignore_index=True),
+        Path(runs),
+        pd.DataFrame(tables.cameras, columns=["set", "row", "round", "camera_model", "windows", "median_ratio"]),
+        calibrated,
+    )
 
 
-def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], sessions: list[Path],
-             config: EstimatorConfig, pulses: PulseSettings, windows: WindowConfig,
-             device: torch.device) -> Evaluation:
+def evaluate(
+    roots: list[Path],
+    splits: Splits,
+    runs: Path,
+    rounds: list[int],
+    sessions: list[Path],
+    config: EstimatorConfig,
+    pulses: PulseSettings,
+    windows: WindowConfig,
+    device: torch.device,
+) -> Evaluation:
     other = session_sets(sessions, windows)
     tables = _Tables()
     how = _Judging([Path(r) for r in roots], config, pulses, windows, device)
@@ -208,24 +286,45 @@ def evaluate(roots: list[Path], splits: Splits, runs: Path, rounds: list[int], s
 LOCKBOX = "lockbox"
 
 
-def evaluate_lockbox(roots: list[Path], splits: Splits, model: Path, round_index: int, config: EstimatorConfig,
-                     pulses: PulseSettings, windows: WindowConfig, device: torch.device) -> Evaluation:
+def evaluate_lockbox(
+    roots: list[Path],
+    splits: Splits,
+    model: Path,
+    round_index: int,
+    config: EstimatorConfig,
+    pulses: PulseSettings,
+    windows: WindowConfig,
+    device: torch.device,
+) -> Evaluation:
     """``model`` (a shipped model, trained on round ``round_index`` of ``splits``) on the lockbox's runs: all of
     them, those of its room and those through its camera, beside the reference rows fitted on that round's training
     windows and the ceiling. Raises :class:`SeesysError` when the splits have no lockbox run."""
     box = splits.lockbox
     if box is None or not box.runs:
-        raise SeesysError("these splits hold no lockbox runs (made before the lockbox, or the build has none of its "
-                          "room and camera): there is nothing to judge")
+        raise SeesysError(
+            "these splits hold no lockbox runs (made before the lockbox, or the build has none of its "
+            "room and camera): there is nothing to judge"
+        )
     data = reader_windows(DatasetReader(roots, runs=box.runs, usable_only=True))
-    sets = {LOCKBOX: data,
-            f"{LOCKBOX} room {box.environment}": data.subset(np.flatnonzero(
-                (data.meta.environment == box.environment).to_numpy())),
-            f"{LOCKBOX} camera {box.camera_model}": data.subset(np.flatnonzero(
-                (data.meta.camera_model == box.camera_model).to_numpy()))}
+    sets = {
+        LOCKBOX: data,
+        f"{LOCKBOX} room {box.environment}": data.subset(
+            np.flatnonzero((data.meta.environment == box.environment).to_numpy())
+        ),
+        f"{LOCKBOX} camera {box.camera_model}": data.subset(
+            np.flatnonzero((data.meta.camera_model == box.camera_model).to_numpy())
+        ),
+    }
     sets = {name: windows_of for name, windows_of in sets.items() if len(windows_of)}
     train = split_windows(roots, splits, round_index, ("train",))["train"]
     tables = _Tables()
-    _judge_round(tables, round_index, sets, set(sets), train, [(DEEPSEE, Path(model))],
-                 _Judging([Path(r) for r in roots], config, pulses, windows, device))
+    _judge_round(
+        tables,
+        round_index,
+        sets,
+        set(sets),
+        train,
+        [(DEEPSEE, Path(model))],
+        _Judging([Path(r) for r in roots], config, pulses, windows, device),
+    )
     return _evaluation(tables, Path(model).parent)

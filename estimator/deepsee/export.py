@@ -22,7 +22,7 @@ import torch
 from torch import nn
 
 from estimator.artefact.compatibility import compatibility, compatibility_hash
-from estimator.artefact.onnx_model import CAMERAS_KEY, COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, Y, OnnxModel
+from estimator.artefact.onnx_model import CAMERAS_KEY, COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, OnnxModel, Y
 from estimator.artefact.standardisation import METADATA_KEY, InputStandardisation
 from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.config import ModelConfig, load_estimator_config
@@ -61,9 +61,15 @@ def _served(model: nn.Module) -> tuple[nn.Module, list[str]]:
     return model, [Y]
 
 
-def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: LabelTransform,
-                record: dict | None = None, cameras: list[str] | None = None,
-                standardisation: InputStandardisation | None = None) -> Path:
+def export_onnx(
+    model: nn.Module,
+    path: Path,
+    windows: WindowConfig,
+    transform: LabelTransform,
+    record: dict | None = None,
+    cameras: list[str] | None = None,
+    standardisation: InputStandardisation | None = None,
+) -> Path:
     """Write ``model`` (a DeepSEE) as one self-contained ONNX file with its compatibility record: ``record`` (a
     checkpoint's, which loading it has checked against this installation), or this installation's; and, when
     given, the ``cameras`` it was trained and fine-tuned on (:func:`training_cameras`) and its input
@@ -74,12 +80,22 @@ def export_onnx(model: nn.Module, path: Path, windows: WindowConfig, transform: 
     batch = torch.export.Dim("batch", min=1, max=4096)
     served, outputs = _served(model)
     with contextlib.redirect_stdout(io.StringIO()):  # the exporter narrates every step
-        program = torch.onnx.export(served, example_inputs(model.shape, 2), dynamo=True, external_data=False,
-                                    input_names=["rts", "psd"], output_names=outputs,
-                                    dynamic_shapes=({0: batch}, {0: batch}), optimize=True)
+        program = torch.onnx.export(
+            served,
+            example_inputs(model.shape, 2),
+            dynamo=True,
+            external_data=False,
+            input_names=["rts", "psd"],
+            output_names=outputs,
+            dynamic_shapes=({0: batch}, {0: batch}),
+            optimize=True,
+        )
     proto = program.model_proto
-    record = record if record is not None else compatibility(windows, transform,
-                                                             head_thresholds_m=getattr(model, "thresholds_m", ()))
+    record = (
+        record
+        if record is not None
+        else compatibility(windows, transform, head_thresholds_m=getattr(model, "thresholds_m", ()))
+    )
     metadata = [(COMPATIBILITY_KEY, json.dumps(record, sort_keys=True)), (HASH_KEY, compatibility_hash(record))]
     if cameras is not None:
         metadata.append((CAMERAS_KEY, json.dumps(list(cameras))))
@@ -119,8 +135,14 @@ def parity(model: nn.Module, onnx_model: OnnxModel, batches: tuple[int, ...] = (
     return worst
 
 
-def export_untrained(path: Path, windows: WindowConfig, psd_size: tuple[int, int], seed: int,
-                     model_config: ModelConfig | None = None, thresholds_m: tuple[float, ...] = ()) -> Path:
+def export_untrained(
+    path: Path,
+    windows: WindowConfig,
+    psd_size: tuple[int, int],
+    seed: int,
+    model_config: ModelConfig | None = None,
+    thresholds_m: tuple[float, ...] = (),
+) -> Path:
     """Export DeepSEE of the configured size (configs/estimator.toml, or ``model_config``) with untrained weights
     (seeded), with an ordinal head of ``thresholds_m`` (none by default): the model of the right shape and cost to
     serve until a trained one ships. Its estimates mean nothing."""

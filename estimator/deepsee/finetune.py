@@ -28,8 +28,9 @@ import numpy as np
 import pandas as pd
 import torch
 
-from estimator.deepsee.checkpoint import load_model, payload_standardisation, save_model
 from estimator.artefact.compatibility import check_normalisation, rts_columns
+from estimator.artefact.standardisation import InputStandardisation
+from estimator.deepsee.checkpoint import load_model, payload_standardisation, save_model
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows, concat, session_windows
 from estimator.deepsee.inference import predict, predict_outputs
@@ -44,10 +45,9 @@ from estimator.deepsee.references import (
 )
 from estimator.deepsee.run_folder import RunFolder
 from estimator.deepsee.stages import TrainContext, supervised
-from estimator.artefact.standardisation import InputStandardisation
 from seesys.core.equation2 import PulseSettings
-from seesys.io.session_files import read_manifest
 from seesys.core.windows import WindowConfig
+from seesys.io.session_files import read_manifest
 
 
 @dataclass(frozen=True)
@@ -92,10 +92,20 @@ def _camera_of(session: Path) -> str:
     return str(manifest.get("source_description") or manifest.get("source") or f"the camera of {session}")
 
 
-def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config: EstimatorConfig,
-             windows: WindowConfig, device: torch.device, progress, provenance: dict,
-             held_out: list[Path] = (), pulses: PulseSettings | None = None,
-             budget_s: float | None = None) -> FinetuneResult:
+def finetune(
+    base: Path,
+    sessions: list[Path],
+    out: Path,
+    run_dir: Path,
+    config: EstimatorConfig,
+    windows: WindowConfig,
+    device: torch.device,
+    progress,
+    provenance: dict,
+    held_out: list[Path] = (),
+    pulses: PulseSettings | None = None,
+    budget_s: float | None = None,
+) -> FinetuneResult:
     """Fine-tune ``base`` on ``sessions`` into ``out`` (on their first ``budget_s`` seconds only, when given:
     :func:`first_seconds`); ``held_out`` sessions (scored with ``advisory``'s Equation 2) are only judged."""
     overlap = sorted({Path(s).resolve() for s in sessions} & {Path(s).resolve() for s in held_out})
@@ -114,13 +124,23 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     references = None
     if test is not None and pulses is not None:
         fitted = fit_references(train, pulses)
-        references = {name: score(test.meta, estimate, test.error_m, config.evaluation, pulses, None, motion)
-                      for name, estimate in fitted.estimates(test).items()}
+        references = {
+            name: score(test.meta, estimate, test.error_m, config.evaluation, pulses, None, motion)
+            for name, estimate in fitted.estimates(test).items()
+        }
     if not len(val):
-        raise DataError("the sessions leave no validation windows: record longer sessions or raise "
-                        "validation_fraction in configs/estimator.toml")
-    ctx = TrainContext(config, "reduced", windows, device, progress,
-                       {"base_model": str(base), "sessions": [str(s) for s in sessions], **provenance})
+        raise DataError(
+            "the sessions leave no validation windows: record longer sessions or raise "
+            "validation_fraction in configs/estimator.toml"
+        )
+    ctx = TrainContext(
+        config,
+        "reduced",
+        windows,
+        device,
+        progress,
+        {"base_model": str(base), "sessions": [str(s) for s in sessions], **provenance},
+    )
     transform = ctx.transform
     model, payload = load_model(base, transform, windows)
     model = model.to(device)
@@ -140,8 +160,9 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     standardisation = base_standardisation.refitted(train.rts, channels)
 
     def estimate_m(data: Windows, through: InputStandardisation) -> np.ndarray:
-        return transform.inverse(predict(model, data.with_rts(through.apply(data.rts, channels)),
-                                         config.evaluation.batch_size, device))
+        return transform.inverse(
+            predict(model, data.with_rts(through.apply(data.rts, channels)), config.evaluation.batch_size, device)
+        )
 
     def rmse_cm(through: InputStandardisation) -> float:
         return CM_PER_M * float(np.sqrt(np.mean((estimate_m(val, through) - val.error_m) ** 2)))
@@ -149,27 +170,54 @@ def finetune(base: Path, sessions: list[Path], out: Path, run_dir: Path, config:
     def judge(through: InputStandardisation) -> Scores | None:
         if not test:
             return None
-        y, probabilities = predict_outputs(model, test.with_rts(through.apply(test.rts, channels)),
-                                           config.evaluation.batch_size, device)
-        return score(test.meta, transform.inverse(y), test.error_m, config.evaluation, pulses,
-                     equation2_head(probabilities, model_thresholds(model), pulses), motion)
+        y, probabilities = predict_outputs(
+            model, test.with_rts(through.apply(test.rts, channels)), config.evaluation.batch_size, device
+        )
+        return score(
+            test.meta,
+            transform.inverse(y),
+            test.error_m,
+            config.evaluation,
+            pulses,
+            equation2_head(probabilities, model_thresholds(model), pulses),
+            motion,
+        )
 
     before, held_out_before = rmse_cm(base_standardisation), judge(base_standardisation)
-    run = RunFolder(run_dir, {"finetune": asdict(config.finetune),
-                              "base_compatibility_hash": payload["compatibility_hash"], **ctx.provenance}, device)
-    supervised(run, "finetune_sessions", model, train.with_rts(standardisation.apply(train.rts, channels)),
-               val.with_rts(standardisation.apply(val.rts, channels)), config.finetune.schedule, ctx)
+    run = RunFolder(
+        run_dir,
+        {
+            "finetune": asdict(config.finetune),
+            "base_compatibility_hash": payload["compatibility_hash"],
+            **ctx.provenance,
+        },
+        device,
+    )
+    supervised(
+        run,
+        "finetune_sessions",
+        model,
+        train.with_rts(standardisation.apply(train.rts, channels)),
+        val.with_rts(standardisation.apply(val.rts, channels)),
+        config.finetune.schedule,
+        ctx,
+    )
     after, held_out_after = rmse_cm(standardisation), judge(standardisation)
     cameras = list(dict.fromkeys(payload["training"].get("finetuned_cameras", []) + [_camera_of(s) for s in sessions]))
-    training = {**payload["training"], "finetuned_on": [str(s) for s in sessions], "finetuned_cameras": cameras,
-                "train_windows": len(train),
-                "validation_windows": len(val), "rmse_before_cm": before, "rmse_after_cm": after,
-                "held_out": [str(s) for s in held_out],
-                "held_out_before": asdict(held_out_before) if held_out_before else None,
-                "held_out_after": asdict(held_out_after) if held_out_after else None}
+    training = {
+        **payload["training"],
+        "finetuned_on": [str(s) for s in sessions],
+        "finetuned_cameras": cameras,
+        "train_windows": len(train),
+        "validation_windows": len(val),
+        "rmse_before_cm": before,
+        "rmse_after_cm": after,
+        "held_out": [str(s) for s in held_out],
+        "held_out_before": asdict(held_out_before) if held_out_before else None,
+        "held_out_after": asdict(held_out_after) if held_out_after else None,
+    }
     save_model(out, model.cpu(), windows, transform, training, channels, standardisation)
-    return FinetuneResult(Path(out), len(train), len(val), before, after, held_out_before, held_out_after,
-                          references)
+    return FinetuneResult(Path(out), len(train), len(val), before, after, held_out_before, held_out_after, references)
 
 
 #: The reference rows of the learning curve and their figures on the held-out sessions.
@@ -177,14 +225,31 @@ CURVE_REFERENCES = (CONSTANT, ALWAYS_TOP, MOTION_ISOTONIC)
 CURVE_REFERENCE_FIGURES = ("agreement", "kappa", "aurg")
 #: The columns of :func:`learning_curve`'s table: the model's figures, then each reference row's
 #: (``<row>_<figure>``), fitted on the same budget's training windows (NaN at 0 minutes: nothing to fit on).
-CURVE_COLUMNS = ("minutes", "train_windows", "agreement", "kappa", "aurg", "median_ratio", "rmse_cm", "spearman",
-                 "partial_spearman") + tuple(f"{row}_{figure}" for row in CURVE_REFERENCES
-                                             for figure in CURVE_REFERENCE_FIGURES)
+CURVE_COLUMNS = (
+    "minutes",
+    "train_windows",
+    "agreement",
+    "kappa",
+    "aurg",
+    "median_ratio",
+    "rmse_cm",
+    "spearman",
+    "partial_spearman",
+) + tuple(f"{row}_{figure}" for row in CURVE_REFERENCES for figure in CURVE_REFERENCE_FIGURES)
 
 
-def learning_curve(base: Path, sessions: list[Path], held_out: list[Path], minutes: list[float], out: Path,
-                   config: EstimatorConfig, windows: WindowConfig, device: torch.device, progress,
-                   pulses: PulseSettings) -> pd.DataFrame:
+def learning_curve(
+    base: Path,
+    sessions: list[Path],
+    held_out: list[Path],
+    minutes: list[float],
+    out: Path,
+    config: EstimatorConfig,
+    windows: WindowConfig,
+    device: torch.device,
+    progress,
+    pulses: PulseSettings,
+) -> pd.DataFrame:
     """Fine-tune ``base`` on the first ``minutes`` of ``sessions`` (an unseen camera's), each budget from the base
     again, and judge every result on the ``held_out`` sessions: one row per budget (:data:`CURVE_COLUMNS`), the base
     itself as 0 minutes; written to ``out/learning_curve.csv``, the models and run folders beside it."""
@@ -195,8 +260,20 @@ def learning_curve(base: Path, sessions: list[Path], held_out: list[Path], minut
         if budget <= 0:
             raise DataError(f"fine-tuning budgets are minutes above 0, got {budget:g}")
         name = f"{budget:g}min"
-        result = finetune(base, sessions, out / f"{name}.pt", out / f"{name}_run", config, windows, device, progress,
-                          {"learning_curve_minutes": budget}, held_out, pulses, budget * 60.0)
+        result = finetune(
+            base,
+            sessions,
+            out / f"{name}.pt",
+            out / f"{name}_run",
+            config,
+            windows,
+            device,
+            progress,
+            {"learning_curve_minutes": budget},
+            held_out,
+            pulses,
+            budget * 60.0,
+        )
         if not rows:
             rows.append(_curve_row(0.0, 0, result.held_out_before, None))
         rows.append(_curve_row(budget, result.train_windows, result.held_out_after, result.held_out_references))
@@ -207,7 +284,19 @@ def learning_curve(base: Path, sessions: list[Path], held_out: list[Path], minut
 
 
 def _curve_row(minutes: float, train_windows: int, scores: Scores, references: dict[str, Scores] | None) -> tuple:
-    own = (minutes, train_windows, scores.agreement, scores.kappa, scores.aurg, scores.median_ratio, scores.rmse_cm,
-           scores.spearman, scores.partial_spearman)
-    return own + tuple(getattr(references[row], figure) if references else float("nan")
-                       for row in CURVE_REFERENCES for figure in CURVE_REFERENCE_FIGURES)
+    own = (
+        minutes,
+        train_windows,
+        scores.agreement,
+        scores.kappa,
+        scores.aurg,
+        scores.median_ratio,
+        scores.rmse_cm,
+        scores.spearman,
+        scores.partial_spearman,
+    )
+    return own + tuple(
+        getattr(references[row], figure) if references else float("nan")
+        for row in CURVE_REFERENCES
+        for figure in CURVE_REFERENCE_FIGURES
+    )

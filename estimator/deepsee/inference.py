@@ -15,8 +15,9 @@ def uses_psd(model: nn.Module) -> bool:
     return getattr(model, "psd_encoder", None) is not None
 
 
-def batch_tensors(windows: Windows, index: np.ndarray, device: torch.device,
-                  with_psd: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+def batch_tensors(
+    windows: Windows, index: np.ndarray, device: torch.device, with_psd: bool = True
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The RTS (B, T, C) float32 and PSD (B, K, H, W, 3) uint8 inputs of windows ``index``, on ``device``; without
     ``with_psd`` an empty PSD tensor (the matrices are the large part to read)."""
     rts = torch.from_numpy(windows.rts[index]).to(device)
@@ -27,8 +28,9 @@ def batch_tensors(windows: Windows, index: np.ndarray, device: torch.device,
 
 
 @torch.no_grad()
-def predict_outputs(model: nn.Module, windows: Windows, batch_size: int,
-                    device: torch.device) -> tuple[np.ndarray, np.ndarray | None]:
+def predict_outputs(
+    model: nn.Module, windows: Windows, batch_size: int, device: torch.device
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The model's transformed-scale outputs (N,) for every window, and its head's probabilities P(error ≥ t_k)
     (N, K) (None for a model without a head); in eval mode, the model's mode restored."""
     was_training = model.training

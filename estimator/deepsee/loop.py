@@ -4,8 +4,8 @@ loss, a rich progress bar with the loss and the time left.
 Resuming: the stage's checkpoint (``state/<stage>.pt``) holds the weights, the optimizer, the epoch reached and the
 early-stopping counters. The weights a stage starts from are validated first (epoch 0 of its metrics) and count
 as its best until an epoch beats them. Batch order depends only on the seed, the stage and the epoch, so a resumed
-stage sees the batches an uninterrupted one would have seen. A finished stage (its epochs done, or stopped early) is skipped on resume,
-its best weights loaded; giving it more epochs than it had continues it.
+stage sees the batches an uninterrupted one would have seen. A finished stage (its epochs done, or stopped early) is
+skipped on resume, its best weights loaded; giving it more epochs than it had continues it.
 """
 
 from __future__ import annotations
@@ -29,9 +29,15 @@ GRAD_CLIP = 1.0
 
 
 def progress_bar() -> Progress:
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TextColumn("loss {task.fields[loss]}"), TimeElapsedColumn(), TextColumn("ETA"),
-                    TimeRemainingColumn())
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("loss {task.fields[loss]}"),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+    )
 
 
 def stage_seed(seed: int, stage: str, epoch: int) -> int:
@@ -41,8 +47,8 @@ def stage_seed(seed: int, stage: str, epoch: int) -> int:
 def epoch_batches(n: int, schedule: StageSchedule, seed: int, stage: str, epoch: int) -> list[np.ndarray]:
     """The batches of one epoch: a seeded permutation of the n samples, at most ``steps_per_epoch`` batches."""
     order = np.random.default_rng(stage_seed(seed, stage, epoch)).permutation(n)
-    batches = [order[i:i + schedule.batch_size] for i in range(0, n, schedule.batch_size)]
-    return batches[:schedule.steps_per_epoch] if schedule.steps_per_epoch > 0 else batches
+    batches = [order[i : i + schedule.batch_size] for i in range(0, n, schedule.batch_size)]
+    return batches[: schedule.steps_per_epoch] if schedule.steps_per_epoch > 0 else batches
 
 
 @dataclass(frozen=True)
@@ -57,9 +63,18 @@ def _checkpoint_paths(run: RunFolder, name: str) -> tuple[Path, Path]:
     return run.state / f"{name}.pt", run.state / f"{name}.best.pt"
 
 
-def run_stage(run: RunFolder, name: str, module: nn.Module, parameters: Iterable[nn.Parameter],
-              schedule: StageSchedule, n_train: int, step: Callable[[np.ndarray, torch.Generator], torch.Tensor],
-              validate: Callable[[], float] | None, seed: int, progress: Progress) -> StageResult:
+def run_stage(
+    run: RunFolder,
+    name: str,
+    module: nn.Module,
+    parameters: Iterable[nn.Parameter],
+    schedule: StageSchedule,
+    n_train: int,
+    step: Callable[[np.ndarray, torch.Generator], torch.Tensor],
+    validate: Callable[[], float] | None,
+    seed: int,
+    progress: Progress,
+) -> StageResult:
     """Train ``parameters`` (part of ``module``, whose whole state is checkpointed) for the stage's epochs.
 
     ``step(batch_indices, generator)`` returns the batch's loss; ``validate()`` the validation loss (lower is
@@ -73,8 +88,12 @@ def run_stage(run: RunFolder, name: str, module: nn.Module, parameters: Iterable
         saved = torch.load(state_path, map_location="cpu", weights_only=False)
         module.load_state_dict(saved["module"])
         optimizer.load_state_dict(saved["optimizer"])
-        epoch, best_val, bad_epochs, stopped = (saved["epoch"], saved["best_val"], saved["bad_epochs"],
-                                                saved["stopped_early"])
+        epoch, best_val, bad_epochs, stopped = (
+            saved["epoch"],
+            saved["best_val"],
+            saved["bad_epochs"],
+            saved["stopped_early"],
+        )
     # A stage is done when it stopped early or reached its epochs: a schedule with more epochs extends it.
     done = stopped or epoch >= schedule.epochs
     steps = len(epoch_batches(n_train, schedule, seed, name, 0))
@@ -112,8 +131,17 @@ def run_stage(run: RunFolder, name: str, module: nn.Module, parameters: Iterable
         stopped = validate is not None and bad_epochs >= schedule.patience
         done = stopped or epoch >= schedule.epochs
         progress.update(task, loss=f"{train_loss:.4f} / val {val_loss:.4f}")
-        save_atomic({"module": module.state_dict(), "optimizer": optimizer.state_dict(), "epoch": epoch,
-                     "best_val": best_val, "bad_epochs": bad_epochs, "stopped_early": stopped}, state_path)
+        save_atomic(
+            {
+                "module": module.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "epoch": epoch,
+                "best_val": best_val,
+                "bad_epochs": bad_epochs,
+                "stopped_early": stopped,
+            },
+            state_path,
+        )
         run.record(EpochRecord(name, epoch, train_loss, val_loss, schedule.lr, time.perf_counter() - start, improved))
     progress.update(task, completed=schedule.epochs * steps)
     if epoch > first_epoch:

@@ -84,8 +84,9 @@ class Scores:
     recall_large_high: float = float("nan")
 
 
-def equation2_head(probabilities: np.ndarray | None, thresholds_m: Sequence[float],
-                   pulses: PulseSettings) -> np.ndarray | None:
+def equation2_head(
+    probabilities: np.ndarray | None, thresholds_m: Sequence[float], pulses: PulseSettings
+) -> np.ndarray | None:
     """``probabilities`` when their ``thresholds_m`` are Equation 2's class boundaries (the head's class is then
     Equation 2's), else None: a head of other thresholds is not judged against Equation 2's classes."""
     if probabilities is None or not same_thresholds(thresholds_m, class_boundaries_m(pulses)):
@@ -101,8 +102,9 @@ def bin_index(meta: pd.DataFrame, window_s: float) -> np.ndarray:
 
 def advisory_bins(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, window_s: float) -> pd.DataFrame:
     """Mean estimate and mean truth per run and 1/3 s bin (:func:`bin_index`)."""
-    table = pd.DataFrame({"run": meta.run.to_numpy(), "estimate": estimate_m, "truth": true_m,
-                          "bin": bin_index(meta, window_s)})
+    table = pd.DataFrame(
+        {"run": meta.run.to_numpy(), "estimate": estimate_m, "truth": true_m, "bin": bin_index(meta, window_s)}
+    )
     return table.groupby(["run", "bin"], sort=False)[["estimate", "truth"]].mean().reset_index()
 
 
@@ -114,26 +116,35 @@ def confusion(bins: pd.DataFrame, pulses: PulseSettings) -> np.ndarray:
     """(true class, estimated class) counts, classes 0 … Equation 2's maximum."""
     n = pulses.max_pulses + 1
     matrix = np.zeros((n, n), int)
-    np.add.at(matrix, (pulse_classes(bins.truth.to_numpy(), pulses),
-                       pulse_classes(bins.estimate.to_numpy(), pulses)), 1)
+    np.add.at(
+        matrix, (pulse_classes(bins.truth.to_numpy(), pulses), pulse_classes(bins.estimate.to_numpy(), pulses)), 1
+    )
     return matrix
 
 
-def _head_scores(meta: pd.DataFrame, probabilities: np.ndarray, bins: pd.DataFrame, evaluation: EvaluationConfig,
-                 pulses: PulseSettings) -> tuple[float, float, float]:
+def _head_scores(
+    meta: pd.DataFrame,
+    probabilities: np.ndarray,
+    bins: pd.DataFrame,
+    evaluation: EvaluationConfig,
+    pulses: PulseSettings,
+) -> tuple[float, float, float]:
     """(head agreement, head recall of large-error bins, head κ) over the bins of :func:`advisory_bins`."""
     columns = [f"p{k}" for k in range(probabilities.shape[1])]
     table = pd.DataFrame(probabilities, columns=columns)
     table["run"] = meta.run.to_numpy()
     table["bin"] = bin_index(meta, pulses.window_s)
-    means = table.groupby(["run", "bin"], sort=False)[columns].mean().reset_index().merge(
-        bins[["run", "bin", "truth"]], on=["run", "bin"], validate="one_to_one")
+    means = (
+        table.groupby(["run", "bin"], sort=False)[columns]
+        .mean()
+        .reset_index()
+        .merge(bins[["run", "bin", "truth"]], on=["run", "bin"], validate="one_to_one")
+    )
     classes = head_class(means[columns].to_numpy())
     truth = pulse_classes(means.truth.to_numpy(), pulses)
     large = (means.truth >= evaluation.large_error_m).to_numpy()
     recall = float((classes[large] >= pulses.pulses(evaluation.large_error_m)).mean()) if large.any() else np.nan
-    return (float(np.mean(classes == truth)), recall,
-            quadratic_kappa(truth, classes, pulses.max_pulses + 1))
+    return (float(np.mean(classes == truth)), recall, quadratic_kappa(truth, classes, pulses.max_pulses + 1))
 
 
 def bootstrap_settings(evaluation: EvaluationConfig) -> Bootstrap:
@@ -146,19 +157,34 @@ def _head_calibration(probabilities: np.ndarray, true_m: np.ndarray, pulses: Pul
     return float(np.mean([c.brier for c in each])), float(np.mean([c.ece for c in each]))
 
 
-def judged(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, motion: np.ndarray,
-           pulses: PulseSettings) -> Judged:
+def judged(
+    meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, motion: np.ndarray, pulses: PulseSettings
+) -> Judged:
     """The windows and their advisory bins (:func:`advisory_bins`) as :mod:`estimator.deepsee.yardsticks` reads
     them."""
     bins = advisory_bins(meta, estimate_m, true_m, pulses.window_s)
-    return Judged(meta.run.to_numpy().astype(str), true_m, estimate_m, np.asarray(motion, float),
-                  bins.run.to_numpy().astype(str), bins.truth.to_numpy(), bins.estimate.to_numpy(),
-                  pulse_classes(bins.truth.to_numpy(), pulses), pulse_classes(bins.estimate.to_numpy(), pulses))
+    return Judged(
+        meta.run.to_numpy().astype(str),
+        true_m,
+        estimate_m,
+        np.asarray(motion, float),
+        bins.run.to_numpy().astype(str),
+        bins.truth.to_numpy(),
+        bins.estimate.to_numpy(),
+        pulse_classes(bins.truth.to_numpy(), pulses),
+        pulse_classes(bins.estimate.to_numpy(), pulses),
+    )
 
 
-def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evaluation: EvaluationConfig,
-          pulses: PulseSettings, probabilities: np.ndarray | None = None,
-          motion: np.ndarray | None = None) -> Scores:
+def score(
+    meta: pd.DataFrame,
+    estimate_m: np.ndarray,
+    true_m: np.ndarray,
+    evaluation: EvaluationConfig,
+    pulses: PulseSettings,
+    probabilities: np.ndarray | None = None,
+    motion: np.ndarray | None = None,
+) -> Scores:
     """The scores of one model on windows ``meta``; ``probabilities``: its head's P(error ≥ t_k) (N, K) for
     Equation 2's class boundaries (:func:`equation2_head`), None to leave the head's scores NaN; ``motion``: each
     window's motion statistic (:func:`estimator.deepsee.references.motion_statistic`), None to leave the partial ρ
@@ -174,8 +200,11 @@ def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evalua
     bins = advisory_bins(meta, estimate_m, true_m, pulses.window_s)
     matrix = confusion(bins, pulses)
     large = bins.truth >= evaluation.large_error_m
-    head = (_head_scores(meta, probabilities, bins, evaluation, pulses) if probabilities is not None
-            else (np.nan, np.nan, np.nan))
+    head = (
+        _head_scores(meta, probabilities, bins, evaluation, pulses)
+        if probabilities is not None
+        else (np.nan, np.nan, np.nan)
+    )
     calibrated = _head_calibration(probabilities, true_m, pulses) if probabilities is not None else (np.nan, np.nan)
     windows = judged(meta, estimate_m, true_m, np.full(len(true_m), np.nan) if motion is None else motion, pulses)
     classes = pulses.max_pulses + 1
@@ -187,15 +216,28 @@ def score(meta: pd.DataFrame, estimate_m: np.ndarray, true_m: np.ndarray, evalua
     intervals, runs = bootstrap_over_runs(windows, statistic, WITH_INTERVALS, bootstrap_settings(evaluation))
     return Scores(
         windows=len(true_m),
-        rmse_cm=CM_PER_M * float(np.sqrt(np.mean(error ** 2))),
+        rmse_cm=CM_PER_M * float(np.sqrt(np.mean(error**2))),
         rmse_paper_range_cm=CM_PER_M * float(np.sqrt(np.mean(error[in_range] ** 2))) if in_range.any() else np.nan,
         mape=float(np.mean(np.abs(error[positive]) / true_m[positive])) if positive.any() else np.nan,
         spearman=point["spearman"],
         agreement=float(np.trace(matrix) / matrix.sum()),
         recall_large=float((bins.estimate[large] >= evaluation.large_error_m).mean()) if large.any() else np.nan,
-        bins=len(bins), large_bins=int(large.sum()), head_agreement=head[0], head_recall_large=head[1],
-        median_ratio=point["median_ratio"], kappa=point["kappa"], ause=point["ause"], aurg=point["aurg"],
-        partial_spearman=point["partial_spearman"], head_kappa=head[2], head_brier=calibrated[0],
-        head_ece=calibrated[1], runs=runs,
-        **{f"{name}_{side}": value for name, (low_value, high_value) in intervals.items()
-           for side, value in (("low", low_value), ("high", high_value))})
+        bins=len(bins),
+        large_bins=int(large.sum()),
+        head_agreement=head[0],
+        head_recall_large=head[1],
+        median_ratio=point["median_ratio"],
+        kappa=point["kappa"],
+        ause=point["ause"],
+        aurg=point["aurg"],
+        partial_spearman=point["partial_spearman"],
+        head_kappa=head[2],
+        head_brier=calibrated[0],
+        head_ece=calibrated[1],
+        runs=runs,
+        **{
+            f"{name}_{side}": value
+            for name, (low_value, high_value) in intervals.items()
+            for side, value in (("low", low_value), ("high", high_value))
+        },
+    )

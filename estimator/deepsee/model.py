@@ -23,9 +23,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from estimator.artefact.compatibility import InputShape
+from estimator.artefact.transforms import psd_layer_mask, rts_channel_mask
 from estimator.deepsee.config import FusionConfig, ModelConfig, PsdEncoderConfig, RtsEncoderConfig
 from estimator.deepsee.rows import Variant
-from estimator.artefact.transforms import psd_layer_mask, rts_channel_mask
 
 
 class TokenLinear(nn.Linear):
@@ -64,8 +64,14 @@ class Attention(nn.Module):
 
 def feed_forward(dim: int, ratio: float, dropout: float) -> nn.Sequential:
     hidden = int(dim * ratio)
-    return nn.Sequential(nn.LayerNorm(dim), TokenLinear(dim, hidden), nn.GELU(), nn.Dropout(dropout),
-                         TokenLinear(hidden, dim), nn.Dropout(dropout))
+    return nn.Sequential(
+        nn.LayerNorm(dim),
+        TokenLinear(dim, hidden),
+        nn.GELU(),
+        nn.Dropout(dropout),
+        TokenLinear(hidden, dim),
+        nn.Dropout(dropout),
+    )
 
 
 class DividedSpaceTimeBlock(nn.Module):
@@ -152,8 +158,7 @@ class DilatedConvBlock(nn.Module):
         padding = dilation * (kernel - 1) // 2
         self.conv1 = nn.Conv1d(channels_in, channels_out, kernel, padding=padding, dilation=dilation)
         self.conv2 = nn.Conv1d(channels_out, channels_out, kernel, padding=padding, dilation=dilation)
-        self.project = (nn.Conv1d(channels_in, channels_out, 1) if channels_in != channels_out or final
-                        else None)
+        self.project = nn.Conv1d(channels_in, channels_out, 1) if channels_in != channels_out or final else None
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         residual = x if self.project is None else self.project(x)
@@ -170,8 +175,14 @@ class RtsEncoder(nn.Module):
             raise ValueError(f"RTS encoder kernel must be odd, got {config.kernel}")
         self.input_fc = nn.Linear(channels, config.hidden)
         widths = [config.hidden] * config.depth + [dim]
-        self.blocks = nn.Sequential(*(DilatedConvBlock(widths[i - 1] if i else config.hidden, widths[i], config.kernel,
-                                                       2 ** i, i == len(widths) - 1) for i in range(len(widths))))
+        self.blocks = nn.Sequential(
+            *(
+                DilatedConvBlock(
+                    widths[i - 1] if i else config.hidden, widths[i], config.kernel, 2**i, i == len(widths) - 1
+                )
+                for i in range(len(widths))
+            )
+        )
         self.dropout = nn.Dropout(config.dropout)
 
     def forward(self, rts: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
@@ -236,8 +247,14 @@ class DeepSEE(nn.Module):
     ``(y, logits)``: the transformed error (B,) and the head's logits (B, K) (:func:`exceedance_probabilities`
     turns them into probabilities)."""
 
-    def __init__(self, config: ModelConfig, shape: InputShape, variant: Variant = Variant(),
-                 thresholds_m: tuple[float, ...] = (), rts_channels: tuple[str, ...] | None = None):
+    def __init__(
+        self,
+        config: ModelConfig,
+        shape: InputShape,
+        variant: Variant = Variant(),
+        thresholds_m: tuple[float, ...] = (),
+        rts_channels: tuple[str, ...] | None = None,
+    ):
         super().__init__()
         if rts_channels is not None and len(rts_channels) != shape.channels:
             raise ValueError(f"{len(rts_channels)} RTS channel names for a model of {shape.channels} channels")
@@ -252,8 +269,11 @@ class DeepSEE(nn.Module):
         self.rts_encoder = RtsEncoder(dim, config.rts, shape.channels)
         self.psd_encoder = PsdEncoder(dim, config.psd, shape) if variant.use_psd else None
         use_cross = variant.use_psd and variant.fusion == "cross_attention"
-        self.fusion = nn.ModuleList(CrossAttentionLayer(dim, config.fusion) for _ in range(config.fusion.layers)
-                                    ) if use_cross else nn.ModuleList()
+        self.fusion = (
+            nn.ModuleList(CrossAttentionLayer(dim, config.fusion) for _ in range(config.fusion.layers))
+            if use_cross
+            else nn.ModuleList()
+        )
         if variant.use_psd and not use_cross:
             # w/o CA: the pooled encodings go through fully connected layers instead of cross-attention
             self.concat_fc = nn.Sequential(nn.Linear(2 * dim, 2 * dim), nn.GELU(), nn.Dropout(config.fusion.dropout))

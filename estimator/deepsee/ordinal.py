@@ -28,9 +28,11 @@ def head_thresholds(config: EstimatorConfig, pulses: PulseSettings | None = None
         return ()
     bounds = class_boundaries_m(pulses or load_pulse_settings())
     if len(set(bounds)) != len(bounds):
-        raise ConfigError(f"Equation 2's class boundaries {[b * 1000 for b in bounds]} mm repeat one (an empty "
-                          f"class): the ordinal head needs distinct ones; set [ordinal_head] enabled = false or "
-                          f"change [equation2] of configs/advisory.toml")
+        raise ConfigError(
+            f"Equation 2's class boundaries {[b * 1000 for b in bounds]} mm repeat one (an empty "
+            f"class): the ordinal head needs distinct ones; set [ordinal_head] enabled = false or "
+            f"change [equation2] of configs/advisory.toml"
+        )
     return bounds
 
 
@@ -42,11 +44,16 @@ def model_thresholds(model: nn.Module) -> tuple[float, ...]:
 def exceeded(error_m: np.ndarray, thresholds_m: tuple[float, ...]) -> np.ndarray:
     """(N, K) float32 targets of the head: 1 where the true error is at least the threshold."""
     return (np.asarray(error_m, np.float64)[:, None] >= np.asarray(thresholds_m, np.float64)[None, :]).astype(
-        np.float32)
+        np.float32
+    )
 
 
-def training_loss(outputs: torch.Tensor | tuple[torch.Tensor, torch.Tensor], y: torch.Tensor,
-                  targets: torch.Tensor | None, weight: float) -> torch.Tensor:
+def training_loss(
+    outputs: torch.Tensor | tuple[torch.Tensor, torch.Tensor],
+    y: torch.Tensor,
+    targets: torch.Tensor | None,
+    weight: float,
+) -> torch.Tensor:
     """MSE of the transformed error, plus ``weight`` × the head's BCE (on its logits) when ``outputs`` has one.
     Raises ``ValueError`` when the model has a head but no targets were made for it."""
     if not isinstance(outputs, tuple):
@@ -55,7 +62,8 @@ def training_loss(outputs: torch.Tensor | tuple[torch.Tensor, torch.Tensor], y: 
         raise ValueError("the model has an ordinal head but no head targets were given")
     estimate, logits = outputs
     return nn.functional.mse_loss(estimate, y) + weight * nn.functional.binary_cross_entropy_with_logits(
-        logits, targets)
+        logits, targets
+    )
 
 
 def bce(probabilities: np.ndarray, targets: np.ndarray) -> float:
@@ -64,8 +72,9 @@ def bce(probabilities: np.ndarray, targets: np.ndarray) -> float:
     return float(-np.mean(targets * np.log(p) + (1 - targets) * np.log1p(-p)))
 
 
-def validation_loss(y: np.ndarray, probabilities: np.ndarray | None, y_true: np.ndarray,
-                    targets: np.ndarray | None, weight: float) -> float:
+def validation_loss(
+    y: np.ndarray, probabilities: np.ndarray | None, y_true: np.ndarray, targets: np.ndarray | None, weight: float
+) -> float:
     """:func:`training_loss` of a whole validation set, from the model's probabilities (numpy)."""
     mse = float(np.mean((y - y_true) ** 2))
     if probabilities is None or targets is None:

@@ -22,9 +22,9 @@ from estimator.artefact.compatibility import (
     check_normalisation,
     rts_columns,
 )
-from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows
 from estimator.artefact.onnx_model import OnnxModel
 from estimator.artefact.transforms import LabelTransform
+from estimator.deepsee.data import NORMALISATION_COLUMN, DataError, Windows
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_window_config
 
@@ -77,12 +77,19 @@ class Predictor:
 
     def check(self, shape: InputShape) -> None:
         """Raise :class:`DataError` when windows of ``shape`` are not what the model takes (another PSD grid)."""
-        expected = self.shape if self.shape.psd_samples else InputShape(
-            self.shape.rts_length, self.shape.channels, shape.psd_samples, shape.psd_height, shape.psd_width)
+        expected = (
+            self.shape
+            if self.shape.psd_samples
+            else InputShape(
+                self.shape.rts_length, self.shape.channels, shape.psd_samples, shape.psd_height, shape.psd_width
+            )
+        )
         if shape != expected:
-            raise DataError(f"{self.path} takes windows of {expected}, these are {shape}: another PSD grid (another "
-                            f"reference camera or PSD cell size, or made before camera normalisation at the camera "
-                            f"resolution); record them again, or train a model for them")
+            raise DataError(
+                f"{self.path} takes windows of {expected}, these are {shape}: another PSD grid (another "
+                f"reference camera or PSD cell size, or made before camera normalisation at the camera "
+                f"resolution); record them again, or train a model for them"
+            )
 
     def metres(self, windows: Windows) -> np.ndarray:
         return self.transform.inverse(self.transformed(windows))
@@ -96,26 +103,43 @@ def _runs(windows: Windows) -> str:
 
 def _onnx_runner(model: OnnxModel, batch_size: int):
     def run(windows: Windows) -> tuple[np.ndarray, np.ndarray | None]:
-        out = [model.outputs(model.standardised(windows.rts[s:s + batch_size]),
-                             np.stack([windows.psd_at(i) for i in range(s, min(s + batch_size, len(windows)))]))
-               for s in range(0, len(windows), batch_size)]
+        out = [
+            model.outputs(
+                model.standardised(windows.rts[s : s + batch_size]),
+                np.stack([windows.psd_at(i) for i in range(s, min(s + batch_size, len(windows)))]),
+            )
+            for s in range(0, len(windows), batch_size)
+        ]
         y = np.concatenate([o[0] for o in out]) if out else np.zeros(0, np.float32)
         if not model.thresholds_m:
             return y, None
-        return y, (np.concatenate([o[1] for o in out]) if out else np.zeros((0, len(model.thresholds_m)),
-                                                                             np.float32))
+        return y, (np.concatenate([o[1] for o in out]) if out else np.zeros((0, len(model.thresholds_m)), np.float32))
+
     return run
 
 
-def load_predictor(path: Path, transform: LabelTransform, batch_size: int, device: torch.device | None = None,
-                   windows: WindowConfig | None = None) -> Predictor:
+def load_predictor(
+    path: Path,
+    transform: LabelTransform,
+    batch_size: int,
+    device: torch.device | None = None,
+    windows: WindowConfig | None = None,
+) -> Predictor:
     """The model of ``path`` by its suffix: ``.onnx``, ``.pkl`` (random forest), else a PyTorch checkpoint."""
     path = Path(path)
     windows = windows or load_window_config()
     if path.suffix == ".onnx":
         model = OnnxModel(path, transform, windows)
-        return Predictor(path, "onnx", transform, _onnx_runner(model, batch_size), model.shape, model.rts_columns,
-                         model.record, model.thresholds_m)
+        return Predictor(
+            path,
+            "onnx",
+            transform,
+            _onnx_runner(model, batch_size),
+            model.shape,
+            model.rts_columns,
+            model.record,
+            model.thresholds_m,
+        )
     if path.suffix == ".pkl":
         from estimator.deepsee.baselines import window_statistics
 
@@ -128,9 +152,15 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
         check_compatible(record["compatibility"], str(path), windows, transform)
         forest = record["forest"]
         columns = rts_columns(record["compatibility"], str(path))
-        return Predictor(path, "random_forest", transform,
-                         lambda w: (forest.predict(window_statistics(w.rts)).astype(np.float32), None),
-                         InputShape(windows.rts_length, len(columns), 0, 0, 0), columns, record["compatibility"])
+        return Predictor(
+            path,
+            "random_forest",
+            transform,
+            lambda w: (forest.predict(window_statistics(w.rts)).astype(np.float32), None),
+            InputShape(windows.rts_length, len(columns), 0, 0, 0),
+            columns,
+            record["compatibility"],
+        )
     import torch
 
     from estimator.deepsee.checkpoint import load_model, payload_standardisation
@@ -143,8 +173,13 @@ def load_predictor(path: Path, transform: LabelTransform, batch_size: int, devic
     shape = model.shape if hasattr(model, "shape") else InputShape(windows.rts_length, model.channels, 0, 0, 0)
     standardisation = payload_standardisation(payload, str(path))
     channels = payload["compatibility"]["rts_channels"]
-    return Predictor(path, payload["model"]["kind"], transform,
-                     lambda w: predict_outputs(model, w.with_rts(standardisation.apply(w.rts, channels)), batch_size,
-                                               device), shape,
-                     rts_columns(payload["compatibility"], str(path)), payload["compatibility"],
-                     model_thresholds(model))
+    return Predictor(
+        path,
+        payload["model"]["kind"],
+        transform,
+        lambda w: predict_outputs(model, w.with_rts(standardisation.apply(w.rts, channels)), batch_size, device),
+        shape,
+        rts_columns(payload["compatibility"], str(path)),
+        payload["compatibility"],
+        model_thresholds(model),
+    )

@@ -50,9 +50,11 @@ class ReferenceRow:
     category: str
 
 
-REFERENCE_ROWS = (ReferenceRow(CONSTANT, "constant (training's most frequent class)", "Reference"),
-                  ReferenceRow(ALWAYS_TOP, "always the top class", "Reference"),
-                  ReferenceRow(MOTION_ISOTONIC, "motion only (isotonic)", "Reference"))
+REFERENCE_ROWS = (
+    ReferenceRow(CONSTANT, "constant (training's most frequent class)", "Reference"),
+    ReferenceRow(ALWAYS_TOP, "always the top class", "Reference"),
+    ReferenceRow(MOTION_ISOTONIC, "motion only (isotonic)", "Reference"),
+)
 CEILING_ROW = ReferenceRow(CEILING, "another SLAM trial of the same render", "Ceiling")
 
 
@@ -61,8 +63,10 @@ def motion_statistic(rts: np.ndarray) -> np.ndarray:
     standard deviation over the window of the relative translation, sqrt(Σ var(rel_t·)), in m/frame."""
     rts = np.asarray(rts, np.float64)
     if rts.ndim != 3 or rts.shape[-1] != rts_schema.NUM_CHANNELS:
-        raise SeesysError(f"the motion statistic takes windows of every RTS channel ({rts_schema.NUM_CHANNELS}), "
-                          f"got shape {rts.shape}")
+        raise SeesysError(
+            f"the motion statistic takes windows of every RTS channel ({rts_schema.NUM_CHANNELS}), "
+            f"got shape {rts.shape}"
+        )
     columns = [rts_schema.index_of(name) for name in MOTION_CHANNELS]
     scales = np.array([rts_schema.CHANNELS[c].scale for c in columns])
     return np.sqrt(np.sum(np.var(rts[..., columns] * scales, axis=1), axis=-1))
@@ -80,8 +84,11 @@ class References:
     def estimates(self, windows: Windows) -> dict[str, np.ndarray]:
         """Each reference row's estimates (metres) of ``windows``."""
         n = len(windows)
-        return {CONSTANT: np.full(n, self.constant_m), ALWAYS_TOP: np.full(n, self.top_m),
-                MOTION_ISOTONIC: self.motion_fit.predict(motion_statistic(windows.rts)) if n else np.zeros(0)}
+        return {
+            CONSTANT: np.full(n, self.constant_m),
+            ALWAYS_TOP: np.full(n, self.top_m),
+            MOTION_ISOTONIC: self.motion_fit.predict(motion_statistic(windows.rts)) if n else np.zeros(0),
+        }
 
 
 def fit_references(train: Windows, pulses: PulseSettings) -> References:
@@ -96,8 +103,9 @@ def fit_references(train: Windows, pulses: PulseSettings) -> References:
     motion = motion_statistic(train.rts)
     increasing = not spearman(motion, train.error_m) < 0
     fit = IsotonicRegression(increasing=increasing, out_of_bounds="clip").fit(motion, train.error_m)
-    return References(float(np.median(bins.truth.to_numpy()[classes == best])), best,
-                      class_boundaries_m(pulses)[-1], fit)
+    return References(
+        float(np.median(bins.truth.to_numpy()[classes == best])), best, class_boundaries_m(pulses)[-1], fit
+    )
 
 
 def other_trials(roots: list[Path]) -> dict[str, list[str]]:
@@ -123,11 +131,13 @@ def ceiling_estimates(roots: list[Path], windows: Windows) -> np.ndarray:
     labels = DatasetReader(roots, runs=wanted).frame_labels()
     labels = labels[labels.status == LabelStatus.LABELLED.value].set_index(["run", "frame_index"]).error_m
     for run, rows in windows.meta.groupby("run", sort=False).groups.items():
-        per_trial = [labels.loc[o].reindex(windows.meta.frame_index.to_numpy()[np.asarray(rows)]).to_numpy()
-                     for o in others.get(run, []) if o in labels.index.get_level_values(0)]
+        per_trial = [
+            labels.loc[o].reindex(windows.meta.frame_index.to_numpy()[np.asarray(rows)]).to_numpy()
+            for o in others.get(run, [])
+            if o in labels.index.get_level_values(0)
+        ]
         if per_trial:
             stacked = np.vstack(per_trial)
             finite = np.isfinite(stacked).any(axis=0)
             estimate[np.asarray(rows)[finite]] = np.nanmean(stacked[:, finite], axis=0)
     return estimate
-

@@ -15,14 +15,14 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
 
-from estimator.deepsee.config import EstimatorConfig, TargetsConfig  # noqa: E402
-from estimator.deepsee.evaluate import TEST_TRAJECTORIES, Evaluation, round_folder  # noqa: E402
-from estimator.deepsee.metrics import CM_PER_M, advisory_bins, confusion  # noqa: E402
-from estimator.deepsee.references import (  # noqa: E402
+from estimator.deepsee.config import EstimatorConfig, TargetsConfig
+from estimator.deepsee.evaluate import TEST_TRAJECTORIES, Evaluation, round_folder
+from estimator.deepsee.metrics import CM_PER_M, advisory_bins, confusion
+from estimator.deepsee.references import (
     CEILING,
     CEILING_ROW,
     CONSTANT,
@@ -30,10 +30,10 @@ from estimator.deepsee.references import (  # noqa: E402
     REFERENCE_ROWS,
     ReferenceRow,
 )
-from estimator.deepsee.rows import DEEPSEE, LSTM, RANDOM_FOREST, ROWS, Row  # noqa: E402
-from estimator.deepsee.run_folder import CONFIG_JSON, HARDWARE_JSON  # noqa: E402
-from estimator.deepsee.yardsticks import WITH_INTERVALS  # noqa: E402
-from seesys.core.equation2 import PulseSettings  # noqa: E402
+from estimator.deepsee.rows import DEEPSEE, LSTM, RANDOM_FOREST, ROWS, Row
+from estimator.deepsee.run_folder import CONFIG_JSON, HARDWARE_JSON
+from estimator.deepsee.yardsticks import WITH_INTERVALS
+from seesys.core.equation2 import PulseSettings
 
 REPORT_MD = "estimator_report.md"
 SCORES_CSV = "scores.csv"
@@ -45,16 +45,27 @@ RELIABILITY_PNG = "estimator-head-reliability.png"
 CAMERAS_CSV = "camera_ratios.csv"
 CALIBRATION_CSV = "head_calibration.csv"
 # (column, heading, format) of the Table 3 layout; the yardsticks of WITH_INTERVALS show their interval too.
-COLUMNS = (("rmse_cm", "RMSE (cm)", "{:.3f}"), ("rmse_paper_range_cm", "RMSE 1 mm–2 cm (cm)", "{:.3f}"),
-           ("mape", "MAPE", "{:.3f}"), ("spearman", "Spearman ρ", "{:.2f}"),
-           ("partial_spearman", "partial ρ given motion", "{:.2f}"), ("kappa", "κ (quadratic)", "{:.2f}"),
-           ("aurg", "AURG", "{:.2f}"), ("ause", "AUSE", "{:.2f}"),
-           ("agreement", "advisory agreement", "{:.2f}"), ("recall_large", "recall ≥ 12 mm", "{:.2f}"),
-           ("median_ratio", "median est. / true", "{:.2f}"))
+COLUMNS = (
+    ("rmse_cm", "RMSE (cm)", "{:.3f}"),
+    ("rmse_paper_range_cm", "RMSE 1 mm–2 cm (cm)", "{:.3f}"),
+    ("mape", "MAPE", "{:.3f}"),
+    ("spearman", "Spearman ρ", "{:.2f}"),
+    ("partial_spearman", "partial ρ given motion", "{:.2f}"),
+    ("kappa", "κ (quadratic)", "{:.2f}"),
+    ("aurg", "AURG", "{:.2f}"),
+    ("ause", "AUSE", "{:.2f}"),
+    ("agreement", "advisory agreement", "{:.2f}"),
+    ("recall_large", "recall ≥ 12 mm", "{:.2f}"),
+    ("median_ratio", "median est. / true", "{:.2f}"),
+)
 # The ordinal head's columns, shown where some row of the set has a head (estimator/deepsee/metrics.py).
-HEAD_COLUMNS = (("head_agreement", "head agreement", "{:.2f}"), ("head_kappa", "head κ", "{:.2f}"),
-                ("head_recall_large", "head recall ≥ 12 mm", "{:.2f}"), ("head_brier", "head Brier", "{:.3f}"),
-                ("head_ece", "head ECE", "{:.3f}"))
+HEAD_COLUMNS = (
+    ("head_agreement", "head agreement", "{:.2f}"),
+    ("head_kappa", "head κ", "{:.2f}"),
+    ("head_recall_large", "head recall ≥ 12 mm", "{:.2f}"),
+    ("head_brier", "head Brier", "{:.3f}"),
+    ("head_ece", "head ECE", "{:.3f}"),
+)
 IMPROVEMENT_METRICS = {"rmse_cm": "RMSE", "rmse_paper_range_cm": "RMSE 1 mm–2 cm"}  # score column: its name
 # The rows of a set's table, in order: what every estimate must beat, the trained rows, the ceiling.
 TABLE_ROWS: tuple[Row | ReferenceRow, ...] = (*REFERENCE_ROWS, *ROWS, CEILING_ROW)
@@ -71,8 +82,11 @@ def _cell(values: pd.Series, fmt: str, low: pd.Series | None = None, high: pd.Se
     values = values.dropna()
     if values.empty:
         return "–"
-    text = (fmt.format(values.iloc[0]) if len(values) == 1
-            else f"{fmt.format(values.mean())} ± {fmt.format(values.std(ddof=1))}")
+    text = (
+        fmt.format(values.iloc[0])
+        if len(values) == 1
+        else f"{fmt.format(values.mean())} ± {fmt.format(values.std(ddof=1))}"
+    )
     if low is not None and high is not None and low.notna().any() and high.notna().any():
         text += f" [{fmt.format(low.min())}, {fmt.format(high.max())}]"
     return text
@@ -101,20 +115,32 @@ def table(scores: pd.DataFrame, set_name: str, runs: Path) -> list[str]:
     part = scores[scores.set == set_name]
     columns = _columns(part)
     headings = " | ".join(h for _, h, _ in columns)
-    lines = [f"| Category | Method | {headings} | windows | runs | rounds | schedule, device |",
-             "|---" * (len(columns) + 6) + "|"]
+    lines = [
+        f"| Category | Method | {headings} | windows | runs | rounds | schedule, device |",
+        "|---" * (len(columns) + 6) + "|",
+    ]
     for row in TABLE_ROWS:
         rows = part[part.row == row.name]
         if rows.empty:
             continue
-        cells = [_cell(rows[c], f, rows.get(f"{c}_low"), rows.get(f"{c}_high")) if c in WITH_INTERVALS
-                 else _cell(rows[c], f) for c, _, f in columns]
-        provenance = _provenance(runs, row.name) if row in ROWS else "fitted on the round's training data" if (
-            row in REFERENCE_ROWS) else "–"
+        cells = [
+            _cell(rows[c], f, rows.get(f"{c}_low"), rows.get(f"{c}_high")) if c in WITH_INTERVALS else _cell(rows[c], f)
+            for c, _, f in columns
+        ]
+        provenance = (
+            _provenance(runs, row.name)
+            if row in ROWS
+            else "fitted on the round's training data"
+            if (row in REFERENCE_ROWS)
+            else "–"
+        )
         low, high = int(rows.runs.min()), int(rows.runs.max())
         runs_cell = str(low) if low == high else f"{low}–{high}"
-        lines.append(f"| {row.category} | {row.label} | " + " | ".join(cells)
-                     + f" | {int(rows.windows.mean())} | {runs_cell} | {len(rows)} | {provenance} |")
+        lines.append(
+            f"| {row.category} | {row.label} | "
+            + " | ".join(cells)
+            + f" | {int(rows.windows.mean())} | {runs_cell} | {len(rows)} | {provenance} |"
+        )
     return lines
 
 
@@ -136,9 +162,11 @@ def improvements(scores: pd.DataFrame, set_name: str, targets: TargetsConfig) ->
             gains = 1 - both[DEEPSEE] / both[baseline]
             verdict = "reached" if gain >= target else "NOT reached"
             per_round = ", ".join(f"{100 * g:+.0f} %" for g in gains)
-            lines.append(f"- DeepSEE vs {baseline}, {metric}: {100 * gain:+.1f} % lower (mean over {len(both)} "
-                         f"rounds; target ≥ {100 * target:.0f} %: {verdict}; per round {per_round}, "
-                         f"{int((gains >= target).sum())} of {len(both)} reach it)")
+            lines.append(
+                f"- DeepSEE vs {baseline}, {metric}: {100 * gain:+.1f} % lower (mean over {len(both)} "
+                f"rounds; target ≥ {100 * target:.0f} %: {verdict}; per round {per_round}, "
+                f"{int((gains >= target).sum())} of {len(both)} reach it)"
+            )
     return lines
 
 
@@ -165,20 +193,33 @@ def target_lines(scores: pd.DataFrame, set_name: str, targets: TargetsConfig, ro
     constant = of(CONSTANT, "agreement")
     ratio = model.median_ratio
     checks = [
-        (f"κ {model.kappa:.2f} ≥ {targets.kappa_share_of_ceiling:g} × the ceiling's {ceiling_kappa:.2f}",
-         _verdict(model.kappa, targets.kappa_share_of_ceiling * ceiling_kappa, True)),
-        (f"κ {model.kappa:.2f} ≥ the motion-only row's {motion_kappa:.2f} + {targets.kappa_over_motion:g}",
-         _verdict(model.kappa, motion_kappa + targets.kappa_over_motion, True)),
-        (f"AURG {model.aurg:.2f} ≥ the motion-only row's {motion_aurg:.2f} + {targets.aurg_over_motion:g}",
-         _verdict(model.aurg, motion_aurg + targets.aurg_over_motion, True)),
-        (f"agreement {model.agreement:.2f} ≥ the constant class's {constant:.2f} + "
-         f"{targets.agreement_over_constant:g}",
-         _verdict(model.agreement, constant + targets.agreement_over_constant, True)),
-        (f"recall ≥ 12 mm {model.recall_large:.2f} ≥ {targets.recall_share_of_ceiling:g} × the ceiling's "
-         f"{ceiling_recall:.2f}",
-         _verdict(model.recall_large, targets.recall_share_of_ceiling * ceiling_recall, True)),
-        (f"median ratio {ratio:.2f} within ×{targets.median_ratio_within:g}",
-         _verdict(max(ratio, 1 / ratio) if ratio > 0 else float("nan"), targets.median_ratio_within, False))]
+        (
+            f"κ {model.kappa:.2f} ≥ {targets.kappa_share_of_ceiling:g} × the ceiling's {ceiling_kappa:.2f}",
+            _verdict(model.kappa, targets.kappa_share_of_ceiling * ceiling_kappa, True),
+        ),
+        (
+            f"κ {model.kappa:.2f} ≥ the motion-only row's {motion_kappa:.2f} + {targets.kappa_over_motion:g}",
+            _verdict(model.kappa, motion_kappa + targets.kappa_over_motion, True),
+        ),
+        (
+            f"AURG {model.aurg:.2f} ≥ the motion-only row's {motion_aurg:.2f} + {targets.aurg_over_motion:g}",
+            _verdict(model.aurg, motion_aurg + targets.aurg_over_motion, True),
+        ),
+        (
+            f"agreement {model.agreement:.2f} ≥ the constant class's {constant:.2f} + "
+            f"{targets.agreement_over_constant:g}",
+            _verdict(model.agreement, constant + targets.agreement_over_constant, True),
+        ),
+        (
+            f"recall ≥ 12 mm {model.recall_large:.2f} ≥ {targets.recall_share_of_ceiling:g} × the ceiling's "
+            f"{ceiling_recall:.2f}",
+            _verdict(model.recall_large, targets.recall_share_of_ceiling * ceiling_recall, True),
+        ),
+        (
+            f"median ratio {ratio:.2f} within ×{targets.median_ratio_within:g}",
+            _verdict(max(ratio, 1 / ratio) if ratio > 0 else float("nan"), targets.median_ratio_within, False),
+        ),
+    ]
     rounds = int((part.row == row).sum())
     heading = f"- {row} against the targets (configs/estimator.toml [targets]; mean over {rounds} rounds):"
     return [heading] + [f"  - {text}: {verdict}" for text, verdict in checks]
@@ -192,8 +233,12 @@ def camera_table(cameras: pd.DataFrame, set_name: str) -> list[str]:
     ratios = part.pivot_table(index="row", columns="camera_model", values="median_ratio", aggfunc="mean")
     order = [r.name for r in TABLE_ROWS if r.name in ratios.index]
     names = list(ratios.columns)
-    lines = ["Median estimate / median truth per camera model (mean over rounds):", "",
-             "| row | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    lines = [
+        "Median estimate / median truth per camera model (mean over rounds):",
+        "",
+        "| row | " + " | ".join(names) + " |",
+        "|---" * (len(names) + 1) + "|",
+    ]
     for name in order:
         lines.append(f"| {name} | " + " | ".join("–" if pd.isna(v) else f"{v:.2f}" for v in ratios.loc[name]) + " |")
     return lines + [""]
@@ -264,8 +309,9 @@ def _plot_reliability(calibration: pd.DataFrame, out: Path) -> Path:
     return out
 
 
-def write_report(evaluation: Evaluation, config: EstimatorConfig, pulses: PulseSettings, out: Path,
-                 notes: list[str]) -> Path:
+def write_report(
+    evaluation: Evaluation, config: EstimatorConfig, pulses: PulseSettings, out: Path, notes: list[str]
+) -> Path:
     """Write ``estimator_report.md``, the scores and predictions CSVs and the figures into ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -274,31 +320,38 @@ def write_report(evaluation: Evaluation, config: EstimatorConfig, pulses: PulseS
     predictions.to_csv(out / PREDICTIONS_CSV, index=False)
     evaluation.cameras.to_csv(out / CAMERAS_CSV, index=False)
     evaluation.calibration.to_csv(out / CALIBRATION_CSV, index=False)
-    lines = ["# DeepSEE evaluation (Table 3 layout)", ""] + [f"- {n}" for n in notes] + [
-        f"- Rounds: {', '.join(str(r) for r in sorted(set(scores['round'])))}; values are mean ± std over rounds.",
-        f"- RMSE 1 mm–2 cm: RMSE over the windows whose true error lies in the paper's label range "
-        f"({config.evaluation.paper_range_m[0] * 1000:g}–{config.evaluation.paper_range_m[1] * 1000:g} mm); the "
-        f"authors clipped their labels to it, ours are not clipped.",
-        "- Advisory agreement: share of 1/3 s bins where Equation 2 gives the same pulse count from the averaged "
-        "estimates as from the averaged true errors; recall ≥ 12 mm: share of bins with a true mean ≥ 12 mm whose "
-        "estimated mean is also ≥ 12 mm. Head agreement, κ and recall ≥ 12 mm (where a model has an ordinal head "
-        "for Equation 2's class boundaries): the same with the class the head gives from its probabilities "
-        "averaged over each bin; head Brier and ECE: per window, the mean over its thresholds "
-        f"({CALIBRATION_CSV} has each threshold and its reliability diagram); the forest and the LSTM have no "
-        "head (–).",
-        "- κ: quadratic-weighted Cohen's κ of the bins' Equation 2 classes (0 for any constant class, 1 when all are "
-        "right). AURG and AUSE: the sparsification curve (windows removed largest estimate first, the mean true "
-        "error of those kept, divided by the mean of all), its mean gain over a random order (AURG; 0 for a "
-        "constant) and its mean gap to the order of the truth (AUSE; 0 for a perfect order). Partial ρ given "
-        "motion: Spearman ρ of estimate and truth given the window's motion statistic (the standard deviation of "
-        "its relative translation).",
-        f"- Brackets: {100 * config.evaluation.confidence:g} % bootstrap interval over runs "
-        f"({config.evaluation.bootstrap_resamples} resamples of whole runs; with several rounds, from the lowest "
-        "round's low to the highest round's high); runs: the effective n of those intervals.",
-        "- Reference rows, fitted on the round's training data only: the training bins' most frequent class "
-        "(constant), always the top class, and the motion statistic mapped to an error by isotonic regression "
-        "(motion only). Ceiling: the true error of another SLAM trial of the same render at the same frame, on the "
-        "windows such a trial labelled (dataset sets only).", ""]
+    lines = (
+        ["# DeepSEE evaluation (Table 3 layout)", ""]
+        + [f"- {n}" for n in notes]
+        + [
+            f"- Rounds: {', '.join(str(r) for r in sorted(set(scores['round'])))}; values are mean ± std over rounds.",
+            f"- RMSE 1 mm–2 cm: RMSE over the windows whose true error lies in the paper's label range "
+            f"({config.evaluation.paper_range_m[0] * 1000:g}–{config.evaluation.paper_range_m[1] * 1000:g} mm); the "
+            f"authors clipped their labels to it, ours are not clipped.",
+            "- Advisory agreement: share of 1/3 s bins where Equation 2 gives the same pulse count from the averaged "
+            "estimates as from the averaged true errors; recall ≥ 12 mm: share of bins with a true mean ≥ 12 mm whose "
+            "estimated mean is also ≥ 12 mm. Head agreement, κ and recall ≥ 12 mm (where a model has an ordinal head "
+            "for Equation 2's class boundaries): the same with the class the head gives from its probabilities "
+            "averaged over each bin; head Brier and ECE: per window, the mean over its thresholds "
+            f"({CALIBRATION_CSV} has each threshold and its reliability diagram); the forest and the LSTM have no "
+            "head (–).",
+            "- κ: quadratic-weighted Cohen's κ of the bins' Equation 2 classes (0 for any constant class, 1 "
+            "when all are "
+            "right). AURG and AUSE: the sparsification curve (windows removed largest estimate first, the mean true "
+            "error of those kept, divided by the mean of all), its mean gain over a random order (AURG; 0 for a "
+            "constant) and its mean gap to the order of the truth (AUSE; 0 for a perfect order). Partial ρ given "
+            "motion: Spearman ρ of estimate and truth given the window's motion statistic (the standard deviation of "
+            "its relative translation).",
+            f"- Brackets: {100 * config.evaluation.confidence:g} % bootstrap interval over runs "
+            f"({config.evaluation.bootstrap_resamples} resamples of whole runs; with several rounds, from the lowest "
+            "round's low to the highest round's high); runs: the effective n of those intervals.",
+            "- Reference rows, fitted on the round's training data only: the training bins' most frequent class "
+            "(constant), always the top class, and the motion statistic mapped to an error by isotonic regression "
+            "(motion only). Ceiling: the true error of another SLAM trial of the same render at the same frame, on the "
+            "windows such a trial labelled (dataset sets only).",
+            "",
+        ]
+    )
     for set_name in dict.fromkeys(scores.set):
         lines += [f"## {set_name}", ""] + table(scores, set_name, evaluation.runs) + [""]
         lines += improvements(scores, set_name, config.targets) + target_lines(scores, set_name, config.targets)
@@ -307,14 +360,24 @@ def write_report(evaluation: Evaluation, config: EstimatorConfig, pulses: PulseS
     focus = predictions[(predictions.set == TEST_TRAJECTORIES) & (predictions["round"] == predictions["round"].min())]
     if not focus.empty:
         main = focus[focus.row == focus_row]
-        figures = [_plot_timeseries(main, config.evaluation.plot_runs, out / TIMESERIES_PNG),
-                   _plot_scatter(focus, [r for r in (focus_row, RANDOM_FOREST, LSTM) if r in set(focus.row)],
-                                 out / SCATTER_PNG),
-                   _plot_confusion(confusion(advisory_bins(main, main.estimate_m.to_numpy(), main.true_m.to_numpy(),
-                                                           pulses.window_s), pulses), out / CONFUSION_PNG)]
+        figures = [
+            _plot_timeseries(main, config.evaluation.plot_runs, out / TIMESERIES_PNG),
+            _plot_scatter(
+                focus, [r for r in (focus_row, RANDOM_FOREST, LSTM) if r in set(focus.row)], out / SCATTER_PNG
+            ),
+            _plot_confusion(
+                confusion(
+                    advisory_bins(main, main.estimate_m.to_numpy(), main.true_m.to_numpy(), pulses.window_s), pulses
+                ),
+                out / CONFUSION_PNG,
+            ),
+        ]
         reliability = evaluation.calibration
-        reliability = reliability[(reliability.set == TEST_TRAJECTORIES) & (reliability.row == focus_row)
-                                  & (reliability["round"] == focus["round"].min())]
+        reliability = reliability[
+            (reliability.set == TEST_TRAJECTORIES)
+            & (reliability.row == focus_row)
+            & (reliability["round"] == focus["round"].min())
+        ]
         if not reliability.empty:
             figures.append(_plot_reliability(reliability, out / RELIABILITY_PNG))
         lines += [f"## Figures ({focus_row}, test trajectories, round {int(focus['round'].min())})", ""]

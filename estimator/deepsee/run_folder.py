@@ -24,12 +24,12 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-import torch  # noqa: E402
+import matplotlib.pyplot as plt
+import pandas as pd
+import torch
 
-from seesys.core.errors import SeesysError  # noqa: E402
-from seesys.io.session_files import utc_now  # noqa: E402
+from seesys.core.errors import SeesysError
+from seesys.io.session_files import utc_now
 
 CONFIG_JSON = "config.json"
 HARDWARE_JSON = "hardware.json"
@@ -53,10 +53,17 @@ class EpochRecord:
 
 def hardware(device: torch.device) -> dict:
     """What the run is using: for the record of what ran where."""
-    info = {"time": utc_now(), "command": " ".join(sys.argv), "device": str(device), "platform": platform.platform(),
-            "cpu": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
-            "torch_threads": torch.get_num_threads(), "torch": torch.__version__,
-            "load_average": list(os.getloadavg())}
+    info = {
+        "time": utc_now(),
+        "command": " ".join(sys.argv),
+        "device": str(device),
+        "platform": platform.platform(),
+        "cpu": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "load_average": list(os.getloadavg()),
+    }
     if device.type == "cuda":
         info["gpu"] = torch.cuda.get_device_name(device)
     for package in ("numpy", "scikit-learn", "onnxruntime"):
@@ -80,8 +87,10 @@ class RunFolder:
             earlier = json.loads(config_path.read_text())
             if earlier != resolved:
                 changed = sorted(k for k in set(earlier) | set(resolved) if earlier.get(k) != resolved.get(k))
-                raise SeesysError(f"{self.path} holds a run with a different {', '.join(changed)}; resume it with the "
-                                  f"same arguments or train into a new folder")
+                raise SeesysError(
+                    f"{self.path} holds a run with a different {', '.join(changed)}; resume it with the "
+                    f"same arguments or train into a new folder"
+                )
         else:
             config_path.write_text(json.dumps(resolved, indent=2) + "\n")
         hardware_path = self.path / HARDWARE_JSON
@@ -95,8 +104,17 @@ class RunFolder:
             writer = csv.writer(f)
             if new:
                 writer.writerow(METRIC_COLUMNS)
-            writer.writerow([row.stage, row.epoch, f"{row.train_loss:.6g}", f"{row.val_loss:.6g}", f"{row.lr:.3g}",
-                             f"{row.seconds:.1f}", int(row.best)])
+            writer.writerow(
+                [
+                    row.stage,
+                    row.epoch,
+                    f"{row.train_loss:.6g}",
+                    f"{row.val_loss:.6g}",
+                    f"{row.lr:.3g}",
+                    f"{row.seconds:.1f}",
+                    int(row.best),
+                ]
+            )
 
     def metrics(self) -> pd.DataFrame:
         path = self.path / METRICS_CSV

@@ -42,7 +42,7 @@ class PsdReconstruction(nn.Module):
     def __init__(self, encoder: PsdEncoder, dim: int):
         super().__init__()
         self.encoder = encoder
-        self.decoder = nn.Sequential(nn.Linear(dim, dim), nn.GELU(), nn.Linear(dim, 3 * encoder.patch ** 2))
+        self.decoder = nn.Sequential(nn.Linear(dim, dim), nn.GELU(), nn.Linear(dim, 3 * encoder.patch**2))
 
     def loss(self, psd: torch.Tensor, ratio: float, generator: torch.Generator) -> torch.Tensor:
         """MSE on the masked patches of ``psd`` (B, K, 3, H, W) in [0, 1]."""
@@ -110,8 +110,9 @@ def hierarchical_loss(z1: torch.Tensor, z2: torch.Tensor, alpha: float) -> torch
     return loss / (levels + 1)
 
 
-def ts2vec_loss(encoder: RtsEncoder, x: torch.Tensor, alpha: float, mask_probability: float,
-                generator: torch.Generator) -> torch.Tensor:
+def ts2vec_loss(
+    encoder: RtsEncoder, x: torch.Tensor, alpha: float, mask_probability: float, generator: torch.Generator
+) -> torch.Tensor:
     """TS2Vec's loss on a batch of RTS windows ``x`` (B, T, C): two overlapping crops with random offsets."""
     b, t = x.shape[:2]
     overlap = int(_randint(2, t + 1, generator))

@@ -35,10 +35,12 @@ import torch
 from rich.progress import Progress
 from torch import nn
 
+from estimator.artefact.compatibility import check_normalisation
+from estimator.artefact.standardisation import InputStandardisation
+from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.augment import Augmenter
 from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
-from estimator.artefact.compatibility import check_normalisation
 from estimator.deepsee.config import AugmentationConfig, EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.data import NORMALISATION_COLUMN, Windows, limit
 from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
@@ -48,8 +50,6 @@ from estimator.deepsee.ordinal import exceeded, head_thresholds, model_threshold
 from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
 from estimator.deepsee.run_folder import MODEL_PT, RunFolder
 from estimator.deepsee.ssl import PsdReconstruction, ts2vec_loss
-from estimator.artefact.standardisation import InputStandardisation
-from estimator.artefact.transforms import LabelTransform
 from seesys.core import rts_schema
 from seesys.core.errors import SeesysError
 from seesys.core.windows import WindowConfig
@@ -97,11 +97,13 @@ def _validator(model: nn.Module, val: Windows, ctx: TrainContext):
     def validate() -> float:
         y, probabilities = predict_outputs(model, val, ctx.config.evaluation.batch_size, ctx.device)
         return validation_loss(y, probabilities, targets, exceeds, ctx.config.ordinal_head.bce_weight)
+
     return validate
 
 
-def _batch_targets(y: torch.Tensor, exceeds: np.ndarray | None, index: np.ndarray,
-                   device: torch.device) -> tuple[torch.Tensor, torch.Tensor | None]:
+def _batch_targets(
+    y: torch.Tensor, exceeds: np.ndarray | None, index: np.ndarray, device: torch.device
+) -> tuple[torch.Tensor, torch.Tensor | None]:
     return y[index].to(device), (torch.from_numpy(exceeds[index]).to(device) if exceeds is not None else None)
 
 
@@ -120,13 +122,25 @@ def _psd_ssl(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, ctx: 
     def validate() -> float:
         task.eval()
         generator = torch.Generator().manual_seed(stage_seed(seed, "psd_ssl:validation", 0))
-        losses = [float(task.loss(model.psd_input(batch_tensors(val, chunk, ctx.device)[1]), ratio, generator))
-                  for chunk in np.array_split(val_index, max(1, math.ceil(len(val_index) / 64)))]
+        losses = [
+            float(task.loss(model.psd_input(batch_tensors(val, chunk, ctx.device)[1]), ratio, generator))
+            for chunk in np.array_split(val_index, max(1, math.ceil(len(val_index) / 64)))
+        ]
         task.train()
         return float(np.mean(losses))
 
-    run_stage(run, "a_psd_ssl", task, task.parameters(), ctx.schedule.psd_ssl, len(train), step,
-              validate if len(val_index) else None, seed, ctx.progress)
+    run_stage(
+        run,
+        "a_psd_ssl",
+        task,
+        task.parameters(),
+        ctx.schedule.psd_ssl,
+        len(train),
+        step,
+        validate if len(val_index) else None,
+        seed,
+        ctx.progress,
+    )
 
 
 def _rts_ssl(run: RunFolder, model: DeepSEE, train: Windows, ctx: TrainContext) -> None:
@@ -143,13 +157,16 @@ def _rts_ssl(run: RunFolder, model: DeepSEE, train: Windows, ctx: TrainContext) 
         rts, _ = augment(*batch_tensors(train, index, ctx.device, with_psd=False), generator)
         return ts2vec_loss(encoder, rts * model.rts_mask, s.alpha, s.mask_probability, generator)
 
-    run_stage(run, "b_rts_ssl", encoder, encoder.parameters(), schedule, len(train), step, None, ctx.config.seed,
-              ctx.progress)
+    run_stage(
+        run, "b_rts_ssl", encoder, encoder.parameters(), schedule, len(train), step, None, ctx.config.seed, ctx.progress
+    )
 
 
 def _encoder_state(model: DeepSEE) -> dict:
-    return {"rts_encoder": model.rts_encoder.state_dict(),
-            "psd_encoder": model.psd_encoder.state_dict() if model.psd_encoder is not None else None}
+    return {
+        "rts_encoder": model.rts_encoder.state_dict(),
+        "psd_encoder": model.psd_encoder.state_dict() if model.psd_encoder is not None else None,
+    }
 
 
 def _load_encoders(model: DeepSEE, path: Path) -> None:
@@ -197,8 +214,9 @@ def _encodings_key(model: DeepSEE, windows: Windows, views: _Views) -> str:
 
 
 @torch.no_grad()
-def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: str, ctx: TrainContext,
-                      views: _Views) -> tuple[np.ndarray, np.ndarray | None]:
+def _cached_encodings(
+    run: RunFolder, model: DeepSEE, windows: Windows, part: str, ctx: TrainContext, views: _Views
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The frozen encoders' tokens of every view of every window (``views``), (V, N, ...) float16 on disk,
     computed once per run folder for the same encoders, windows and views: ``state/cache_<part>.json`` holds the
     key of what the arrays were computed from (:func:`_encodings_key`), and any other key computes them again."""
@@ -207,8 +225,10 @@ def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: st
     key = _encodings_key(model, windows, views)
 
     def cached() -> tuple[np.ndarray, np.ndarray | None]:
-        return (np.load(paths[0], mmap_mode="r"),
-                np.load(paths[1], mmap_mode="r") if model.psd_encoder is not None else None)
+        return (
+            np.load(paths[0], mmap_mode="r"),
+            np.load(paths[1], mmap_mode="r") if model.psd_encoder is not None else None,
+        )
 
     try:
         if json.loads(key_path.read_text())["key"] == key:
@@ -243,8 +263,9 @@ def _cached_encodings(run: RunFolder, model: DeepSEE, windows: Windows, part: st
     return cached()
 
 
-def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedule: StageSchedule,
-            ctx: TrainContext) -> None:
+def _frozen(
+    run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedule: StageSchedule, ctx: TrainContext
+) -> None:
     """Stage (c): the fusion and head on the cached outputs of the frozen encoders: of augmented draws of the
     training windows (each step takes one of a window's draws at random), of the validation windows as they
     are."""
@@ -252,8 +273,9 @@ def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedu
     for m in model.encoder_modules():
         m.requires_grad_(False)
     augmentation = ctx.config.augmentation
-    train_views = (_Views(augmentation.frozen_stage_views, augmentation, ctx.config.seed) if augmentation.enabled
-                   else _Views(1))
+    train_views = (
+        _Views(augmentation.frozen_stage_views, augmentation, ctx.config.seed) if augmentation.enabled else _Views(1)
+    )
     r_train, p_train = _cached_encodings(run, model, train, "train", ctx, train_views)
     r_val, p_val = _cached_encodings(run, model, val, "validation", ctx, _Views(1))
     y_train = torch.from_numpy(_targets(train, ctx.transform))
@@ -262,21 +284,28 @@ def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedu
     weight = ctx.config.ordinal_head.bce_weight
 
     def tokens(r: np.ndarray, p: np.ndarray | None, view: np.ndarray, index: np.ndarray):
-        as_tensor = lambda a: torch.from_numpy(np.asarray(a[view, index], np.float32)).to(ctx.device)  # noqa: E731
+        def as_tensor(a: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(np.asarray(a[view, index], np.float32)).to(ctx.device)
+
         return as_tensor(r), (as_tensor(p) if p is not None else None)
 
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
         index = np.sort(index)  # memory maps read faster in order
         view = torch.randint(train_views.count, (len(index),), generator=generator).numpy()
-        return training_loss(model.head(*tokens(r_train, p_train, view, index)),
-                             *_batch_targets(y_train, exceeds_train, index, ctx.device), weight)
+        return training_loss(
+            model.head(*tokens(r_train, p_train, view, index)),
+            *_batch_targets(y_train, exceeds_train, index, ctx.device),
+            weight,
+        )
 
     @torch.no_grad()
     def validate() -> float:
         model.eval()
         batch = ctx.config.evaluation.batch_size
-        outputs = [model.head(*tokens(r_val, p_val, np.zeros(1, int), np.arange(s, min(s + batch, len(val)))))
-                   for s in range(0, len(val), batch)]
+        outputs = [
+            model.head(*tokens(r_val, p_val, np.zeros(1, int), np.arange(s, min(s + batch, len(val)))))
+            for s in range(0, len(val), batch)
+        ]
         model.train()
         if model.ordinal is None:
             return validation_loss(torch.cat(outputs).cpu().numpy(), None, y_val, None, weight)
@@ -285,14 +314,31 @@ def _frozen(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, schedu
         return validation_loss(y, probabilities, y_val, exceeds_val, weight)
 
     head = [p for p in model.parameters() if id(p) not in encoders]
-    run_stage(run, "c_supervised_frozen", model, head, schedule, len(train), step, validate if len(val) else None,
-              ctx.config.seed, ctx.progress)
+    run_stage(
+        run,
+        "c_supervised_frozen",
+        model,
+        head,
+        schedule,
+        len(train),
+        step,
+        validate if len(val) else None,
+        ctx.config.seed,
+        ctx.progress,
+    )
     for m in model.encoder_modules():
         m.requires_grad_(True)
 
 
-def supervised(run: RunFolder, name: str, model: nn.Module, train: Windows, val: Windows, schedule: StageSchedule,
-               ctx: TrainContext) -> None:
+def supervised(
+    run: RunFolder,
+    name: str,
+    model: nn.Module,
+    train: Windows,
+    val: Windows,
+    schedule: StageSchedule,
+    ctx: TrainContext,
+) -> None:
     """A supervised stage on the whole model (stage (d), the LSTM, fine-tuning on sessions), its training batches
     augmented as ``[augmentation]`` of configs/estimator.toml says; the ordinal head, where the model has one, is
     trained with the rest."""
@@ -303,19 +349,26 @@ def supervised(run: RunFolder, name: str, model: nn.Module, train: Windows, val:
 
     def step(index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
         inputs = augment(*batch_tensors(train, index, ctx.device, with_psd), generator)
-        return training_loss(model(*inputs), *_batch_targets(y_train, exceeds, index, ctx.device),
-                             ctx.config.ordinal_head.bce_weight)
+        return training_loss(
+            model(*inputs), *_batch_targets(y_train, exceeds, index, ctx.device), ctx.config.ordinal_head.bce_weight
+        )
 
     validate = _validator(model, val, ctx) if len(val) else None
     run_stage(run, name, model, model.parameters(), schedule, len(train), step, validate, ctx.config.seed, ctx.progress)
 
 
 def _run_config(row: Row, ctx: TrainContext, pretrained: Path | None) -> dict:
-    return {"row": row.name, "schedule_name": ctx.schedule_name, "schedule": asdict(ctx.schedule),
-            "config": asdict(ctx.config), "variant": asdict(row.variant), "ssl": row.ssl,
-            "pretrained": str(pretrained) if pretrained else None, "compatibility": compatibility(ctx.windows,
-                                                                                                   ctx.transform),
-            **ctx.provenance}
+    return {
+        "row": row.name,
+        "schedule_name": ctx.schedule_name,
+        "schedule": asdict(ctx.schedule),
+        "config": asdict(ctx.config),
+        "variant": asdict(row.variant),
+        "ssl": row.ssl,
+        "pretrained": str(pretrained) if pretrained else None,
+        "compatibility": compatibility(ctx.windows, ctx.transform),
+        **ctx.provenance,
+    }
 
 
 def _cameras(windows: Windows) -> list[str]:
@@ -323,8 +376,7 @@ def _cameras(windows: Windows) -> list[str]:
     return sorted(set(windows.meta.camera_model)) if "camera_model" in windows.meta else []
 
 
-def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
-              pretrained: Path | None = None) -> Path:
+def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext, pretrained: Path | None = None) -> Path:
     """Train ``row`` on ``data['train']`` (early stopping on ``data['validation']``) into the run folder ``out``;
     returns the model file. ``pretrained``: a DeepSEE run folder whose encoders an ablation row starts from."""
     record = compatibility(ctx.windows, ctx.transform)
@@ -335,8 +387,14 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
     train = limit(data["train"], schedule.max_train_samples, seed)
     val = limit(data["validation"], schedule.max_validation_samples, seed)
     torch.manual_seed(seed)
-    training = {"row": row.name, "schedule": ctx.schedule_name, "train_windows": len(train),
-                "validation_windows": len(val), "cameras": _cameras(train), **ctx.provenance}
+    training = {
+        "row": row.name,
+        "schedule": ctx.schedule_name,
+        "train_windows": len(train),
+        "validation_windows": len(val),
+        "cameras": _cameras(train),
+        **ctx.provenance,
+    }
     if row.kind == RANDOM_FOREST:
         return _train_forest(run, train, ctx, training)
     if row.kind == LSTM:
@@ -351,22 +409,37 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext,
                 _psd_ssl(run, model, train, val, ctx)
             _rts_ssl(run, model, train, ctx)
             save_atomic(_encoder_state(model), run.state / ENCODERS_PT)
-        frozen, finetune = ((schedule.ablation_frozen, schedule.ablation_finetune) if row.ablation
-                            else (schedule.supervised_frozen, schedule.finetune))
+        frozen, finetune = (
+            (schedule.ablation_frozen, schedule.ablation_finetune)
+            if row.ablation
+            else (schedule.supervised_frozen, schedule.finetune)
+        )
         _frozen(run, model, train, val, frozen, ctx)
         supervised(run, "d_finetune", model, train, val, finetune, ctx)
     # Fitted on the windows it was trained on: it serves its training cameras as they are (the identity).
-    standardisation = InputStandardisation.fitted(train.rts, rts_schema.CHANNEL_NAMES,
-                                                  ctx.config.input_standardisation.camera_channels)
-    return save_model(run.path / MODEL_PT, model.cpu(), ctx.windows, ctx.transform,
-                      {**training, "metrics": run.metrics().to_dict("list")}, standardisation=standardisation)
+    standardisation = InputStandardisation.fitted(
+        train.rts, rts_schema.CHANNEL_NAMES, ctx.config.input_standardisation.camera_channels
+    )
+    return save_model(
+        run.path / MODEL_PT,
+        model.cpu(),
+        ctx.windows,
+        ctx.transform,
+        {**training, "metrics": run.metrics().to_dict("list")},
+        standardisation=standardisation,
+    )
 
 
 def _train_forest(run: RunFolder, train: Windows, ctx: TrainContext, training: dict) -> Path:
     path = run.path / FOREST_PICKLE
     if not path.exists():
-        forest = fit_random_forest(train.rts, _targets(train, ctx.transform), ctx.config.random_forest,
-                                   ctx.config.seed, jobs=max(1, torch.get_num_threads()))
+        forest = fit_random_forest(
+            train.rts,
+            _targets(train, ctx.transform),
+            ctx.config.random_forest,
+            ctx.config.seed,
+            jobs=max(1, torch.get_num_threads()),
+        )
         record = {"compatibility": compatibility(ctx.windows, ctx.transform), "forest": forest, "training": training}
         temporary = path.with_name(path.name + ".tmp")
         temporary.write_bytes(pickle.dumps(record))

@@ -130,8 +130,9 @@ def calibration(probability: np.ndarray, truth: np.ndarray, threshold_m: float) 
     edges = np.linspace(0.0, 1.0, RELIABILITY_BINS + 1)
     count = np.bincount(np.searchsorted(edges[1:-1], probability), minlength=RELIABILITY_BINS)
     count = count[count > 0]
-    observed, confidence = calibration_curve(outcome, probability, n_bins=RELIABILITY_BINS, strategy="uniform",
-                                             pos_label=1)
+    observed, confidence = calibration_curve(
+        outcome, probability, n_bins=RELIABILITY_BINS, strategy="uniform", pos_label=1
+    )
     ece = float(np.sum(count / count.sum() * np.abs(observed - confidence)))
     return Calibration(threshold_m, brier, ece, confidence, observed, count)
 
@@ -153,9 +154,17 @@ class Judged:
 
     def take(self, windows: np.ndarray, bins: np.ndarray) -> Judged:
         """The windows ``windows`` and the bins ``bins`` (indices, repeats allowed)."""
-        return Judged(self.window_run[windows], self.truth_m[windows], self.estimate_m[windows],
-                      self.motion[windows], self.bin_run[bins], self.bin_truth_m[bins], self.bin_estimate_m[bins],
-                      self.bin_true_class[bins], self.bin_estimate_class[bins])
+        return Judged(
+            self.window_run[windows],
+            self.truth_m[windows],
+            self.estimate_m[windows],
+            self.motion[windows],
+            self.bin_run[bins],
+            self.bin_truth_m[bins],
+            self.bin_estimate_m[bins],
+            self.bin_true_class[bins],
+            self.bin_estimate_class[bins],
+        )
 
 
 #: The yardsticks of :func:`yardsticks` that get a bootstrap interval (``<name>_low``, ``<name>_high``).
@@ -169,13 +178,16 @@ def yardsticks(judged: Judged, classes: int, large_error_m: float) -> dict[str, 
     ause, aurg = sparsification(judged.estimate_m, judged.truth_m)
     return {
         "agreement": float(np.mean(judged.bin_true_class == judged.bin_estimate_class))
-        if len(judged.bin_run) else float("nan"),
+        if len(judged.bin_run)
+        else float("nan"),
         "kappa": quadratic_kappa(judged.bin_true_class, judged.bin_estimate_class, classes),
         "recall_large": float(np.mean(judged.bin_estimate_m[large] >= large_error_m)) if large.any() else float("nan"),
         "spearman": spearman(judged.estimate_m, judged.truth_m),
         "partial_spearman": partial_spearman(judged.estimate_m, judged.truth_m, judged.motion),
-        "ause": ause, "aurg": aurg,
-        "median_ratio": median_ratio(judged.estimate_m, judged.truth_m)}
+        "ause": ause,
+        "aurg": aurg,
+        "median_ratio": median_ratio(judged.estimate_m, judged.truth_m),
+    }
 
 
 @dataclass(frozen=True)
@@ -187,8 +199,9 @@ class Bootstrap:
     seed: int
 
 
-def bootstrap_over_runs(judged: Judged, statistic: Callable[[Judged], dict[str, float]], names: tuple[str, ...],
-                        settings: Bootstrap) -> tuple[dict[str, tuple[float, float]], int]:
+def bootstrap_over_runs(
+    judged: Judged, statistic: Callable[[Judged], dict[str, float]], names: tuple[str, ...], settings: Bootstrap
+) -> tuple[dict[str, tuple[float, float]], int]:
     """Percentile intervals of ``statistic``'s ``names`` over sets of runs drawn with replacement, and the
     effective n (the number of runs). With fewer than 2 runs (or no resamples) every interval is NaN."""
     runs, window_run = np.unique(judged.window_run, return_inverse=True)
@@ -202,8 +215,9 @@ def bootstrap_over_runs(judged: Judged, statistic: Callable[[Judged], dict[str, 
     values: dict[str, list[float]] = {name: [] for name in names}
     for _ in range(settings.resamples):
         draw = rng.integers(len(runs), size=len(runs))
-        result = statistic(judged.take(np.concatenate([windows_of[k] for k in draw]),
-                                       np.concatenate([bins_of[k] for k in draw])))
+        result = statistic(
+            judged.take(np.concatenate([windows_of[k] for k in draw]), np.concatenate([bins_of[k] for k in draw]))
+        )
         for name in names:
             values[name].append(result[name])
     tail = 100.0 * (1.0 - settings.confidence) / 2.0
@@ -211,6 +225,9 @@ def bootstrap_over_runs(judged: Judged, statistic: Callable[[Judged], dict[str, 
     for name in names:
         finite = np.asarray(values[name], float)
         finite = finite[np.isfinite(finite)]
-        intervals[name] = ((float(np.percentile(finite, tail)), float(np.percentile(finite, 100.0 - tail)))
-                           if len(finite) else (float("nan"), float("nan")))
+        intervals[name] = (
+            (float(np.percentile(finite, tail)), float(np.percentile(finite, 100.0 - tail)))
+            if len(finite)
+            else (float("nan"), float("nan"))
+        )
     return intervals, len(runs)

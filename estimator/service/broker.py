@@ -2,11 +2,10 @@
 
 Sockets (endpoints in ``configs/service.toml`` and ``network.toml``):
 
-- ingest, SUB, bound at ``ingest_endpoint`` of ``network.toml`` (devices connect their PUB) and connected to device streams that bind
-  their own PUB; it subscribes to everything, so that nothing sent to it goes uncounted, and every message is
-  checked here: larger than ``max_message_bytes`` (*oversized*), of another
-  protocol version (*wrong_version*) or anything :func:`seesys.core.messages.decode` refuses (*malformed*)
-  is counted and dropped;
+- ingest, SUB, bound at ``ingest_endpoint`` of ``network.toml`` (devices connect their PUB) and connected to device
+  streams that bind their own PUB; it subscribes to everything, so that nothing sent to it goes uncounted, and every
+  message is checked here: larger than ``max_message_bytes`` (*oversized*), of another protocol version
+  (*wrong_version*) or anything :func:`seesys.core.messages.decode` refuses (*malformed*) is counted and dropped;
 - backend, ROUTER, bound at ``worker_endpoint``: workers connect (DEALER) and say READY. A device is given to the
   worker with the fewest devices when its first frame arrives and stays there, so that one worker holds its windows
   and its estimates leave in order. A frame that finds its worker's queue (``worker_queue``) full is dropped and
@@ -33,6 +32,7 @@ clients in the allow-list.
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import sys
 import time
@@ -122,13 +122,20 @@ def _percentiles(values: Iterable[float]) -> dict[str, float | None]:
 class Broker:
     """The broker's sockets and state; :meth:`run` serves until :meth:`stop`."""
 
-    def __init__(self, config: ServiceConfig, network: NetworkConfig, device_endpoints: Iterable[str] = (),
-                 ctx: zmq.Context | None = None):
+    def __init__(
+        self,
+        config: ServiceConfig,
+        network: NetworkConfig,
+        device_endpoints: Iterable[str] = (),
+        ctx: zmq.Context | None = None,
+    ):
         self.config, self.network = config, network
         self.device_endpoints = list(device_endpoints)
         if config.curve.enabled and self.device_endpoints:
-            raise ServiceError("with Curve on, devices connect to ingest_endpoint; the service does not connect to "
-                               f"device streams ({', '.join(self.device_endpoints)})")
+            raise ServiceError(
+                "with Curve on, devices connect to ingest_endpoint; the service does not connect to "
+                f"device streams ({', '.join(self.device_endpoints)})"
+            )
         self.ctx = ctx or zmq.Context()
         self.model_version: str | None = None
         self.devices: dict[str, DeviceState] = {}
@@ -141,8 +148,15 @@ class Broker:
         self._stopping = False
         self._authenticator = None
         self._ingest = self._estimates = self._status = None
-        self._backend = open_socket(self.ctx, zmq.ROUTER, config.worker_endpoint, "estimator workers", bind=True,
-                                    send_hwm=config.worker_queue, options={zmq.ROUTER_MANDATORY: 1})
+        self._backend = open_socket(
+            self.ctx,
+            zmq.ROUTER,
+            config.worker_endpoint,
+            "estimator workers",
+            bind=True,
+            send_hwm=config.worker_queue,
+            options={zmq.ROUTER_MANDATORY: 1},
+        )
         self.endpoints = {"workers": bound_endpoint(self._backend)}
 
     # ----------------------------------------------------------------------------------------------- start-up
@@ -170,17 +184,31 @@ class Broker:
 
             self._authenticator = keys.start_authenticator(self.ctx, resolve(cfg.curve.allowed_clients))
             server_options = keys.server_socket_options(resolve(cfg.curve.server_secret_key))
-        self._ingest = open_socket(self.ctx, zmq.SUB, self.network.ingest_endpoint, "feature ingest", bind=True,
-                                   receive_hwm=cfg.ingest_queue, subscribe=[b""],
-                                   options=server_options)
+        self._ingest = open_socket(
+            self.ctx,
+            zmq.SUB,
+            self.network.ingest_endpoint,
+            "feature ingest",
+            bind=True,
+            receive_hwm=cfg.ingest_queue,
+            subscribe=[b""],
+            options=server_options,
+        )
         self.endpoints["ingest"] = bound_endpoint(self._ingest)  # before the connects, which change LAST_ENDPOINT
         for endpoint in self.device_endpoints:
             try:
                 self._ingest.connect(endpoint)
             except zmq.ZMQError as e:
                 raise ServiceError(f"cannot connect to the device stream at {endpoint}: {e}") from None
-        self._estimates = open_socket(self.ctx, zmq.PUB, self.network.estimates_endpoint, "estimates", bind=True,
-                                      send_hwm=self.network.send_high_water_mark, options=server_options)
+        self._estimates = open_socket(
+            self.ctx,
+            zmq.PUB,
+            self.network.estimates_endpoint,
+            "estimates",
+            bind=True,
+            send_hwm=self.network.send_high_water_mark,
+            options=server_options,
+        )
         self._status = open_socket(self.ctx, zmq.REP, cfg.status_endpoint, "estimator status", bind=True)
         self.endpoints.update(estimates=bound_endpoint(self._estimates), status=bound_endpoint(self._status))
 
@@ -209,10 +237,9 @@ class Broker:
     def close(self) -> None:
         """Tell the workers to stop, close every socket, stop the ZAP handler."""
         for identity in list(self.workers):
-            try:
+            # Gone or full: it stops on SIGTERM or when its parent ends.
+            with contextlib.suppress(zmq.ZMQError):
                 self._backend.send_multipart([identity, envelope.STOP], zmq.NOBLOCK)
-            except zmq.ZMQError:
-                pass  # gone or full: it stops on SIGTERM or when its parent ends
         for sock in (self._ingest, self._estimates, self._status, self._backend):
             if sock is not None:
                 sock.close()
@@ -246,9 +273,11 @@ class Broker:
             return True
         silent_s = now - device.last_frame
         if silent_s > self.config.id_takeover_after_s:
-            self._log(f"device {frame.device_id!r}: stream session {frame.stream_session:x}{_key_text(key)} takes "
-                      f"the id over from stream session {device.stream_session:x}{_key_text(device.key)}, silent "
-                      f"for {silent_s:.1f} s")
+            self._log(
+                f"device {frame.device_id!r}: stream session {frame.stream_session:x}{_key_text(key)} takes "
+                f"the id over from stream session {device.stream_session:x}{_key_text(device.key)}, silent "
+                f"for {silent_s:.1f} s"
+            )
             device.stream_session, device.key = stream
             device.takeovers += 1
             device.last_published = -1
@@ -257,13 +286,16 @@ class Broker:
         device.id_in_use += 1
         if stream not in device.refused_streams:
             device.refused_streams.add(stream)
-            self._log(f"device {frame.device_id!r}: frames of stream session {frame.stream_session:x}"
-                      f"{_key_text(key)} refused: the id is in use by stream session {device.stream_session:x}"
-                      f"{_key_text(device.key)} (give each device its own device_id in monitor.toml)")
+            self._log(
+                f"device {frame.device_id!r}: frames of stream session {frame.stream_session:x}"
+                f"{_key_text(key)} refused: the id is in use by stream session {device.stream_session:x}"
+                f"{_key_text(device.key)} (give each device its own device_id in monitor.toml)"
+            )
         return False
 
-    def _ingest_one(self, parts: list[bytes], key: str,
-                    outbox: dict[bytes, list[tuple[DeviceState, float, FeatureFrame]]]) -> None:
+    def _ingest_one(
+        self, parts: list[bytes], key: str, outbox: dict[bytes, list[tuple[DeviceState, float, FeatureFrame]]]
+    ) -> None:
         """Check and decode one message; a frame admitted is put in ``outbox`` for its worker (sent from there
         with the others of this round, or at once when :data:`_FORWARD_BATCH` are waiting for that worker)."""
         token = time.monotonic()
@@ -322,8 +354,14 @@ class Broker:
         try:
             if worker is None:
                 raise zmq.ZMQError(zmq.EHOSTUNREACH)
-            self._backend.send_multipart([identity, envelope.FRAME, *(envelope.pack_frame(
-                token, (now - token) * 1000.0, frame) for _, token, frame in items)], zmq.NOBLOCK)
+            self._backend.send_multipart(
+                [
+                    identity,
+                    envelope.FRAME,
+                    *(envelope.pack_frame(token, (now - token) * 1000.0, frame) for _, token, frame in items),
+                ],
+                zmq.NOBLOCK,
+            )
         except zmq.Again:
             for device, _, _ in items:
                 device.queue_full += 1
@@ -357,8 +395,9 @@ class Broker:
                 self._backend.send_multipart([identity, envelope.STOP], zmq.NOBLOCK)
                 return
             self.model_version = version
-            worker = self.workers[identity] = WorkerState(identity, data["name"], data["pid"],
-                                                          data.get("provider", "unknown"), time.monotonic())
+            worker = self.workers[identity] = WorkerState(
+                identity, data["name"], data["pid"], data.get("provider", "unknown"), time.monotonic()
+            )
         worker.last_seen = time.monotonic()
         if is_stats:
             worker.report = data
@@ -366,12 +405,16 @@ class Broker:
     def _publish(self, identity: bytes, parts: list[bytes]) -> None:
         received = time.monotonic()
         for k in range(0, len(parts) - 2, 3):
-            topic, body, meta = parts[k:k + 3]
-            device_id = topic[len(messages.ESTIMATE_TOPIC):-len(messages.TOPIC_END)].decode("utf-8")
+            topic, body, meta = parts[k : k + 3]
+            device_id = topic[len(messages.ESTIMATE_TOPIC) : -len(messages.TOPIC_END)].decode("utf-8")
             device = self.devices.get(device_id)
             token, frame_index, stream_session, times = envelope.unpack_meta(meta)
-            if (device is None or device.worker != identity or frame_index <= device.last_published
-                    or stream_session != device.stream_session):
+            if (
+                device is None
+                or device.worker != identity
+                or frame_index <= device.last_published
+                or stream_session != device.stream_session
+            ):
                 if device is not None:
                     device.out_of_order += 1
                 continue
@@ -416,29 +459,55 @@ class Broker:
             loss = self.losses.devices.get(device_id)
             worker = self.workers.get(d.worker) if d.worker is not None else None
             devices[device_id] = {
-                "worker": worker.name if worker else None, "frames": d.frames,
-                "stream_session": f"{d.stream_session:x}", "takeovers": d.takeovers,
-                "frames_per_s": _rate(d.frame_times, now, window), "estimates": d.estimates,
+                "worker": worker.name if worker else None,
+                "frames": d.frames,
+                "stream_session": f"{d.stream_session:x}",
+                "takeovers": d.takeovers,
+                "frames_per_s": _rate(d.frame_times, now, window),
+                "estimates": d.estimates,
                 "estimates_per_s": _rate(d.estimate_times, now, window),
                 "lost_in_transit": loss.lost_in_transit if loss else 0,
                 "skipped_by_device": loss.skipped_by_device if loss else 0,
-                "dropped": {**{reason: counts.get(device_id, 0) for reason, counts in reported.items()},
-                            "queue_full": d.queue_full, "no_worker": d.no_worker, "out_of_order": d.out_of_order,
-                            "id_in_use": d.id_in_use},
-                "nonfinite": nonfinite.get(device_id, 0), "settings_refused": refused.get(device_id),
-                "server_ms": _percentiles(d.latency_ms)}
-        workers = [{"name": w.name, "pid": w.pid, "provider": w.provider, "devices": sorted(w.devices),
-                    "queue_depth": max(0, w.forwarded - w.report.get("frames", 0)) + w.report.get("pending", 0),
-                    "last_seen_s": now - w.last_seen,
-                    **{k: w.report.get(k) for k in ("estimates", "batches", "batch_ms_p50", "batch_ms_p99",
-                                                    "batch_size_mean")}}
-                   for w in self.workers.values()]
+                "dropped": {
+                    **{reason: counts.get(device_id, 0) for reason, counts in reported.items()},
+                    "queue_full": d.queue_full,
+                    "no_worker": d.no_worker,
+                    "out_of_order": d.out_of_order,
+                    "id_in_use": d.id_in_use,
+                },
+                "nonfinite": nonfinite.get(device_id, 0),
+                "settings_refused": refused.get(device_id),
+                "server_ms": _percentiles(d.latency_ms),
+            }
+        workers = [
+            {
+                "name": w.name,
+                "pid": w.pid,
+                "provider": w.provider,
+                "devices": sorted(w.devices),
+                "queue_depth": max(0, w.forwarded - w.report.get("frames", 0)) + w.report.get("pending", 0),
+                "last_seen_s": now - w.last_seen,
+                **{
+                    k: w.report.get(k)
+                    for k in ("estimates", "batches", "batch_ms_p50", "batch_ms_p99", "batch_size_mean")
+                },
+            }
+            for w in self.workers.values()
+        ]
         all_latency = [v for d in self.devices.values() for v in d.latency_ms]
-        return {"uptime_s": now - self.started, "model_version": self.model_version, "endpoints": self.endpoints,
-                "curve": self.config.curve.enabled, "rejected": dict(self.rejected),
-                "refused_workers": self.refused_workers, "workers": workers, "devices": devices,
-                "estimates_per_s": sum(v["estimates_per_s"] for v in devices.values()),
-                "server_ms": _percentiles(all_latency), "stages_ms": self.stages.percentiles()}
+        return {
+            "uptime_s": now - self.started,
+            "model_version": self.model_version,
+            "endpoints": self.endpoints,
+            "curve": self.config.curve.enabled,
+            "rejected": dict(self.rejected),
+            "refused_workers": self.refused_workers,
+            "workers": workers,
+            "devices": devices,
+            "estimates_per_s": sum(v["estimates_per_s"] for v in devices.values()),
+            "server_ms": _percentiles(all_latency),
+            "stages_ms": self.stages.percentiles(),
+        }
 
 
 def _key_text(key: str) -> str:
@@ -451,7 +520,9 @@ def default_model(config: ServiceConfig, model: Path | None) -> Path:
 
     path = Path(model) if model is not None else resolve(config.model)
     if not path.is_file():
-        raise ServiceError(f"no model at {path}: pass --model FILE.onnx (`seesys estimator export`), or make an "
-                           f"untrained stand-in of the configured size with `seesys estimator untrained-model "
-                           f"--out {path}`")
+        raise ServiceError(
+            f"no model at {path}: pass --model FILE.onnx (`seesys estimator export`), or make an "
+            f"untrained stand-in of the configured size with `seesys estimator untrained-model "
+            f"--out {path}`"
+        )
     return path

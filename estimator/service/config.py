@@ -18,8 +18,9 @@ class CurveConfig:
 
     def __post_init__(self) -> None:
         if bool(self.server_secret_key) != bool(self.allowed_clients):
-            raise ConfigError("service.toml: [curve] needs both server_secret_key and allowed_clients (or neither, "
-                              "for plaintext)")
+            raise ConfigError(
+                "service.toml: [curve] needs both server_secret_key and allowed_clients (or neither, for plaintext)"
+            )
 
     @property
     def enabled(self) -> bool:
@@ -48,8 +49,15 @@ class ServiceConfig:
     curve: CurveConfig
 
     def __post_init__(self) -> None:
-        for name in ("workers", "max_message_bytes", "max_batch", "worker_queue", "ingest_queue", "heartbeat_ms",
-                     "latency_window"):
+        for name in (
+            "workers",
+            "max_message_bytes",
+            "max_batch",
+            "worker_queue",
+            "ingest_queue",
+            "heartbeat_ms",
+            "latency_window",
+        ):
             if getattr(self, name) < 1:
                 raise ConfigError(f"service.toml: {name} must be at least 1, got {getattr(self, name)}")
         if self.worker_timeout_ms <= 2 * self.heartbeat_ms:

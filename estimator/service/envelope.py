@@ -1,12 +1,12 @@
 """The broker ↔ worker messages (DEALER ↔ ROUTER), internal to the service.
 
-Broker → worker: ``[b"F", frame…]`` one or more feature frames, a part each, as the broker decoded and validated
-them (:func:`pack_frame`: the worker does not decode them again, and a
-PSD is inflated once, by the broker; a window end's frame is about 37 kB this way) and ``[b"Q"]`` stop. A frame
-starts with the f64 token, the broker's monotonic second at which it received the frame, which the worker only
-hands back, and the f64 age in ms, how long the frame had been at the broker when it was forwarded. Worker → broker: ``[b"R", json]`` ready (name, pid, model version), ``[b"S", json]`` statistics
-(every heartbeat) and ``[b"E", (topic, body, meta)…]`` estimates, ``meta`` = f64 token of the window's last frame
-+ i64 its frame index + u64 its stream session + the estimate's times in the service so far
+Broker → worker: ``[b"F", frame…]`` one or more feature frames, a part each, as the broker decoded and validated them
+(:func:`pack_frame`: the worker does not decode them again, and a PSD is inflated once, by the broker; a window end's
+frame is about 37 kB this way) and ``[b"Q"]`` stop. A frame starts with the f64 token, the broker's monotonic second at
+which it received the frame, which the worker only hands back, and the f64 age in ms, how long the frame had been at the
+broker when it was forwarded. Worker → broker: ``[b"R", json]`` ready (name, pid, model version), ``[b"S", json]``
+statistics (every heartbeat) and ``[b"E", (topic, body, meta)…]`` estimates, ``meta`` = f64 token of the window's last
+frame + i64 its frame index + u64 its stream session + the estimate's times in the service so far
 (:mod:`estimator.service.stages`).
 
 No clock is compared across processes: the worker measures a window's age on its own clock from the moment it
@@ -46,15 +46,33 @@ def pack_frame(token: float, age_ms: float, frame: FeatureFrame) -> bytes:
     """One frame forwarded to a worker, as one part of a ``FRAME`` message (a part per frame: every part costs a
     send and a receive, the bytes cost less)."""
     s = frame.settings
-    settings = b"" if s is None else _SETTINGS.pack(s.fps, s.orb_features, s.psd_patch_px, s.psd_expansion,
-                                                     s.near_depth, s.camera_normalisation) + s.slam_mode.encode()
+    settings = (
+        b""
+        if s is None
+        else _SETTINGS.pack(
+            s.fps, s.orb_features, s.psd_patch_px, s.psd_expansion, s.near_depth, s.camera_normalisation
+        )
+        + s.slam_mode.encode()
+    )
     device = frame.device_id.encode()
     rts = np.ascontiguousarray(frame.rts, dtype="<f4")
     psd = np.ascontiguousarray(frame.psd, dtype=np.uint8) if frame.psd is not None else None
     shape = psd.shape if psd is not None else (0, 0, 0)
-    head = _FRAME_HEAD.pack(token, age_ms, frame.stream_session, frame.frame_index, frame.timestamp,
-                            int(frame.tracking_state), frame.frames_skipped, frame.rts_schema_version,
-                            frame.rts_schema_fingerprint, len(device), len(settings), rts.size, *shape)
+    head = _FRAME_HEAD.pack(
+        token,
+        age_ms,
+        frame.stream_session,
+        frame.frame_index,
+        frame.timestamp,
+        int(frame.tracking_state),
+        frame.frames_skipped,
+        frame.rts_schema_version,
+        frame.rts_schema_fingerprint,
+        len(device),
+        len(settings),
+        rts.size,
+        *shape,
+    )
     return b"".join([head, device, settings, rts.data, psd.data if psd is not None else b""])
 
 
@@ -66,18 +84,38 @@ def unpack_frames(parts: list[bytes]) -> Iterator[tuple[float, float, FeatureFra
 
 
 def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
-    (token, age_ms, session, index, timestamp, state, skipped, version, fingerprint, device_bytes, settings_bytes,
-     rts_values, h, w, layers) = _FRAME_HEAD.unpack_from(data)
+    (
+        token,
+        age_ms,
+        session,
+        index,
+        timestamp,
+        state,
+        skipped,
+        version,
+        fingerprint,
+        device_bytes,
+        settings_bytes,
+        rts_values,
+        h,
+        w,
+        layers,
+    ) = _FRAME_HEAD.unpack_from(data)
     at = _FRAME_HEAD.size
-    device = data[at:at + device_bytes].decode()
+    device = data[at : at + device_bytes].decode()
     at += device_bytes
-    settings = _settings(data[at:at + settings_bytes])
+    settings = _settings(data[at : at + settings_bytes])
     at += settings_bytes
     rts = np.frombuffer(data, "<f4", rts_values, at)
     at += 4 * rts_values
     psd = np.frombuffer(data, np.uint8, h * w * layers, at).reshape(h, w, layers) if h else None
-    return token, age_ms, FeatureFrame(device, index, timestamp, TrackingState(state), rts, psd, skipped, version,
-                                       fingerprint, session, settings)
+    return (
+        token,
+        age_ms,
+        FeatureFrame(
+            device, index, timestamp, TrackingState(state), rts, psd, skipped, version, fingerprint, session, settings
+        ),
+    )
 
 
 @lru_cache(maxsize=1024)
@@ -86,8 +124,9 @@ def _settings(data: bytes) -> DeviceSettings | None:
     if not data:
         return None
     fps, features, patch_px, expansion, near_depth, normalisation = _SETTINGS.unpack_from(data)
-    return DeviceSettings(data[_SETTINGS.size:].decode(), fps, features, patch_px, expansion, near_depth,
-                          normalisation)
+    return DeviceSettings(
+        data[_SETTINGS.size :].decode(), fps, features, patch_px, expansion, near_depth, normalisation
+    )
 
 
 def pack_meta(token: float, frame_index: int, stream_session: int, times: stages.WorkerTimes) -> bytes:
@@ -97,7 +136,7 @@ def pack_meta(token: float, frame_index: int, stream_session: int, times: stages
 def unpack_meta(data: bytes) -> tuple[float, int, int, stages.WorkerTimes]:
     """Inverse of :func:`pack_meta`; ``struct.error`` for data of another length."""
     token, frame_index, stream_session = _META.unpack_from(data)
-    return token, frame_index, stream_session, stages.unpack(data[_META.size:])
+    return token, frame_index, stream_session, stages.unpack(data[_META.size :])
 
 
 def pack_json(data: dict) -> bytes:

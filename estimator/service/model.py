@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from estimator.artefact.compatibility import ModelSetup
-from estimator.deepsee.config import load_estimator_config
 from estimator.artefact.onnx_model import OnnxModel
 from estimator.artefact.transforms import LabelTransform, prepare_rts_counted
+from estimator.deepsee.config import load_estimator_config
 from seesys.core.device_settings import DeviceSettings, settings_differences
 from seesys.core.messages import Exceedance
 from seesys.core.windows import WindowConfig, WindowSample
@@ -69,8 +69,14 @@ class ServedModel:
     _transform: LabelTransform
 
     @classmethod
-    def load(cls, path: Path, windows: WindowConfig, threads: int = 1, providers: str = "auto",
-             setup: ModelSetup | None = None) -> ServedModel:
+    def load(
+        cls,
+        path: Path,
+        windows: WindowConfig,
+        threads: int = 1,
+        providers: str = "auto",
+        setup: ModelSetup | None = None,
+    ) -> ServedModel:
         """Load ``path`` on ``threads`` intra-op threads and the execution providers of ``providers`` (``auto``,
         ``cpu`` or ``cuda``: see :mod:`estimator.artefact.onnx_model`); raises ``ModelMismatch`` for a model made
         for other inputs (naming each field that differs from ``windows`` and ``setup``, this installation's
@@ -79,8 +85,14 @@ class ServedModel:
         transform = LabelTransform(load_estimator_config().label_transform.k)
         model = OnnxModel(Path(path), transform, windows, threads, providers, setup)
         psd_input = model.session.get_inputs()[1].shape
-        return cls(model_version(path), tuple(int(d) for d in psd_input[1:]), model.provider,
-                   dict(model.record.get("device", {})), model, transform)
+        return cls(
+            model_version(path),
+            tuple(int(d) for d in psd_input[1:]),
+            model.provider,
+            dict(model.record.get("device", {})),
+            model,
+            transform,
+        )
 
     def accepts(self, sample: WindowSample) -> bool:
         return sample.psd.shape == self.psd_shape

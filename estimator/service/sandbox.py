@@ -25,22 +25,32 @@ def private_configs(folder: Path, **overrides: object) -> tuple[Path, dict[str, 
     ``overrides`` (config keys by name or as ``file.key``); returns it and the endpoints by name."""
     endpoints = {name: f"ipc://{Path(folder).resolve()}/{name}" for name in ENDPOINTS}
     configs = ConfigSet.read()
-    network = replace(configs.section(network_config.SECTION, network_config.NetworkConfig),
-                      ingest_endpoint=endpoints["ingest"], estimates_endpoint=endpoints["estimates"],
-                      features_endpoint=endpoints["features"])
-    service = replace(service_config.load_service_config(), worker_endpoint=endpoints["workers"],
-                      status_endpoint=endpoints["status"])
-    configs = (configs.replaced(network_config.SECTION, network).replaced(service_config.SECTION, service)
-               .with_values(overrides))
+    network = replace(
+        configs.section(network_config.SECTION, network_config.NetworkConfig),
+        ingest_endpoint=endpoints["ingest"],
+        estimates_endpoint=endpoints["estimates"],
+        features_endpoint=endpoints["features"],
+    )
+    service = replace(
+        service_config.load_service_config(), worker_endpoint=endpoints["workers"], status_endpoint=endpoints["status"]
+    )
+    configs = (
+        configs.replaced(network_config.SECTION, network)
+        .replaced(service_config.SECTION, service)
+        .with_values(overrides)
+    )
     return configs.write(Path(folder) / "configs"), endpoints
 
 
 def start_service(config_dir: Path, model: Path, *args: str, log: Path) -> subprocess.Popen:
     """``seesys estimator serve --model MODEL ARGS`` with ``config_dir``, its output into ``log``."""
     with open(log, "w") as out:
-        return subprocess.Popen([sys.executable, "-m", "seesys", "estimator", "serve", "--model", str(model), *args],
-                                env={**os.environ, CONFIG_DIR_ENV: str(config_dir)}, stdout=out,
-                                stderr=subprocess.STDOUT)
+        return subprocess.Popen(
+            [sys.executable, "-m", "seesys", "estimator", "serve", "--model", str(model), *args],
+            env={**os.environ, CONFIG_DIR_ENV: str(config_dir)},
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
 
 
 def wait_ready(process: subprocess.Popen, status_endpoint: str, timeout_s: float, log: Path) -> dict:

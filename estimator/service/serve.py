@@ -24,8 +24,15 @@ from seesys.io.network import NetworkConfig
 _WORKER_EXIT_S = 10.0
 
 
-def serve(config: ServiceConfig, network: NetworkConfig, windows: WindowConfig, model: Path, workers: int,
-          device_endpoints: list[str], on_ready: Callable[[Broker], None] = lambda broker: None) -> Broker:
+def serve(
+    config: ServiceConfig,
+    network: NetworkConfig,
+    windows: WindowConfig,
+    model: Path,
+    workers: int,
+    device_endpoints: list[str],
+    on_ready: Callable[[Broker], None] = lambda broker: None,
+) -> Broker:
     """Run the service until SIGINT/SIGTERM; returns the stopped broker (its final counters). A model made for
     other inputs, or a file that is no model, is refused here with one message (``ModelMismatch``), not in each
     worker."""
@@ -33,15 +40,21 @@ def serve(config: ServiceConfig, network: NetworkConfig, windows: WindowConfig, 
     broker = Broker(config, network, device_endpoints)
     context = multiprocessing.get_context("spawn")
     backend = broker.endpoints["workers"]
-    processes = [context.Process(target=worker_process_main, name=f"seesys-estimator-worker-{k}",
-                                 args=(backend, model, windows, config, os.getpid(), f"local-{k}"))
-                 for k in range(workers)]
+    processes = [
+        context.Process(
+            target=worker_process_main,
+            name=f"seesys-estimator-worker-{k}",
+            args=(backend, model, windows, config, os.getpid(), f"local-{k}"),
+        )
+        for k in range(workers)
+    ]
     previous = {s: signal.signal(s, broker.stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         for process in processes:
             process.start()
-        if broker.wait_for_workers(workers, config.worker_start_timeout_s,
-                                   alive=lambda: all(p.is_alive() for p in processes)):
+        if broker.wait_for_workers(
+            workers, config.worker_start_timeout_s, alive=lambda: all(p.is_alive() for p in processes)
+        ):
             broker.open()
             on_ready(broker)
             broker.run()

@@ -53,8 +53,7 @@ class FleetResult:
 def looped(frames: Sequence[FeatureFrame], count: int, device_id: str, rate_hz: float) -> list[FeatureFrame]:
     """``count`` frames of ``frames`` played in a loop as ``device_id``, indices and timestamps continuing."""
     n = len(frames)
-    return [replace(frames[k % n], device_id=device_id, frame_index=k, timestamp=k / rate_hz)
-            for k in range(count)]
+    return [replace(frames[k % n], device_id=device_id, frame_index=k, timestamp=k / rate_hz) for k in range(count)]
 
 
 def send_schedule(devices: int, frames: int, rate_hz: float, spread_s: float) -> list[tuple[float, int, int]]:
@@ -68,18 +67,47 @@ class DeviceFleet:
 
     ``socket_options`` (CurveZMQ client keys) apply to every connection."""
 
-    def __init__(self, ingest_endpoint: str, estimates_endpoint: str, device_ids: Sequence[str],
-                 socket_options: dict | None = None, send_hwm: int = 1000):
+    def __init__(
+        self,
+        ingest_endpoint: str,
+        estimates_endpoint: str,
+        device_ids: Sequence[str],
+        socket_options: dict | None = None,
+        send_hwm: int = 1000,
+    ):
         self.ctx = zmq.Context()
         self.device_ids = list(device_ids)
-        self._pubs = [open_socket(self.ctx, zmq.PUB, ingest_endpoint, f"simulated device {d}", bind=False,
-                                  send_hwm=send_hwm, options=socket_options) for d in self.device_ids]
-        self._sub = open_socket(self.ctx, zmq.SUB, estimates_endpoint, "estimates", bind=False,
-                                subscribe=[messages.topic(messages.ESTIMATE_TOPIC, d) for d in self.device_ids],
-                                options=socket_options)
+        self._pubs = [
+            open_socket(
+                self.ctx,
+                zmq.PUB,
+                ingest_endpoint,
+                f"simulated device {d}",
+                bind=False,
+                send_hwm=send_hwm,
+                options=socket_options,
+            )
+            for d in self.device_ids
+        ]
+        self._sub = open_socket(
+            self.ctx,
+            zmq.SUB,
+            estimates_endpoint,
+            "estimates",
+            bind=False,
+            subscribe=[messages.topic(messages.ESTIMATE_TOPIC, d) for d in self.device_ids],
+            options=socket_options,
+        )
 
-    def replay(self, frames: Sequence[FeatureFrame], duration_s: float, rate_hz: float,
-               windows: WindowConfig, drain_s: float = 1.0, bunched: bool = False) -> FleetResult:
+    def replay(
+        self,
+        frames: Sequence[FeatureFrame],
+        duration_s: float,
+        rate_hz: float,
+        windows: WindowConfig,
+        drain_s: float = 1.0,
+        bunched: bool = False,
+    ) -> FleetResult:
         """Send ``duration_s`` of frames per device at ``rate_hz``, then wait up to ``drain_s`` for estimates;
         ``bunched``: see the module's docstring."""
         count = int(duration_s * rate_hz)

@@ -55,7 +55,6 @@ def unpack(data: bytes) -> WorkerTimes:
     return WorkerTimes(ingest, worker, tuple(stages))
 
 
-
 @dataclass
 class StageTimes:
     """The newest ``size`` estimates' stages, in ms, in the order of :data:`STAGES` (a ring of rows: adding one
@@ -77,5 +76,5 @@ class StageTimes:
         """Per stage its p50 and p99 (empty before the first estimate)."""
         if not self._count:
             return {}
-        p50, p99 = np.percentile(self._rows[:min(self._count, self.size)], [50, 99], axis=0)
+        p50, p99 = np.percentile(self._rows[: min(self._count, self.size)], [50, 99], axis=0)
         return {stage: {"p50": float(a), "p99": float(b)} for stage, a, b in zip(STAGES, p50, p99)}

@@ -88,7 +88,8 @@ class WorkerCounters:
     batches: int = 0
     undelivered: int = 0
     dropped: dict[str, dict[str, int]] = field(
-        default_factory=lambda: {reason: defaultdict(int) for reason in DROP_REASONS})
+        default_factory=lambda: {reason: defaultdict(int) for reason in DROP_REASONS}
+    )
     nonfinite: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     restarts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     settings_refused: dict[str, str] = field(default_factory=dict)  # device → why its frames are refused
@@ -97,14 +98,21 @@ class WorkerCounters:
 
     def report(self, pending: int) -> dict:
         ms = np.asarray(self.batch_ms, dtype=float)
-        return {"frames": self.frames, "windows": self.windows, "estimates": self.estimates,
-                "batches": self.batches, "undelivered": self.undelivered, "pending": pending,
-                "dropped": {reason: dict(by_device) for reason, by_device in self.dropped.items()},
-                "nonfinite": dict(self.nonfinite), "restarts": dict(self.restarts),
-                "settings_refused": dict(self.settings_refused),
-                "batch_ms_p50": float(np.percentile(ms, 50)) if ms.size else None,
-                "batch_ms_p99": float(np.percentile(ms, 99)) if ms.size else None,
-                "batch_size_mean": float(np.mean(self.batch_sizes)) if self.batch_sizes else None}
+        return {
+            "frames": self.frames,
+            "windows": self.windows,
+            "estimates": self.estimates,
+            "batches": self.batches,
+            "undelivered": self.undelivered,
+            "pending": pending,
+            "dropped": {reason: dict(by_device) for reason, by_device in self.dropped.items()},
+            "nonfinite": dict(self.nonfinite),
+            "restarts": dict(self.restarts),
+            "settings_refused": dict(self.settings_refused),
+            "batch_ms_p50": float(np.percentile(ms, 50)) if ms.size else None,
+            "batch_ms_p99": float(np.percentile(ms, 99)) if ms.size else None,
+            "batch_size_mean": float(np.mean(self.batch_sizes)) if self.batch_sizes else None,
+        }
 
 
 @dataclass
@@ -123,8 +131,15 @@ class _Ready:
 class Worker:
     """One worker's state and loop; :meth:`run` returns when told to stop."""
 
-    def __init__(self, broker_endpoint: str, model: ServedModel, windows: WindowConfig, config: ServiceConfig,
-                 name: str | None = None, clock: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        broker_endpoint: str,
+        model: ServedModel,
+        windows: WindowConfig,
+        config: ServiceConfig,
+        name: str | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ):
         self.model, self.windows, self.config = model, windows, config
         self.name = name or f"{socket.gethostname()}:{os.getpid()}"
         self.counters = WorkerCounters()
@@ -137,8 +152,15 @@ class Worker:
         self._stopping = False
         self._ctx = zmq.Context()
         # The broker's ROUTER bounds what it queues for us (worker_queue); our own receive queue is bounded too.
-        self._socket = open_socket(self._ctx, zmq.DEALER, broker_endpoint, "estimator broker", bind=False,
-                                   receive_hwm=config.worker_queue, send_hwm=config.worker_queue)
+        self._socket = open_socket(
+            self._ctx,
+            zmq.DEALER,
+            broker_endpoint,
+            "estimator broker",
+            bind=False,
+            receive_hwm=config.worker_queue,
+            send_hwm=config.worker_queue,
+        )
         self._drain_limit = config.max_batch * windows.end_stride * 4
         self._window_ms = 0.0  # running model cost per window of a batch; 0 until the first batch is measured
 
@@ -159,8 +181,12 @@ class Worker:
                 if self._ready and not self._stopping:
                     self._serve_batch()
                 if time.monotonic() >= next_heartbeat:
-                    self._send([envelope.STATS, envelope.pack_json(
-                        {**self._identity(), **self.counters.report(len(self._ready))})])
+                    self._send(
+                        [
+                            envelope.STATS,
+                            envelope.pack_json({**self._identity(), **self.counters.report(len(self._ready))}),
+                        ]
+                    )
                     next_heartbeat = time.monotonic() + self.config.heartbeat_ms / 1000.0
         finally:
             self._socket.close()
@@ -168,8 +194,12 @@ class Worker:
 
     def _identity(self) -> dict:
         # Every report says who we are, so that a broker restarted while we ran takes us on from any message.
-        return {"name": self.name, "pid": os.getpid(), "model_version": self.model.version,
-                "provider": self.model.provider}
+        return {
+            "name": self.name,
+            "pid": os.getpid(),
+            "model_version": self.model.version,
+            "provider": self.model.provider,
+        }
 
     def _send(self, parts: list[bytes]) -> None:
         """Send to the broker without ever blocking: while it is gone, messages queue up to the high-water mark and
@@ -203,8 +233,12 @@ class Worker:
             differences = self.model.settings_differences(frame.settings)
             if differences:
                 why = "; ".join(differences)
-                print(f"estimator worker {self.name}: device {device!r} (stream session {frame.stream_session:x}): "
-                      f"frames refused, its settings differ from the model's: {why}", file=sys.stderr, flush=True)
+                print(
+                    f"estimator worker {self.name}: device {device!r} (stream session {frame.stream_session:x}): "
+                    f"frames refused, its settings differ from the model's: {why}",
+                    file=sys.stderr,
+                    flush=True,
+                )
             checked = self._checked[device] = (frame.stream_session, frame.settings, differences)
         if checked[2]:
             self.counters.settings_refused[device] = "; ".join(checked[2])
@@ -219,8 +253,9 @@ class Worker:
         device = frame.device_id
         if self._settings_refused(frame):
             return
-        if (frame.stream_session != self._session.get(device, frame.stream_session)
-                or frame.frame_index <= self._last_index.get(device, -1)):
+        if frame.stream_session != self._session.get(
+            device, frame.stream_session
+        ) or frame.frame_index <= self._last_index.get(device, -1):
             # A device that restarted (a new stream session, or its frames counted from 0 again): rows of its last
             # session must not fill the new session's windows.
             self._assemblers.pop(device, None)
@@ -243,8 +278,17 @@ class Worker:
         if device in self._ready:
             self.counters.dropped["stale"][device] += 1  # superseded before it was served
         formed = time.perf_counter()
-        self._ready[device] = _Ready(sample, token, received, frame.stream_session, ingest_ms, arrived,
-                                     (unpacked - arrived) * 1000.0, (formed - unpacked) * 1000.0, formed)
+        self._ready[device] = _Ready(
+            sample,
+            token,
+            received,
+            frame.stream_session,
+            ingest_ms,
+            arrived,
+            (unpacked - arrived) * 1000.0,
+            (formed - unpacked) * 1000.0,
+            formed,
+        )
 
     def _serve_batch(self) -> None:
         now = self._clock()
@@ -257,7 +301,7 @@ class Worker:
         if not waiting:
             return
         ages_ms = [(now - r.received) * 1000.0 for r in waiting]
-        batch = waiting[:batch_size(ages_ms, self.config.max_batch, self._window_ms, self.config.stale_after_ms)]
+        batch = waiting[: batch_size(ages_ms, self.config.max_batch, self._window_ms, self.config.stale_after_ms)]
         for ready in batch:
             del self._ready[ready.sample.device_id]
         start = time.perf_counter()
@@ -267,8 +311,9 @@ class Worker:
         done = time.perf_counter()
         elapsed_ms = (done - start) * 1000.0
         per_window = elapsed_ms / len(batch)
-        self._window_ms = per_window if not self._window_ms else (
-            (1 - _COST_WEIGHT) * self._window_ms + _COST_WEIGHT * per_window)
+        self._window_ms = (
+            per_window if not self._window_ms else ((1 - _COST_WEIGHT) * self._window_ms + _COST_WEIGHT * per_window)
+        )
         self.counters.batch_ms.append(elapsed_ms)
         self.counters.batch_sizes.append(len(batch))
         self.counters.batches += 1
@@ -279,37 +324,51 @@ class Worker:
             s = ready.sample
             if nonfinite:
                 self.counters.nonfinite[s.device_id] += int(nonfinite)
-            estimate = Estimate(s.device_id, s.frame_index, s.timestamp, float(error_m), self.model.version,
-                                (sent - ready.received) * 1000.0, ready.stream_session, estimates.head(i))
+            estimate = Estimate(
+                s.device_id,
+                s.frame_index,
+                s.timestamp,
+                float(error_m),
+                self.model.version,
+                (sent - ready.received) * 1000.0,
+                ready.stream_session,
+                estimates.head(i),
+            )
             encoded.append((ready, messages.encode(estimate)))
         # The stages end where the message leaves: every estimate of the batch carries the batch's encoding time.
         replied = time.perf_counter()
         batch_times = ((prepared - start) * 1000.0, (done - prepared) * 1000.0, (replied - done) * 1000.0)
         for ready, message in encoded:
-            times = stages.WorkerTimes(ready.ingest_ms, (replied - ready.arrived) * 1000.0,
-                                       (ready.unpack_ms, ready.assemble_ms, (start - ready.formed) * 1000.0,
-                                        *batch_times))
-            parts += [*message, envelope.pack_meta(ready.token, ready.sample.frame_index, ready.stream_session,
-                                                   times)]
+            times = stages.WorkerTimes(
+                ready.ingest_ms,
+                (replied - ready.arrived) * 1000.0,
+                (ready.unpack_ms, ready.assemble_ms, (start - ready.formed) * 1000.0, *batch_times),
+            )
+            parts += [*message, envelope.pack_meta(ready.token, ready.sample.frame_index, ready.stream_session, times)]
         self.counters.estimates += len(batch)
         self._send(parts)
 
 
-def run_worker(broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig,
-               name: str | None = None) -> None:
+def run_worker(
+    broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig, name: str | None = None
+) -> None:
     """Load the model on one intra-op thread and the configured execution providers, say which provider runs it,
     and serve until SIGINT, SIGTERM or a stop from the broker."""
     model = ServedModel.load(model_path, windows, threads=1, providers=config.providers)
     worker = Worker(broker_endpoint, model, windows, config, name)
-    print(f"estimator worker {worker.name}: model {model.version} on {model.provider}, broker {broker_endpoint}",
-          file=sys.stderr, flush=True)
+    print(
+        f"estimator worker {worker.name}: model {model.version} on {model.provider}, broker {broker_endpoint}",
+        file=sys.stderr,
+        flush=True,
+    )
     signal.signal(signal.SIGINT, worker.stop)
     signal.signal(signal.SIGTERM, worker.stop)
     worker.run()
 
 
-def worker_process_main(broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig,
-                        parent_pid: int, name: str) -> None:
+def worker_process_main(
+    broker_endpoint: str, model_path: Path, windows: WindowConfig, config: ServiceConfig, parent_pid: int, name: str
+) -> None:
     """Entry point of a worker started by ``serve``: dies with its parent (a SIGKILLed service leaves no worker)."""
     die_with_parent(parent_pid)
     run_worker(broker_endpoint, model_path, windows, config, name)

@@ -28,8 +28,15 @@ class Intrinsics:
         """The same lens on a sensor of ``width``×``height`` (focal lengths and centre scaled; pixel centres at
         integer coordinates, so the centre scales about the image corner −0.5)."""
         sx, sy = width / self.width, height / self.height
-        return dataclasses.replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
-                                   cx=(self.cx + 0.5) * sx - 0.5, cy=(self.cy + 0.5) * sy - 0.5)
+        return dataclasses.replace(
+            self,
+            width=width,
+            height=height,
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+        )
 
     def without_distortion(self) -> Intrinsics:
         """The ideal pinhole camera of the same lens."""

@@ -109,4 +109,5 @@ def check_version(model_version: int, inputs_version: int, source: str) -> None:
         raise CameraNormalisationMismatch(
             f"{source}: made under camera normalisation v{inputs_version}, the model takes "
             f"v{model_version}: its pixel-valued channels, image statistics and PSD grid mean other numbers; "
-            f"record it again with this SEESys, or use a model of v{inputs_version}")
+            f"record it again with this SEESys, or use a model of v{inputs_version}"
+        )

@@ -56,9 +56,11 @@ class ScaleSettings:
         """What the app says when it starts, if the recorded scale error is above ``warn_above``; else None."""
         if abs(self.recorded_error) <= self.warn_above:
             return None
-        return (f"this camera's depth reads {abs(self.recorded_error):.1%} {_long_or_short(self.recorded_error)} "
-                f"(camera.toml [scale] depth_correction = {self.depth_correction:g}, applied to every frame): "
-                "recalibrate it if you can; a model not fine-tuned on this camera has not seen its faults")
+        return (
+            f"this camera's depth reads {abs(self.recorded_error):.1%} {_long_or_short(self.recorded_error)} "
+            f"(camera.toml [scale] depth_correction = {self.depth_correction:g}, applied to every frame): "
+            "recalibrate it if you can; a model not fine-tuned on this camera has not seen its faults"
+        )
 
 
 @dataclass(frozen=True)
@@ -109,8 +111,10 @@ def _long_or_short(error: float) -> str:
 def describe(fit: ScaleFit) -> str:
     """One line: the fitted scale, its spread, the windows and the depth scale error it means."""
     low, high = fit.spread
-    return (f"scale {fit.scale:.4f} (10-90 % of windows {low:.4f}-{high:.4f}, {fit.windows} windows): the depth "
-            f"reads {abs(fit.depth_scale_error):.1%} {_long_or_short(fit.depth_scale_error)}")
+    return (
+        f"scale {fit.scale:.4f} (10-90 % of windows {low:.4f}-{high:.4f}, {fit.windows} windows): the depth "
+        f"reads {abs(fit.depth_scale_error):.1%} {_long_or_short(fit.depth_scale_error)}"
+    )
 
 
 def _stretches(usable: np.ndarray, timestamps: np.ndarray, max_gap_s: float | None) -> list[tuple[int, int]]:
@@ -123,8 +127,14 @@ def _stretches(usable: np.ndarray, timestamps: np.ndarray, max_gap_s: float | No
     return runs
 
 
-def window_scales(estimate: Poses, tracked: np.ndarray, ground_truth: Poses, association_max_dt_s: float,
-                  settings: ScaleSettings, max_gap_s: float | None = None) -> ScaleFit:
+def window_scales(
+    estimate: Poses,
+    tracked: np.ndarray,
+    ground_truth: Poses,
+    association_max_dt_s: float,
+    settings: ScaleSettings,
+    max_gap_s: float | None = None,
+) -> ScaleFit:
     """The Sim(3) scale of every window of ``settings.window_frames`` frames, inside one stretch of frames tracked
     with a ground-truth pose, whose ground-truth path is at least ``settings.min_path_m`` long.
 
@@ -139,12 +149,14 @@ def window_scales(estimate: Poses, tracked: np.ndarray, ground_truth: Poses, ass
     scales = []
     for start, stop in _stretches(usable, estimate.timestamps, max_gap_s):
         for lo in range(start, stop - n + 1, step):
-            gt_xyz = ground_truth.positions[gt_of_frame[lo:lo + n]]
+            gt_xyz = ground_truth.positions[gt_of_frame[lo : lo + n]]
             if np.linalg.norm(np.diff(gt_xyz, axis=0), axis=1).sum() < settings.min_path_m:
                 continue
-            scales.append(sim3_scale(estimate.positions[lo:lo + n], gt_xyz))
+            scales.append(sim3_scale(estimate.positions[lo : lo + n], gt_xyz))
     fitted = np.array([c for c in scales if np.isfinite(c)])
     if not len(fitted):
-        raise ScaleCheckError(f"no stretch of {n} tracked frames with ground truth moves {settings.min_path_m} m: "
-                              "the scale cannot be measured")
+        raise ScaleCheckError(
+            f"no stretch of {n} tracked frames with ground truth moves {settings.min_path_m} m: "
+            "the scale cannot be measured"
+        )
     return ScaleFit(fitted)

@@ -47,12 +47,20 @@ class DeviceSettings:
             raise ValueError(f"slam_mode must be one of {', '.join(SLAM_MODES)}, got {self.slam_mode!r}")
 
     @classmethod
-    def of(cls, slam_mode: str, fps: float, orb_features: int, psd_patch_px: int, psd_expansion: int,
-           near_depth: float) -> DeviceSettings:
+    def of(
+        cls, slam_mode: str, fps: float, orb_features: int, psd_patch_px: int, psd_expansion: int, near_depth: float
+    ) -> DeviceSettings:
         """The record of a device running at ``fps`` frames per second (rounded to whole frames) with this
         SEESys's camera normalisation."""
-        return cls(slam_mode, int(round(fps)), int(orb_features), int(psd_patch_px), int(psd_expansion),
-                   float(near_depth), camera_normalisation.VERSION)
+        return cls(
+            slam_mode,
+            int(round(fps)),
+            int(orb_features),
+            int(psd_patch_px),
+            int(psd_expansion),
+            float(near_depth),
+            camera_normalisation.VERSION,
+        )
 
     @classmethod
     def from_record(cls, record: dict) -> DeviceSettings:

@@ -42,7 +42,8 @@ def class_boundaries_m(pulses: PulseSettings) -> tuple[float, ...]:
 def same_thresholds(thresholds_m: Sequence[float], boundaries_m: Sequence[float]) -> bool:
     """Whether ``thresholds_m`` (a model's, possibly read back from float32) are exactly ``boundaries_m``."""
     return len(thresholds_m) == len(boundaries_m) and bool(
-        np.array_equal(np.asarray(thresholds_m, np.float32), np.asarray(boundaries_m, np.float32)))
+        np.array_equal(np.asarray(thresholds_m, np.float32), np.asarray(boundaries_m, np.float32))
+    )
 
 
 def probability_column(threshold_m: float) -> str:
@@ -55,7 +56,7 @@ def column_threshold(column: str) -> float | None:
     if not column.startswith(PROBABILITY_PREFIX):
         return None
     try:
-        return float(column[len(PROBABILITY_PREFIX):])
+        return float(column[len(PROBABILITY_PREFIX) :])
     except ValueError:
         return None
 

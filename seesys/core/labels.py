@@ -70,8 +70,9 @@ class FrameLabels:
     scale: np.ndarray
 
     def to_frame(self) -> pd.DataFrame:
-        return pd.DataFrame({"timestamp": self.timestamps, "error_m": self.error_m, "status": self.status,
-                             "scale": self.scale})
+        return pd.DataFrame(
+            {"timestamp": self.timestamps, "error_m": self.error_m, "status": self.status, "scale": self.scale}
+        )
 
     @property
     def labelled(self) -> np.ndarray:
@@ -109,8 +110,9 @@ def tracked_states(states: np.ndarray) -> np.ndarray:
     return np.array([_state(s).tracked for s in states], bool)
 
 
-def label_frames(estimate: Poses, states: np.ndarray, ground_truth: Poses, monocular: bool,
-                 config: LabelConfig) -> FrameLabels:
+def label_frames(
+    estimate: Poses, states: np.ndarray, ground_truth: Poses, monocular: bool, config: LabelConfig
+) -> FrameLabels:
     """Label every frame of one SLAM run (``estimate`` has one pose per frame, ``states`` its tracking states)."""
     n = len(estimate.timestamps)
     if len(states) != n:
@@ -169,10 +171,12 @@ def stretch_errors(estimate: Poses, ground_truth: Poses, monocular: bool, delta_
     scale = sim3_scale(estimate.positions, ground_truth.positions) if monocular else 1.0
     if not np.isfinite(scale):
         return StretchErrors(np.zeros(0), scale)
-    scaled = PosePath3D(positions_xyz=estimate.positions * scale,
-                        orientations_quat_wxyz=estimate.quaternions_xyzw[:, [3, 0, 1, 2]])
-    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=delta_frames, delta_unit=metrics.Unit.frames,
-                      all_pairs=True)
+    scaled = PosePath3D(
+        positions_xyz=estimate.positions * scale, orientations_quat_wxyz=estimate.quaternions_xyzw[:, [3, 0, 1, 2]]
+    )
+    rpe = metrics.RPE(
+        metrics.PoseRelation.translation_part, delta=delta_frames, delta_unit=metrics.Unit.frames, all_pairs=True
+    )
     rpe.process_data((ground_truth.to_evo(), scaled))
     return StretchErrors(np.asarray(rpe.error, float), scale)
 
@@ -197,7 +201,15 @@ class LabelSummary:
         tracked = (labels.status != LabelStatus.NOT_TRACKED.value).mean() if len(labels) else float("nan")
         if len(errors) == 0:
             nan = float("nan")
-            return cls(len(labels), 0, float(tracked), nan, nan, nan, nan, {t: nan for t in thresholds_m})
+            return cls(len(labels), 0, float(tracked), nan, nan, nan, nan, dict.fromkeys(thresholds_m, nan))
         p50, p90, p99 = np.percentile(errors, [50, 90, 99])
-        return cls(len(labels), len(errors), float(tracked), float(p50), float(p90), float(p99),
-                   float(errors.max()), {t: float((errors > t).mean()) for t in thresholds_m})
+        return cls(
+            len(labels),
+            len(errors),
+            float(tracked),
+            float(p50),
+            float(p90),
+            float(p99),
+            float(errors.max()),
+            {t: float((errors > t).mean()) for t in thresholds_m},
+        )

@@ -142,19 +142,35 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
         rts = np.asarray(message.rts, dtype="<f4")
         if rts.shape != (rts_schema.NUM_CHANNELS,):
             raise ValueError(f"RTS row must have shape ({rts_schema.NUM_CHANNELS},), got {rts.shape}")
-        parts = [_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_FEATURE), ident,
-                 _FEATURE_HEAD.pack(message.rts_schema_version, message.rts_schema_fingerprint,
-                                    message.frames_skipped, int(message.tracking_state), rts.size),
-                 _pack_row(rts), _pack_settings(message.settings)]
+        parts = [
+            _HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_FEATURE),
+            ident,
+            _FEATURE_HEAD.pack(
+                message.rts_schema_version,
+                message.rts_schema_fingerprint,
+                message.frames_skipped,
+                int(message.tracking_state),
+                rts.size,
+            ),
+            _pack_row(rts),
+            _pack_settings(message.settings),
+        ]
         if message.psd is None:
             parts.append(b"\x00")
         else:
             parts += [b"\x01", pack_stream_psd(message.psd)]
         return [topic(FEATURE_TOPIC, message.device_id), b"".join(parts)]
     if isinstance(message, Estimate):
-        body = b"".join([_HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_ESTIMATE), device, ident,
-                         _ESTIMATE.pack(float(message.error_m), float(message.server_ms)),
-                         _pack_text(message.model_version, "model version"), _pack_head(message.head)])
+        body = b"".join(
+            [
+                _HEAD.pack(MAGIC, PROTOCOL_VERSION, _KIND_ESTIMATE),
+                device,
+                ident,
+                _ESTIMATE.pack(float(message.error_m), float(message.server_ms)),
+                _pack_text(message.model_version, "model version"),
+                _pack_head(message.head),
+            ]
+        )
         return [topic(ESTIMATE_TOPIC, message.device_id), body]
     raise TypeError(f"cannot encode {type(message).__name__}")
 
@@ -205,9 +221,15 @@ def _read_head(r: _Reader) -> tuple[Exceedance, ...]:
 def _pack_settings(settings: DeviceSettings | None) -> bytes:
     if settings is None:
         return b"\x00"
-    return b"\x01" + _SETTINGS.pack(SLAM_MODES.index(settings.slam_mode), settings.fps, settings.orb_features,
-                                    settings.psd_patch_px, settings.psd_expansion, settings.near_depth,
-                                    settings.camera_normalisation)
+    return b"\x01" + _SETTINGS.pack(
+        SLAM_MODES.index(settings.slam_mode),
+        settings.fps,
+        settings.orb_features,
+        settings.psd_patch_px,
+        settings.psd_expansion,
+        settings.near_depth,
+        settings.camera_normalisation,
+    )
 
 
 def _read_settings(r: _Reader) -> DeviceSettings | None:
@@ -234,7 +256,7 @@ class _Reader:
     def take(self, n: int, what: str) -> memoryview:
         if self.pos + n > len(self.body):
             raise MessageError(f"message truncated while reading {what} ({len(self.body)} bytes)")
-        view = self.body[self.pos:self.pos + n]
+        view = self.body[self.pos : self.pos + n]
         self.pos += n
         return view
 
@@ -293,7 +315,7 @@ def _topic_device(received_topic: bytes, kind: bytes) -> str:
     if not (received_topic.startswith(kind) and received_topic.endswith(TOPIC_END)):
         raise MessageError(f"topic {received_topic!r} does not match the body (kind {kind!r}: no device id in it)")
     try:
-        return received_topic[len(kind):-len(TOPIC_END)].decode("utf-8")
+        return received_topic[len(kind) : -len(TOPIC_END)].decode("utf-8")
     except UnicodeDecodeError:
         raise MessageError("device id is not valid UTF-8") from None
 
@@ -398,16 +420,22 @@ def pack_stream_psd(psd: np.ndarray) -> bytes:
     planes = _serpentine(psd.transpose(2, 0, 1))
     masks = planes != 0
     nested = _nested(masks)
-    bits = [masks[0].ravel()] + [masks[layer][masks[layer - 1]] if nested[layer - 1] else masks[layer].ravel()
-                                 for layer in range(1, len(masks))]
+    bits = [masks[0].ravel()] + [
+        masks[layer][masks[layer - 1]] if nested[layer - 1] else masks[layer].ravel() for layer in range(1, len(masks))
+    ]
     values = [planes[layer][masks[layer]] for layer in range(len(planes))]
     constant = [v.size > 0 and bool(np.all(v == v[0])) for v in values]
     plain = [v for layer, v in enumerate(values) if layer == KEYPOINT_LAYER and not constant[layer]]
-    differences = [np.diff(v, prepend=np.uint8(0)) for layer, v in enumerate(values)
-                   if layer != KEYPOINT_LAYER and not constant[layer]]
-    streams = [_deflate(np.packbits(np.concatenate(bits)).tobytes(), zlib.Z_RLE),
-               _deflate(np.concatenate([np.zeros(0, np.uint8), *plain]).tobytes(), zlib.Z_HUFFMAN_ONLY),
-               _deflate(np.concatenate([np.zeros(0, np.uint8), *differences]).tobytes(), zlib.Z_HUFFMAN_ONLY)]
+    differences = [
+        np.diff(v, prepend=np.uint8(0))
+        for layer, v in enumerate(values)
+        if layer != KEYPOINT_LAYER and not constant[layer]
+    ]
+    streams = [
+        _deflate(np.packbits(np.concatenate(bits)).tobytes(), zlib.Z_RLE),
+        _deflate(np.concatenate([np.zeros(0, np.uint8), *plain]).tobytes(), zlib.Z_HUFFMAN_ONLY),
+        _deflate(np.concatenate([np.zeros(0, np.uint8), *differences]).tobytes(), zlib.Z_HUFFMAN_ONLY),
+    ]
     head = _STREAM_PSD_HEAD.pack(*psd.shape, _bits(nested), _bits(constant), *(len(x) for x in streams))
     return head + bytes(int(v[0]) for v, c in zip(values, constant, strict=True) if c) + b"".join(streams)
 
@@ -428,8 +456,13 @@ def _read_stream_psd(r: _Reader) -> np.ndarray:
     h, w, layers, nested, constant, *sizes = r.unpack(_STREAM_PSD_HEAD, "PSD header")
     if layers == 0 or layers > 8 or nested >> (layers - 1) or constant >> layers:
         raise MessageError(f"PSD header states {layers} layers, nesting {nested:#x} and constants {constant:#x}")
-    constants = dict(zip([layer for layer in range(layers) if constant >> layer & 1],
-                         r.take(constant.bit_count(), "PSD constants"), strict=True))
+    constants = dict(
+        zip(
+            [layer for layer in range(layers) if constant >> layer & 1],
+            r.take(constant.bit_count(), "PSD constants"),
+            strict=True,
+        )
+    )
     streams = [bytes(r.take(n, "PSD")) for n in sizes]
     cells = h * w
     masks = np.zeros((layers, cells), dtype=bool)
@@ -441,7 +474,7 @@ def _read_stream_psd(r: _Reader) -> np.ndarray:
         n = int(np.count_nonzero(over))
         if used + n > mask_bits.size:
             raise MessageError(f"PSD masks end before layer {layer}")
-        masks[layer, over] = mask_bits[used:used + n].view(bool)
+        masks[layer, over] = mask_bits[used : used + n].view(bool)
         used += n
     if mask_bits.size != (used + 7) // 8 * 8:
         raise MessageError(f"PSD masks hold {mask_bits.size} bits for {used}")
@@ -458,7 +491,7 @@ def _read_stream_psd(r: _Reader) -> np.ndarray:
             values = plain
         else:
             # Running sums modulo 256 undo the differences (uint8 arithmetic wraps).
-            values = np.cumsum(differences[start:start + counts[layer]], dtype=np.uint8)
+            values = np.cumsum(differences[start : start + counts[layer]], dtype=np.uint8)
             start += counts[layer]
         if not values.all():
             raise MessageError(f"PSD layer {layer} holds a zero value in a marked cell")
@@ -474,8 +507,9 @@ def unpack_psd(data: bytes) -> np.ndarray:
     return psd
 
 
-def _decode_feature(r: _Reader, device_id: str, stream_session: int, frame_index: int,
-                    timestamp: float) -> FeatureFrame:
+def _decode_feature(
+    r: _Reader, device_id: str, stream_session: int, frame_index: int, timestamp: float
+) -> FeatureFrame:
     version, schema_fingerprint, skipped, state_value, n_channels = r.unpack(_FEATURE_HEAD, "feature header")
     try:
         rts_schema.check_compatible(version, schema_fingerprint, f"the feature stream of device {device_id!r}")
@@ -486,8 +520,9 @@ def _decode_feature(r: _Reader, device_id: str, stream_session: int, frame_index
     except ValueError:
         raise MessageError(f"unknown tracking state {state_value}") from None
     if n_channels != rts_schema.NUM_CHANNELS:
-        raise MessageError(f"RTS row has {n_channels} channels, schema v{rts_schema.SCHEMA_VERSION} has "
-                           f"{rts_schema.NUM_CHANNELS}")
+        raise MessageError(
+            f"RTS row has {n_channels} channels, schema v{rts_schema.SCHEMA_VERSION} has {rts_schema.NUM_CHANNELS}"
+        )
     rts = _read_row(r, n_channels)
     settings = _read_settings(r)
     (has_psd,) = r.take(1, "PSD flag")
@@ -497,5 +532,16 @@ def _decode_feature(r: _Reader, device_id: str, stream_session: int, frame_index
     elif has_psd != 0:
         raise MessageError(f"bad PSD flag {has_psd}")
     r.finish()
-    return FeatureFrame(device_id, frame_index, timestamp, state, rts, psd, skipped, version, schema_fingerprint,
-                        stream_session, settings)
+    return FeatureFrame(
+        device_id,
+        frame_index,
+        timestamp,
+        state,
+        rts,
+        psd,
+        skipped,
+        version,
+        schema_fingerprint,
+        stream_session,
+        settings,
+    )

@@ -87,8 +87,16 @@ def inverse_depth_code(z: np.ndarray, near_depth: float) -> np.ndarray:
     return np.clip(code, 1, 255).astype(np.uint8)
 
 
-def build_psd(geometry: PsdGeometry, *, keypoints: np.ndarray, responses: np.ndarray, inliers: np.ndarray,
-              map_points_uv: np.ndarray, map_points_depth: np.ndarray, near_depth: float) -> np.ndarray:
+def build_psd(
+    geometry: PsdGeometry,
+    *,
+    keypoints: np.ndarray,
+    responses: np.ndarray,
+    inliers: np.ndarray,
+    map_points_uv: np.ndarray,
+    map_points_depth: np.ndarray,
+    near_depth: float,
+) -> np.ndarray:
     """The PSD matrix of one frame.
 
     ``keypoints`` (N, 2) undistorted pixels with ``responses`` (N,) and the ``inliers`` mask (N,);

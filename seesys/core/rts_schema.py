@@ -55,48 +55,142 @@ class Channel:
 
 
 CHANNELS: tuple[Channel, ...] = (
-    Channel("brightness", "sensor_input", "fraction of full scale",
-            "mean gray level / 255", "identity", 1.0),
-    Channel("contrast", "sensor_input", "fraction of full scale",
-            "RMS contrast: standard deviation of gray level / 255", "identity", 0.25),
-    Channel("entropy", "sensor_input", "bits",
-            "Shannon entropy of the 256-bin gray-level histogram", "identity", 8.0),
-    Channel("laplacian", "sensor_input", "(gray level)^2",
-            "variance of the 3x3 Laplacian of the 8-bit gray frame at the reference camera's pixel size (low = blur)",
-            "log1p", 10.0),
-    Channel("matched_inliers", "tracking", "count",
-            "map-point matches kept after pose optimisation", "identity", 500.0),
-    Channel("outliers", "tracking", "count",
-            "proxy for matches rejected by pose optimisation: non-inlier keypoints onto which a map point "
-            "matched in the previous frame projects within the match gate", "identity", 100.0),
-    Channel("matches_before_po", "tracking", "count",
-            "proxy for map-point matches before pose optimisation: matched_inliers + outliers", "identity", 500.0),
-    Channel("rel_tx", "tracking", "m/frame (map units in monocular)",
-            "camera displacement since the previous frame, current camera x", "identity", 0.05),
-    Channel("rel_ty", "tracking", "m/frame (map units in monocular)",
-            "camera displacement since the previous frame, current camera y", "identity", 0.05),
-    Channel("rel_tz", "tracking", "m/frame (map units in monocular)",
-            "camera displacement since the previous frame, current camera z", "identity", 0.05),
-    Channel("rel_roll", "tracking", "rad/frame",
-            "relative rotation since the previous frame about the optical axis z", "identity", 0.05),
-    Channel("rel_pitch", "tracking", "rad/frame",
-            "relative rotation since the previous frame about camera x", "identity", 0.05),
-    Channel("rel_yaw", "tracking", "rad/frame",
-            "relative rotation since the previous frame about camera y", "identity", 0.05),
-    Channel("avg_mp_depth", "mapping", "m (map units in monocular)",
-            "mean z of the matched map points in the current camera", "identity", 5.0),
-    Channel("var_mp_depth", "mapping", "m^2 (map units^2 in monocular)",
-            "variance of z of the matched map points in the current camera", "log1p", 2.0),
-    Channel("local_mapping_visual_error", "mapping", "px",
-            "mean reprojection error of the matched map points in the current frame, in the reference camera's pixels "
-            "(pyorbslam3 does not expose local bundle adjustment residuals)", "log1p", 2.0),
-    Channel("depth_holes", "depth", "fraction of pixels",
-            "share of the depth image's pixels with no depth (RGB-D only)", "identity", 0.2),
-    Channel("depth_noise", "depth", "1/m",
-            "depth noise sigma_z / z^2, from second differences of inverse depth (RGB-D only)", "identity", 0.005),
-    Channel("depth_registration", "depth", "rad (px / focal length)",
-            "offset of depth edges from the colour edges they outline that does not follow the image motion, over "
-            "the focal length: a fit over the recent frames (RGB-D only)", "identity", 0.005),
+    Channel("brightness", "sensor_input", "fraction of full scale", "mean gray level / 255", "identity", 1.0),
+    Channel(
+        "contrast",
+        "sensor_input",
+        "fraction of full scale",
+        "RMS contrast: standard deviation of gray level / 255",
+        "identity",
+        0.25,
+    ),
+    Channel("entropy", "sensor_input", "bits", "Shannon entropy of the 256-bin gray-level histogram", "identity", 8.0),
+    Channel(
+        "laplacian",
+        "sensor_input",
+        "(gray level)^2",
+        "variance of the 3x3 Laplacian of the 8-bit gray frame at the reference camera's pixel size (low = blur)",
+        "log1p",
+        10.0,
+    ),
+    Channel(
+        "matched_inliers", "tracking", "count", "map-point matches kept after pose optimisation", "identity", 500.0
+    ),
+    Channel(
+        "outliers",
+        "tracking",
+        "count",
+        "proxy for matches rejected by pose optimisation: non-inlier keypoints onto which a map point "
+        "matched in the previous frame projects within the match gate",
+        "identity",
+        100.0,
+    ),
+    Channel(
+        "matches_before_po",
+        "tracking",
+        "count",
+        "proxy for map-point matches before pose optimisation: matched_inliers + outliers",
+        "identity",
+        500.0,
+    ),
+    Channel(
+        "rel_tx",
+        "tracking",
+        "m/frame (map units in monocular)",
+        "camera displacement since the previous frame, current camera x",
+        "identity",
+        0.05,
+    ),
+    Channel(
+        "rel_ty",
+        "tracking",
+        "m/frame (map units in monocular)",
+        "camera displacement since the previous frame, current camera y",
+        "identity",
+        0.05,
+    ),
+    Channel(
+        "rel_tz",
+        "tracking",
+        "m/frame (map units in monocular)",
+        "camera displacement since the previous frame, current camera z",
+        "identity",
+        0.05,
+    ),
+    Channel(
+        "rel_roll",
+        "tracking",
+        "rad/frame",
+        "relative rotation since the previous frame about the optical axis z",
+        "identity",
+        0.05,
+    ),
+    Channel(
+        "rel_pitch",
+        "tracking",
+        "rad/frame",
+        "relative rotation since the previous frame about camera x",
+        "identity",
+        0.05,
+    ),
+    Channel(
+        "rel_yaw",
+        "tracking",
+        "rad/frame",
+        "relative rotation since the previous frame about camera y",
+        "identity",
+        0.05,
+    ),
+    Channel(
+        "avg_mp_depth",
+        "mapping",
+        "m (map units in monocular)",
+        "mean z of the matched map points in the current camera",
+        "identity",
+        5.0,
+    ),
+    Channel(
+        "var_mp_depth",
+        "mapping",
+        "m^2 (map units^2 in monocular)",
+        "variance of z of the matched map points in the current camera",
+        "log1p",
+        2.0,
+    ),
+    Channel(
+        "local_mapping_visual_error",
+        "mapping",
+        "px",
+        "mean reprojection error of the matched map points in the current frame, in the reference camera's pixels "
+        "(pyorbslam3 does not expose local bundle adjustment residuals)",
+        "log1p",
+        2.0,
+    ),
+    Channel(
+        "depth_holes",
+        "depth",
+        "fraction of pixels",
+        "share of the depth image's pixels with no depth (RGB-D only)",
+        "identity",
+        0.2,
+    ),
+    Channel(
+        "depth_noise",
+        "depth",
+        "1/m",
+        "depth noise sigma_z / z^2, from second differences of inverse depth (RGB-D only)",
+        "identity",
+        0.005,
+    ),
+    Channel(
+        "depth_registration",
+        "depth",
+        "rad (px / focal length)",
+        "offset of depth edges from the colour edges they outline that does not follow the image motion, over "
+        "the focal length: a fit over the recent frames (RGB-D only)",
+        "identity",
+        0.005,
+    ),
 )
 
 
@@ -110,8 +204,10 @@ def fingerprint(channels: tuple[Channel, ...]) -> int:
 _FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F, 3: 0x8490F111}
 FINGERPRINT = fingerprint(CHANNELS)
 if _FINGERPRINTS.get(SCHEMA_VERSION) != FINGERPRINT:
-    raise RuntimeError(f"the RTS channel list changed (fingerprint {FINGERPRINT:#010x}) but SCHEMA_VERSION is still "
-                       f"{SCHEMA_VERSION}: bump SCHEMA_VERSION and record the new fingerprint in _FINGERPRINTS")
+    raise RuntimeError(
+        f"the RTS channel list changed (fingerprint {FINGERPRINT:#010x}) but SCHEMA_VERSION is still "
+        f"{SCHEMA_VERSION}: bump SCHEMA_VERSION and record the new fingerprint in _FINGERPRINTS"
+    )
 
 
 class SchemaMismatch(SeesysError):
@@ -121,14 +217,17 @@ class SchemaMismatch(SeesysError):
 def check_compatible(version: int, schema_fingerprint: int, source: str) -> None:
     """Raise :class:`SchemaMismatch` naming ``source`` unless it was made with this RTS schema."""
     if version != SCHEMA_VERSION or schema_fingerprint != FINGERPRINT:
-        raise SchemaMismatch(f"{source} uses RTS schema v{version} (fingerprint {schema_fingerprint:#010x}); this "
-                             f"SEESys speaks v{SCHEMA_VERSION} ({FINGERPRINT:#010x}): its channels differ, so it "
-                             f"cannot be read or served here")
+        raise SchemaMismatch(
+            f"{source} uses RTS schema v{version} (fingerprint {schema_fingerprint:#010x}); this "
+            f"SEESys speaks v{SCHEMA_VERSION} ({FINGERPRINT:#010x}): its channels differ, so it "
+            f"cannot be read or served here"
+        )
 
 
 CHANNEL_NAMES: tuple[str, ...] = tuple(c.name for c in CHANNELS)
 NUM_CHANNELS = len(CHANNELS)
 _INDEX = {name: i for i, name in enumerate(CHANNEL_NAMES)}
+
 
 def channel_names(category: str) -> tuple[str, ...]:
     """The names of the channels of ``category`` (``sensor_input``, ``tracking``, ``mapping``, ``depth``), in
@@ -159,8 +258,10 @@ def columns_of(names: Sequence[str], recorded_fingerprint: int, source: str) -> 
         raise SchemaMismatch(f"{source} takes RTS channels this SEESys does not have: {', '.join(unknown)}")
     columns = np.array([_INDEX[name] for name in names], dtype=np.intp)
     if fingerprint(tuple(CHANNELS[i] for i in columns)) != recorded_fingerprint:
-        raise SchemaMismatch(f"{source} takes RTS channels {', '.join(names)} defined otherwise than here (fingerprint "
-                             f"{recorded_fingerprint:#010x}): their units, transforms or scales differ")
+        raise SchemaMismatch(
+            f"{source} takes RTS channels {', '.join(names)} defined otherwise than here (fingerprint "
+            f"{recorded_fingerprint:#010x}): their units, transforms or scales differ"
+        )
     return columns
 
 

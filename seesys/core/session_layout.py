@@ -18,15 +18,49 @@ SLAM_LOG = "orbslam3.log"
 FRAMES_HEADER = "frame_index,timestamp,state,tracked_points,track_ms"
 
 ESTIMATES_CSV = "estimates.csv"
-ESTIMATE_COLUMNS = ("frame_index", "timestamp", "error_m", "model_version", "server_ms", "received_unix", "tracking_ms",
-           "preprocess_ms", "transmit_inference_ms", "end_to_end_ms", "capture_to_estimate_ms")
+ESTIMATE_COLUMNS = (
+    "frame_index",
+    "timestamp",
+    "error_m",
+    "model_version",
+    "server_ms",
+    "received_unix",
+    "tracking_ms",
+    "preprocess_ms",
+    "transmit_inference_ms",
+    "end_to_end_ms",
+    "capture_to_estimate_ms",
+)
 
 ADVISORY_CSV = "advisory.csv"
 PLAYBACK_CSV = "playback.csv"
 EVENTS_CSV = "advisory_events.csv"
 # pulses_from: the rule that gave n_pulses ("head", "estimate", "rotation"; empty without live input).
-ADVISORY_COLUMNS = ("wall_time", "time_mono", "condition", "status", "trigger", "input_value", "n_pulses",
-                    "played_pulses", "buffer_id", "arrival_mono", "play_at_mono", "pulses_from")
-PLAYBACK_COLUMNS = ("wall_time", "buffer_id", "time_mono", "trigger", "n_pulses", "played_pulses", "arrival_mono",
-                    "received_mono", "play_at_mono", "dac_mono", "stream_sample")
+ADVISORY_COLUMNS = (
+    "wall_time",
+    "time_mono",
+    "condition",
+    "status",
+    "trigger",
+    "input_value",
+    "n_pulses",
+    "played_pulses",
+    "buffer_id",
+    "arrival_mono",
+    "play_at_mono",
+    "pulses_from",
+)
+PLAYBACK_COLUMNS = (
+    "wall_time",
+    "buffer_id",
+    "time_mono",
+    "trigger",
+    "n_pulses",
+    "played_pulses",
+    "arrival_mono",
+    "received_mono",
+    "play_at_mono",
+    "dac_mono",
+    "stream_sample",
+)
 EVENT_COLUMNS = ("wall_time", "time_mono", "process", "event", "detail")

@@ -39,8 +39,10 @@ class Poses:
     def __post_init__(self) -> None:
         n = len(self.timestamps)
         if self.positions.shape != (n, 3) or self.quaternions_xyzw.shape != (n, 4):
-            raise TrajectoryError(f"pose shapes disagree: {n} timestamps, positions {self.positions.shape}, "
-                                  f"quaternions {self.quaternions_xyzw.shape}")
+            raise TrajectoryError(
+                f"pose shapes disagree: {n} timestamps, positions {self.positions.shape}, "
+                f"quaternions {self.quaternions_xyzw.shape}"
+            )
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -83,13 +85,19 @@ class Poses:
 
         if len(self) == 0:
             raise TrajectoryError("an empty trajectory has no evo form")
-        return PoseTrajectory3D(positions_xyz=self.positions, orientations_quat_wxyz=self.quaternions_xyzw[:, [3, 0, 1, 2]],
-                                timestamps=self.timestamps)
+        return PoseTrajectory3D(
+            positions_xyz=self.positions,
+            orientations_quat_wxyz=self.quaternions_xyzw[:, [3, 0, 1, 2]],
+            timestamps=self.timestamps,
+        )
 
     @classmethod
     def from_evo(cls, trajectory: PoseTrajectory3D) -> Poses:
-        return cls(np.asarray(trajectory.timestamps, dtype=float), np.asarray(trajectory.positions_xyz, dtype=float),
-                   np.asarray(trajectory.orientations_quat_wxyz, dtype=float)[:, [1, 2, 3, 0]])
+        return cls(
+            np.asarray(trajectory.timestamps, dtype=float),
+            np.asarray(trajectory.positions_xyz, dtype=float),
+            np.asarray(trajectory.orientations_quat_wxyz, dtype=float)[:, [1, 2, 3, 0]],
+        )
 
 
 def sim3_scale(source_xyz: np.ndarray, target_xyz: np.ndarray) -> float:

@@ -33,7 +33,6 @@ import numpy as np
 from seesys.core import rts_schema
 from seesys.core.messages import FeatureFrame
 
-
 #: Why a window end whose history has arrived was refused: too many RTS rows missing or untracked; a PSD missing.
 MISSING_RTS = "missing_rts"
 MISSING_PSD = "missing_psd"
@@ -138,8 +137,7 @@ class WindowAssembler:
             self.refused = MISSING_RTS if history_arrived else None
             return None
         psd = np.stack([self._psds[int(i)] for i in psd_indices])
-        return WindowSample(end.device_id, end.frame_index, end.timestamp, rts, rts_indices, psd, psd_indices,
-                            missing)
+        return WindowSample(end.device_id, end.frame_index, end.timestamp, rts, rts_indices, psd, psd_indices, missing)
 
 
 def assemble_windows(frames: Iterable[FeatureFrame], config: WindowConfig) -> Iterator[WindowSample]:

@@ -41,13 +41,16 @@ def session_scale(folder: Path, settings: ScaleSettings, association_max_dt_s: f
     session when it is monocular, has no ground truth or too little tracked motion."""
     manifest = _manifest(folder)
     if manifest.get("mode") != "rgbd":
-        raise ScaleCheckError(f"{folder}: a {manifest.get('mode')} session; monocular SLAM has no metric scale, so "
-                              "the camera's scale is measured on RGB-D sessions")
+        raise ScaleCheckError(
+            f"{folder}: a {manifest.get('mode')} session; monocular SLAM has no metric scale, so "
+            "the camera's scale is measured on RGB-D sessions"
+        )
     applied = manifest.get("config", {}).get("camera", {}).get("scale", {}).get("depth_correction", 1.0)
     try:
         track = read_session_track(folder)
-        fit = window_scales(track.estimate, tracked_states(track.states), track.ground_truth,
-                            association_max_dt_s, settings)
+        fit = window_scales(
+            track.estimate, tracked_states(track.states), track.ground_truth, association_max_dt_s, settings
+        )
     except (LabelError, ScaleCheckError) as e:
         raise ScaleCheckError(f"{folder}: {e}") from None
     return SessionScale(folder, fit, float(applied), str(manifest.get("source", "")))
@@ -60,6 +63,9 @@ def sessions_scale_line(folders: list[Path], settings: ScaleSettings, associatio
         fit = ScaleFit.pooled([session_scale(Path(f), settings, association_max_dt_s).fit for f in folders])
     except ScaleCheckError as e:
         return f"camera scale against the ground truth: not measured ({e})"
-    warn = (f"; no model can see a depth scale error: correct it (seesys camera check)"
-            if abs(fit.depth_scale_error) > settings.warn_above else "")
+    warn = (
+        "; no model can see a depth scale error: correct it (seesys camera check)"
+        if abs(fit.depth_scale_error) > settings.warn_above
+        else ""
+    )
     return f"camera scale against the ground truth: {describe(fit)}{warn}"

@@ -35,8 +35,9 @@ class Child:
     log: Path | None  # None: its output goes to this process's own
 
     @classmethod
-    def start(cls, name: str, args: list[str], folder: Path, env: dict[str, str] | None = None,
-              log: bool = True) -> Child:
+    def start(
+        cls, name: str, args: list[str], folder: Path, env: dict[str, str] | None = None, log: bool = True
+    ) -> Child:
         """``seesys ARGS`` as a child named ``name``, its output appended to ``folder/logs/<name>.log`` (``log``
         false: to this process's own output)."""
         path = None
@@ -46,10 +47,15 @@ class Child:
         with path.open("ab") if path is not None else contextlib.nullcontext() as out:
             # A session of its own: the operator's Ctrl-C goes to the supervisor only (which stops the device
             # cleanly), and a child that does not stop can be killed with the processes it started.
-            process = subprocess.Popen(seesys_command(*args), stdout=out, stderr=subprocess.STDOUT if out else None,
-                                       stdin=subprocess.DEVNULL, env=env or os.environ.copy(),
-                                       preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM),
-                                       start_new_session=True)
+            process = subprocess.Popen(
+                seesys_command(*args),
+                stdout=out,
+                stderr=subprocess.STDOUT if out else None,
+                stdin=subprocess.DEVNULL,
+                env=env or os.environ.copy(),
+                preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM),
+                start_new_session=True,
+            )
         return cls(name, process, path)
 
     @property
@@ -67,10 +73,8 @@ class Child:
         try:
             return self.process.wait(timeout_s)
         except subprocess.TimeoutExpired:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(self.process.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
             return self.process.wait()
 
     def interrupt(self, timeout_s: float) -> int:

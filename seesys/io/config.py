@@ -212,14 +212,19 @@ class ConfigSet:
         sections = dict(self.sections)
         for name, value in values.items():
             stem, _, key = name.rpartition(".")
-            where = {s: path for s in ([stem] if stem else sections) if s in sections
-                     and (path := _find_key(sections[s], key)) is not None}
+            where = {
+                s: path
+                for s in ([stem] if stem else sections)
+                if s in sections and (path := _find_key(sections[s], key)) is not None
+            }
             if not where:
                 raise KeyError(f"no such configuration key: {name}")
             if len(where) > 1:
-                raise KeyError(f"configuration key {key} is in {', '.join(f'{s}.toml' for s in where)}: "
-                               f"name it as {next(iter(where))}.{key} (file.key)")
-            (file, path), = where.items()
+                raise KeyError(
+                    f"configuration key {key} is in {', '.join(f'{s}.toml' for s in where)}: "
+                    f"name it as {next(iter(where))}.{key} (file.key)"
+                )
+            ((file, path),) = where.items()
             sections[file] = _set(sections[file], path, value)
         return dataclasses.replace(self, sections=sections)
 

@@ -12,9 +12,9 @@ from typing import Any
 from seesys.core.camera_normalisation import ReferenceCamera
 from seesys.core.device_settings import DeviceSettings, model_settings_record
 from seesys.core.equation2 import Equation2Config, PulseSettings
+from seesys.core.errors import ConfigError
 from seesys.core.labels import LabelConfig
 from seesys.core.windows import WindowConfig
-from seesys.core.errors import ConfigError
 from seesys.io.config import ConfigSet, build, load_section
 
 
@@ -59,6 +59,7 @@ def _value(directory: Path | None, file: str, *keys: str) -> tuple[Path, object]
 # The few values read here without their part's dataclass, checked as the loader checks a field
 # (seesys.io.config): bool is no number, and an integer is a number.
 
+
 def _int(directory: Path | None, file: str, *keys: str) -> int:
     path, value = _value(directory, file, *keys)
     if isinstance(value, bool) or not isinstance(value, int):
@@ -90,16 +91,23 @@ def _strings(directory: Path | None, file: str, *keys: str) -> list[str]:
 def load_device_settings(slam_mode: str, fps: float, directory: Path | None = None) -> DeviceSettings:
     """A device's settings (:class:`~seesys.core.device_settings.DeviceSettings`) running ``slam_mode`` at ``fps``
     with the configured PSD (``[psd]`` of monitor.toml) and ORB feature count (``[orb] features`` of slam.toml)."""
-    return DeviceSettings.of(slam_mode, fps, _int(directory, "slam", "orb", "features"),
-                             _int(directory, "monitor", "psd", "patch_px"),
-                             _int(directory, "monitor", "psd", "expansion"),
-                             _number(directory, "monitor", "psd", "near_depth"))
+    return DeviceSettings.of(
+        slam_mode,
+        fps,
+        _int(directory, "slam", "orb", "features"),
+        _int(directory, "monitor", "psd", "patch_px"),
+        _int(directory, "monitor", "psd", "expansion"),
+        _number(directory, "monitor", "psd", "near_depth"),
+    )
 
 
 def load_reference_camera(directory: Path | None = None) -> ReferenceCamera:
     """The camera normalisation's reference camera, ``[reference_camera]`` of monitor.toml."""
-    return build(ReferenceCamera, _table(directory, "monitor", "reference_camera"),
-                 f"{ConfigSet.read(directory).path('monitor')} [reference_camera]")
+    return build(
+        ReferenceCamera,
+        _table(directory, "monitor", "reference_camera"),
+        f"{ConfigSet.read(directory).path('monitor')} [reference_camera]",
+    )
 
 
 def load_model_device_record(directory: Path | None = None) -> dict:

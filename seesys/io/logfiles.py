@@ -52,7 +52,7 @@ def read_csv_log(path: Path, **read_csv_args: Any) -> pd.DataFrame:
     """A CSV log as a table, without a last line left unterminated by a crash (and without malformed rows)."""
     text = Path(path).read_text(encoding="utf-8", errors="replace")
     if text and not text.endswith("\n"):
-        text = text[:text.rfind("\n") + 1]
+        text = text[: text.rfind("\n") + 1]
     if not text.strip():
         raise pd.errors.EmptyDataError(f"{path} is empty")
     return pd.read_csv(io.StringIO(text), on_bad_lines="skip", **read_csv_args)

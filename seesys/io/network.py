@@ -20,8 +20,9 @@ class ClientCurveConfig:
 
     def __post_init__(self) -> None:
         if bool(self.server_public_key) != bool(self.client_secret_key):
-            raise ConfigError("network.toml: [curve] needs both server_public_key and client_secret_key "
-                              "(or neither, for plaintext)")
+            raise ConfigError(
+                "network.toml: [curve] needs both server_public_key and client_secret_key (or neither, for plaintext)"
+            )
 
     @property
     def enabled(self) -> bool:

@@ -48,8 +48,11 @@ def home() -> Path:
     for folder in candidates:
         if _is_home(folder):
             return folder
-    raise ResourceError("cannot find the SEESys configs/ folder; looked in " + ", ".join(map(str, candidates))
-                        + f" (set ${HOME_ENV} to a folder holding configs/ and data/)")
+    raise ResourceError(
+        "cannot find the SEESys configs/ folder; looked in "
+        + ", ".join(map(str, candidates))
+        + f" (set ${HOME_ENV} to a folder holding configs/ and data/)"
+    )
 
 
 def resolve(path: str | Path) -> Path:

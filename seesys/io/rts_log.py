@@ -48,8 +48,11 @@ class MonitorLogError(SeesysError):
 
 def schema_metadata(settings: DeviceSettings | None = None) -> dict:
     """What ``rts.json`` records: the schema of the ``rts.csv`` beside it and the device's ``settings``."""
-    meta = {"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_schema_fingerprint": rts_schema.FINGERPRINT,
-            "channels": [{"name": c.name, "unit": c.unit} for c in rts_schema.CHANNELS]}
+    meta = {
+        "rts_schema_version": rts_schema.SCHEMA_VERSION,
+        "rts_schema_fingerprint": rts_schema.FINGERPRINT,
+        "channels": [{"name": c.name, "unit": c.unit} for c in rts_schema.CHANNELS],
+    }
     if settings is not None:
         meta["device_settings"] = settings.as_record()
     return meta
@@ -131,7 +134,7 @@ def read_psd_log(session: Path) -> Iterator[PsdRecord]:
             if pos + _RECORD.size > len(data):
                 break
             size, frame_index, timestamp = _RECORD.unpack_from(data, pos)
-            body = data[pos + _RECORD.size:pos + _RECORD.size + size]
+            body = data[pos + _RECORD.size : pos + _RECORD.size + size]
             if len(body) < size:
                 break
             try:
@@ -152,8 +155,10 @@ def check_rts_schema(session: Path) -> DeviceSettings | None:
         meta = json.loads(path.read_text())
         version, fingerprint = int(meta["rts_schema_version"]), int(meta["rts_schema_fingerprint"])
     except FileNotFoundError:
-        raise MonitorLogError(f"{session} has no {RTS_JSON}: its {RTS_CSV} was written by an older SEESys, with an "
-                              f"RTS schema that cannot be checked (re-run the session to log it again)") from None
+        raise MonitorLogError(
+            f"{session} has no {RTS_JSON}: its {RTS_CSV} was written by an older SEESys, with an "
+            f"RTS schema that cannot be checked (re-run the session to log it again)"
+        ) from None
     except (ValueError, KeyError, TypeError) as e:
         raise MonitorLogError(f"{path}: malformed ({e})") from None
     try:
@@ -178,8 +183,10 @@ def read_rts_csv(session: Path) -> pd.DataFrame:
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
         raise MonitorLogError(f"cannot read {path}: {e}") from None
     if tuple(table.columns) != RTS_COLUMNS:
-        raise MonitorLogError(f"{path}: columns {list(table.columns)} do not match RTS schema "
-                              f"v{rts_schema.SCHEMA_VERSION} ({', '.join(RTS_COLUMNS)})")
+        raise MonitorLogError(
+            f"{path}: columns {list(table.columns)} do not match RTS schema "
+            f"v{rts_schema.SCHEMA_VERSION} ({', '.join(RTS_COLUMNS)})"
+        )
     table.attrs["device_settings"] = settings
     return table
 
@@ -191,11 +198,13 @@ def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]
     table = read_rts_csv(session)
     settings = table.attrs["device_settings"]
     rts = table[list(rts_schema.CHANNEL_NAMES)].to_numpy(dtype=np.float32)
-    for k, (index, timestamp, state) in enumerate(zip(table["frame_index"], table["timestamp"],
-                                                      table["tracking_state"])):
+    for k, (index, timestamp, state) in enumerate(
+        zip(table["frame_index"], table["timestamp"], table["tracking_state"])
+    ):
         try:
             tracking_state = TrackingState[state]
         except KeyError:
             raise MonitorLogError(f"{session}/{RTS_CSV}: unknown tracking state {state!r} at frame {index}") from None
-        yield FeatureFrame(device_id, int(index), float(timestamp), tracking_state, rts[k], psds.get(int(index)),
-                           settings=settings)
+        yield FeatureFrame(
+            device_id, int(index), float(timestamp), tracking_state, rts[k], psds.get(int(index)), settings=settings
+        )

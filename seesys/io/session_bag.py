@@ -49,8 +49,9 @@ def load_export_settings(directory: Path | None = None) -> ExportSettings:
     """``configs/export.toml``; a storage other than sqlite3 or mcap is an error."""
     settings = load_section("export", ExportSettings, directory)
     if settings.export_storage not in STORAGES:
-        raise SeesysError(f"export.toml: export_storage must be one of {', '.join(STORAGES)}, "
-                          f"not {settings.export_storage!r}")
+        raise SeesysError(
+            f"export.toml: export_storage must be one of {', '.join(STORAGES)}, not {settings.export_storage!r}"
+        )
     return settings
 
 
@@ -67,18 +68,25 @@ class _Messages:
 
     def header(self, t: float, frame: str):
         sec = int(np.floor(t))
-        stamp = self.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=min(int(round((t - sec) * 1e9)), NS_PER_S - 1))
+        stamp = self.types["builtin_interfaces/msg/Time"](
+            sec=sec, nanosec=min(int(round((t - sec) * 1e9)), NS_PER_S - 1)
+        )
         return self.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
 
     def poses(self, poses: Poses) -> list:
         types = self.types
-        return [types["geometry_msgs/msg/PoseStamped"](
-            header=self.header(float(t), self.settings.export_world_frame),
-            pose=types["geometry_msgs/msg/Pose"](
-                position=types["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                orientation=types["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]),
-                                                                  w=float(q[3]))))
-            for t, p, q in zip(poses.timestamps, poses.positions, poses.quaternions_xyzw)]
+        return [
+            types["geometry_msgs/msg/PoseStamped"](
+                header=self.header(float(t), self.settings.export_world_frame),
+                pose=types["geometry_msgs/msg/Pose"](
+                    position=types["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                    orientation=types["geometry_msgs/msg/Quaternion"](
+                        x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
+                    ),
+                ),
+            )
+            for t, p, q in zip(poses.timestamps, poses.positions, poses.quaternions_xyzw)
+        ]
 
 
 def _read_csv(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
@@ -121,26 +129,35 @@ def export_session_bag(session: Path, out: Path, settings: ExportSettings) -> di
     pose_messages = build.poses(poses)
     topics[settings.export_pose_topic] = (pose_type, list(zip(map(_ns, poses.timestamps), pose_messages)))
     if len(poses):
-        path = store.types[path_type](header=build.header(float(poses.timestamps[-1]), settings.export_world_frame),
-                                      poses=pose_messages)
+        path = store.types[path_type](
+            header=build.header(float(poses.timestamps[-1]), settings.export_world_frame), poses=pose_messages
+        )
         topics[settings.export_path_topic] = (path_type, [(_ns(poses.timestamps[-1]), path)])
     if truth is not None:
-        topics[settings.export_ground_truth_topic] = (pose_type, list(zip(map(_ns, truth.timestamps),
-                                                                          build.poses(truth))))
+        topics[settings.export_ground_truth_topic] = (
+            pose_type,
+            list(zip(map(_ns, truth.timestamps), build.poses(truth))),
+        )
     string, float64 = store.types["std_msgs/msg/String"], store.types["std_msgs/msg/Float64"]
-    topics[settings.export_tracking_state_topic] = ("std_msgs/msg/String", [
-        (_ns(t), string(data=str(state))) for t, state in zip(frames.timestamp, frames.state)])
+    topics[settings.export_tracking_state_topic] = (
+        "std_msgs/msg/String",
+        [(_ns(t), string(data=str(state))) for t, state in zip(frames.timestamp, frames.state)],
+    )
     if estimates is not None:
-        topics[settings.export_pose_error_topic] = ("std_msgs/msg/Float64", [
-            (_ns(t), float64(data=float(error))) for t, error in zip(estimates.timestamp, estimates.error_m)])
+        topics[settings.export_pose_error_topic] = (
+            "std_msgs/msg/Float64",
+            [(_ns(t), float64(data=float(error))) for t, error in zip(estimates.timestamp, estimates.error_m)],
+        )
 
     plugin = StoragePlugin.MCAP if settings.export_storage == "mcap" else StoragePlugin.SQLITE3
     with Writer(out, version=9, storage_plugin=plugin) as writer:
-        connections = {topic: writer.add_connection(topic, msgtype, typestore=store)
-                       for topic, (msgtype, _) in topics.items()}
+        connections = {
+            topic: writer.add_connection(topic, msgtype, typestore=store) for topic, (msgtype, _) in topics.items()
+        }
         # rosbag2 readers expect messages in log-time order across topics
-        merged = sorted(((ns, topic, i) for topic, (_, messages) in topics.items()
-                         for i, (ns, _) in enumerate(messages)))
+        merged = sorted(
+            ((ns, topic, i) for topic, (_, messages) in topics.items() for i, (ns, _) in enumerate(messages))
+        )
         for ns, topic, i in merged:
             msgtype, messages = topics[topic]
             writer.write(connections[topic], ns, store.serialize_cdr(messages[i][1], msgtype))

@@ -16,7 +16,7 @@ RECORDED_PACKAGES = ("seesys", "pyorbslam3", "numpy", "opencv-python-headless", 
 
 
 def utc_now() -> str:
-    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
 
 
 def package_versions() -> dict[str, str]:

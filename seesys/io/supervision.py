@@ -91,15 +91,22 @@ class Supervisor:
     ``logs``: each child's output goes to ``logs/<name>.log`` in ``folder`` (False: to this process's own output,
     for a supervisor run in a terminal)."""
 
-    def __init__(self, folder: Path, env: Mapping[str, str] | None, policy: SupervisionPolicy,
-                 on_event: EventSink, logs: bool = True):
+    def __init__(
+        self,
+        folder: Path,
+        env: Mapping[str, str] | None,
+        policy: SupervisionPolicy,
+        on_event: EventSink,
+        logs: bool = True,
+    ):
         self.folder, self.env, self.policy, self.on_event, self.logs = folder, env, policy, on_event, logs
         self.parts: dict[str, Part] = {}
 
     def start(self, spec: PartSpec) -> Part:
         """Start ``spec`` (again, if it ran before); its ``started`` event names the pid."""
-        child = Child.start(spec.name, list(spec.args), self.folder, dict(self.env) if self.env else None,
-                            log=self.logs)
+        child = Child.start(
+            spec.name, list(spec.args), self.folder, dict(self.env) if self.env else None, log=self.logs
+        )
         part = self.parts.get(spec.name)
         if part is None:
             part = self.parts[spec.name] = Part(spec, child)
@@ -108,8 +115,9 @@ class Supervisor:
         self.on_event(spec.name, "started", f"pid {child.process.pid}")
         return part
 
-    def start_ready(self, specs: Sequence[PartSpec], stop: threading.Event,
-                    waiting: Callable[[], None] = lambda: None) -> None:
+    def start_ready(
+        self, specs: Sequence[PartSpec], stop: threading.Event, waiting: Callable[[], None] = lambda: None
+    ) -> None:
         """Start ``specs`` together and wait until each is ready, calling ``waiting`` between looks.
 
         Raises SeesysError when one exits meanwhile or the time is up, naming it and its log; KeyboardInterrupt
@@ -122,12 +130,16 @@ class Supervisor:
             for name in ready:
                 child = self.parts[name].child
                 if not child.running:
-                    raise SeesysError(f"the {name} exited while starting ({exit_text(child.process.returncode)}): "
-                                      f"{child.last_line()} (log: {child.log})")
+                    raise SeesysError(
+                        f"the {name} exited while starting ({exit_text(child.process.returncode)}): "
+                        f"{child.last_line()} (log: {child.log})"
+                    )
             if time.monotonic() > deadline:
                 late = [name for name, check in ready.items() if not check()]
-                raise SeesysError(f"{' and '.join(late)} not ready after {self.policy.ready_timeout_s:g} s "
-                                  f"(logs: {self.folder / LOGS})")
+                raise SeesysError(
+                    f"{' and '.join(late)} not ready after {self.policy.ready_timeout_s:g} s "
+                    f"(logs: {self.folder / LOGS})"
+                )
             waiting()
             if stop.wait(self.policy.poll_s):
                 raise KeyboardInterrupt
@@ -155,10 +167,15 @@ class Supervisor:
             limit = self.policy.max_restarts
             if limit is not None and part.restarts >= limit:
                 self.on_event(part.spec.name, "exited", f"{how}; restarted {part.restarts} times already, giving up")
-                raise SeesysError(f"the {part.spec.name} exited ({how}) after {part.restarts} restarts: {last} "
-                                  f"(log: {part.child.log})")
-            self.on_event(part.spec.name, "exited", f"{how}{': ' + last if last else ''}; restarting in "
-                                                    f"{self.policy.restart_delay_s:g} s")
+                raise SeesysError(
+                    f"the {part.spec.name} exited ({how}) after {part.restarts} restarts: {last} "
+                    f"(log: {part.child.log})"
+                )
+            self.on_event(
+                part.spec.name,
+                "exited",
+                f"{how}{': ' + last if last else ''}; restarting in {self.policy.restart_delay_s:g} s",
+            )
             part.restart_at = now + self.policy.restart_delay_s
         elif now >= part.restart_at:
             part.restarts += 1

@@ -71,13 +71,26 @@ class ClientKeys:
 
     def socket_options(self) -> dict[int, bytes]:
         public, secret = load_curve_key(self.secret_key_file, secret=True)
-        return {zmq.CURVE_PUBLICKEY: public, zmq.CURVE_SECRETKEY: secret,
-                zmq.CURVE_SERVERKEY: load_curve_key(self.server_public_key_file, secret=False)[0]}
+        return {
+            zmq.CURVE_PUBLICKEY: public,
+            zmq.CURVE_SECRETKEY: secret,
+            zmq.CURVE_SERVERKEY: load_curve_key(self.server_public_key_file, secret=False)[0],
+        }
 
 
-def open_socket(ctx: zmq.Context, socket_type: int, endpoint: str, what: str, *, bind: bool,
-                send_hwm: int | None = None, receive_hwm: int | None = None, conflate: bool = False,
-                subscribe: Iterable[bytes] = (), options: Mapping[int, int | bytes] | None = None) -> zmq.Socket:
+def open_socket(
+    ctx: zmq.Context,
+    socket_type: int,
+    endpoint: str,
+    what: str,
+    *,
+    bind: bool,
+    send_hwm: int | None = None,
+    receive_hwm: int | None = None,
+    conflate: bool = False,
+    subscribe: Iterable[bytes] = (),
+    options: Mapping[int, int | bytes] | None = None,
+) -> zmq.Socket:
     """A socket of ``socket_type`` with its options set, then bound to or connected to ``endpoint``.
 
     ``what`` names the socket's purpose in error messages. ``conflate`` keeps only the newest message (single-part
@@ -108,18 +121,41 @@ def open_socket(ctx: zmq.Context, socket_type: int, endpoint: str, what: str, *,
     return sock
 
 
-def publisher(ctx: zmq.Context, endpoint: str, what: str, send_hwm: int, bind: bool = True,
-              options: Mapping[int, int | bytes] | None = None) -> zmq.Socket:
+def publisher(
+    ctx: zmq.Context,
+    endpoint: str,
+    what: str,
+    send_hwm: int,
+    bind: bool = True,
+    options: Mapping[int, int | bytes] | None = None,
+) -> zmq.Socket:
     """A PUB socket (bound by default: the side that outlives its peers binds)."""
     return open_socket(ctx, zmq.PUB, endpoint, what, bind=bind, send_hwm=send_hwm, options=options)
 
 
-def subscriber(ctx: zmq.Context, endpoint: str, what: str, topics: Iterable[bytes], *, conflate: bool = False,
-               receive_hwm: int | None = None, bind: bool = False,
-               options: Mapping[int, int | bytes] | None = None) -> zmq.Socket:
+def subscriber(
+    ctx: zmq.Context,
+    endpoint: str,
+    what: str,
+    topics: Iterable[bytes],
+    *,
+    conflate: bool = False,
+    receive_hwm: int | None = None,
+    bind: bool = False,
+    options: Mapping[int, int | bytes] | None = None,
+) -> zmq.Socket:
     """A SUB socket for ``topics`` (connected by default; ZeroMQ reconnects it after its peer restarts)."""
-    return open_socket(ctx, zmq.SUB, endpoint, what, bind=bind, receive_hwm=receive_hwm, conflate=conflate,
-                       subscribe=topics, options=options)
+    return open_socket(
+        ctx,
+        zmq.SUB,
+        endpoint,
+        what,
+        bind=bind,
+        receive_hwm=receive_hwm,
+        conflate=conflate,
+        subscribe=topics,
+        options=options,
+    )
 
 
 def bound_endpoint(sock: zmq.Socket) -> str:
@@ -155,8 +191,9 @@ class LossCounter:
         """Account for ``frame``; returns how many frames were lost in transit just before it."""
         loss = self.devices.get(frame.device_id)
         if loss is None:
-            self.devices[frame.device_id] = DeviceLoss(received=1, last_index=frame.frame_index,
-                                                       last_skipped=frame.frames_skipped)
+            self.devices[frame.device_id] = DeviceLoss(
+                received=1, last_index=frame.frame_index, last_skipped=frame.frames_skipped
+            )
             return 0
         loss.received += 1
         if frame.frame_index <= loss.last_index:
@@ -192,8 +229,10 @@ def peer_answers(endpoint: str, timeout_s: float, options: Mapping[int, int | by
     monitor = sock.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED)
     try:
         sock.connect(endpoint)
-        return bool(monitor.poll(int(timeout_s * 1000))) and \
-            recv_monitor_message(monitor)["event"] == zmq.EVENT_HANDSHAKE_SUCCEEDED
+        return (
+            bool(monitor.poll(int(timeout_s * 1000)))
+            and recv_monitor_message(monitor)["event"] == zmq.EVENT_HANDSHAKE_SUCCEEDED
+        )
     except zmq.ZMQError as e:
         raise TransportError(f"cannot connect to {endpoint}: {e}") from None
     finally:

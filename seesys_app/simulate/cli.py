@@ -47,16 +47,32 @@ def simulate_command(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     cfg = load_simulate_config()
-    study = replace(cfg.study, **{k: v for k, v in (
-        ("participants_per_condition", args.participants), ("conditions", args.conditions),
-        ("design", args.design), ("processes", args.processes)) if v is not None})
-    task = replace(cfg.task, **{k: v for k, v in (("objects", args.objects), ("max_task_s", args.max_task_s))
-                                if v is not None})
+    study = replace(
+        cfg.study,
+        **{
+            k: v
+            for k, v in (
+                ("participants_per_condition", args.participants),
+                ("conditions", args.conditions),
+                ("design", args.design),
+                ("processes", args.processes),
+            )
+            if v is not None
+        },
+    )
+    task = replace(
+        cfg.task, **{k: v for k, v in (("objects", args.objects), ("max_task_s", args.max_task_s)) if v is not None}
+    )
     cfg = replace(cfg, study=study, task=task)
     model = default_model(load_service_config(), args.model)
     started = time.monotonic()
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.0f} s"),
-                  TimeElapsedColumn(), transient=True) as progress:
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f} s"),
+        TimeElapsedColumn(),
+        transient=True,
+    ) as progress:
         bars: dict[str, TaskID] = {}
 
         def show(name: str, seconds: float, note: str) -> None:
@@ -70,8 +86,10 @@ def simulate_command(args: argparse.Namespace) -> int:
 
         outcome = run_study(args.out, cfg, model, show=show)
     minutes = (time.monotonic() - started) / 60
-    print(f"{outcome.study}: {outcome.done} of {outcome.sessions} sessions done ({minutes:.1f} min); "
-          f"next: seesys analyze {outcome.study}")
+    print(
+        f"{outcome.study}: {outcome.done} of {outcome.sessions} sessions done ({minutes:.1f} min); "
+        f"next: seesys analyze {outcome.study}"
+    )
     for line in outcome.failed:
         print(f"  failed: {line}")
     return 0 if outcome.done == outcome.sessions else 1
@@ -80,17 +98,21 @@ def simulate_command(args: argparse.Namespace) -> int:
 def register(study_commands: argparse._SubParsersAction) -> None:
     """Add ``simulate`` to ``seesys study``."""
     p = study_commands.add_parser(
-        "simulate", help="a closed-loop simulated study: simulated operators through SLAM, model and advisory",
+        "simulate",
+        help="a closed-loop simulated study: simulated operators through SLAM, model and advisory",
         description="Simulated operators scan objects in a rendered room; every frame goes through ORB-SLAM3, the "
-                    "RTS monitor, the shipped DeepSEE model and the advisory, and the pulses change how the "
-                    "operator moves. Writes a study folder that `seesys analyze` reads; run it again to resume. "
-                    "Defaults: configs/simulate.toml.")
+        "RTS monitor, the shipped DeepSEE model and the advisory, and the pulses change how the "
+        "operator moves. Writes a study folder that `seesys analyze` reads; run it again to resume. "
+        "Defaults: configs/simulate.toml.",
+    )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the study folder (new, or one to resume)")
     p.add_argument("--participants", type=_positive, metavar="N", help="simulated participants per condition")
     p.add_argument("--conditions", type=_conditions, metavar="A,B,...", help="conditions (none, rotation, seesys)")
-    p.add_argument("--design", choices=DESIGNS,
-                   help="between: one condition per participant; within: the same simulated operator in every "
-                        "condition (paired)")
+    p.add_argument(
+        "--design",
+        choices=DESIGNS,
+        help="between: one condition per participant; within: the same simulated operator in every condition (paired)",
+    )
     p.add_argument("--objects", type=_positive, metavar="N", help="objects to scan")
     p.add_argument("--max-task-s", type=_seconds, metavar="S", help="end a session that has not finished by then")
     p.add_argument("--processes", type=_positive, metavar="P", help="sessions simulated at once")

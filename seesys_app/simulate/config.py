@@ -5,10 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys_app.simulate.operator import OperatorRanges, ResponseRanges
-from seesys_app.simulate.scan_task import TaskConfig
 from seesys.core.errors import ConfigError
 from seesys.io.config import load_section
+from seesys_app.simulate.operator import OperatorRanges, ResponseRanges
+from seesys_app.simulate.scan_task import TaskConfig
 
 DESIGNS = ("between", "within")
 CONDITIONS = ("none", "rotation", "seesys")
@@ -53,6 +53,8 @@ def load_simulate_config(directory: Path | None = None) -> SimulateConfig:
     # The operator moves a little ahead of the frame being rendered (its exposure); a reaction faster than that
     # would need buffers the loop has not made yet.
     if cfg.response.reaction_delay_s[0] < 0.2:
-        raise ConfigError("simulate.toml: reaction_delay_s must be at least 0.2 s (the loop renders ahead of the "
-                          "advice by up to one frame and an exposure)")
+        raise ConfigError(
+            "simulate.toml: reaction_delay_s must be at least 0.2 s (the loop renders ahead of the "
+            "advice by up to one frame and an exposure)"
+        )
     return cfg

@@ -91,10 +91,19 @@ def draw_traits(rng: np.random.Generator, ranges: OperatorRanges, response: Resp
     def draw(bounds: tuple[float, float]) -> float:
         return float(rng.uniform(*bounds))
 
-    return OperatorTraits(group, draw(ranges.walk_speed_mps), draw(ranges.turn_rate_dps), draw(ranges.scan_speed_dps),
-                          draw(ranges.scan_arc_deg), draw(ranges.scan_distance_m), draw(ranges.look_around_deg),
-                          draw(response.reaction_delay_s), draw(response.slow_down_per_pulse),
-                          draw(response.recovery_s), draw(response.compliance))
+    return OperatorTraits(
+        group,
+        draw(ranges.walk_speed_mps),
+        draw(ranges.turn_rate_dps),
+        draw(ranges.scan_speed_dps),
+        draw(ranges.scan_arc_deg),
+        draw(ranges.scan_distance_m),
+        draw(ranges.look_around_deg),
+        draw(response.reaction_delay_s),
+        draw(response.slow_down_per_pulse),
+        draw(response.recovery_s),
+        draw(response.compliance),
+    )
 
 
 @dataclass(frozen=True)
@@ -112,9 +121,18 @@ def _wrap(angle: float) -> float:
 class SimulatedOperator:
     """Moves in simulated time (:meth:`advance`), hears buffers (:meth:`hear`), and keeps every pose it took."""
 
-    def __init__(self, traits: OperatorTraits, goals: list[Goal], start: np.ndarray, settle_s: float,
-                 max_s: float, motion: MotionGroupConfig, ranges: OperatorRanges, response: ResponseRanges,
-                 seed: int):
+    def __init__(
+        self,
+        traits: OperatorTraits,
+        goals: list[Goal],
+        start: np.ndarray,
+        settle_s: float,
+        max_s: float,
+        motion: MotionGroupConfig,
+        ranges: OperatorRanges,
+        response: ResponseRanges,
+        seed: int,
+    ):
         self.traits, self.goals = traits, goals
         self._ranges, self._response = ranges, response
         self._dt = 1.0 / ranges.rate_hz
@@ -124,18 +142,26 @@ class SimulatedOperator:
         # Real-time signals of the whole session, drawn up front (see the module docstring: causality).
         self._grid = np.arange(0.0, max_s + 2.0, self._dt)
         per_axis = 1.0 / np.sqrt(3.0)
-        self._shake_m = per_axis * motion.shake_m * np.column_stack(
-            [smooth_noise(rng, self._grid, motion.shake_hz) for _ in range(3)])
-        self._shake_rad = per_axis * np.radians(motion.shake_deg) * np.column_stack(
-            [smooth_noise(rng, self._grid, motion.shake_hz) for _ in range(3)])
+        self._shake_m = (
+            per_axis
+            * motion.shake_m
+            * np.column_stack([smooth_noise(rng, self._grid, motion.shake_hz) for _ in range(3)])
+        )
+        self._shake_rad = (
+            per_axis
+            * np.radians(motion.shake_deg)
+            * np.column_stack([smooth_noise(rng, self._grid, motion.shake_hz) for _ in range(3)])
+        )
         jerks = jerk_offsets(rng, self._grid, motion.jerk_rate_hz, np.radians(motion.jerk_deg))
-        waving = np.radians(motion.wave_deg) * np.vstack([smooth_noise(rng, self._grid, motion.wave_hz, 2),
-                                                          0.5 * smooth_noise(rng, self._grid, motion.wave_hz, 2)])
+        waving = np.radians(motion.wave_deg) * np.vstack(
+            [smooth_noise(rng, self._grid, motion.wave_hz, 2), 0.5 * smooth_noise(rng, self._grid, motion.wave_hz, 2)]
+        )
         # Sudden turns and waving are what the advice tames: they are scaled by the speed factor.
         self._bursts = jerks + waving
         look = np.radians(traits.look_around_deg)
-        self._look = look * np.vstack([smooth_noise(rng, self._grid, (0.2, 0.6), 3),
-                                       smooth_noise(rng, self._grid, (0.2, 0.6), 3)])
+        self._look = look * np.vstack(
+            [smooth_noise(rng, self._grid, (0.2, 0.6), 3), smooth_noise(rng, self._grid, (0.2, 0.6), 3)]
+        )
 
         self.time = 0.0
         self._position = np.array(start, float)
@@ -269,5 +295,8 @@ class SimulatedOperator:
     def trajectory(self, since: float = -np.inf) -> Trajectory:
         """The poses taken from ``since`` (one sample earlier, so that ``since`` itself is covered) to now."""
         first = min(max(bisect.bisect_left(self._times, since) - 1, 0), len(self._times) - 2)
-        return Trajectory(np.asarray(self._times[first:]), np.asarray(self._positions[first:]),
-                          Rotation.from_quat(np.asarray(self._rotations[first:])))
+        return Trajectory(
+            np.asarray(self._times[first:]),
+            np.asarray(self._positions[first:]),
+            Rotation.from_quat(np.asarray(self._rotations[first:])),
+        )

@@ -56,9 +56,13 @@ class TaskObject:
     light_share: float  # light reaching it / the best lit object's
 
     def record(self) -> dict:
-        return {"object": self.number, "aim_m": [round(float(v), 4) for v in self.aim],
-                "facing": [round(float(v), 4) for v in self.facing], "regions": list(self.regions),
-                "light_share": round(self.light_share, 3)}
+        return {
+            "object": self.number,
+            "aim_m": [round(float(v), 4) for v in self.aim],
+            "facing": [round(float(v), 4) for v in self.facing],
+            "regions": list(self.regions),
+            "light_share": round(self.light_share, 3),
+        }
 
 
 @dataclass(frozen=True)
@@ -99,8 +103,9 @@ def _bare_wall_behind(scene: Scene, point: np.ndarray, normal: np.ndarray) -> bo
     return False
 
 
-def build_scan_task(preset: EnvironmentPreset, sensor: SensorConfig, task: TaskConfig,
-                    scan_distance_m: float, scan_arc_deg: float) -> ScanTask:
+def build_scan_task(
+    preset: EnvironmentPreset, sensor: SensorConfig, task: TaskConfig, scan_distance_m: float, scan_arc_deg: float
+) -> ScanTask:
     """The room of ``preset`` drawn from ``task.layout_seed`` with ``task.objects`` objects round it; clutter in the
     way of the walks between viewpoints and of sweeps of ``scan_arc_deg`` at ``scan_distance_m`` (the largest the
     operators use) is removed."""
@@ -128,13 +133,24 @@ def build_scan_task(preset: EnvironmentPreset, sensor: SensorConfig, task: TaskC
     path = [np.linspace(a, b, 20) for a, b in zip(viewpoints[:-1], viewpoints[1:])]
     for aim, normal, _ in placed:
         angles = np.radians(np.linspace(-scan_arc_deg, scan_arc_deg, 9))
-        rotated = np.column_stack([np.cos(angles) * normal[0] - np.sin(angles) * normal[1],
-                                   np.sin(angles) * normal[0] + np.cos(angles) * normal[1]])
+        rotated = np.column_stack(
+            [
+                np.cos(angles) * normal[0] - np.sin(angles) * normal[1],
+                np.sin(angles) * normal[0] + np.cos(angles) * normal[1],
+            ]
+        )
         path.append(aim[:2] + scan_distance_m * rotated)
     path_xy = np.vstack(path)
     scene = scene.without_boxes_near(np.column_stack([path_xy, np.full(len(path_xy), 1.2)]), PATH_CLEARANCE_M)
-    corners = np.array([[x, y, z] for _, _, b in placed for x in (b.lo[0], b.hi[0]) for y in (b.lo[1], b.hi[1])
-                        for z in (0.0, b.hi[2])])
+    corners = np.array(
+        [
+            [x, y, z]
+            for _, _, b in placed
+            for x in (b.lo[0], b.hi[0])
+            for y in (b.lo[1], b.hi[1])
+            for z in (0.0, b.hi[2])
+        ]
+    )
     scene = scene.without_boxes_near(corners, OBJECT_CLEARANCE_M)
     clutter = list(scene.boxes)
     scene = with_boxes(scene, [b for _, _, b in placed], rng)
@@ -148,8 +164,7 @@ def build_scan_task(preset: EnvironmentPreset, sensor: SensorConfig, task: TaskC
         share = float(light / lights.max())
         if share < task.dark_light_share:
             regions.append("dark")
-        near = sum(1 for b in clutter
-                   if np.linalg.norm((b.lo[:2] + b.hi[:2]) / 2 - aim[:2]) < task.clutter_radius_m)
+        near = sum(1 for b in clutter if np.linalg.norm((b.lo[:2] + b.hi[:2]) / 2 - aim[:2]) < task.clutter_radius_m)
         if near >= task.clutter_boxes:
             regions.append("clutter")
         objects.append(TaskObject(k, aim, normal, tuple(regions), share))

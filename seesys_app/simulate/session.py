@@ -33,14 +33,6 @@ from advisory.config import load_advisory_config
 from advisory.rotation import RotationSpeed
 from advisory.scheduler import CueClock, Decision, PulseScheduler
 from estimator.service.model import ServedModel
-from synth.camera_effects import LensDistortion
-from synth.config import load_synth_config
-from synth.lenses import model_camera
-from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
-from synth.renderer import RayGrid
-from seesys_app.simulate.scan_task import build_scan_task
-from synth.sequence import SequenceSpec, depth_png, plan_frames, render_images
-from seesys_app.simulate.config import SimulateConfig
 from seesys.core.errors import SeesysError
 from seesys.core.messages import Estimate
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV, GROUND_TRUTH, SETTINGS
@@ -52,6 +44,9 @@ from seesys.io.logfiles import CsvLog, write_json_atomically
 from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from seesys.io.session_files import utc_now
 from seesys.io.trajectory_files import write_tum
+from seesys_app.simulate.config import SimulateConfig
+from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
+from seesys_app.simulate.scan_task import build_scan_task
 from slam_monitor.device_worker import corrected_depth
 from slam_monitor.frame import Frame
 from slam_monitor.monitor import FeatureExtractor, MonitorInput, PreviousPose
@@ -64,6 +59,11 @@ from slam_monitor.tracker import Tracker
 from study.estimates import ESTIMATE_COLUMNS, ESTIMATES_CSV
 from study.runner import EVENT_COLUMNS
 from study.sessions import EVENTS_CSV, RUN_JSON
+from synth.camera_effects import LensDistortion
+from synth.config import load_synth_config
+from synth.lenses import model_camera
+from synth.renderer import RayGrid
+from synth.sequence import SequenceSpec, depth_png, plan_frames, render_images
 
 OPERATOR_JSON = "operator.json"
 TASK_JSON = "task.json"
@@ -104,8 +104,20 @@ class _Advice:
         played = d.n_pulses if self.condition.audible else 0
         trigger = self.cues.trigger(d)
         play_at = d.time + self.audio_latency_s
-        self.log.write(d.time, d.time, self.condition.value, d.status, trigger, d.value, d.n_pulses, played,
-                       self.buffers, d.arrival, play_at, d.pulses_from)
+        self.log.write(
+            d.time,
+            d.time,
+            self.condition.value,
+            d.status,
+            trigger,
+            d.value,
+            d.n_pulses,
+            played,
+            self.buffers,
+            d.arrival,
+            play_at,
+            d.pulses_from,
+        )
         self.buffers += 1
         # The cue is not a warning: the operator does not slow down for it.
         self.hear(play_at, played if trigger != "cue" else 0)
@@ -122,9 +134,15 @@ class _Advice:
             self.emit(decision)
 
 
-def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path, model_path: Path,
-                     config_dir: Path | None = None, on_frame: Callable[[int, float], None] | None = None,
-                     stop: Callable[[], bool] | None = None) -> SessionOutcome:
+def simulate_session(
+    cfg: SimulateConfig,
+    participant: Participant,
+    folder: Path,
+    model_path: Path,
+    config_dir: Path | None = None,
+    on_frame: Callable[[int, float], None] | None = None,
+    stop: Callable[[], bool] | None = None,
+) -> SessionOutcome:
     """Run one session into ``folder`` (created; an earlier session's files in it are replaced).
 
     ``on_frame(frame_index, simulated_time)`` is called after every frame; the session ends ``interrupted`` before
@@ -135,21 +153,42 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
     camera_model = synth.camera_model(task_cfg.camera_model)
     camera = model_camera(synth.camera, camera_model)
     mode = SlamMode(task_cfg.mode)
-    task = build_scan_task(synth.preset(task_cfg.environment), synth.sensor, task_cfg, ranges.scan_distance_m[1],
-                           ranges.scan_arc_deg[1])
+    task = build_scan_task(
+        synth.preset(task_cfg.environment), synth.sensor, task_cfg, ranges.scan_distance_m[1], ranges.scan_arc_deg[1]
+    )
     seed = cfg.study.operator_seed * 100_003 + participant.number
     traits = draw_traits(np.random.default_rng([cfg.study.operator_seed, participant.number]), ranges, response)
     goals = [Goal(o.aim, task.viewpoint(o.number, traits.scan_distance_m)) for o in task.objects]
     first = task.objects[0]
     start = np.append(goals[0].stand + first.facing * task_cfg.start_offset_m, first.aim[2] + 0.15)
-    operator = SimulatedOperator(traits, goals, start, task_cfg.settle_s, task_cfg.max_task_s,
-                                 getattr(synth.motion, traits.motion_group), ranges, response, seed)
+    operator = SimulatedOperator(
+        traits,
+        goals,
+        start,
+        task_cfg.settle_s,
+        task_cfg.max_task_s,
+        getattr(synth.motion, traits.motion_group),
+        ranges,
+        response,
+        seed,
+    )
     margin = 2 * synth.sensor.exposure_max_ms / 1000.0
     operator.advance(margin)
     count = int(np.ceil(task_cfg.max_task_s * camera.fps))
     spec = SequenceSpec(task_cfg.environment, "closed-loop", seed)
-    plan = plan_frames(spec, synth, camera, camera_model, task.scene, operator.trajectory(), traits.motion_group,
-                       f"scan-{participant.id}", count, np.random.default_rng([seed, 0x7A7]), camera.lens.width)
+    plan = plan_frames(
+        spec,
+        synth,
+        camera,
+        camera_model,
+        task.scene,
+        operator.trajectory(),
+        traits.motion_group,
+        f"scan-{participant.id}",
+        count,
+        np.random.default_rng([seed, 0x7A7]),
+        camera.lens.width,
+    )
     grid = RayGrid.for_camera(plan.camera)
     lens = LensDistortion.for_lens(plan.lens) if camera_model.radial_k1 != 0 else None
 
@@ -169,34 +208,72 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
     folder = prepare_session_folder(folder)
     for name in (ESTIMATES_CSV, ADVISORY_CSV, EVENTS_CSV, RTS_CSV):
         (folder / name).unlink(missing_ok=True)
-    write_json_atomically(folder / OPERATOR_JSON, {"participant": participant.id, "number": participant.number,
-                                                   "seed": seed, **traits.record()})
-    write_json_atomically(folder / TASK_JSON, {"environment": task_cfg.environment, "layout_seed": task_cfg.layout_seed,
-                                               "camera_model": task_cfg.camera_model,
-                                               "objects": [o.record() for o in task.objects]})
-    write_json_atomically(folder / RUN_JSON, {
-        "participant": participant.id, "phase": "task", "condition": condition.value, "status": "running",
-        "simulated": True, "pid": os.getpid(), "started": utc_now(), "model_version": model.version,
-        "source": f"simulated:{task_cfg.environment}/{task_cfg.camera_model}"})
-    writer = SessionWriter(folder, {"source": f"simulated:{task_cfg.environment}", "mode": mode.value,
-                                    "max_frames": count, "vocabulary": str(vocabulary_path(slam_config)),
-                                    "settings_file": SETTINGS, "config": {"slam": as_dict(slam_config)}})
-    writer.describe_source(f"simulated operator {participant.id} in {task_cfg.environment} "
-                           f"({task_cfg.camera_model} camera)", as_dict(intrinsics), camera.fps)
+    write_json_atomically(
+        folder / OPERATOR_JSON,
+        {"participant": participant.id, "number": participant.number, "seed": seed, **traits.record()},
+    )
+    write_json_atomically(
+        folder / TASK_JSON,
+        {
+            "environment": task_cfg.environment,
+            "layout_seed": task_cfg.layout_seed,
+            "camera_model": task_cfg.camera_model,
+            "objects": [o.record() for o in task.objects],
+        },
+    )
+    write_json_atomically(
+        folder / RUN_JSON,
+        {
+            "participant": participant.id,
+            "phase": "task",
+            "condition": condition.value,
+            "status": "running",
+            "simulated": True,
+            "pid": os.getpid(),
+            "started": utc_now(),
+            "model_version": model.version,
+            "source": f"simulated:{task_cfg.environment}/{task_cfg.camera_model}",
+        },
+    )
+    writer = SessionWriter(
+        folder,
+        {
+            "source": f"simulated:{task_cfg.environment}",
+            "mode": mode.value,
+            "max_frames": count,
+            "vocabulary": str(vocabulary_path(slam_config)),
+            "settings_file": SETTINGS,
+            "config": {"slam": as_dict(slam_config)},
+        },
+    )
+    writer.describe_source(
+        f"simulated operator {participant.id} in {task_cfg.environment} ({task_cfg.camera_model} camera)",
+        as_dict(intrinsics),
+        camera.fps,
+    )
     events = CsvLog(folder / EVENTS_CSV, EVENT_COLUMNS)
     estimates_log = CsvLog(folder / ESTIMATES_CSV, ESTIMATE_COLUMNS)
     rts_log = RtsCsvWriter(folder / RTS_CSV, settings)
     psd_log = PsdLogWriter(folder / PSD_DIR, monitor_config.log.psd_chunk_records)
     start_time = synth.start_time_s
     timing = advisory_cfg.timing
-    advice = _Advice(condition,
-                     PulseScheduler(pulse_rule(condition, advisory_cfg), timing.window_s, timing.cadence_s,
-                                    timing.stale_after_s, float(start_time + plan.frame_times[0]),
-                                    "rotation" if condition is Condition.ROTATION else "estimate"),
-                     CueClock(condition.audible, advisory_cfg.no_information.no_information_cue,
-                              advisory_cfg.no_information.cue_every_s),
-                     CsvLog(folder / ADVISORY_CSV, ADVISORY_COLUMNS), cfg.loop.audio_latency_s,
-                     lambda at, pulses: operator.hear(at - start_time, pulses))
+    advice = _Advice(
+        condition,
+        PulseScheduler(
+            pulse_rule(condition, advisory_cfg),
+            timing.window_s,
+            timing.cadence_s,
+            timing.stale_after_s,
+            float(start_time + plan.frame_times[0]),
+            "rotation" if condition is Condition.ROTATION else "estimate",
+        ),
+        CueClock(
+            condition.audible, advisory_cfg.no_information.no_information_cue, advisory_cfg.no_information.cue_every_s
+        ),
+        CsvLog(folder / ADVISORY_CSV, ADVISORY_COLUMNS),
+        cfg.loop.audio_latency_s,
+        lambda at, pulses: operator.hear(at - start_time, pulses),
+    )
     reading = estimate_reading(advisory_cfg)
     rotation = RotationSpeed(advisory_cfg.rotation)
     assembler = WindowAssembler(monitor_config.windows)
@@ -218,13 +295,16 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
             t = float(plan.frame_times[k])
             stamp = start_time + t
             operator.advance(t + margin)
-            images = render_images(plan, grid, lens, synth.sensor.blur_max_samples, k,
-                                   operator.trajectory(since=t - margin))
+            images = render_images(
+                plan, grid, lens, synth.sensor.blur_max_samples, k, operator.trajectory(since=t - margin)
+            )
             depth = None
             if mode is SlamMode.RGBD:
                 # as the device reads the sequence's depth PNG, with the camera's correction
-                depth = corrected_depth(depth_metres(depth_png(images.depth_m, synth.camera.depth_factor),
-                                                     synth.camera.depth_factor), depth_correction)
+                depth = corrected_depth(
+                    depth_metres(depth_png(images.depth_m, synth.camera.depth_factor), synth.camera.depth_factor),
+                    depth_correction,
+                )
             frame = Frame(k, stamp, images.gray, intrinsics, depth)
             output = tracker.track(frame)
             writer.write_frame(output)
@@ -280,10 +360,17 @@ def simulate_session(cfg: SimulateConfig, participant: Participant, folder: Path
         ended = status if status in ("interrupted", "failed") else "completed"
         writer.finish(ended, **({"error": error} if error else {}))
         run = json.loads((folder / RUN_JSON).read_text())
-        run.update(status=ended, error=error, ended=utc_now(),
-                   outcome=status, frames=frames, estimates=estimates, buffers=advice.buffers,
-                   objects_reached=len(operator.reached), warnings_heeded=operator.warnings_heeded,
-                   calibration="the source's ground truth kept")
+        run.update(
+            status=ended,
+            error=error,
+            ended=utc_now(),
+            outcome=status,
+            frames=frames,
+            estimates=estimates,
+            buffers=advice.buffers,
+            objects_reached=len(operator.reached),
+            warnings_heeded=operator.warnings_heeded,
+            calibration="the source's ground truth kept",
+        )
         write_json_atomically(folder / RUN_JSON, run)
     return SessionOutcome(folder, status, frames, estimates, len(operator.reached))
-

@@ -4,13 +4,14 @@ The study folder is a study of the kit (``protocol.json``, ``participants/<id>/<
 phase, ``task``, and ``simulation.json``: the simulation settings (configs/simulate.toml as resolved) and the model
 version it was made with. Running the command again on the same folder resumes it: every session whose phase is
 done is kept, the others run (a session cut short by Ctrl-C or a crash leaves its attempt, marked, and the next
-attempt, which supersedes it, starts from the beginning: a session is a few minutes of simulated time). Resuming with other settings
-or another model is refused, naming what differs.
+attempt, which supersedes it, starts from the beginning: a session is a few minutes of simulated time). Resuming with
+other settings or another model is refused, naming what differs.
 
 Each session runs in its own process (spawned), so that a crash of ORB-SLAM3 (it aborts on rare degenerate frames)
 or a hang (a session that reports no frame for ``stall_timeout_s`` is killed) costs one attempt, which is retried
 up to ``retries`` times, and ORB-SLAM3's console output goes to the attempt's
-``orbslam3.log`` (with anything else the process prints). Ctrl-C stops every session: each ends ``interrupted`` with its files final.
+``orbslam3.log`` (with anything else the process prints). Ctrl-C stops every session: each ends ``interrupted`` with
+its files final.
 """
 
 from __future__ import annotations
@@ -30,11 +31,11 @@ from pathlib import Path
 from typing import cast
 
 from estimator.service.model import model_version
-from seesys_app.simulate.config import SimulateConfig
-from seesys_app.simulate.session import Participant, simulate_session
 from seesys.core.errors import SeesysError
 from seesys.io.config import as_dict
 from seesys.io.logfiles import write_json_atomically
+from seesys_app.simulate.config import SimulateConfig
+from seesys_app.simulate.session import Participant, simulate_session
 from study.config import load_study_config
 from study.protocol import Protocol, make_protocol, read_protocol, write_protocol
 from study.sessions import DONE, RUN_JSON, next_attempt_folder, phase_status, supersede_attempts
@@ -89,13 +90,20 @@ def prepare_study(study: Path, cfg: SimulateConfig, model: Path) -> Protocol:
         recorded = json.loads(path.read_text())
         differences = _differences(recorded, record)
         if differences:
-            raise SeesysError(f"{study} was simulated with other settings or another model; differing: "
-                              f"{'; '.join(differences[:5])} (use a new folder, or the settings it records in "
-                              f"{path})")
+            raise SeesysError(
+                f"{study} was simulated with other settings or another model; differing: "
+                f"{'; '.join(differences[:5])} (use a new folder, or the settings it records in "
+                f"{path})"
+            )
         return read_protocol(study)
     protocol_cfg = replace(load_study_config().protocol, phases=[PHASE], objects=cfg.task.objects)
-    protocol = make_protocol(protocol_cfg, cfg.study.participants_per_condition, cfg.study.design,
-                             cfg.study.operator_seed, list(cfg.study.conditions))
+    protocol = make_protocol(
+        protocol_cfg,
+        cfg.study.participants_per_condition,
+        cfg.study.design,
+        cfg.study.operator_seed,
+        list(cfg.study.conditions),
+    )
     write_protocol(study, protocol)
     write_json_atomically(path, record)
     return protocol
@@ -113,8 +121,9 @@ def pending_jobs(study: Path, protocol: Protocol) -> tuple[list[Job], int]:
     return jobs, total
 
 
-def _session_process(cfg: SimulateConfig, participant: Participant, attempt: Path, model: Path,
-                     config_dir: Path | None, progress) -> None:
+def _session_process(
+    cfg: SimulateConfig, participant: Participant, attempt: Path, model: Path, config_dir: Path | None, progress
+) -> None:
     """A session's process: ORB-SLAM3's console output into the attempt's log, progress to the parent."""
     import cv2
 
@@ -158,8 +167,13 @@ def _mark_crashed(attempt: Path, reason: str) -> str:
     return reason
 
 
-def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | None = None,
-              show: Callable[[str, float, str], None] | None = None) -> StudyOutcome:
+def run_study(
+    study: Path,
+    cfg: SimulateConfig,
+    model: Path,
+    config_dir: Path | None = None,
+    show: Callable[[str, float, str], None] | None = None,
+) -> StudyOutcome:
     """Simulate every session of ``study`` not done yet, ``cfg.study.processes`` at a time. A
     ``KeyboardInterrupt`` (Ctrl-C; SIGTERM where the caller maps it so, as the command does) stops every session
     (``interrupted``, files final) and is raised again.
@@ -188,8 +202,11 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
                 supersede_attempts(job.folder)
                 attempt = next_attempt_folder(job.folder)
                 receiver, sender = context.Pipe(duplex=False)
-                process = context.Process(target=_session_process, name=f"simulate {name}",
-                                          args=(cfg, job.participant, attempt, model, config_dir, sender))
+                process = context.Process(
+                    target=_session_process,
+                    name=f"simulate {name}",
+                    args=(cfg, job.participant, attempt, model, config_dir, sender),
+                )
                 process.start()
                 sender.close()
                 running[receiver] = (job, attempt, process, name)
@@ -220,9 +237,16 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
                     continue
                 hung = receiver in stalled
                 stalled.discard(receiver)
-                reason = message[1] if isinstance(message, tuple) and message[0] == "error" else _mark_crashed(
-                    attempt, f"no frame for {cfg.study.stall_timeout_s:g} s: hung, killed" if hung
-                    else f"its process ended with exit code {process.exitcode}")
+                reason = (
+                    message[1]
+                    if isinstance(message, tuple) and message[0] == "error"
+                    else _mark_crashed(
+                        attempt,
+                        f"no frame for {cfg.study.stall_timeout_s:g} s: hung, killed"
+                        if hung
+                        else f"its process ended with exit code {process.exitcode}",
+                    )
+                )
                 if isinstance(message, tuple) and message[0] == "error" or tries[name] > cfg.study.retries:
                     failed.append(f"{name}: {reason}")
                     report(name, 0.0, f"failed: {reason}")
@@ -232,16 +256,20 @@ def run_study(study: Path, cfg: SimulateConfig, model: Path, config_dir: Path | 
     except KeyboardInterrupt:
         # A terminal's Ctrl-C reaches every session already; SIGTERM to this process, or a Ctrl-C it alone got,
         # does not: each session is told, then given STOP_GRACE_S to close its files.
-        for job, attempt, process, name in running.values():
+        for _job, _attempt, process, _name in running.values():
             if process.is_alive() and process.pid is not None:  # alive: started, so it has a pid
                 os.kill(process.pid, signal.SIGINT)
-        for job, attempt, process, name in running.values():
+        for _job, attempt, process, _name in running.values():
             process.join(STOP_GRACE_S)
             if process.is_alive():
                 process.terminate()
                 process.join()
                 _mark_crashed(attempt, f"stopped: terminated after {STOP_GRACE_S:g} s")
         raise
-    done = sum(1 for person in protocol.participants for condition in person.conditions
-               if phase_status(protocol.phase_folder(study, person.id, PHASE, condition)) == DONE)
+    done = sum(
+        1
+        for person in protocol.participants
+        for condition in person.conditions
+        if phase_status(protocol.phase_folder(study, person.id, PHASE, condition)) == DONE
+    )
     return StudyOutcome(Path(study), total, done, failed)

@@ -55,7 +55,7 @@ class FrameSource(abc.ABC):
     def frames(self) -> Iterator[Frame]:
         """Yield the frames in order, raising :class:`SourceError` on one that cannot be read."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (a source with nothing to release keeps this no-op)
         """Release the camera or files."""
 
     def __enter__(self) -> FrameSource:
@@ -152,7 +152,7 @@ def check_depth(depth_m: np.ndarray, gray: np.ndarray, limits: DepthLimits, wher
 
 def _node_value(node):
     if node.isMap():
-        return {key: _node_value(node.getNode(key)) for key in node.keys()}
+        return {key: _node_value(node.getNode(key)) for key in node.keys()}  # noqa: SIM118 (a cv2.FileNode is no iterable)
     if node.isSeq():
         return [_node_value(node.at(i)) for i in range(node.size())]
     if node.isString():

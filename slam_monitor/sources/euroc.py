@@ -58,8 +58,9 @@ class EurocSource(FrameSource):
             return None
         body = read_euroc_groundtruth(path)
         world_camera = body.matrices @ self._body_from_camera
-        return Poses.from_rotations(body.timestamps, world_camera[:, :3, 3],
-                                    Rotation.from_matrix(world_camera[:, :3, :3]))
+        return Poses.from_rotations(
+            body.timestamps, world_camera[:, :3, 3], Rotation.from_matrix(world_camera[:, :3, :3])
+        )
 
     def frames(self) -> Iterator[Frame]:
         for index, (stamp_ns, name) in enumerate(self._images):

@@ -9,6 +9,7 @@ profile, i.e. from the device's calibration.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -41,7 +42,9 @@ def _intrinsics(profile) -> Intrinsics:
         rs.distortion.modified_brown_conrady,
         rs.distortion.inverse_brown_conrady,
     ):
-        raise SourceError(f"RealSense stream uses the {intr.model} lens model, which ORB-SLAM3's pinhole camera cannot use")
+        raise SourceError(
+            f"RealSense stream uses the {intr.model} lens model, which ORB-SLAM3's pinhole camera cannot use"
+        )
     coeffs = tuple(float(c) for c in intr.coeffs[:5])
     return Intrinsics(intr.width, intr.height, intr.fx, intr.fy, intr.ppx, intr.ppy, coeffs)  # type: ignore[arg-type]
 
@@ -49,8 +52,17 @@ def _intrinsics(profile) -> Intrinsics:
 class RealSenseSource(FrameSource):
     """Frames from a started ``rs.pipeline``; use :func:`open_realsense_camera` or :func:`open_realsense_recording`."""
 
-    def __init__(self, pipeline, profile, image_stream: str, with_depth: bool, timeout_ms: int,
-                 depth_limits: DepthLimits, description: str, playback=None):
+    def __init__(
+        self,
+        pipeline,
+        profile,
+        image_stream: str,
+        with_depth: bool,
+        timeout_ms: int,
+        depth_limits: DepthLimits,
+        description: str,
+        playback=None,
+    ):
         rs = _rs()
         self._pipeline = pipeline
         self._timeout_ms = timeout_ms
@@ -115,18 +127,17 @@ class RealSenseSource(FrameSource):
             index += 1
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(RuntimeError):  # already stopped, e.g. after the end of a recording
             self._pipeline.stop()
-        except RuntimeError:
-            pass  # already stopped, e.g. after the end of a recording
 
 
 def _image_format(rs, stream: str):
     return rs.format.bgr8 if stream == "color" else rs.format.y8
 
 
-def open_realsense_camera(serial: str, settings: RealSenseSettings, depth_limits: DepthLimits,
-                          with_depth: bool) -> RealSenseSource:
+def open_realsense_camera(
+    serial: str, settings: RealSenseSettings, depth_limits: DepthLimits, with_depth: bool
+) -> RealSenseSource:
     """Start a live camera (the first one, or the one with ``serial``) with the configured streams."""
     rs = _rs()
     devices = rs.context().query_devices()
@@ -142,22 +153,34 @@ def open_realsense_camera(serial: str, settings: RealSenseSettings, depth_limits
         config.enable_device(serial)
     index = 1 if settings.stream == "infrared" else -1
     stream = rs.stream.color if settings.stream == "color" else rs.stream.infrared
-    config.enable_stream(stream, index, settings.width, settings.height, _image_format(rs, settings.stream), settings.fps)
+    config.enable_stream(
+        stream, index, settings.width, settings.height, _image_format(rs, settings.stream), settings.fps
+    )
     if with_depth:
         config.enable_stream(rs.stream.depth, settings.width, settings.height, rs.format.z16, settings.fps)
     pipeline = rs.pipeline()
     try:
         profile = pipeline.start(config)
     except RuntimeError as e:
-        raise SourceError(f"cannot start the RealSense camera with {settings.stream} {settings.width}x{settings.height}"
-                          f"@{settings.fps}: {e}") from None
+        raise SourceError(
+            f"cannot start the RealSense camera with {settings.stream} {settings.width}x{settings.height}"
+            f"@{settings.fps}: {e}"
+        ) from None
     name = profile.get_device().get_info(rs.camera_info.name)
-    return RealSenseSource(pipeline, profile, settings.stream, with_depth, settings.frame_timeout_ms, depth_limits,
-                           f"RealSense {name} ({profile.get_device().get_info(rs.camera_info.serial_number)})")
+    return RealSenseSource(
+        pipeline,
+        profile,
+        settings.stream,
+        with_depth,
+        settings.frame_timeout_ms,
+        depth_limits,
+        f"RealSense {name} ({profile.get_device().get_info(rs.camera_info.serial_number)})",
+    )
 
 
-def open_realsense_recording(path: Path, preferred_stream: str, settings: RecordingSettings,
-                             depth_limits: DepthLimits, with_depth: bool) -> RealSenseSource:
+def open_realsense_recording(
+    path: Path, preferred_stream: str, settings: RecordingSettings, depth_limits: DepthLimits, with_depth: bool
+) -> RealSenseSource:
     """Play a RealSense recording through the camera's pipeline code, at recorded pace or as fast as possible."""
     rs = _rs()
     require_file(path, "RealSense recording")
@@ -184,5 +207,13 @@ def open_realsense_recording(path: Path, preferred_stream: str, settings: Record
     if with_depth and rs.stream.depth not in recorded:
         pipeline.stop()
         raise SourceError(f"RealSense recording {path} has no depth stream (needed for RGB-D)")
-    return RealSenseSource(pipeline, profile, image_stream, with_depth, settings.frame_timeout_ms, depth_limits,
-                           f"RealSense recording {path}", playback)
+    return RealSenseSource(
+        pipeline,
+        profile,
+        image_stream,
+        with_depth,
+        settings.frame_timeout_ms,
+        depth_limits,
+        f"RealSense recording {path}",
+        playback,
+    )

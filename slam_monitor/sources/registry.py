@@ -54,8 +54,9 @@ def _realsense(spec: SourceSpec, config: CameraConfig, with_depth: bool) -> Fram
 def _rsbag(spec: SourceSpec, config: CameraConfig, with_depth: bool) -> FrameSource:
     from slam_monitor.sources.realsense import open_realsense_recording
 
-    return open_realsense_recording(Path(spec.path), config.realsense.stream, config.recording, config.depth_check,
-                                    with_depth)
+    return open_realsense_recording(
+        Path(spec.path), config.realsense.stream, config.recording, config.depth_check, with_depth
+    )
 
 
 def _rosbag(spec: SourceSpec, config: CameraConfig, with_depth: bool) -> FrameSource:

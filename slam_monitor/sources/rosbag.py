@@ -94,8 +94,9 @@ def _pick(reader, named: str, types: tuple[str, ...], what: str, key: str, keep=
         return named
     found = sorted(topic for topic, info in topics.items() if info.msgtype in types and keep(topic))
     if len(found) > 1:
-        raise SourceError(f"the bag has several {what} topics ({', '.join(found)}): name one in "
-                          f"configs/camera.toml [rosbag] {key}")
+        raise SourceError(
+            f"the bag has several {what} topics ({', '.join(found)}): name one in configs/camera.toml [rosbag] {key}"
+        )
     return found[0] if found else None
 
 
@@ -111,23 +112,34 @@ class BagTopics:
 
 def find_topics(reader, settings: RosbagSettings, with_depth: bool) -> BagTopics:
     """Resolve every topic from the configuration or by message type; no image topic is an error naming the topics."""
-    image = _pick(reader, settings.image_topic, IMAGE_TYPES, "image", "image_topic",
-                  lambda topic: DEPTH_WORD not in topic.lower())
+    image = _pick(
+        reader, settings.image_topic, IMAGE_TYPES, "image", "image_topic", lambda topic: DEPTH_WORD not in topic.lower()
+    )
     if image is None:
-        raise SourceError(f"the bag has no image topic (sensor_msgs Image or CompressedImage); it has: "
-                          f"{_topics_listing(reader)}")
+        raise SourceError(
+            f"the bag has no image topic (sensor_msgs Image or CompressedImage); it has: {_topics_listing(reader)}"
+        )
     depth = None
     if with_depth:
-        depth = _pick(reader, settings.depth_topic, (IMAGE,), "depth", "depth_topic",
-                      lambda topic: DEPTH_WORD in topic.lower())
+        depth = _pick(
+            reader, settings.depth_topic, (IMAGE,), "depth", "depth_topic", lambda topic: DEPTH_WORD in topic.lower()
+        )
         if depth is None:
-            raise SourceError(f"RGB-D mode needs a depth topic (sensor_msgs/Image with 'depth' in its name, or "
-                              f"[rosbag] depth_topic); the bag has: {_topics_listing(reader)}")
+            raise SourceError(
+                f"RGB-D mode needs a depth topic (sensor_msgs/Image with 'depth' in its name, or "
+                f"[rosbag] depth_topic); the bag has: {_topics_listing(reader)}"
+            )
     beside = image.rsplit("/", 1)[0] + "/camera_info"
     info_named = settings.camera_info_topic or (beside if reader.topics.get(beside) else "")
     info = _pick(reader, info_named, (CAMERA_INFO,), "camera info", "camera_info_topic")
-    truth = _pick(reader, settings.ground_truth_topic, POSE_TYPES + (TF,), "ground truth", "ground_truth_topic",
-                  lambda topic: reader.topics[topic].msgtype in POSE_TYPES)
+    truth = _pick(
+        reader,
+        settings.ground_truth_topic,
+        POSE_TYPES + (TF,),
+        "ground truth",
+        "ground_truth_topic",
+        lambda topic: reader.topics[topic].msgtype in POSE_TYPES,
+    )
     if truth is None and not settings.ground_truth_topic:
         truth = _pick(reader, "", (TF,), "ground truth", "ground_truth_topic", lambda topic: topic == "/tf")
     return BagTopics(image, depth, info, truth)
@@ -143,10 +155,18 @@ def _intrinsics(message) -> Intrinsics:
     k = np.asarray(_field(message, "k"), dtype=float)
     d = [float(v) for v in _field(message, "d")][:5]
     if message.distortion_model not in ("", "plumb_bob", "rational_polynomial"):
-        raise SourceError(f"camera info uses the {message.distortion_model!r} model, which ORB-SLAM3's pinhole "
-                          "camera cannot use")
-    return Intrinsics(int(message.width), int(message.height), float(k[0]), float(k[4]), float(k[2]), float(k[5]),
-                      tuple(d + [0.0] * (5 - len(d))))  # type: ignore[arg-type]
+        raise SourceError(
+            f"camera info uses the {message.distortion_model!r} model, which ORB-SLAM3's pinhole camera cannot use"
+        )
+    return Intrinsics(
+        int(message.width),
+        int(message.height),
+        float(k[0]),
+        float(k[4]),
+        float(k[2]),
+        float(k[5]),
+        tuple(d + [0.0] * (5 - len(d))),
+    )  # type: ignore[arg-type]
 
 
 def decode_image(message, where: str) -> np.ndarray:
@@ -184,9 +204,14 @@ def _ground_truth_pose(topic_type: str, message, child_frame: str) -> list[tuple
     """(t, position, quaternion xyzw) of each camera pose ``message`` carries."""
     if topic_type == TF:
         transforms = [t for t in message.transforms if not child_frame or t.child_frame_id == child_frame]
-        return [(_stamp(t), [t.transform.translation.x, t.transform.translation.y, t.transform.translation.z],
-                 [t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w])
-                for t in transforms]
+        return [
+            (
+                _stamp(t),
+                [t.transform.translation.x, t.transform.translation.y, t.transform.translation.z],
+                [t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w],
+            )
+            for t in transforms
+        ]
     if topic_type == "geometry_msgs/msg/TransformStamped":
         p, q = message.transform.translation, message.transform.rotation
     else:
@@ -198,8 +223,14 @@ def _ground_truth_pose(topic_type: str, message, child_frame: str) -> list[tuple
 class RosbagSource(FrameSource):
     """Frames of a ROS 1 or ROS 2 bag; see the module docstring for how topics are found."""
 
-    def __init__(self, path: Path, settings: RosbagSettings, defaults: FileSourceDefaults,
-                 depth_limits: DepthLimits, with_depth: bool):
+    def __init__(
+        self,
+        path: Path,
+        settings: RosbagSettings,
+        defaults: FileSourceDefaults,
+        depth_limits: DepthLimits,
+        with_depth: bool,
+    ):
         self.path = bag_path(path)
         self._settings = settings
         self._depth_limits = depth_limits
@@ -217,7 +248,9 @@ class RosbagSource(FrameSource):
         except BaseException:
             self._reader.close()
             raise
-        self.description = f"ROS bag {self.path} ({self.topics.image}" + (f" + {self.topics.depth})" if with_depth else ")")
+        self.description = f"ROS bag {self.path} ({self.topics.image}" + (
+            f" + {self.topics.depth})" if with_depth else ")"
+        )
 
     def _stamps(self, topic: str) -> np.ndarray:
         return np.array([_stamp(message) for _, message in _messages(self._reader, [topic])])
@@ -249,14 +282,20 @@ class RosbagSource(FrameSource):
         if topic is None:
             return None
         topic_type = self._reader.topics[topic].msgtype
-        rows = [row for _, message in _messages(self._reader, [topic])
-                for row in _ground_truth_pose(topic_type, message, self._settings.ground_truth_child_frame)]
+        rows = [
+            row
+            for _, message in _messages(self._reader, [topic])
+            for row in _ground_truth_pose(topic_type, message, self._settings.ground_truth_child_frame)
+        ]
         if topic_type == TF and not self._settings.ground_truth_child_frame:
-            children = sorted({t.child_frame_id for _, message in _messages(self._reader, [topic])
-                               for t in message.transforms})
+            children = sorted(
+                {t.child_frame_id for _, message in _messages(self._reader, [topic]) for t in message.transforms}
+            )
             if len(children) > 1:
-                raise SourceError(f"{topic} holds transforms to several frames ({', '.join(children)}): name the "
-                                  "camera's in configs/camera.toml [rosbag] ground_truth_child_frame")
+                raise SourceError(
+                    f"{topic} holds transforms to several frames ({', '.join(children)}): name the "
+                    "camera's in configs/camera.toml [rosbag] ground_truth_child_frame"
+                )
         if not rows:
             return None
         times, positions, quaternions = zip(*rows)
@@ -265,8 +304,8 @@ class RosbagSource(FrameSource):
     def frames(self) -> Iterator[Frame]:
         topics = [self.topics.image] + ([self.topics.depth] if self.has_depth else [])
         image_number = depth_number = 0
-        waiting_images: dict[int, np.ndarray] = {}   # image number -> gray, waiting for its depth
-        depths: dict[int, np.ndarray] = {}            # depth number -> metres, waiting for its image
+        waiting_images: dict[int, np.ndarray] = {}  # image number -> gray, waiting for its depth
+        depths: dict[int, np.ndarray] = {}  # depth number -> metres, waiting for its image
         wanted = set(self._pairs.values()) if self._pairs is not None else set()
         index = 0
         for topic, message in _messages(self._reader, topics):

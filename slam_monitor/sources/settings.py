@@ -62,7 +62,9 @@ def load_camera_config(directory: Path | None = None) -> CameraConfig:
     """``configs/camera.toml`` as a :class:`CameraConfig`."""
     config = load_section("camera", CameraConfig, directory)
     if config.realsense.stream not in ("color", "infrared"):
-        raise SourceError(f"camera.toml: realsense.stream must be 'color' or 'infrared', not {config.realsense.stream!r}")
+        raise SourceError(
+            f"camera.toml: realsense.stream must be 'color' or 'infrared', not {config.realsense.stream!r}"
+        )
     return config
 
 

@@ -47,7 +47,11 @@ class TumSource(FrameSource):
         depth = read_timestamped_list(self.folder / "depth.txt")
         depth_times = np.array([t for t, _ in depth])
         nearest = np.abs(depth_times[None, :] - times[:, None]).argmin(axis=1)
-        paired = [(image, depth[j][1]) for image, t, j in zip(self._images, times, nearest) if abs(depth_times[j] - t) <= max_dt]
+        paired = [
+            (image, depth[j][1])
+            for image, t, j in zip(self._images, times, nearest)
+            if abs(depth_times[j] - t) <= max_dt
+        ]
         if not paired:
             raise SourceError(f"{self.folder}: no depth image within {max_dt} s of any image")
         self._images = [image for image, _ in paired]
@@ -67,5 +71,7 @@ class TumSource(FrameSource):
             depth = None
             if self.has_depth:
                 depth_path = self.folder / depth_name
-                depth = check_depth(read_depth_png(depth_path, self._depth_units), gray, self._depth_limits, str(depth_path))
+                depth = check_depth(
+                    read_depth_png(depth_path, self._depth_units), gray, self._depth_limits, str(depth_path)
+                )
             yield Frame(index, timestamp, gray, self.intrinsics, depth)

@@ -60,9 +60,16 @@ def initial_offset(camera: Poses, markers: Poses) -> float:
     return 0.0 if overlap > 0 else float(camera.timestamps[0] - markers.timestamps[0])
 
 
-def calibrate_session(folder: Path, cfg: CalibrationConfig, body: str, mocap: Path | None = None,
-                      marker_camera_from: Path | None = None, monocular: bool = False,
-                      overwrite: bool = False, offset_guess_s: float | None = None) -> SessionCalibration:
+def calibrate_session(
+    folder: Path,
+    cfg: CalibrationConfig,
+    body: str,
+    mocap: Path | None = None,
+    marker_camera_from: Path | None = None,
+    monocular: bool = False,
+    overwrite: bool = False,
+    offset_guess_s: float | None = None,
+) -> SessionCalibration:
     """Calibrate ``folder``'s mocap against its SLAM trajectory and write ``groundtruth.tum`` and
     ``calibration.json``. A monocular session needs ``marker_camera_from`` (its scale is not metric). An existing
     ``groundtruth.tum`` is kept unless ``overwrite``. The offset is searched within ``max_offset_s`` of
@@ -72,8 +79,10 @@ def calibrate_session(folder: Path, cfg: CalibrationConfig, body: str, mocap: Pa
     if target.exists() and not overwrite:
         raise SeesysError(f"{target} exists; pass --overwrite to replace it with the calibrated mocap")
     if monocular and marker_camera_from is None:
-        raise SeesysError("a monocular trajectory has no metric scale for the hand-eye translation: pass the "
-                          "calibration.json of an RGB-D session of the same rig (--hand-eye-from)")
+        raise SeesysError(
+            "a monocular trajectory has no metric scale for the hand-eye translation: pass the "
+            "calibration.json of an RGB-D session of the same rig (--hand-eye-from)"
+        )
     camera = read_tum(folder / TRAJECTORY)
     markers = read_mocap(mocap or folder / MOCAP_LOG, body).sorted_unique()
     guess = initial_offset(camera, markers) if offset_guess_s is None else offset_guess_s
@@ -88,27 +97,42 @@ def calibrate_session(folder: Path, cfg: CalibrationConfig, body: str, mocap: Pa
     temporary = target.with_name(target.name + ".tmp")
     write_tum(temporary, truth)
     os.replace(temporary, target)
-    report = {"clock": clock.as_dict(), "hand_eye": hand_eye.as_dict() if hand_eye else
-              {"rotation_xyzw": Rotation.from_matrix(x[:3, :3]).as_quat().tolist(),
-               "translation_m": x[:3, 3].tolist(), "from": str(marker_camera_from)},
-              "mocap": str(mocap or folder / MOCAP_LOG), "body": body, "ground_truth_poses": len(truth)}
+    report = {
+        "clock": clock.as_dict(),
+        "hand_eye": hand_eye.as_dict()
+        if hand_eye
+        else {
+            "rotation_xyzw": Rotation.from_matrix(x[:3, :3]).as_quat().tolist(),
+            "translation_m": x[:3, 3].tolist(),
+            "from": str(marker_camera_from),
+        },
+        "mocap": str(mocap or folder / MOCAP_LOG),
+        "body": body,
+        "ground_truth_poses": len(truth),
+    }
     write_json_atomically(folder / CALIBRATION_JSON, report)
     return SessionCalibration(clock, hand_eye, x, len(truth))
 
 
 def format_calibration(result: SessionCalibration) -> str:
     c = result.clock
-    lines = [f"clock offset: {c.offset_s * 1e3:.2f} ms (t_camera = t_mocap + offset); correlation "
-             f"{c.peak_correlation:.4f}, residual {c.residual_rms_deg_s:.2f} deg/s RMS over {c.samples} samples"]
+    lines = [
+        f"clock offset: {c.offset_s * 1e3:.2f} ms (t_camera = t_mocap + offset); correlation "
+        f"{c.peak_correlation:.4f}, residual {c.residual_rms_deg_s:.2f} deg/s RMS over {c.samples} samples"
+    ]
     h = result.hand_eye
     x = result.marker_camera
     angle = np.degrees(Rotation.from_matrix(x[:3, :3]).magnitude())
-    lines.append(f"marker->camera: t = [{', '.join(f'{v * 1e3:.1f}' for v in x[:3, 3])}] mm, rotation {angle:.2f} deg"
-                 + ("" if h else " (from an earlier calibration)"))
+    lines.append(
+        f"marker->camera: t = [{', '.join(f'{v * 1e3:.1f}' for v in x[:3, 3])}] mm, rotation {angle:.2f} deg"
+        + ("" if h else " (from an earlier calibration)")
+    )
     if h:
-        lines.append(f"hand-eye residuals over {h.motions} motions ({h.stations} stations): rotation median "
-                     f"{h.residual_rotation_deg_median:.3f} deg (p90 {h.residual_rotation_deg_p90:.3f}), "
-                     f"translation median {h.residual_translation_m_median * 1e3:.2f} mm "
-                     f"(p90 {h.residual_translation_m_p90 * 1e3:.2f})")
+        lines.append(
+            f"hand-eye residuals over {h.motions} motions ({h.stations} stations): rotation median "
+            f"{h.residual_rotation_deg_median:.3f} deg (p90 {h.residual_rotation_deg_p90:.3f}), "
+            f"translation median {h.residual_translation_m_median * 1e3:.2f} mm "
+            f"(p90 {h.residual_translation_m_p90 * 1e3:.2f})"
+        )
     lines.append(f"ground truth: {result.ground_truth_poses} camera poses")
     return "\n".join(lines)

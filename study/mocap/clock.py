@@ -93,13 +93,15 @@ def estimate_clock_offset(camera: Poses, mocap: Poses, cfg: CalibrationConfig) -
         grid = cam_grid[(cam_grid - offset >= moc_grid[0]) & (cam_grid - offset <= moc_grid[-1])]
         return float(np.mean((np.interp(grid, cam_grid, cam) - np.interp(grid - offset, moc_grid, moc)) ** 2))
 
-    fine = optimize.minimize_scalar(mismatch, bounds=(coarse - step, coarse + step), method="bounded",
-                                    options={"xatol": step * 1e-3})
+    fine = optimize.minimize_scalar(
+        mismatch, bounds=(coarse - step, coarse + step), method="bounded", options={"xatol": step * 1e-3}
+    )
     offset = float(fine.x)
     grid = cam_grid[(cam_grid - offset >= moc_grid[0]) & (cam_grid - offset <= moc_grid[-1])]
     a, b = np.interp(grid, cam_grid, cam), np.interp(grid - offset, moc_grid, moc)
-    return ClockOffset(offset, float(np.corrcoef(a, b)[0, 1]), float(np.degrees(np.sqrt(np.mean((a - b) ** 2)))),
-                       len(grid))
+    return ClockOffset(
+        offset, float(np.corrcoef(a, b)[0, 1]), float(np.degrees(np.sqrt(np.mean((a - b) ** 2)))), len(grid)
+    )
 
 
 def shift(poses: Poses, offset_s: float) -> Poses:

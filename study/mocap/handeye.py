@@ -60,15 +60,16 @@ def to_matrix(rotation: Rotation, translation: np.ndarray) -> np.ndarray:
 def stations(camera: Poses, mocap_on_camera_clock: Poses, cfg: CalibrationConfig) -> tuple[Poses, Poses]:
     """Camera poses every ``station_step_s`` inside the mocap's span, and the mocap poses at the same times."""
     camera = camera.sorted_unique()
-    inside = (camera.timestamps >= mocap_on_camera_clock.timestamps[0]) & \
-             (camera.timestamps <= mocap_on_camera_clock.timestamps[-1])
+    inside = (camera.timestamps >= mocap_on_camera_clock.timestamps[0]) & (
+        camera.timestamps <= mocap_on_camera_clock.timestamps[-1]
+    )
     camera = camera.take(inside)
     picked, last = [], -np.inf
     for i, t in enumerate(camera.timestamps):
         if t - last >= cfg.station_step_s:
             picked.append(i)
             last = t
-    picked = picked[:cfg.max_stations]
+    picked = picked[: cfg.max_stations]
     if len(picked) < 3:
         raise CalibrationError(f"only {len(picked)} stations where SLAM and mocap overlap; hand-eye needs 3 or more")
     chosen = camera.take(np.array(picked))
@@ -87,8 +88,10 @@ def calibrate_hand_eye(camera: Poses, mocap_on_camera_clock: Poses, cfg: Calibra
     alpha = Rotation.from_matrix(a[:, :3, :3]).as_rotvec()
     beta = Rotation.from_matrix(b[:, :3, :3]).as_rotvec()
     if np.linalg.matrix_rank(alpha, tol=1e-3) < 2:
-        raise CalibrationError("the device rotated about one axis only: the hand-eye rotation is undetermined "
-                               "(turn it about at least two axes)")
+        raise CalibrationError(
+            "the device rotated about one axis only: the hand-eye rotation is undetermined "
+            "(turn it about at least two axes)"
+        )
     rotation, _ = Rotation.align_vectors(alpha, beta)
     r_x = rotation.as_matrix()
     lhs = (a[:, :3, :3] - np.eye(3)).reshape(-1, 3)
@@ -98,9 +101,16 @@ def calibrate_hand_eye(camera: Poses, mocap_on_camera_clock: Poses, cfg: Calibra
     ax, xb = a @ x, x @ b
     rot_err = np.degrees(Rotation.from_matrix(np.transpose(ax[:, :3, :3], (0, 2, 1)) @ xb[:, :3, :3]).magnitude())
     trans_err = np.linalg.norm(ax[:, :3, 3] - xb[:, :3, 3], axis=1)
-    return HandEye(rotation.as_quat().tolist(), t_x.tolist(), len(cam), len(i),
-                   float(np.median(rot_err)), float(np.percentile(rot_err, 90)),
-                   float(np.median(trans_err)), float(np.percentile(trans_err, 90)))
+    return HandEye(
+        rotation.as_quat().tolist(),
+        t_x.tolist(),
+        len(cam),
+        len(i),
+        float(np.median(rot_err)),
+        float(np.percentile(rot_err, 90)),
+        float(np.median(trans_err)),
+        float(np.percentile(trans_err, 90)),
+    )
 
 
 def camera_ground_truth(mocap: Poses, marker_camera: np.ndarray, offset_s: float) -> Poses:

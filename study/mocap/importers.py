@@ -29,12 +29,15 @@ class MocapImportError(SeesysError):
     """A motion-capture file is missing, malformed, or lacks the requested body."""
 
 
-def _block(rows: list[list[str]], title: str,
-           path: Path) -> tuple[float, list[str], list[str], list[str], list[list[str]]]:
+def _block(
+    rows: list[list[str]], title: str, path: Path
+) -> tuple[float, list[str], list[str], list[str], list[list[str]]]:
     starts = [i for i, row in enumerate(rows) if row and row[0].strip() == title]
     if not starts:
-        raise MocapImportError(f"{path}: no '{title}' block (blocks: "
-                               f"{', '.join(r[0] for r in rows if len(r) == 1 and r[0].strip()) or 'none'})")
+        raise MocapImportError(
+            f"{path}: no '{title}' block (blocks: "
+            f"{', '.join(r[0] for r in rows if len(r) == 1 and r[0].strip()) or 'none'})"
+        )
     i = starts[0]
     try:
         rate = float(rows[i + 1][0])
@@ -42,7 +45,7 @@ def _block(rows: list[list[str]], title: str,
     except (IndexError, ValueError):
         raise MocapImportError(f"{path}: the '{title}' block has no frame rate and header rows") from None
     data = []
-    for row in rows[i + 5:]:
+    for row in rows[i + 5 :]:
         if not row or not any(field.strip() for field in row):
             break
         data.append(row)
@@ -70,10 +73,10 @@ def read_vicon_csv(path: Path, body: str, block: str = "Segments") -> Poses:
     rate, names, columns, units, data = _block(rows, block, path)
     start = _group_start(names, body, path)
     wanted = ("RX", "RY", "RZ", "TX", "TY", "TZ")
-    group = [c.strip() for c in columns[start:start + 6]]
+    group = [c.strip() for c in columns[start : start + 6]]
     if group != list(wanted):
         raise MocapImportError(f"{path}: columns of '{body}' are {group}, expected {list(wanted)}")
-    unit_of = [u.strip() for u in units[start:start + 6]]
+    unit_of = [u.strip() for u in units[start : start + 6]]
     try:
         angle = ANGLE_SCALE_RAD[unit_of[0]]
         length = UNIT_SCALE_M[unit_of[3]]
@@ -82,7 +85,7 @@ def read_vicon_csv(path: Path, body: str, block: str = "Segments") -> Poses:
     frame_column = [c.strip() for c in columns].index("Frame") if "Frame" in [c.strip() for c in columns] else 0
     frames, values = [], []
     for row in data:
-        fields = row[start:start + 6]
+        fields = row[start : start + 6]
         if len(fields) < 6 or any(not f.strip() for f in fields):
             continue  # occluded
         try:

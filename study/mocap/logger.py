@@ -54,13 +54,15 @@ def connect(cfg: MocapConfig):
     import motioncapture
 
     if cfg.backend == "mock":
-        return motioncapture.connect("mock", {"rigid_bodies": cfg.mock_rigid_bodies,
-                                              "frequency": str(cfg.mock_frequency_hz)})
+        return motioncapture.connect(
+            "mock", {"rigid_bodies": cfg.mock_rigid_bodies, "frequency": str(cfg.mock_frequency_hz)}
+        )
     try:
         socket.create_connection((cfg.hostname, cfg.port), timeout=cfg.connect_timeout_s).close()
     except OSError as e:
-        raise MocapUnavailable(f"no {cfg.backend} server at {cfg.hostname}:{cfg.port} ({e}); check hostname and "
-                               f"port in configs/study.toml") from None
+        raise MocapUnavailable(
+            f"no {cfg.backend} server at {cfg.hostname}:{cfg.port} ({e}); check hostname and port in configs/study.toml"
+        ) from None
     try:
         return motioncapture.connect(cfg.backend, {"hostname": cfg.hostname})
     except RuntimeError as e:

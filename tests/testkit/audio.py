@@ -52,9 +52,13 @@ class Sandbox:
         self.session = self.root / "session"
         self.estimates_endpoint = f"ipc://{self.root}/estimates"
         self.features_endpoint = f"ipc://{self.root}/features"
-        settings = {"host_api": JACK_HOST_API if jack else "", "endpoint": f"ipc://{self.root}/handoff",
-                    "estimates_endpoint": self.estimates_endpoint, "features_endpoint": self.features_endpoint,
-                    **overrides}
+        settings = {
+            "host_api": JACK_HOST_API if jack else "",
+            "endpoint": f"ipc://{self.root}/handoff",
+            "estimates_endpoint": self.estimates_endpoint,
+            "features_endpoint": self.features_endpoint,
+            **overrides,
+        }
         self.config_dir = write_config_dir(self.root / "configs", settings)
         self.cfg: AdvisoryConfig = load_advisory_config(self.config_dir)
         self.env = process_env(self.config_dir, jack)
@@ -196,7 +200,7 @@ def pulses_per_buffer(x: np.ndarray, rate: int, starts, pulses, eq, cues=None) -
     starts = np.asarray(starts, dtype=int)
     ends = np.append(starts[1:], x.size)
     cues = np.zeros(len(starts), dtype=bool) if cues is None else np.asarray(cues, dtype=bool)
-    assert len(pulse_onsets(x[:starts[0]], rate)) == 0
+    assert len(pulse_onsets(x[: starts[0]], rate)) == 0
     pulse_length = round(eq.pulse_s * rate)
     whole = []
     for n, start, end, cue in zip(pulses, starts, ends, cues):
@@ -246,5 +250,8 @@ def sound_stretches(samples: np.ndarray, rate: int, threshold: float, smooth_s: 
 def cue_tones(samples: np.ndarray, rate: int, cue) -> list[int]:
     """Start samples of the "no information" cue's tones heard in ``samples`` (stretches at least half a cue tone
     long: a pulse is far shorter)."""
-    return [start for start, length in sound_stretches(samples, rate, cue.cue_level / 10)
-            if length >= cue.cue_tone_s * rate / 2]
+    return [
+        start
+        for start, length in sound_stretches(samples, rate, cue.cue_level / 10)
+        if length >= cue.cue_tone_s * rate / 2
+    ]

@@ -60,8 +60,9 @@ def single_thread():
         yield
 
 
-def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float = 1.0, t0: float = 0.0,
-                  camera_gain: float = 1.0) -> Path:
+def write_session(
+    folder: Path, seed: int, frames: int = 240, noise_scale: float = 1.0, t0: float = 0.0, camera_gain: float = 1.0
+) -> Path:
     """A labelled RGB-D session folder whose errors follow a hidden per-segment difficulty (module docstring); its
     times start at ``t0`` (an epoch time, as a RealSense or TUM recording has); ``camera_gain``: another camera's
     image, its contrast that many times and its Laplacian variance the square of it."""
@@ -88,13 +89,24 @@ def write_session(folder: Path, seed: int, frames: int = 240, noise_scale: float
     for k in range(frames):
         d = difficulty[k]
         row = np.zeros(rts_schema.NUM_CHANNELS, np.float32)
-        values = {"brightness": 0.5 + 0.05 * rng.normal(), "contrast": camera_gain * (0.25 - 0.15 * d),
-                  "entropy": 7.2 - 1.5 * d, "laplacian": camera_gain ** 2 * (300 - 200 * d),
-                  "matched_inliers": 400 - 300 * d + 10 * rng.normal(),
-                  "outliers": 20 + 60 * d + 3 * rng.normal(), "matches_before_po": 420 - 240 * d,
-                  "rel_tx": velocity[k, 0], "rel_ty": velocity[k, 1], "rel_tz": velocity[k, 2],
-                  "rel_roll": 0.0, "rel_pitch": 0.0, "rel_yaw": 0.01, "avg_mp_depth": 2.0 + d,
-                  "var_mp_depth": 0.5, "local_mapping_visual_error": 0.8 + 2 * d}
+        values = {
+            "brightness": 0.5 + 0.05 * rng.normal(),
+            "contrast": camera_gain * (0.25 - 0.15 * d),
+            "entropy": 7.2 - 1.5 * d,
+            "laplacian": camera_gain**2 * (300 - 200 * d),
+            "matched_inliers": 400 - 300 * d + 10 * rng.normal(),
+            "outliers": 20 + 60 * d + 3 * rng.normal(),
+            "matches_before_po": 420 - 240 * d,
+            "rel_tx": velocity[k, 0],
+            "rel_ty": velocity[k, 1],
+            "rel_tz": velocity[k, 2],
+            "rel_roll": 0.0,
+            "rel_pitch": 0.0,
+            "rel_yaw": 0.01,
+            "avg_mp_depth": 2.0 + d,
+            "var_mp_depth": 0.5,
+            "local_mapping_visual_error": 0.8 + 2 * d,
+        }
         for name, value in values.items():
             row[rts_schema.index_of(name)] = value
         psd = np.zeros((*PSD_SHAPE, 3), np.uint8)
@@ -117,8 +129,14 @@ class TinyDataset:
 
 
 # (trajectory, motion group, environment) of each run; heldout_env is the held-out environment.
-RUNS = [("traj_a", "patrol", "lab"), ("traj_b", "patrol", "lab"), ("traj_c", "aiming", "office"),
-        ("traj_d", "aiming", "office"), ("traj_e", "rapid", "lab"), ("traj_f", "patrol", "heldout_env")]
+RUNS = [
+    ("traj_a", "patrol", "lab"),
+    ("traj_b", "patrol", "lab"),
+    ("traj_c", "aiming", "office"),
+    ("traj_d", "aiming", "office"),
+    ("traj_e", "rapid", "lab"),
+    ("traj_f", "patrol", "heldout_env"),
+]
 
 
 def build_tiny_dataset(base: Path) -> TinyDataset:
@@ -130,13 +148,25 @@ def build_tiny_dataset(base: Path) -> TinyDataset:
         name = f"{environment}__{trajectory}__s0__rgbd__t0"
         folder = write_session(sessions / name, seed=k)
         arrays = label_run(folder, SlamMode.RGBD, load_label_config(), windows)
-        info = RunInfo(name, f"{environment}__{trajectory}__s0", environment, group, trajectory, "rgbd", 0,
-                       COMPLETED, frames=240, frames_tracked=240, samples=len(arrays.samples),
-                       camera_normalisation=camera_normalisation.VERSION)
+        info = RunInfo(
+            name,
+            f"{environment}__{trajectory}__s0",
+            environment,
+            group,
+            trajectory,
+            "rgbd",
+            0,
+            COMPLETED,
+            frames=240,
+            frames_tracked=240,
+            samples=len(arrays.samples),
+            camera_normalisation=camera_normalisation.VERSION,
+        )
         write_run(root, info, arrays)
         names.append(name)
-    split_round = SplitRound(["traj_d"], ["traj_e", "traj_f"], [names[0], names[1], names[2]], [names[3]],
-                             [names[4], names[5]], [])
+    split_round = SplitRound(
+        ["traj_d"], ["traj_e", "traj_f"], [names[0], names[1], names[2]], [names[3]], [names[4], names[5]], []
+    )
     splits = base / "splits.json"
     splits.write_text(Splits(["heldout_env"], [split_round]).to_json())
     return TinyDataset(root, splits, sessions)
@@ -164,12 +194,12 @@ def tiny_config():
     from estimator.deepsee.stages import with_schedule
 
     config = load_estimator_config()
-    model = ModelConfig(32, PsdEncoderConfig(16, 1, 2, 2.0, 0.0), RtsEncoderConfig(16, 2, 3, 0.0),
-                        FusionConfig(1, 2, 2.0, (32,), 0.0))
+    model = ModelConfig(
+        32, PsdEncoderConfig(16, 1, 2, 2.0, 0.0), RtsEncoderConfig(16, 2, 3, 0.0), FusionConfig(1, 2, 2.0, (32,), 0.0)
+    )
     stage = StageSchedule(epochs=3, steps_per_epoch=8, batch_size=32, lr=2e-3, weight_decay=0.0, patience=3)
     frozen = dataclasses.replace(stage, epochs=8, steps_per_epoch=0, batch_size=64, lr=3e-3)
-    schedule = Schedule(0, 0, stage, 0.5, Ts2VecSchedule(20, 8, 1e-3, 0.5, 0.5), frozen, stage, frozen, stage,
-                        frozen)
+    schedule = Schedule(0, 0, stage, 0.5, Ts2VecSchedule(20, 8, 1e-3, 0.5, 0.5), frozen, stage, frozen, stage, frozen)
     finetune = FinetuneConfig(0.25, dataclasses.replace(stage, epochs=8, steps_per_epoch=0, lr=1e-3))
     return with_schedule(dataclasses.replace(config, model=model, finetune=finetune), "reduced", schedule)
 
@@ -189,8 +219,14 @@ TRAINED_ROWS = ["deepsee", "wo_psd", "lstm", "random_forest"]
 def train_context(progress, config=None):
     from estimator.deepsee.stages import TrainContext
 
-    return TrainContext(config or tiny_config(), "reduced", load_window_config(), torch.device("cpu"), progress,
-                        {"data": ["tiny"], "round": 0})
+    return TrainContext(
+        config or tiny_config(),
+        "reduced",
+        load_window_config(),
+        torch.device("cpu"),
+        progress,
+        {"data": ["tiny"], "round": 0},
+    )
 
 
 @pytest.fixture(scope="session")

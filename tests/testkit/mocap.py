@@ -22,8 +22,12 @@ OFFSET_S = 0.1234
 def camera_in_vicon(t: np.ndarray) -> np.ndarray:
     """A handheld-like smooth motion: walking-scale translation, rotation about all three axes."""
     pos = np.column_stack([0.6 * np.sin(2 * np.pi * f * t + p) for f, p in ((0.21, 0.3), (0.33, 1.1), (0.47, 2.0))])
-    rv = np.column_stack([0.5 * np.sin(2 * np.pi * f * t + p) + 0.2 * np.sin(2 * np.pi * 0.9 * t + k)
-                          for k, (f, p) in enumerate(((0.43, 0.3), (0.61, 1.1), (0.27, 2.0)))])
+    rv = np.column_stack(
+        [
+            0.5 * np.sin(2 * np.pi * f * t + p) + 0.2 * np.sin(2 * np.pi * 0.9 * t + k)
+            for k, (f, p) in enumerate(((0.43, 0.3), (0.61, 1.1), (0.27, 2.0)))
+        ]
+    )
     m = np.tile(np.eye(4), (len(t), 1, 1))
     m[:, :3, :3] = Rotation.from_rotvec(rv).as_matrix()
     m[:, :3, 3] = pos
@@ -32,7 +36,8 @@ def camera_in_vicon(t: np.ndarray) -> np.ndarray:
 
 def noisy_poses(times: np.ndarray, m: np.ndarray, noise_m: float, noise_deg: float, rng) -> Poses:
     rotations = Rotation.from_matrix(m[:, :3, :3]) * Rotation.from_rotvec(
-        rng.normal(0, np.radians(noise_deg), (len(times), 3)))
+        rng.normal(0, np.radians(noise_deg), (len(times), 3))
+    )
     return Poses.from_rotations(times, m[:, :3, 3] + rng.normal(0, noise_m, (len(times), 3)), rotations)
 
 
@@ -43,8 +48,9 @@ def write_simulated_session(folder: Path) -> Path:
     t_cam = 1000.0 + np.arange(0, 30, 1 / 30) + rng.normal(0, 0.0005, 900)
     slam = noisy_poses(t_cam, np.linalg.inv(WORLD_IN_VICON) @ camera_in_vicon(t_cam - 1000.0), 0.001, 0.1, rng)
     t_true = 999.0 + np.arange(0, 33, 0.01)
-    markers = noisy_poses(t_true - OFFSET_S, camera_in_vicon(t_true - 1000.0) @ np.linalg.inv(MARKER_CAMERA),
-                          0.0002, 0.03, rng)
+    markers = noisy_poses(
+        t_true - OFFSET_S, camera_in_vicon(t_true - 1000.0) @ np.linalg.inv(MARKER_CAMERA), 0.0002, 0.03, rng
+    )
     write_tum(folder / "trajectory.tum", slam)
     write_tum(folder / "mocap.tum", markers)
     return folder

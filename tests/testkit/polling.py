@@ -7,8 +7,12 @@ import time
 from collections.abc import Callable
 
 
-def wait_for(condition: Callable[[], object], timeout_s: float = 120, what: str | Callable[[], str] = "condition",
-             interval_s: float = 0.02) -> object:
+def wait_for(
+    condition: Callable[[], object],
+    timeout_s: float = 120,
+    what: str | Callable[[], str] = "condition",
+    interval_s: float = 0.02,
+) -> object:
     """Poll ``condition`` every ``interval_s`` until it returns something true, and return that; fail the test
     after ``timeout_s``, saying what did not happen (``what``, or what it returns, read at the timeout)."""
     deadline = time.monotonic() + timeout_s

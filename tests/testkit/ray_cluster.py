@@ -69,14 +69,25 @@ def local_ray(tmp_path_factory):
     os.environ["RAY_AUTH_TOKEN"] = TOKEN
     before = {p.pid for p in psutil.Process().children(recursive=True)}
     try:
-        ray.init(num_cpus=2, num_gpus=0, include_dashboard=False, log_to_driver=False, _temp_dir=str(folder),
-                 _node_ip_address="127.0.0.1", object_store_memory=200 * 1024 * 1024, logging_level=logging.WARNING)
+        ray.init(
+            num_cpus=2,
+            num_gpus=0,
+            include_dashboard=False,
+            log_to_driver=False,
+            _temp_dir=str(folder),
+            _node_ip_address="127.0.0.1",
+            object_store_memory=200 * 1024 * 1024,
+            logging_level=logging.WARNING,
+        )
         yield ray
     finally:
         ray.shutdown()
         ray_dir = str(Path(ray.__file__).parent)
-        wait_for(lambda: not _ray_processes(before, ray_dir), 120,
-                 lambda: f"Ray's processes to end: {[p.cmdline()[:3] for p in _ray_processes(before, ray_dir)]}")
+        wait_for(
+            lambda: not _ray_processes(before, ray_dir),
+            120,
+            lambda: f"Ray's processes to end: {[p.cmdline()[:3] for p in _ray_processes(before, ray_dir)]}",
+        )
         for name, value in saved.items():
             if value is None:
                 os.environ.pop(name, None)

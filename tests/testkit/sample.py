@@ -36,8 +36,9 @@ def copy_tum_subset(source: Path, target: Path, count: int) -> Path:
 def run_seesys(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
     """Run the real ``seesys`` command line in a subprocess."""
     full_env = {**os.environ, **(env or {})}
-    return subprocess.run([sys.executable, "-m", "seesys", *args], capture_output=True, text=True, cwd=REPO,
-                          env=full_env, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "seesys", *args], capture_output=True, text=True, cwd=REPO, env=full_env, timeout=timeout
+    )
 
 
 def sample_frames(count: int, with_depth: bool = True):
@@ -48,8 +49,9 @@ def sample_frames(count: int, with_depth: bool = True):
         return list(itertools.islice(source.frames(), count))
 
 
-def record_realsense(path: Path, frames, stream: str = "color", fps: int = 30, depth_units: float = 0.001,
-                     push_period_s: float = 0.0) -> Path:
+def record_realsense(
+    path: Path, frames, stream: str = "color", fps: int = 30, depth_units: float = 0.001, push_period_s: float = 0.0
+) -> Path:
     """Record ``frames`` (gray + metric depth) as a RealSense D435-style recording (``.db3`` in SDK 2.59).
 
     Image and depth streams live in separate software sensors (the software device cannot record two video

@@ -43,11 +43,16 @@ def _tiny_export(tmp_path_factory, name: str, thresholds_m: tuple[float, ...]) -
     from estimator.deepsee.export import export_untrained
 
     if name not in _exported:
-        config = ModelConfig(32, PsdEncoderConfig(16, 1, 2, 2.0, 0.0), RtsEncoderConfig(16, 2, 3, 0.0),
-                             FusionConfig(1, 2, 2.0, (32,), 0.0))
+        config = ModelConfig(
+            32,
+            PsdEncoderConfig(16, 1, 2, 2.0, 0.0),
+            RtsEncoderConfig(16, 2, 3, 0.0),
+            FusionConfig(1, 2, 2.0, (32,), 0.0),
+        )
         path = tmp_path_factory.mktemp("service_model") / f"{name}.onnx"
-        _exported[name] = export_untrained(path, load_window_config(), PSD_SHAPE[:2], seed=0, model_config=config,
-                                           thresholds_m=thresholds_m)
+        _exported[name] = export_untrained(
+            path, load_window_config(), PSD_SHAPE[:2], seed=0, model_config=config, thresholds_m=thresholds_m
+        )
     return _exported[name]
 
 
@@ -81,6 +86,7 @@ def setup_factory():
     def make(**service) -> ServiceSetup:
         made.append(ServiceSetup(**service))
         return made[-1]
+
     yield make
     for setup in made:
         setup.cleanup()
@@ -143,8 +149,14 @@ def running_service(setup: ServiceSetup, model: Path, *args: str) -> Iterator[Se
         service.kill()
 
 
-def device_frames(device_id: str, count: int, seed: int = 0, stream_session: int = 0,
-                  psd_shape: tuple[int, int, int] = PSD_SHAPE, settings=None) -> list[FeatureFrame]:
+def device_frames(
+    device_id: str,
+    count: int,
+    seed: int = 0,
+    stream_session: int = 0,
+    psd_shape: tuple[int, int, int] = PSD_SHAPE,
+    settings=None,
+) -> list[FeatureFrame]:
     """A synthetic tracked device stream: RTS rows of plausible magnitude, a sparse PSD on every window end; the
     configured device settings (RGB-D at 30 Hz) unless ``settings`` are given."""
     rng = np.random.default_rng(seed)
@@ -157,8 +169,18 @@ def device_frames(device_id: str, count: int, seed: int = 0, stream_session: int
             cells = rng.random(psd_shape)
             psd = np.where(cells < 0.05, rng.integers(1, 256, psd_shape), 0).astype(np.uint8)
         rts = np.abs(rng.normal(1.0, 0.5, rts_schema.NUM_CHANNELS)).astype(np.float32)
-        frames.append(FeatureFrame(device_id, i, 10.0 + i / 30.0, TrackingState.OK, rts, psd,
-                                   stream_session=stream_session, settings=settings))
+        frames.append(
+            FeatureFrame(
+                device_id,
+                i,
+                10.0 + i / 30.0,
+                TrackingState.OK,
+                rts,
+                psd,
+                stream_session=stream_session,
+                settings=settings,
+            )
+        )
     return frames
 
 
@@ -169,10 +191,18 @@ class Client:
         from seesys.io.transport import open_socket
 
         self.ctx = zmq.Context()
-        self.pub = open_socket(self.ctx, zmq.PUB, setup.endpoints["ingest"], "test device", bind=False,
-                               send_hwm=100_000, options=options)
-        self.sub = open_socket(self.ctx, zmq.SUB, setup.endpoints["estimates"], "test estimates", bind=False,
-                               subscribe=topics, options=options)
+        self.pub = open_socket(
+            self.ctx, zmq.PUB, setup.endpoints["ingest"], "test device", bind=False, send_hwm=100_000, options=options
+        )
+        self.sub = open_socket(
+            self.ctx,
+            zmq.SUB,
+            setup.endpoints["estimates"],
+            "test estimates",
+            bind=False,
+            subscribe=topics,
+            options=options,
+        )
 
     def send(self, frame: FeatureFrame) -> None:
         self.pub.send_multipart(messages.encode(frame))
@@ -203,13 +233,16 @@ def serve_in_lockstep(client: Client, frames: list[FeatureFrame], timeout_s: flo
         deadline = time.monotonic() + timeout_s
         while True:
             estimate = client.receive(200)
-            if (estimate is not None and estimate.frame_index == frame.frame_index
-                    and estimate.stream_session == frame.stream_session):
+            if (
+                estimate is not None
+                and estimate.frame_index == frame.frame_index
+                and estimate.stream_session == frame.stream_session
+            ):
                 estimates.append(estimate)
                 break
             assert time.monotonic() < deadline, f"no estimate for frame {frame.frame_index}"
             if first and estimate is None:
-                for earlier in frames[:frame.frame_index + 1]:
+                for earlier in frames[: frame.frame_index + 1]:
                     client.send(earlier)
         first = False
     return estimates
