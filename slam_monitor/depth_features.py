@@ -165,7 +165,7 @@ def _peak(values: np.ndarray) -> np.ndarray:
     return k + np.minimum(np.maximum(delta, -0.5), 0.5)
 
 
-def _evenly(index: tuple[np.ndarray, np.ndarray], most: int) -> tuple[np.ndarray, np.ndarray]:
+def _evenly(index: tuple[np.ndarray, ...], most: int) -> tuple[np.ndarray, np.ndarray]:
     """At most ``most`` of the (row, column) pairs, evenly over the image: the same ones for the same frame."""
     rows, cols = index
     if rows.size > most:

@@ -31,6 +31,7 @@ import math
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -79,7 +80,7 @@ class EstimateObserver:
         device_id: str,
         features_endpoint: str,
         estimates_endpoint: str,
-        socket_options: dict | None = None,
+        socket_options: Mapping[int, int | bytes] | None = None,
         stream_session: int = 0,
     ):
         self.device_id = device_id

@@ -38,6 +38,14 @@ class _Update:
 class LocalMap:
     """Recently seen map points (world coordinates) with the frame index each was last matched in."""
 
+    # Set by clear(), which also forgets them when the map moves.
+    _keys: np.ndarray
+    _points: np.ndarray
+    _seen: np.ndarray
+    _pending: list[_Update]
+    _latest: _Update | None
+    _lost: np.ndarray
+
     def __init__(self, voxel: float, max_age_frames: int, max_points: int):
         if voxel <= 0 or max_age_frames < 1 or max_points < 1:
             raise ValueError("local map needs voxel > 0, max_age_frames >= 1 and max_points >= 1")
@@ -129,8 +137,8 @@ class LocalMap:
         self._keys = np.zeros(0, dtype=np.int64)
         self._points = np.zeros((0, 3))
         self._seen = np.zeros(0, dtype=np.int64)
-        self._pending: list[_Update] = []
-        self._latest: _Update | None = None
+        self._pending = []
+        self._latest = None
         self._lost = np.zeros((0, 3))
 
     def lost_points(self) -> np.ndarray:

@@ -191,7 +191,7 @@ class FeatureExtractor:
         intr, cfg = item.frame.intrinsics, self.config
         keypoints = np.asarray(item.keypoints, dtype=np.float64).reshape(-1, 2)
         map_uv, map_z = np.zeros((0, 2)), np.zeros(0)
-        if slam is not None:
+        if slam is not None and item.pose_cw is not None:  # features of a tracked frame, which has a pose
             points_c = to_camera(self.local_map.points, item.pose_cw)
             points_c = points_c[points_c[:, 2] > cfg.features.min_depth]
             map_uv, map_z = project(points_c, intr.matrix()), points_c[:, 2]

@@ -81,6 +81,8 @@ class FramePacer:
             time.sleep(delay)
 
     def _sample(self) -> CpuTimes | None:
+        if self._background is None:
+            return None
         sample = self._background.sample()
         if sample is None:
             self._background = None  # not measurable here: pace by the camera rate alone
@@ -89,7 +91,7 @@ class FramePacer:
     def _contended(self) -> bool:
         """Whether the background threads waited for a CPU for a noticeable part of the time since the last feed."""
         now = self._sample()
-        if now is None or self._fed_sample is None:
+        if now is None or self._fed_sample is None or self._previous is None:
             return False
         elapsed_ns = (time.perf_counter() - self._previous[0]) * NS_PER_S
         return now.queued_ns - self._fed_sample.queued_ns >= self.config.contention_fraction * elapsed_ns

@@ -66,7 +66,7 @@ class SessionWriter:
         )
         self._frames.flush()
         self.frames_written += 1
-        if output.tracked:
+        if output.tracked and output.pose_wc is not None:  # a tracked frame has a pose
             self._trajectory.write(pose_tum_line(output.timestamp, output.pose_wc))
             self._trajectory.flush()
             self.frames_tracked += 1

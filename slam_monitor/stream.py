@@ -53,7 +53,7 @@ class FeaturePublisher:
         service_options: Mapping[int, int | bytes] | None = None,
     ):
         self.endpoint = endpoint
-        ctx = zmq.Context.instance()
+        ctx: zmq.Context = zmq.Context.instance()
         self._socket = publisher(ctx, endpoint, "feature stream", send_high_water_mark)
         #: The endpoint actually bound (differs from ``endpoint`` when that uses a wildcard port, ``tcp://host:*``).
         self.bound_endpoint = bound_endpoint(self._socket)

@@ -118,8 +118,10 @@ def frames_logged(out_dir: Path) -> int:
         return max(0, sum(1 for _ in f) - 1)  # minus the header
 
 
-def _crash_message(exit_code: int, frame_index: int, out_dir: Path) -> str:
-    if exit_code < 0:
+def _crash_message(exit_code: int | None, frame_index: int, out_dir: Path) -> str:
+    if exit_code is None:  # not joined: cannot happen after join(), said rather than assumed
+        how = "ended without an exit status"
+    elif exit_code < 0:
         how = f"crashed (signal {-exit_code}, {signal.Signals(-exit_code).name})"
     elif exit_code == ORBSLAM_EXIT_STATUS:
         how = f"exited with status {exit_code}"
@@ -176,7 +178,7 @@ def run_supervised_session(options: SessionOptions, progress: ProgressCallback |
     except KeyboardInterrupt:
         # A SIGINT sent to this process alone (a supervisor such as `seesys run` stopping it) does not reach the
         # child: pass it on, and the child records the interruption and closes its files.
-        if child.is_alive():
+        if child.is_alive() and child.pid is not None:  # alive: started, so it has a pid
             os.kill(child.pid, signal.SIGINT)
         child.join()
         raise

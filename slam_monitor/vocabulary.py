@@ -78,7 +78,7 @@ def orb_extractor(features: int, scale_factor: float, levels: int, fast_threshol
     """OpenCV's ORB configured like ORB-SLAM's extractor."""
     import cv2
 
-    return cv2.ORB_create(
+    return cv2.ORB.create(
         nfeatures=features,
         scaleFactor=scale_factor,
         nlevels=levels,

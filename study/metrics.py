@@ -101,7 +101,7 @@ def stretches_from_frames(frames: pd.DataFrame) -> list[Stretch]:
     stretches = []
     previous_stop = None
     for start, stop in tracked_stretches(tracked):
-        new_map = (
+        new_map: bool | None = (
             None
             if previous_stop is None
             else any(s in (TrackingState.LOST, TrackingState.NOT_INITIALIZED) for s in states[previous_stop:start])
@@ -272,7 +272,7 @@ def combine(
         completeness=float(sum(p.fraction * p.frames for p in parts) / frames) if frames else nan,
         tracking_losses=sum(p.losses for p in parts),
         loss_duration_s=float(sum(p.loss_duration_s for p in parts)),
-        map_resets=None if any(p.map_resets is None for p in parts) else sum(p.map_resets for p in parts),
+        map_resets=None if any(p.map_resets is None for p in parts) else sum(p.map_resets or 0 for p in parts),
         stretches=sum(r.stretches for r in rpes),
         time_on_task_s=float(time_on_task_s),
         alignment=alignment,

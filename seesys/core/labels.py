@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import SupportsInt
 
 import numpy as np
 import pandas as pd
@@ -79,7 +80,7 @@ class FrameLabels:
         return self.status == LabelStatus.LABELLED.value
 
 
-def _state(value: object) -> TrackingState:
+def _state(value: str | SupportsInt) -> TrackingState:
     """A tracking state given as its number or its name (session logs write names)."""
     try:
         return TrackingState[value] if isinstance(value, str) else TrackingState(int(value))

@@ -71,7 +71,7 @@ _SETTINGS = struct.Struct("<BHHHHdH")
 _PSD_LEVEL = 6
 _STREAM_PSD_HEAD = struct.Struct("<HHHBBHHH")
 #: Bytes per RTS value on the wire, and their type.
-_ROW_TYPES = {2: np.dtype("<f2"), 4: np.dtype("<f4")}
+_ROW_TYPES: dict[int, np.dtype] = {2: np.dtype("<f2"), 4: np.dtype("<f4")}
 _FLOAT16_MAX = float(np.finfo(np.float16).max)
 
 

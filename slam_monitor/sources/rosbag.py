@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -145,7 +146,8 @@ def find_topics(reader, settings: RosbagSettings, with_depth: bool) -> BagTopics
     return BagTopics(image, depth, info, truth)
 
 
-def _messages(reader, topics: list[str]) -> Iterator[tuple[str, object]]:
+def _messages(reader, topics: list[str]) -> Iterator[tuple[str, Any]]:
+    # Any: rosbags deserialises each message into a class of its type, made at run time.
     connections = [c for c in reader.connections if c.topic in topics]
     for connection, _, raw in reader.messages(connections=connections):
         yield connection.topic, reader.deserialize(raw, connection.msgtype)
@@ -158,6 +160,7 @@ def _intrinsics(message) -> Intrinsics:
         raise SourceError(
             f"camera info uses the {message.distortion_model!r} model, which ORB-SLAM3's pinhole camera cannot use"
         )
+    k1, k2, p1, p2, k3 = (d + [0.0] * 5)[:5]
     return Intrinsics(
         int(message.width),
         int(message.height),
@@ -165,8 +168,8 @@ def _intrinsics(message) -> Intrinsics:
         float(k[4]),
         float(k[2]),
         float(k[5]),
-        tuple(d + [0.0] * (5 - len(d))),
-    )  # type: ignore[arg-type]
+        (k1, k2, p1, p2, k3),
+    )
 
 
 def decode_image(message, where: str) -> np.ndarray:
@@ -255,9 +258,16 @@ class RosbagSource(FrameSource):
     def _stamps(self, topic: str) -> np.ndarray:
         return np.array([_stamp(message) for _, message in _messages(self._reader, [topic])])
 
+    @property
+    def _depth_topic(self) -> str:
+        """The depth topic (whenever depth is read, :func:`find_topics` found one)."""
+        if self.topics.depth is None:
+            raise SourceError(f"{self.path} has no depth topic")
+        return self.topics.depth
+
     def _pair_with_depth(self, max_dt: float) -> dict[int, int]:
         """Image number -> depth number of the depth nearest in time, for images with one within ``max_dt``."""
-        depth_times = self._stamps(self.topics.depth)
+        depth_times = self._stamps(self._depth_topic)
         if not len(depth_times):
             raise SourceError(f"depth topic {self.topics.depth} of {self.path} has no message")
         nearest = np.abs(depth_times[None, :] - self._image_times[:, None]).argmin(axis=1)
@@ -302,7 +312,7 @@ class RosbagSource(FrameSource):
         return Poses(np.array(times), np.array(positions), np.array(quaternions)).sorted_unique()
 
     def frames(self) -> Iterator[Frame]:
-        topics = [self.topics.image] + ([self.topics.depth] if self.has_depth else [])
+        topics = [self.topics.image] + ([self._depth_topic] if self.has_depth else [])
         image_number = depth_number = 0
         waiting_images: dict[int, np.ndarray] = {}  # image number -> gray, waiting for its depth
         depths: dict[int, np.ndarray] = {}  # depth number -> metres, waiting for its image

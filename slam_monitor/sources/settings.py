@@ -72,7 +72,8 @@ def _distortion(values: tuple[float, ...] | list[float]) -> tuple[float, float, 
     padded = tuple(float(v) for v in values) + (0.0,) * (5 - len(values))
     if len(padded) != 5:
         raise SourceError(f"distortion has {len(values)} coefficients, expected at most 5 (k1 k2 p1 p2 k3)")
-    return padded  # type: ignore[return-value]
+    k1, k2, p1, p2, k3 = padded
+    return k1, k2, p1, p2, k3
 
 
 @dataclass(frozen=True)

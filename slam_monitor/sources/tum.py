@@ -69,7 +69,7 @@ class TumSource(FrameSource):
         for index, ((timestamp, name), depth_name) in enumerate(zip(self._images, self._depth_files)):
             gray = read_gray(self.folder / name)
             depth = None
-            if self.has_depth:
+            if self.has_depth and depth_name is not None:  # every image has its depth when depth is read
                 depth_path = self.folder / depth_name
                 depth = check_depth(
                     read_depth_png(depth_path, self._depth_units), gray, self._depth_limits, str(depth_path)
