@@ -113,6 +113,8 @@ def _splits(args: argparse.Namespace) -> int:
     if args.rounds is not None:
         config = replace_fields(config, rounds=args.rounds)
     splits = write_splits(args.roots, config, args.out, dataset.lockbox)
+    # Made here, the splits record their build and the configured lockbox's runs.
+    assert splits.lockbox is not None and splits.build is not None
     for k, r in enumerate(splits.rounds):
         environments, cameras = splits.heldout(k)
         held = ", ".join(environments + cameras) or "none"

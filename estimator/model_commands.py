@@ -249,9 +249,10 @@ def _finetune(args: argparse.Namespace) -> int:
         f"{result.rmse_before_cm:.3f} cm before, {result.rmse_after_cm:.3f} cm after -> {result.model}"
     )
     print(sessions_scale_line(args.sessions, load_scale_settings(), load_label_config().association_max_dt_s))
-    if result.held_out_before is not None:
-        print(f"held-out sessions ({result.held_out_before.windows} windows, never trained on):")
-        for name, scores in (("before", result.held_out_before), ("after", result.held_out_after)):
+    before, after = result.held_out_before, result.held_out_after
+    if before is not None and after is not None:  # both judged, or neither (no held-out windows)
+        print(f"held-out sessions ({before.windows} windows, never trained on):")
+        for name, scores in (("before", before), ("after", after)):
             print(
                 f"  {name:6} RMSE {scores.rmse_cm:.3f} cm, within 1 mm-2 cm {scores.rmse_paper_range_cm:.3f} cm, "
                 f"Spearman {scores.spearman:.2f}, advisory agreement {scores.agreement:.2f}, kappa "

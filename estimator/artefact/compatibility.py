@@ -28,6 +28,7 @@ import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import SupportsInt
 
 import numpy as np
 import pandas as pd
@@ -126,7 +127,7 @@ def _takes_mono(device: dict | None) -> bool:
 def _label_record(setup: ModelSetup) -> dict:
     """The label's Δ, and for a model trained on monocular sessions the name of the monocular label's alignment
     (an RGB-D label does not depend on it, so an RGB-D model's record is what it was before the name existed)."""
-    label = {"delta_frames": setup.delta_frames}
+    label: dict[str, int | str] = {"delta_frames": setup.delta_frames}
     if _takes_mono(setup.device):
         label["mono_alignment"] = MONO_ALIGNMENT
     return label
@@ -192,7 +193,7 @@ def model_normalisation(record: dict) -> int:
     return int((record.get("device") or {}).get("camera_normalisation", camera_normalisation.BEFORE_NORMALISATION))
 
 
-def check_normalisation(record: dict, versions: Iterable[object], source: str) -> None:
+def check_normalisation(record: dict, versions: Iterable[SupportsInt | None], source: str) -> None:
     """Raise :class:`ModelMismatch`, in one line naming both versions, when any of ``versions`` (the camera
     normalisation versions of windows from ``source``; NA/None where a source states none, which is not
     checked) is not the one a model of ``record`` takes."""

@@ -160,10 +160,12 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
     frames.insert(1, "timestamp", labels.timestamp)
     row_of_frame = {int(f): k for k, f in enumerate(frames.frame_index)}
     logged = list(read_feature_frames(session_dir, session_dir.name))
-    with_psd = [f for f in logged if f.psd is not None]
+    with_psd = [(f.frame_index, f.psd) for f in logged if f.psd is not None]  # (frame index, PSD)
     rts_row = {f.frame_index: k for k, f in enumerate(logged)}
-    psd_row = {f.frame_index: k for k, f in enumerate(with_psd)}
-    rts_rows, psd_rows, rows = [], [], []
+    psd_row = {index: k for k, (index, _) in enumerate(with_psd)}
+    rts_rows: list[list[int]] = []
+    psd_rows: list[list[int]] = []
+    rows: list[tuple] = []
     for window in assemble_windows(logged, windows):
         label = frames.iloc[row_of_frame[window.frame_index]]
         usable = label.status == LabelStatus.LABELLED.value and window.missing_rts <= windows.max_missing_rts
@@ -187,8 +189,8 @@ def label_run(session_dir: Path, mode: SlamMode, label_config: LabelConfig, wind
     return RunArrays(
         rts=(np.stack([f.rts for f in logged]) if logged else np.zeros((0, rts_schema.NUM_CHANNELS), np.float32)),
         rts_frames=np.array([f.frame_index for f in logged], np.int64),
-        psd=np.stack([f.psd for f in with_psd]) if with_psd else np.zeros((0, 0, 0, 3), np.uint8),
-        psd_frames=np.array([f.frame_index for f in with_psd], np.int64),
+        psd=np.stack([psd for _, psd in with_psd]) if with_psd else np.zeros((0, 0, 0, 3), np.uint8),
+        psd_frames=np.array([index for index, _ in with_psd], np.int64),
         sample_rts_rows=np.array(rts_rows, np.int32).reshape(-1, windows.rts_length),
         sample_psd_rows=np.array(psd_rows, np.int32).reshape(-1, windows.psd_samples),
         samples=samples,

@@ -16,6 +16,7 @@ RTS window feature follows the error.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +34,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 MM_PER_M = 1000.0
-WINDOW_STATISTICS = {"mean": np.nanmean, "min": np.nanmin, "max": np.nanmax, "std": np.nanstd}
+WINDOW_STATISTICS: dict[str, Callable[..., np.ndarray]] = {
+    "mean": np.nanmean,
+    "min": np.nanmin,
+    "max": np.nanmax,
+    "std": np.nanstd,
+}
 REPORT_MD = "label_report.md"
 HISTOGRAM_PNG = "label_histogram.png"
 CORRELATION_PNG = "feature_correlations.png"
@@ -299,7 +305,8 @@ def plot_histogram(frames: pd.DataFrame, config: ReportConfig, path: Path) -> No
         errors = _labelled_errors(group)
         ax.hist(
             np.clip(errors, bins[0], bins[-1]),
-            bins=bins,
+            # matplotlib's stub types bins as a Sequence, but hist takes the edges as an array (np.histogram does)
+            bins=bins,  # type: ignore[arg-type]
             histtype="step",
             lw=1.5,
             label=f"{mode} ({len(errors)} frames)",

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -69,7 +70,9 @@ def _build(spec: dict, rts_channels: tuple[str, ...]) -> nn.Module:
     """The untrained model of ``spec`` taking the RTS channels ``rts_channels`` (names)."""
     if spec["kind"] == "lstm":
         return LstmBaseline(LstmConfig(**spec["config"]), spec["channels"])
-    variant = Variant(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec["variant"].items()})
+    # The variant's fields as the spec's JSON holds them, its lists back into the dataclass's tuples.
+    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["variant"].items()}
+    variant = Variant(**fields)
     return DeepSEE(
         _model_config(spec["config"]),
         InputShape(**spec["shape"]),

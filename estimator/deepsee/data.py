@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 import pandas as pd
@@ -39,13 +40,19 @@ class DataError(SeesysError):
     """Training or evaluation data is missing or does not fit the model."""
 
 
+class PsdSource(Protocol):
+    """PSDs by sample: an array of them, a dataset reader (its samples carry ``psd``) or a subset of either."""
+
+    def __getitem__(self, i: int, /) -> Any: ...
+
+
 @dataclass
 class Windows:
     """Model windows with their labels: ``rts`` normalised (N, T, C) float32, ``psd`` indexable by sample
     (an array, or a reader), ``error_m`` (N,), ``meta`` one row per window (run, frame_index, timestamp, …)."""
 
     rts: np.ndarray
-    psd: object
+    psd: PsdSource
     error_m: np.ndarray
     meta: pd.DataFrame
 
@@ -81,7 +88,7 @@ class Windows:
 class _Subset:
     """Samples ``index`` of an indexable (a reader or an array), without reading them."""
 
-    def __init__(self, base: object, index: np.ndarray):
+    def __init__(self, base: PsdSource, index: np.ndarray):
         self.base, self.index = base, index
 
     def __getitem__(self, i: int):

@@ -90,6 +90,7 @@ def export_onnx(
             dynamic_shapes=({0: batch}, {0: batch}),
             optimize=True,
         )
+    assert program is not None  # the dynamo exporter returns its program (only the legacy one returns None)
     proto = program.model_proto
     record = (
         record

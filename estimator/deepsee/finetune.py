@@ -21,6 +21,7 @@ are the base's, served as it is).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -102,7 +103,7 @@ def finetune(
     device: torch.device,
     progress,
     provenance: dict,
-    held_out: list[Path] = (),
+    held_out: Sequence[Path] = (),
     pulses: PulseSettings | None = None,
     budget_s: float | None = None,
 ) -> FinetuneResult:
@@ -168,7 +169,7 @@ def finetune(
         return CM_PER_M * float(np.sqrt(np.mean((estimate_m(val, through) - val.error_m) ** 2)))
 
     def judge(through: InputStandardisation) -> Scores | None:
-        if not test:
+        if not test or pulses is None:  # held-out sessions come with pulses (checked above)
             return None
         y, probabilities = predict_outputs(
             model, test.with_rts(through.apply(test.rts, channels)), config.evaluation.batch_size, device
@@ -255,7 +256,7 @@ def learning_curve(
     itself as 0 minutes; written to ``out/learning_curve.csv``, the models and run folders beside it."""
     if not held_out:
         raise DataError("a learning curve is judged on held-out sessions: give some")
-    rows = []
+    rows: list[tuple] = []
     for budget in sorted(minutes):
         if budget <= 0:
             raise DataError(f"fine-tuning budgets are minutes above 0, got {budget:g}")
@@ -274,9 +275,12 @@ def learning_curve(
             pulses,
             budget * 60.0,
         )
+        before, after = result.held_out_before, result.held_out_after
+        if before is None or after is None:
+            raise DataError("the held-out sessions give no windows to judge the learning curve on")
         if not rows:
-            rows.append(_curve_row(0.0, 0, result.held_out_before, None))
-        rows.append(_curve_row(budget, result.train_windows, result.held_out_after, result.held_out_references))
+            rows.append(_curve_row(0.0, 0, before, None))
+        rows.append(_curve_row(budget, result.train_windows, after, result.held_out_references))
     table = pd.DataFrame(rows, columns=list(CURVE_COLUMNS))
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "learning_curve.csv", index=False)

@@ -247,6 +247,10 @@ class DeepSEE(nn.Module):
     ``(y, logits)``: the transformed error (B,) and the head's logits (B, K) (:func:`exceedance_probabilities`
     turns them into probabilities)."""
 
+    # Buffers (register_buffer): Module.__getattr__ would give them as "Tensor | Module".
+    rts_mask: torch.Tensor
+    psd_mask: torch.Tensor
+
     def __init__(
         self,
         config: ModelConfig,

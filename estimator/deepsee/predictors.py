@@ -9,6 +9,7 @@ PyTorch and scikit-learn are imported only for the kinds that need them: loading
 from __future__ import annotations
 
 import pickle
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -51,7 +52,7 @@ class Predictor:
     path: Path
     kind: str
     transform: LabelTransform
-    _run: object  # windows → (transformed outputs, head probabilities or None)
+    _run: Callable[[Windows], tuple[np.ndarray, np.ndarray | None]]  # → (transformed outputs, head probabilities)
     shape: InputShape
     columns: np.ndarray
     record: dict
@@ -101,7 +102,7 @@ def _runs(windows: Windows) -> str:
     return ", ".join(runs[:3]) + (f" and {len(runs) - 3} more" if len(runs) > 3 else "")
 
 
-def _onnx_runner(model: OnnxModel, batch_size: int):
+def _onnx_runner(model: OnnxModel, batch_size: int) -> Callable[[Windows], tuple[np.ndarray, np.ndarray | None]]:
     def run(windows: Windows) -> tuple[np.ndarray, np.ndarray | None]:
         out = [
             model.outputs(
@@ -129,16 +130,16 @@ def load_predictor(
     path = Path(path)
     windows = windows or load_window_config()
     if path.suffix == ".onnx":
-        model = OnnxModel(path, transform, windows)
+        onnx = OnnxModel(path, transform, windows)
         return Predictor(
             path,
             "onnx",
             transform,
-            _onnx_runner(model, batch_size),
-            model.shape,
-            model.rts_columns,
-            model.record,
-            model.thresholds_m,
+            _onnx_runner(onnx, batch_size),
+            onnx.shape,
+            onnx.rts_columns,
+            onnx.record,
+            onnx.thresholds_m,
         )
     if path.suffix == ".pkl":
         from estimator.deepsee.baselines import window_statistics
@@ -163,14 +164,21 @@ def load_predictor(
         )
     import torch
 
+    from estimator.deepsee.baselines import LstmBaseline
     from estimator.deepsee.checkpoint import load_model, payload_standardisation
     from estimator.deepsee.inference import predict_outputs
+    from estimator.deepsee.model import DeepSEE
     from estimator.deepsee.ordinal import model_thresholds
 
     device = device or torch.device("cpu")
     model, payload = load_model(path, transform, windows)
     model = model.to(device)
-    shape = model.shape if hasattr(model, "shape") else InputShape(windows.rts_length, model.channels, 0, 0, 0)
+    if isinstance(model, DeepSEE):
+        shape = model.shape
+    elif isinstance(model, LstmBaseline):  # a model of the RTS window only
+        shape = InputShape(windows.rts_length, model.channels, 0, 0, 0)
+    else:  # load_model builds no other kind
+        raise TypeError(f"cannot predict with a {type(model).__name__}")
     standardisation = payload_standardisation(payload, str(path))
     channels = payload["compatibility"]["rts_channels"]
     return Predictor(

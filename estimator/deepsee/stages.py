@@ -45,7 +45,7 @@ from estimator.deepsee.config import AugmentationConfig, EstimatorConfig, Schedu
 from estimator.deepsee.data import NORMALISATION_COLUMN, Windows, limit
 from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
 from estimator.deepsee.loop import run_stage, stage_seed
-from estimator.deepsee.model import DeepSEE, exceedance_probabilities
+from estimator.deepsee.model import DeepSEE, PsdEncoder, exceedance_probabilities
 from estimator.deepsee.ordinal import exceeded, head_thresholds, model_thresholds, training_loss, validation_loss
 from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
 from estimator.deepsee.run_folder import MODEL_PT, RunFolder
@@ -107,10 +107,13 @@ def _batch_targets(
     return y[index].to(device), (torch.from_numpy(exceeds[index]).to(device) if exceeds is not None else None)
 
 
-def _psd_ssl(run: RunFolder, model: DeepSEE, train: Windows, val: Windows, ctx: TrainContext) -> None:
-    """Stage (a): masked reconstruction of the PSD window, its training batches augmented."""
+def _psd_ssl(
+    run: RunFolder, model: DeepSEE, encoder: PsdEncoder, train: Windows, val: Windows, ctx: TrainContext
+) -> None:
+    """Stage (a): masked reconstruction of the PSD window by the model's PSD ``encoder``, its training batches
+    augmented."""
     seed, ratio = ctx.config.seed, ctx.schedule.psd_mask_ratio
-    task = PsdReconstruction(model.psd_encoder, model.config.dim).to(ctx.device)
+    task = PsdReconstruction(encoder, model.config.dim).to(ctx.device)
     val_index = np.arange(min(len(val), SSL_VALIDATION_WINDOWS))
     augment = Augmenter(ctx.config.augmentation)
 
@@ -307,10 +310,12 @@ def _frozen(
             for s in range(0, len(val), batch)
         ]
         model.train()
+        ys = [o[0] if isinstance(o, tuple) else o for o in outputs]  # with a head, each output is (y, logits)
         if model.ordinal is None:
-            return validation_loss(torch.cat(outputs).cpu().numpy(), None, y_val, None, weight)
-        y = torch.cat([o[0] for o in outputs]).cpu().numpy()
-        probabilities = exceedance_probabilities(torch.cat([o[1] for o in outputs])).cpu().numpy()
+            return validation_loss(torch.cat(ys).cpu().numpy(), None, y_val, None, weight)
+        y = torch.cat(ys).cpu().numpy()
+        logits = [o[1] for o in outputs if isinstance(o, tuple)]
+        probabilities = exceedance_probabilities(torch.cat(logits)).cpu().numpy()
         return validation_loss(y, probabilities, y_val, exceeds_val, weight)
 
     head = [p for p in model.parameters() if id(p) not in encoders]
@@ -406,7 +411,7 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext, 
             _load_encoders(model, Path(pretrained) / "state" / ENCODERS_PT)
         elif row.ssl:
             if model.psd_encoder is not None:
-                _psd_ssl(run, model, train, val, ctx)
+                _psd_ssl(run, model, model.psd_encoder, train, val, ctx)
             _rts_ssl(run, model, train, ctx)
             save_atomic(_encoder_state(model), run.state / ENCODERS_PT)
         frozen, finetune = (
