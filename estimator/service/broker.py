@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 import zmq
+from zmq.auth.thread import ThreadAuthenticator
 
 from estimator.service import envelope, keys, stages
 from estimator.service.config import ServiceConfig
@@ -146,8 +147,11 @@ class Broker:
         self.stages = stages.StageTimes(config.latency_window)
         self.started = time.monotonic()
         self._stopping = False
-        self._authenticator = None
-        self._ingest = self._estimates = self._status = None
+        self._authenticator: ThreadAuthenticator | None = None
+        # The device-facing sockets, from open() on (each set as it opens, so that close() closes what opened).
+        self._ingest: zmq.Socket | None = None
+        self._estimates: zmq.Socket | None = None
+        self._status: zmq.Socket | None = None
         self._backend = open_socket(
             self.ctx,
             zmq.ROUTER,
@@ -184,7 +188,7 @@ class Broker:
 
             self._authenticator = keys.start_authenticator(self.ctx, resolve(cfg.curve.allowed_clients))
             server_options = keys.server_socket_options(resolve(cfg.curve.server_secret_key))
-        self._ingest = open_socket(
+        self._ingest = ingest = open_socket(
             self.ctx,
             zmq.SUB,
             self.network.ingest_endpoint,
@@ -194,13 +198,13 @@ class Broker:
             subscribe=[b""],
             options=server_options,
         )
-        self.endpoints["ingest"] = bound_endpoint(self._ingest)  # before the connects, which change LAST_ENDPOINT
+        self.endpoints["ingest"] = bound_endpoint(ingest)  # before the connects, which change LAST_ENDPOINT
         for endpoint in self.device_endpoints:
             try:
-                self._ingest.connect(endpoint)
+                ingest.connect(endpoint)
             except zmq.ZMQError as e:
                 raise ServiceError(f"cannot connect to the device stream at {endpoint}: {e}") from None
-        self._estimates = open_socket(
+        self._estimates = estimates = open_socket(
             self.ctx,
             zmq.PUB,
             self.network.estimates_endpoint,
@@ -209,8 +213,15 @@ class Broker:
             send_hwm=self.network.send_high_water_mark,
             options=server_options,
         )
-        self._status = open_socket(self.ctx, zmq.REP, cfg.status_endpoint, "estimator status", bind=True)
-        self.endpoints.update(estimates=bound_endpoint(self._estimates), status=bound_endpoint(self._status))
+        self._status = status = open_socket(self.ctx, zmq.REP, cfg.status_endpoint, "estimator status", bind=True)
+        self.endpoints.update(estimates=bound_endpoint(estimates), status=bound_endpoint(status))
+
+    @staticmethod
+    def _opened(sock: zmq.Socket | None) -> zmq.Socket:
+        """A device-facing socket; RuntimeError before :meth:`open`."""
+        if sock is None:
+            raise RuntimeError("the broker's device-facing sockets are used before open()")
+        return sock
 
     # ----------------------------------------------------------------------------------------------- loop
     def stop(self, *_: object) -> None:
@@ -220,18 +231,19 @@ class Broker:
         # Everything alive now (modules, sockets, configs) lives as long as the loop: frozen out of the garbage
         # collector, a full collection no longer walks it (tens of ms, in the middle of some frame's path).
         gc.freeze()
+        ingest, status = self._opened(self._ingest), self._opened(self._status)
         poller = zmq.Poller()
-        for sock in (self._backend, self._ingest, self._status):
+        for sock in (self._backend, ingest, status):
             poller.register(sock, zmq.POLLIN)
         while not self._stopping:
             events = dict(poller.poll(self.config.heartbeat_ms))
             if self._backend in events:
                 self._from_workers()
-            if self._ingest in events:
+            if ingest in events:
                 self._from_devices()
-            if self._status in events:
-                self._status.recv_multipart()
-                self._status.send(envelope.pack_json(self.status()))
+            if status in events:
+                status.recv_multipart()
+                status.send(envelope.pack_json(self.status()))
             self._expire_workers()
 
     def close(self) -> None:
@@ -250,12 +262,14 @@ class Broker:
     def _from_devices(self) -> None:
         curve = self.config.curve.enabled
         outbox: dict[bytes, list[tuple[DeviceState, float, FeatureFrame]]] = {}
+        ingest = self._opened(self._ingest)
         for _ in range(_BURST):
             try:
-                frames = self._ingest.recv_multipart(zmq.NOBLOCK, copy=False)
+                frames = ingest.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 break
-            key = (frames[0].get("User-Id") or "") if curve else ""
+            # User-Id: the Curve client's public key, a string property (the stub's get() may give an int too)
+            key = str(frames[0].get("User-Id") or "") if curve else ""
             self._ingest_one([f.bytes for f in frames], key, outbox)
         for identity, items in outbox.items():
             if items:
@@ -418,7 +432,7 @@ class Broker:
                 if device is not None:
                     device.out_of_order += 1
                 continue
-            self._estimates.send_multipart([topic, body])
+            self._opened(self._estimates).send_multipart([topic, body])
             now = time.monotonic()
             device.last_published = frame_index
             device.estimates += 1

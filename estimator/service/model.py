@@ -65,7 +65,7 @@ class ServedModel:
     psd_shape: tuple[int, int, int, int]  # (K_L, H, W, 3) of one window
     provider: str  # the ONNX Runtime execution provider that runs it, e.g. CPUExecutionProvider
     device_record: dict  # the device settings it was made for (record["device"])
-    _model: object
+    _model: OnnxModel
     _transform: LabelTransform
 
     @classmethod
@@ -84,10 +84,10 @@ class ServedModel:
         met."""
         transform = LabelTransform(load_estimator_config().label_transform.k)
         model = OnnxModel(Path(path), transform, windows, threads, providers, setup)
-        psd_input = model.session.get_inputs()[1].shape
+        _, layers, height, width, channels = model.session.get_inputs()[1].shape  # (batch, K_L, H, W, 3)
         return cls(
             model_version(path),
-            tuple(int(d) for d in psd_input[1:]),
+            (int(layers), int(height), int(width), int(channels)),
             model.provider,
             dict(model.record.get("device", {})),
             model,

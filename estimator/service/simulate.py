@@ -144,6 +144,8 @@ class DeviceFleet:
                 return
             now = time.perf_counter()
             estimate = messages.decode(parts)
+            if not isinstance(estimate, Estimate):  # not on the estimates' topics this socket subscribes to
+                continue
             sent = sent_at.pop((estimate.device_id, estimate.frame_index), None)
             result.estimates.append(estimate)
             if sent is not None:

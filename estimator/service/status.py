@@ -11,7 +11,7 @@ from seesys.io.transport import open_socket
 
 def query_status(endpoint: str, timeout_ms: int) -> dict:
     """The service's status; :class:`ServiceError` when it does not answer within ``timeout_ms``."""
-    ctx = zmq.Context.instance()
+    ctx: zmq.Context = zmq.Context.instance()
     sock = open_socket(ctx, zmq.REQ, endpoint, "estimator status", bind=False)
     try:
         sock.send(b"status")
