@@ -14,7 +14,7 @@ APT_PACKAGES := libportaudio2 jackd2 libusb-1.0-0 libgl1 libegl1 libopengl0 libg
 	tmux
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: all setup apt venv demo test clean
+.PHONY: all setup apt venv demo lint test test-fast clean
 
 all: test
 
@@ -44,10 +44,21 @@ demo: setup
 	rm -rf $(DEMO_OUT)
 	$(BIN)/seesys run --source tum:data/sample --local --condition seesys --out $(DEMO_OUT)
 
-# lint-imports: the one-way layers of docs/architecture.md (a broken contract names the import and fails the run).
-test: setup
+# ruff: lint and format check; mypy: the library packages' types; lint-imports: the one-way layers of
+# docs/architecture.md (a broken contract names the import and fails the run).
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
 	$(BIN)/lint-imports
+
+# Everything: the checks, then every test (unit and system).
+test: lint
 	$(BIN)/python -m pytest
+
+# The unit tests alone (no process started, each a few seconds at most): under a minute.
+test-fast: setup
+	$(BIN)/python -m pytest -m "not system" -q
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT)
