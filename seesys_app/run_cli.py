@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from advisory.conditions import Condition
+from seesys.io.arguments import positive_int
 
 # A degraded run ended as its source did, but with seconds in which the advisory knew nothing.
 EXIT_STATUS = {"completed": 0, "degraded": 3, "interrupted": 130}
@@ -55,12 +56,6 @@ def _run(args: argparse.Namespace) -> int:
         file=sys.stderr if result.status == "failed" else sys.stdout,
     )
     return EXIT_STATUS.get(result.status, 1)
-
-
-def _positive(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
-    return int(text)
 
 
 def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubParsersAction]:
@@ -112,6 +107,6 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
         "ORB-SLAM3's mapping (default: configs/app.toml)",
     )
     pacing.add_argument("--no-pace", dest="pace", action="store_false", help="feed frames as fast as SLAM takes them")
-    p.add_argument("--max-frames", type=_positive, metavar="N", help="stop the device after N frames")
+    p.add_argument("--max-frames", type=positive_int, metavar="N", help="stop the device after N frames")
     p.set_defaults(func=_run)
     return {}

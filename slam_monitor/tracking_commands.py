@@ -14,6 +14,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from seesys.io.arguments import positive_int
 from seesys.io.config import replace_fields
 from slam_monitor.device_worker import FrameTracked, ObserverSpec, SessionOptions, SessionStarted
 from slam_monitor.orbslam_settings import SlamMode, load_slam_config
@@ -22,13 +23,6 @@ from slam_monitor.supervisor import run_supervised_session
 from slam_monitor.trajectory_metrics import SessionSummary, summarize_session
 
 CM_PER_M = 100.0
-
-
-def _positive(text: str) -> int:
-    value = int(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"{text} is not a positive number")
-    return value
 
 
 def add_session_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,7 +35,7 @@ def add_session_arguments(parser: argparse.ArgumentParser) -> None:
         help="ORB-SLAM3 sensor mode (default rgbd)",
     )
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="session folder to write")
-    parser.add_argument("--max-frames", type=_positive, metavar="N", help="stop after N frames")
+    parser.add_argument("--max-frames", type=positive_int, metavar="N", help="stop after N frames")
     parser.add_argument(
         "--settings",
         type=Path,
@@ -202,7 +196,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--source", required=True, metavar="KIND:PATH", help=f"frames to train on: {source_kinds_help()}"
     )
     train.add_argument("--out", required=True, type=Path, metavar="FILE", help="vocabulary file to write")
-    train.add_argument("--max-frames", type=_positive, metavar="N", help="use at most N frames")
-    train.add_argument("--branching", type=_positive, metavar="K", help="children per node (default configs/slam.toml)")
-    train.add_argument("--levels", type=_positive, metavar="L", help="tree depth (default configs/slam.toml)")
+    train.add_argument("--max-frames", type=positive_int, metavar="N", help="use at most N frames")
+    train.add_argument(
+        "--branching", type=positive_int, metavar="K", help="children per node (default configs/slam.toml)"
+    )
+    train.add_argument("--levels", type=positive_int, metavar="L", help="tree depth (default configs/slam.toml)")
     train.set_defaults(func=vocab_train_command)

@@ -8,13 +8,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from seesys.io.arguments import positive_int
 from seesys_app.simulate.config import CONDITIONS, DESIGNS
-
-
-def _positive(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
-    return int(text)
 
 
 def _seconds(text: str) -> float:
@@ -106,15 +101,15 @@ def register(study_commands: argparse._SubParsersAction) -> None:
         "Defaults: configs/simulate.toml.",
     )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the study folder (new, or one to resume)")
-    p.add_argument("--participants", type=_positive, metavar="N", help="simulated participants per condition")
+    p.add_argument("--participants", type=positive_int, metavar="N", help="simulated participants per condition")
     p.add_argument("--conditions", type=_conditions, metavar="A,B,...", help="conditions (none, rotation, seesys)")
     p.add_argument(
         "--design",
         choices=DESIGNS,
         help="between: one condition per participant; within: the same simulated operator in every condition (paired)",
     )
-    p.add_argument("--objects", type=_positive, metavar="N", help="objects to scan")
+    p.add_argument("--objects", type=positive_int, metavar="N", help="objects to scan")
     p.add_argument("--max-task-s", type=_seconds, metavar="S", help="end a session that has not finished by then")
-    p.add_argument("--processes", type=_positive, metavar="P", help="sessions simulated at once")
+    p.add_argument("--processes", type=positive_int, metavar="P", help="sessions simulated at once")
     p.add_argument("--model", type=Path, help="the ONNX model (default: configs/service.toml)")
     p.set_defaults(func=simulate_command)
