@@ -470,11 +470,15 @@ def _read_stream_psd(r: _Reader) -> np.ndarray:
     # A nested layer's bits follow its predecessor's marked cells: read layer by layer.
     used = 0
     for layer in range(layers):
-        over = masks[layer - 1] if layer and nested >> (layer - 1) & 1 else np.ones(cells, dtype=bool)
-        n = int(np.count_nonzero(over))
+        nests = layer and nested >> (layer - 1) & 1
+        n = int(np.count_nonzero(masks[layer - 1])) if nests else cells
         if used + n > mask_bits.size:
             raise MessageError(f"PSD masks end before layer {layer}")
-        masks[layer, over] = mask_bits[used : used + n].view(bool)
+        bits = mask_bits[used : used + n].view(bool)
+        if nests:
+            np.place(masks[layer], masks[layer - 1], bits)
+        else:  # a whole layer: a plain copy (indexing it by an all-true mask costs fifty times more)
+            masks[layer] = bits
         used += n
     if mask_bits.size != (used + 7) // 8 * 8:
         raise MessageError(f"PSD masks hold {mask_bits.size} bits for {used}")
@@ -495,8 +499,12 @@ def _read_stream_psd(r: _Reader) -> np.ndarray:
             start += counts[layer]
         if not values.all():
             raise MessageError(f"PSD layer {layer} holds a zero value in a marked cell")
-        planes[layer, masks[layer]] = values
-    return np.ascontiguousarray(_serpentine(planes.reshape(layers, h, w)).transpose(1, 2, 0))
+        np.place(planes[layer], masks[layer], values)
+    # Layer by layer into (H, W, L): a fifth of the time of one transposing copy.
+    psd = np.empty((h, w, layers), np.uint8)
+    for layer, plane in enumerate(_serpentine(planes.reshape(layers, h, w))):
+        psd[:, :, layer] = plane
+    return psd
 
 
 def unpack_psd(data: bytes) -> np.ndarray:
