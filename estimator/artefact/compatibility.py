@@ -35,8 +35,9 @@ import pandas as pd
 
 from estimator.artefact.transforms import LabelTransform
 from seesys.core import camera_normalisation, rts_schema
+from seesys.core.device_settings import MONO
 from seesys.core.errors import SeesysError
-from seesys.core.labels import MONO_ALIGNMENT
+from seesys.core.labels import BEFORE_MONO_ALIGNMENT, MONO_ALIGNMENT
 from seesys.core.windows import WindowConfig
 from seesys.io.core_settings import load_label_config, load_model_device_record
 
@@ -55,11 +56,6 @@ INSTALLATION_DEVICE_FIELDS = (
     "reference_camera",
 )
 ORDINAL_HEAD = "ordinal_head"
-# The monocular SLAM mode (one of seesys.core.device_settings.SLAM_MODES): its models record the label's alignment.
-MONO = "mono"
-# The monocular label's alignment of a model whose record names none: it was made before the name was recorded, on
-# the label that fitted each pair's scale on a sliding window.
-BEFORE_MONO_ALIGNMENT = "sim3-sliding-window"
 
 
 class ModelMismatch(SeesysError):

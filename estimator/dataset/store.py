@@ -41,10 +41,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from estimator.artefact.compatibility import BEFORE_MONO_ALIGNMENT, MONO
 from seesys.core.camera_normalisation import BEFORE_NORMALISATION
+from seesys.core.device_settings import MONO
 from seesys.core.errors import SeesysError
-from seesys.core.labels import MONO_ALIGNMENT, LabelConfig
+from seesys.core.labels import BEFORE_MONO_ALIGNMENT, MONO_ALIGNMENT, LabelConfig
 from seesys.io.core_settings import load_label_config
 
 RUNS_DIR = "runs"

@@ -21,6 +21,7 @@ from seesys.core import camera_normalisation
 
 #: The SLAM modes a device may state, in their wire order.
 SLAM_MODES = ("rgbd", "mono")
+RGBD, MONO = SLAM_MODES
 
 
 @dataclass(frozen=True)

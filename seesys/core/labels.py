@@ -45,6 +45,9 @@ class LabelConfig:
 # The name of the monocular label's alignment (one Sim(3) per tracked stretch), recorded with every model trained on
 # monocular sessions: a model made under another definition is refused by it (estimator/artefact/compatibility.py).
 MONO_ALIGNMENT = "sim3-per-stretch"
+# The alignment of monocular labels whose record names none (a model's, a dataset's): they were made before the name
+# was recorded, on the label that fitted each pair's scale on a sliding window.
+BEFORE_MONO_ALIGNMENT = "sim3-sliding-window"
 
 
 class LabelStatus(str, Enum):
