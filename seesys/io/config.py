@@ -179,8 +179,8 @@ class ConfigSet:
         """The files of ``directory`` (default: :func:`config_dir`); a file it lacks is a ConfigError when asked
         for (:meth:`data`)."""
         folder = Path(directory) if directory is not None else config_dir()
-        paths = sorted(folder.glob("*.toml"))
-        stamp = tuple((p.name, p.stat().st_mtime_ns, p.stat().st_size) for p in paths)
+        stats = [(p.name, p.stat()) for p in sorted(folder.glob("*.toml"))]
+        stamp = tuple((name, st.st_mtime_ns, st.st_size) for name, st in stats)
         return _read_folder(folder.resolve(), stamp)
 
     def path(self, name: str) -> Path:
