@@ -48,7 +48,7 @@ from slam_monitor.image_features import (
     reference_scale,
 )
 from slam_monitor.local_map import LocalMap
-from slam_monitor.monitor import FeatureExtractor, MonitorInput
+from slam_monitor.monitor import FeatureExtractor, MonitorInput, input_slam_features
 from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.replay import record_inputs
@@ -56,7 +56,6 @@ from slam_monitor.slam_features import (
     RelativeMotion,
     SlamFeatures,
     relative_motion,
-    slam_features,
 )
 from slam_monitor.stream import zmtp_frame_overhead
 
@@ -108,7 +107,7 @@ def prepare(inputs: Sequence[MonitorInput], config: MonitorConfig) -> list[Prepa
                 lost,
                 motion,
                 moved,
-                _slam(item, lost, motion, config) if motion is not None else None,
+                input_slam_features(item, motion, lost, config) if motion is not None else None,
             )
         )
     return prepared
@@ -149,23 +148,6 @@ def _registration_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], 
             fit.update(crossings, motion, frame.depth.shape[0])
 
     return run
-
-
-def _slam(item: MonitorInput, lost_points_w: np.ndarray, motion: RelativeMotion, config: MonitorConfig) -> SlamFeatures:
-    intr, features = item.frame.intrinsics, config.features
-    return slam_features(
-        pose_cw=item.pose_cw,
-        motion=motion,
-        matched_inliers=item.num_tracked_points,
-        keypoints=item.keypoints,
-        matched_points_w=item.map_points,
-        lost_points_w=lost_points_w,
-        camera_matrix=intr.matrix(),
-        width=intr.width,
-        height=intr.height,
-        match_gate_px=features.match_gate_px,
-        min_depth=features.min_depth,
-    )
 
 
 def _whole_monitor(config: MonitorConfig, with_logs: bool) -> Callable[[Sequence[Prepared]], None]:
@@ -216,7 +198,11 @@ def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> 
         ),
         "local map (update, lost points)": (_local_map_pass(config), False),
         "matched_inliers, outliers, matches_before_po, avg/var_mp_depth, local_mapping_visual_error": (
-            _each(lambda p: _slam(p.item, p.lost_points_w, p.motion, config) if p.motion is not None else None),
+            _each(
+                lambda p: (
+                    input_slam_features(p.item, p.motion, p.lost_points_w, config) if p.motion is not None else None
+                )
+            ),
             False,
         ),
         "rel_tx/ty/tz, rel_roll/pitch/yaw": (

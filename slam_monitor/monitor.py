@@ -99,6 +99,29 @@ class PreviousPose:
         return last_pose if last_index == index - 1 else None
 
 
+def input_slam_features(
+    item: MonitorInput, motion: RelativeMotion, lost_points_w: np.ndarray, config: MonitorConfig
+) -> SlamFeatures:
+    """The SLAM-side channels of a tracked frame's input (its pose, keypoints and matched points), with the map
+    points recently seen but not matched (``lost_points_w``)."""
+    if item.pose_cw is None:
+        raise ValueError("a frame without a pose has no SLAM-side channels")
+    intr, features = item.frame.intrinsics, config.features
+    return slam_features(
+        pose_cw=item.pose_cw,
+        motion=motion,
+        matched_inliers=item.num_tracked_points,
+        keypoints=item.keypoints,
+        matched_points_w=item.map_points,
+        lost_points_w=lost_points_w,
+        camera_matrix=intr.matrix(),
+        width=intr.width,
+        height=intr.height,
+        match_gate_px=features.match_gate_px,
+        min_depth=features.min_depth,
+    )
+
+
 class FeatureExtractor:
     """Single-threaded core of the monitor: one :class:`MonitorInput` in, one :class:`FeatureFrame` out.
 
@@ -145,19 +168,7 @@ class FeatureExtractor:
                 if item.prev_pose_wc is not None
                 else RelativeMotion.still()
             )
-            slam = slam_features(
-                pose_cw=item.pose_cw,
-                motion=motion,
-                matched_inliers=item.num_tracked_points,
-                keypoints=item.keypoints,
-                matched_points_w=item.map_points,
-                lost_points_w=self.local_map.lost_points(),
-                camera_matrix=intr.matrix(),
-                width=intr.width,
-                height=intr.height,
-                match_gate_px=cfg.features.match_gate_px,
-                min_depth=cfg.features.min_depth,
-            )
+            slam = input_slam_features(item, motion, self.local_map.lost_points(), cfg)
             channels.update(_slam_channels(slam, normalisation))
         moved = (
             np.linalg.inv(item.prev_pose_wc) @ item.pose_wc

@@ -17,8 +17,9 @@ from monitor_reference import (
 from slam_monitor.image_features import intensity_statistics
 from slam_monitor.image_features import laplacian_variance as monitor_laplacian_variance
 from slam_monitor.local_map import LocalMap
+from slam_monitor.monitor import input_slam_features
 from slam_monitor.monitor_config import load_monitor_config
-from slam_monitor.slam_features import RelativeMotion, project, slam_features, to_camera
+from slam_monitor.slam_features import RelativeMotion, project, to_camera
 
 pytestmark = pytest.mark.slam
 
@@ -71,19 +72,7 @@ def test_pairing_matches_brute_force_nearest_keypoints():
     for item in tracked_inputs():
         reference.update(item.map_points, item.frame.index)
         intr, lost_w = item.frame.intrinsics, reference.lost_points()
-        got = slam_features(
-            pose_cw=item.pose_cw,
-            motion=RelativeMotion.still(),
-            matched_inliers=item.num_tracked_points,
-            keypoints=item.keypoints,
-            matched_points_w=item.map_points,
-            lost_points_w=lost_w,
-            camera_matrix=intr.matrix(),
-            width=intr.width,
-            height=intr.height,
-            match_gate_px=features.match_gate_px,
-            min_depth=features.min_depth,
-        )
+        got = input_slam_features(item, RelativeMotion.still(), lost_w, CONFIG)
         keypoints = np.asarray(item.keypoints, dtype=np.float64)
         matched_c = to_camera(item.map_points, item.pose_cw)
         matched_c = matched_c[matched_c[:, 2] > features.min_depth]
