@@ -23,11 +23,12 @@ from seesys.core.errors import ConfigError
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.trajectory_files import read_tum
 from seesys_app.cli import main
+from seesys_app.simulate import study as simulated_study
 from seesys_app.simulate.config import load_simulate_config
 from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
 from seesys_app.simulate.scan_task import build_scan_task
 from seesys_app.simulate.session import OPERATOR_JSON, Participant, simulate_session
-from seesys_app.simulate.study import pending_jobs
+from seesys_app.simulate.study import Job, pending_jobs, run_study
 from study.protocol import read_protocol
 from study.sessions import RUN_JSON, attempt_folders
 from synth.config import load_synth_config
@@ -276,3 +277,63 @@ def test_a_session_that_reports_no_frame_is_killed_as_hung_and_the_study_says_so
     for attempt in study.glob("participants/*/task/attempt-1"):
         run = json.loads((attempt / RUN_JSON).read_text())
         assert run["status"] == "failed" and "hung" in run["error"]
+
+
+def _two_sessions():
+    """One participant in each of none and seesys, one object, at most 2.5 s: the settings and the model."""
+    cfg = load_simulate_config()
+    cfg = dataclasses.replace(
+        cfg,
+        study=dataclasses.replace(cfg.study, participants_per_condition=1, conditions=["none", "seesys"]),
+        task=dataclasses.replace(cfg.task, objects=1, max_task_s=2.5),
+    )
+    return cfg, default_model(load_service_config(), None)
+
+
+@pytest.mark.system
+def test_a_session_waits_until_its_partners_session_is_done_and_then_runs(tmp_path, monkeypatch):
+    """P01's session is given P02's as its partner (the order pending_jobs returns puts it first): P02's starts
+    first although a second process is free, P01's once P02's is done, and both are done."""
+
+    def partnered(study, protocol):
+        (first, second), total = pending_jobs(study, protocol)
+        return [dataclasses.replace(first, after=second.folder), second], total
+
+    monkeypatch.setattr(simulated_study, "pending_jobs", partnered)
+    notes: list[tuple[str, str]] = []
+    cfg, model = _two_sessions()
+    outcome = run_study(tmp_path / "study", cfg, model, show=lambda name, _, note: notes.append((name, note)))
+    assert outcome.done == outcome.sessions == 2 and not outcome.failed
+    assert notes[0] == ("P02 seesys", "attempt-1")
+    protocol = read_protocol(tmp_path / "study")
+    partner, waited = (
+        json.loads((protocol.phase_folder(tmp_path / "study", p, "task", c) / "attempt-1" / RUN_JSON).read_text())
+        for p, c in (("P02", "seesys"), ("P01", "none"))
+    )
+    assert waited["started"] >= partner["ended"]
+
+
+@pytest.mark.system
+def test_a_session_refused_with_a_seesys_error_is_not_retried_and_its_partner_fails_too(tmp_path, monkeypatch):
+    """A session of a participant the protocol does not have: its child exits with status 2 (a SEESys error) and
+    is not started again although retries are left; the study names the error, and fails the session that waited
+    for it without starting it."""
+    study = tmp_path / "study"
+
+    def stranger_first(folder, protocol):
+        (first, _), total = pending_jobs(folder, protocol)
+        stranger = Job(Participant("P09", 9, "seesys"), protocol.phase_folder(folder, "P09", "task", "seesys"))
+        return [stranger, dataclasses.replace(first, after=stranger.folder)], total
+
+    monkeypatch.setattr(simulated_study, "pending_jobs", stranger_first)
+    cfg, model = _two_sessions()
+    assert cfg.study.retries > 0
+    outcome = run_study(study, cfg, model)
+    assert outcome.done == 0
+    assert outcome.failed == [
+        "P09 seesys: no participant 'P09' in the protocol (P01, P02)",
+        "P01 none: its partner's session failed",
+    ]
+    assert (study / "logs" / "P09-seesys.log").read_text().count("seesys: error:") == 1
+    assert not (study / "participants" / "P09").exists()
+    assert not (study / "logs" / "P01-none.log").exists()

@@ -1,6 +1,7 @@
 """The processes a supervisor runs (``seesys run`` and ``seesys study run``: device, estimator, advisory, mocap
-logger, estimate replay): ``seesys`` commands in child processes whose output goes to the session's
-``logs/<name>.log`` and which die with their supervisor; and the readers of the logs those children grow.
+logger, estimate replay; ``seesys study simulate``: a simulated session each): ``seesys`` commands in child
+processes whose output goes to the session's ``logs/<name>.log`` and which die with their supervisor; and the readers
+of the logs those children grow.
 
 Dying with the supervisor matters for crash safety: if it is killed (SIGKILL included), the kernel sends each child
 SIGTERM (Linux ``PR_SET_PDEATHSIG``), so no device or logger keeps writing into a session the operator believes
@@ -70,12 +71,20 @@ class Child:
         """SIGTERM, then, after ``timeout_s``, SIGKILL to the child and every process it started; returns the
         exit status."""
         self.signal(signal.SIGTERM)
+        return self.wait_or_kill(timeout_s)
+
+    def wait_or_kill(self, timeout_s: float) -> int:
+        """The exit status, after :meth:`kill` if the child has not exited within ``timeout_s``."""
         try:
-            return self.process.wait(timeout_s)
+            return self.process.wait(max(0.0, timeout_s))
         except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.process.pid, signal.SIGKILL)
-            return self.process.wait()
+            return self.kill()
+
+    def kill(self) -> int:
+        """SIGKILL to the child and every process it started; returns the exit status."""
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.process.pid, signal.SIGKILL)
+        return self.process.wait()
 
     def interrupt(self, timeout_s: float) -> int:
         """SIGINT (a device ends its source and closes its files), and :meth:`stop` if it has not exited after

@@ -1,9 +1,11 @@
-"""``seesys study simulate``: a thin wrapper over :mod:`seesys_app.simulate.study`."""
+"""``seesys study simulate`` and the child it starts for each session, ``seesys study simulate-session``: thin
+wrappers over :mod:`seesys_app.simulate.study`."""
 
 from __future__ import annotations
 
 import argparse
 import signal
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -90,8 +92,24 @@ def simulate_command(args: argparse.Namespace) -> int:
     return 0 if outcome.done == outcome.sessions else 1
 
 
+def simulate_session_command(args: argparse.Namespace) -> int:
+    """One session of a simulated study: 0 when its task completed or timed out, 130 when a signal stopped it."""
+    import cv2
+
+    from seesys_app.simulate.study import run_session
+
+    # SIGINT and SIGTERM end the session at its next frame with its files final. A flag, not KeyboardInterrupt: an
+    # exception could land between a frame's rows and its count, or in the closing of the files.
+    stop = threading.Event()
+    for number in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(number, lambda *_: stop.set())
+    cv2.setNumThreads(1)  # parallelism is across sessions: OpenCV's own threads would only contend with them
+    status = run_session(args.study, args.participant, args.condition, args.model, stop.is_set)
+    return 130 if status == "interrupted" else 0
+
+
 def register(study_commands: argparse._SubParsersAction) -> None:
-    """Add ``simulate`` to ``seesys study``."""
+    """Add ``simulate`` and ``simulate-session`` to ``seesys study``."""
     p = study_commands.add_parser(
         "simulate",
         help="a closed-loop simulated study: simulated operators through SLAM, model and advisory",
@@ -113,3 +131,15 @@ def register(study_commands: argparse._SubParsersAction) -> None:
     p.add_argument("--processes", type=positive_int, metavar="P", help="sessions simulated at once")
     p.add_argument("--model", type=Path, help="the ONNX model (default: configs/service.toml)")
     p.set_defaults(func=simulate_command)
+    s = study_commands.add_parser(
+        "simulate-session",
+        help="one session of a simulated study (what `seesys study simulate` starts for each session)",
+        description="Simulates one session of a study folder that `seesys study simulate` made, with the settings "
+        "its simulation.json records, into a new attempt of the session (earlier ones superseded). "
+        "`seesys study simulate` starts one for each session; run by hand, it redoes that session.",
+    )
+    s.add_argument("--study", type=Path, required=True, metavar="DIR", help="the study folder")
+    s.add_argument("--participant", required=True, metavar="ID", help="the simulated participant (P03)")
+    s.add_argument("--condition", choices=CONDITIONS, required=True, help="the session's condition")
+    s.add_argument("--model", type=Path, required=True, help="the ONNX model the study runs")
+    s.set_defaults(func=simulate_session_command)

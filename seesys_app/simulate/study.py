@@ -1,4 +1,4 @@
-"""A whole simulated study: its protocol, its sessions run in parallel processes, resumable.
+"""A whole simulated study: its protocol, its sessions run in parallel child processes, resumable.
 
 The study folder is a study of the kit (``protocol.json``, ``participants/<id>/<phase>/attempt-<n>/``) with one
 phase, ``task``, and ``simulation.json``: the simulation settings (configs/simulate.toml as resolved) and the model
@@ -7,51 +7,84 @@ done is kept, the others run (a session cut short by Ctrl-C or a crash leaves it
 attempt, which supersedes it, starts from the beginning: a session is a few minutes of simulated time). Resuming with
 other settings or another model is refused, naming what differs.
 
-Each session runs in its own process (spawned), so that a crash of ORB-SLAM3 (it aborts on rare degenerate frames)
-or a hang (a session that reports no frame for ``stall_timeout_s`` is killed) costs one attempt, which is retried
-up to ``retries`` times, and ORB-SLAM3's console output goes to the attempt's
-``orbslam3.log`` (with anything else the process prints). Ctrl-C stops every session: each ends ``interrupted`` with
+Each session runs as a child command, ``seesys study simulate-session`` (:func:`run_session`), under the session
+supervisor that ``seesys run`` and ``seesys study run`` use too (:mod:`seesys.io.supervision`), ``processes`` at a
+time, each with its output in the study's ``logs/<participant>-<condition>.log`` and ORB-SLAM3's console output in
+its attempt's ``orbslam3.log``. The child reads the session's settings from ``simulation.json`` and the other
+settings from the study's ``configs/`` (the configuration the study was run with). A session that ends with its
+task completed or timed out is done; one whose child fails with a SEESys error (status 2: a model made for another
+device, settings that cannot work) fails at once; a crash of ORB-SLAM3 (it aborts on rare degenerate frames) or a
+hang (no frame in ``frames.csv`` for ``stall_timeout_s``: the child is killed) costs one attempt, and the session
+runs again, in a new attempt, up to ``retries`` times. Ctrl-C stops every session: each ends ``interrupted`` with
 its files final.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
-import multiprocessing
 import os
 import signal
 import sys
-import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
-from multiprocessing.connection import Connection, wait
-from multiprocessing.context import SpawnProcess
 from pathlib import Path
-from typing import cast
 
 from estimator.service.model import model_version
 from seesys.core.errors import SeesysError
-from seesys.io.config import as_dict
+from seesys.core.session_layout import FRAMES_CSV
+from seesys.io.children import last_line
+from seesys.io.config import CONFIG_DIR_ENV, ConfigSet, as_dict, build
 from seesys.io.logfiles import write_json_atomically
-from seesys_app.simulate.config import SimulateConfig
+from seesys.io.supervision import DONE as EXITED_DONE
+from seesys.io.supervision import FAILED, Exit, PartSpec, SupervisionPolicy, Supervisor, exit_text
+from seesys_app.simulate.config import SimulateConfig, load_simulate_config
 from seesys_app.simulate.session import Participant, simulate_session
 from study.config import load_study_config
 from study.protocol import Protocol, make_protocol, read_protocol, write_protocol
-from study.sessions import DONE, RUN_JSON, next_attempt_folder, phase_status, supersede_attempts
+from study.sessions import (
+    ATTEMPT,
+    DONE,
+    RUN_JSON,
+    attempt_folders,
+    next_attempt_folder,
+    phase_status,
+    read_run,
+    supersede_attempts,
+)
 
 SIMULATION_JSON = "simulation.json"
 PHASE = "task"
-# Seconds a session process gets to finish its files after Ctrl-C before it is terminated.
+# The study's settings that do not change what a session is (left out of simulation.json, not compared on resume).
+RUN_ONLY = ("processes", "retries", "stall_timeout_s")
+# The folder of the study's copy of the configuration its session children run with.
+CONFIGS = "configs"
+# Seconds a session child gets to finish its files after Ctrl-C before it is killed.
 STOP_GRACE_S = 2.0
-# How often (s) the study looks for a hung session while none reports.
-WATCH_S = 5.0
+# How often (s) the study looks at its sessions: their exits, their progress, the jobs that may start.
+POLL_S = 0.5
+# A session child's exit status: a SEESys error (bad model, bad settings: not retried).
+SESSION_ERROR = 2
+# What the command line prints before a SEESys error (seesys_app.cli.main); the reason of a session is the rest.
+ERROR_PREFIX = "seesys: error: "
 
 
 @dataclass(frozen=True)
 class Job:
     participant: Participant
     folder: Path  # the phase folder; each try is a new attempt in it
+    after: Path | None = None  # a phase folder that must be done before this job may start (its partner's)
+
+    @property
+    def name(self) -> str:
+        """How the session is shown: "P03 seesys"."""
+        return f"{self.participant.id} {self.participant.condition}"
+
+    @property
+    def part(self) -> str:
+        """Its child's name for the supervisor (and its log, ``logs/P03-seesys.log``)."""
+        return f"{self.participant.id}-{self.participant.condition}"
 
 
 @dataclass(frozen=True)
@@ -82,9 +115,7 @@ def prepare_study(study: Path, cfg: SimulateConfig, model: Path) -> Protocol:
     are those it was made with) for an existing one."""
     study = Path(study)
     record = simulation_record(cfg, model)
-    # The session count, process count and retries do not change what a session is.
-    ignored = ("processes", "retries", "stall_timeout_s")
-    record["settings"]["study"] = {k: v for k, v in record["settings"]["study"].items() if k not in ignored}
+    record["settings"]["study"] = {k: v for k, v in record["settings"]["study"].items() if k not in RUN_ONLY}
     path = study / SIMULATION_JSON
     if path.exists():
         recorded = json.loads(path.read_text())
@@ -121,42 +152,69 @@ def pending_jobs(study: Path, protocol: Protocol) -> tuple[list[Job], int]:
     return jobs, total
 
 
-def _session_process(
-    cfg: SimulateConfig, participant: Participant, attempt: Path, model: Path, config_dir: Path | None, progress
-) -> None:
-    """A session's process: ORB-SLAM3's console output into the attempt's log, progress to the parent."""
-    import cv2
+def recorded_settings(study: Path) -> SimulateConfig:
+    """The settings the sessions of ``study`` run with: those its ``simulation.json`` records, with the run-only
+    ones it leaves out (which no session reads) from configs/simulate.toml. SeesysError when the study has no
+    readable record; ConfigError naming a recorded key that does not fit the settings."""
+    path = Path(study) / SIMULATION_JSON
+    try:
+        settings = json.loads(path.read_text())["settings"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise SeesysError(f"{study} is not a simulated study ({path}: {e})") from None
+    defaults = as_dict(load_simulate_config().study)
+    settings["study"] = {**{key: defaults[key] for key in RUN_ONLY}, **settings["study"]}
+    return build(SimulateConfig, settings, str(path))
 
-    # Ctrl-C and SIGTERM end the session at its next frame with its files final, even where the process was
-    # started with SIGINT ignored (a background job of a shell script). A flag, not KeyboardInterrupt: an exception
-    # could land between a frame's rows and its count, or in the closing of the files.
-    stop = threading.Event()
-    for number in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(number, lambda *_: stop.set())
-    cv2.setNumThreads(1)  # parallelism is across sessions: OpenCV's own threads would only contend with them
-    attempt.mkdir(parents=True, exist_ok=True)
-    log = os.open(attempt / "orbslam3.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+
+def study_session(study: Path, participant_id: str, condition: str) -> tuple[Participant, Path]:
+    """A session of the study's protocol: its participant (numbered as :func:`pending_jobs` numbers them) and its
+    phase folder. SeesysError naming a participant the protocol does not have, or a condition it does not do."""
+    protocol = read_protocol(study)
+    person = protocol.participant(participant_id)
+    if condition not in person.conditions:
+        raise SeesysError(f"{participant_id} of {study} does not do the {condition} condition")
+    number = protocol.participants.index(person) + 1
+    return Participant(person.id, number, condition), protocol.phase_folder(study, person.id, PHASE, condition)
+
+
+@contextlib.contextmanager
+def _output_to(log: Path) -> Iterator[None]:
+    """This process's stdout and stderr (file descriptors 1 and 2, where ORB-SLAM3 writes) appended to ``log``
+    while inside; restored after, so that an error is printed where the supervisor reads its child's last line."""
     sys.stdout.flush()
     sys.stderr.flush()
-    os.dup2(log, 1)
-    os.dup2(log, 2)
-    last = [-1.0]
-
-    def on_frame(_: int, t: float) -> None:
-        if t - last[0] >= 1.0:
-            last[0] = t
-            progress.send(t)
-
+    saved = [os.dup(1), os.dup(2)]
+    target = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     try:
-        outcome = simulate_session(cfg, participant, attempt, model, config_dir, on_frame, stop.is_set)
-        progress.send(("done", outcome.status))
-    except SeesysError as e:
-        progress.send(("error", str(e)))
-        raise SystemExit(2) from None
+        os.dup2(target, 1)
+        os.dup2(target, 2)
+        yield
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for fd, copy in zip((1, 2), saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
+        os.close(target)
 
 
-def _mark_crashed(attempt: Path, reason: str) -> str:
-    """Record in ``run.json`` that an attempt's process died (``reason``), and return the reason."""
+def run_session(study: Path, participant_id: str, condition: str, model: Path, stop: Callable[[], bool]) -> str:
+    """One session of ``study``, what its child (``seesys study simulate-session``) does: the earlier attempts of
+    the session superseded, a new attempt made and simulated with ORB-SLAM3's console output in its
+    ``orbslam3.log``; the session's status (``completed``, ``timed_out``, or ``interrupted`` once ``stop()`` is
+    true). SeesysError for a participant or condition the study does not have, settings that do not fit, or a
+    model made for another device."""
+    cfg = recorded_settings(study)
+    participant, folder = study_session(study, participant_id, condition)
+    # An earlier attempt cut short leaves the metrics: the session runs again from its start.
+    supersede_attempts(folder)
+    attempt = next_attempt_folder(folder)
+    with _output_to(attempt / "orbslam3.log"):
+        return simulate_session(cfg, participant, attempt, model, None, None, stop).status
+
+
+def _mark_crashed(attempt: Path, reason: str) -> None:
+    """Record in ``run.json`` that an attempt's process died (``reason``), unless the session recorded its end."""
     try:
         run = json.loads((attempt / RUN_JSON).read_text())
     except (OSError, ValueError):
@@ -164,7 +222,171 @@ def _mark_crashed(attempt: Path, reason: str) -> str:
     if run.get("status") in (None, "running"):
         run.update(status="failed", error=reason)
         write_json_atomically(attempt / RUN_JSON, run)
-    return reason
+
+
+def _next_attempt(folder: Path) -> Path:
+    """The attempt a session child started now makes in ``folder`` (numbered as ``next_attempt_folder`` does)."""
+    attempts = attempt_folders(folder)
+    match = ATTEMPT.match(attempts[-1].name) if attempts else None
+    return folder / f"attempt-{int(match.group(1)) + 1 if match else 1}"
+
+
+def _simulated_seconds(frames: Path) -> float:
+    """Simulated time from the first frame of a growing ``frames.csv`` to its last complete one (0: none yet)."""
+    try:
+        with frames.open() as f:
+            f.readline()  # the header
+            first = f.readline().split(",")
+        return max(0.0, float(last_line(frames).split(",")[1]) - float(first[1]))
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
+@dataclass
+class _Session:
+    """A job whose child runs: the attempt its current try writes, and the simulated seconds last shown."""
+
+    job: Job
+    attempt: Path
+    shown: float = 0.0
+
+    def progress(self) -> int | None:
+        """The size of the attempt's ``frames.csv`` (a row a frame; None before it exists): the child's progress."""
+        try:
+            return (self.attempt / FRAMES_CSV).stat().st_size
+        except OSError:
+            return None
+
+
+class _StudyRun:
+    """The sessions of one run of a study: started as children of one Supervisor, at most ``processes`` at a
+    time and each once its partner is done, restarted after a crash or a hang, reported through ``show``."""
+
+    def __init__(
+        self,
+        study: Path,
+        cfg: SimulateConfig,
+        model: Path,
+        env: dict[str, str],
+        show: Callable[[str, float, str], None],
+    ):
+        self.study, self.model, self.show = study, model, show
+        self.processes, self.stall_timeout_s = cfg.study.processes, cfg.study.stall_timeout_s
+        policy = SupervisionPolicy(
+            ready_timeout_s=0.0,
+            poll_s=min(POLL_S, cfg.study.stall_timeout_s),
+            restart_delay_s=0.0,
+            max_restarts=cfg.study.retries,
+            stop_timeout_s=STOP_GRACE_S,
+            device_stop_timeout_s=STOP_GRACE_S,
+            fatal_status=SESSION_ERROR,
+            stall_timeout_s=cfg.study.stall_timeout_s,
+        )
+        self.supervisor = Supervisor(study, env, policy, lambda part, event, detail: None)
+        self.queue: list[Job] = []
+        self.running: dict[str, _Session] = {}  # by the child's name
+        self.failed: list[str] = []
+
+    def run(self, jobs: list[Job]) -> list[str]:
+        """Run ``jobs`` until each is done or has failed; the failures ("P03 seesys: why"). A KeyboardInterrupt
+        stops every session (see :meth:`stop`) and is raised again."""
+        self.queue = list(jobs)
+        try:
+            while self.queue or self.running:
+                for noticed in self.supervisor.look():
+                    self._exited(self.running[noticed.name], noticed)
+                self._start_jobs()
+                self._show_progress()
+                time.sleep(self.supervisor.policy.poll_s)
+        except KeyboardInterrupt:
+            self.stop()
+            raise
+        return self.failed
+
+    def _start_jobs(self) -> None:
+        """Start the queued jobs whose partner is done, in order, while processes are free; fail those whose
+        partner failed (or waits for them: nothing runs and no job could start)."""
+        for job in list(self.queue):
+            if job.after is None or phase_status(job.after) == DONE:
+                if len(self.running) < self.processes:
+                    self.queue.remove(job)
+                    self._start(job)
+            elif not self._to_run(job.after):
+                self.queue.remove(job)
+                self._fail(job, "its partner's session failed")
+        if self.queue and not self.running:
+            for job in self.queue:
+                self._fail(job, "its partner's session waits for it")
+            self.queue.clear()
+
+    def _to_run(self, folder: Path) -> bool:
+        """Whether a session of this run (queued or running) is the one of ``folder``."""
+        return any(job.folder == folder for job in self.queue) or any(
+            session.job.folder == folder for session in self.running.values()
+        )
+
+    def _start(self, job: Job) -> None:
+        session = self.running[job.part] = _Session(job, _next_attempt(job.folder))
+        args = (
+            *("study", "simulate-session", "--study", str(self.study)),
+            *("--participant", job.participant.id, "--condition", job.participant.condition),
+            *("--model", str(self.model)),
+        )
+        self.supervisor.start(PartSpec(job.part, args, restartable=True, finishes=True, progress=session.progress))
+        self.show(job.name, 0.0, session.attempt.name)
+
+    def _exited(self, session: _Session, noticed: Exit) -> None:
+        """A session child's exit: the session done, failed for good, or run again in a new attempt."""
+        name = session.job.name
+        if noticed.outcome == EXITED_DONE:
+            del self.running[noticed.name]
+            self.show(name, 0.0, str(read_run(session.attempt).get("outcome", "completed")))
+            return
+        reason = self._reason(noticed)
+        if noticed.status != SESSION_ERROR:
+            # A child that died before it made its attempt still had one: each try is an attempt that says how it
+            # ended. One refused by a SEESys error (an unknown participant, say) made none when it refused.
+            session.attempt.mkdir(parents=True, exist_ok=True)
+        if session.attempt.is_dir():
+            _mark_crashed(session.attempt, reason)
+        if noticed.outcome == FAILED:
+            del self.running[noticed.name]
+            self.failed.append(f"{name}: {reason}")
+            self.show(name, 0.0, f"failed: {reason}")
+            return
+        self.show(name, 0.0, f"{reason}; once more")
+        # The supervisor starts the child again at its next look; that try makes the next attempt.
+        session.attempt, session.shown = _next_attempt(session.job.folder), 0.0
+        self.show(name, 0.0, session.attempt.name)
+
+    def _reason(self, noticed: Exit) -> str:
+        """Why a session child ended without its session done, in words."""
+        if noticed.stalled:
+            return f"no frame for {self.stall_timeout_s:g} s: hung, killed"
+        if noticed.status == SESSION_ERROR and noticed.last_line:
+            return noticed.last_line.removeprefix(ERROR_PREFIX)
+        last = f": {noticed.last_line}" if noticed.last_line else ""
+        return f"its process ended ({exit_text(noticed.status)}){last}"
+
+    def _fail(self, job: Job, reason: str) -> None:
+        self.failed.append(f"{job.name}: {reason}")
+        self.show(job.name, 0.0, f"failed: {reason}")
+
+    def _show_progress(self) -> None:
+        """Each running session's simulated seconds, shown once a second more is simulated."""
+        for session in self.running.values():
+            seconds = _simulated_seconds(session.attempt / FRAMES_CSV)
+            if seconds >= session.shown + 1.0:
+                session.shown = seconds
+                self.show(session.job.name, seconds, "")
+
+    def stop(self) -> None:
+        """Stop every session child: each is told (SIGTERM) and given STOP_GRACE_S to end its session at a frame
+        boundary with its files final; one that has not is killed and its attempt marked failed."""
+        exits = self.supervisor.stop()
+        for part, session in self.running.items():
+            if exits.get(part) == -signal.SIGKILL and session.attempt.is_dir():
+                _mark_crashed(session.attempt, f"stopped: killed after {STOP_GRACE_S:g} s")
 
 
 def run_study(
@@ -174,102 +396,24 @@ def run_study(
     config_dir: Path | None = None,
     show: Callable[[str, float, str], None] | None = None,
 ) -> StudyOutcome:
-    """Simulate every session of ``study`` not done yet, ``cfg.study.processes`` at a time. A
-    ``KeyboardInterrupt`` (Ctrl-C; SIGTERM where the caller maps it so, as the command does) stops every session
-    (``interrupted``, files final) and is raised again.
+    """Simulate every session of ``study`` not done yet, ``cfg.study.processes`` at a time, each job once its
+    ``after`` session is done. A ``KeyboardInterrupt`` (Ctrl-C; SIGTERM where the caller maps it so, as the command
+    does) stops every session (``interrupted``, files final) and is raised again.
 
-    ``show(session, simulated_seconds, note)`` reports each session ("P03 seesys"): its start (0 s, note
-    "attempt-1"), its progress (note "") and its end (note "completed", "timed_out", "failed: why", ...)."""
+    The session children run with the configuration of ``config_dir`` (default: the one in use), copied into the
+    study's ``configs/``. ``show(session, simulated_seconds, note)`` reports each session ("P03 seesys"): its start
+    (0 s, note "attempt-1"), its progress (note "") and its end (note "completed", "timed_out", "failed: why",
+    ...)."""
+    study = Path(study)
     protocol = prepare_study(study, cfg, model)
     jobs, total = pending_jobs(study, protocol)
-    context = multiprocessing.get_context("spawn")
-    queue = list(jobs)
-    tries: dict[str, int] = {}
-    running: dict[Connection, tuple[Job, Path, SpawnProcess, str]] = {}  # by the session's progress pipe
-    # A session reports every simulated second; one silent for stall_timeout_s is hung (ORB-SLAM3 has been seen to
-    # hang in a map reset after a loss): it is killed and counts as a crash.
-    last_heard: dict[Connection, float] = {}
-    stalled: set[Connection] = set()
-    failed: list[str] = []
-    report = show or (lambda name, seconds, note: None)
-    try:
-        while queue or running:
-            while queue and len(running) < cfg.study.processes:
-                job = queue.pop(0)
-                name = f"{job.participant.id} {job.participant.condition}"
-                tries[name] = tries.get(name, 0) + 1
-                # An earlier attempt cut short leaves the metrics: the session runs again from its start.
-                supersede_attempts(job.folder)
-                attempt = next_attempt_folder(job.folder)
-                receiver, sender = context.Pipe(duplex=False)
-                process = context.Process(
-                    target=_session_process,
-                    name=f"simulate {name}",
-                    args=(cfg, job.participant, attempt, model, config_dir, sender),
-                )
-                process.start()
-                sender.close()
-                running[receiver] = (job, attempt, process, name)
-                last_heard[receiver] = time.monotonic()
-                report(name, 0.0, attempt.name)
-            # wait() returns those of the given pipes that are ready (typeshed: any waitable).
-            ready = cast(list[Connection], wait(list(running), timeout=min(WATCH_S, cfg.study.stall_timeout_s)))
-            now = time.monotonic()
-            for receiver, (_, _, process, _) in running.items():
-                if receiver not in ready and now - last_heard[receiver] > cfg.study.stall_timeout_s:
-                    stalled.add(receiver)
-                    process.kill()  # its pipe closes: handled as a crash on the next look
-            for receiver in ready:
-                job, attempt, process, name = running[receiver]
-                last_heard[receiver] = now
-                try:
-                    message = receiver.recv()
-                except EOFError:
-                    message = None
-                if isinstance(message, float):
-                    report(name, message, "")
-                    continue
-                process.join()
-                receiver.close()
-                del running[receiver], last_heard[receiver]
-                if message == ("done", "completed") or message == ("done", "timed_out"):
-                    report(name, 0.0, message[1])
-                    continue
-                hung = receiver in stalled
-                stalled.discard(receiver)
-                reason = (
-                    message[1]
-                    if isinstance(message, tuple) and message[0] == "error"
-                    else _mark_crashed(
-                        attempt,
-                        f"no frame for {cfg.study.stall_timeout_s:g} s: hung, killed"
-                        if hung
-                        else f"its process ended with exit code {process.exitcode}",
-                    )
-                )
-                if isinstance(message, tuple) and message[0] == "error" or tries[name] > cfg.study.retries:
-                    failed.append(f"{name}: {reason}")
-                    report(name, 0.0, f"failed: {reason}")
-                else:
-                    report(name, 0.0, f"{reason}; once more")
-                    queue.append(job)
-    except KeyboardInterrupt:
-        # A terminal's Ctrl-C reaches every session already; SIGTERM to this process, or a Ctrl-C it alone got,
-        # does not: each session is told, then given STOP_GRACE_S to close its files.
-        for _job, _attempt, process, _name in running.values():
-            if process.is_alive() and process.pid is not None:  # alive: started, so it has a pid
-                os.kill(process.pid, signal.SIGINT)
-        for _job, attempt, process, _name in running.values():
-            process.join(STOP_GRACE_S)
-            if process.is_alive():
-                process.terminate()
-                process.join()
-                _mark_crashed(attempt, f"stopped: terminated after {STOP_GRACE_S:g} s")
-        raise
+    configs = ConfigSet.read(config_dir).write(study / CONFIGS)
+    env = {**os.environ, CONFIG_DIR_ENV: str(configs)}
+    failed = _StudyRun(study, cfg, model, env, show or (lambda name, seconds, note: None)).run(jobs)
     done = sum(
         1
         for person in protocol.participants
         for condition in person.conditions
         if phase_status(protocol.phase_folder(study, person.id, PHASE, condition)) == DONE
     )
-    return StudyOutcome(Path(study), total, done, failed)
+    return StudyOutcome(study, total, done, failed)
