@@ -34,13 +34,12 @@ from seesys.core.equation2 import PulseSettings
 from seesys.core.errors import SeesysError
 from seesys.core.exceedance import class_boundaries_m
 from seesys.core.labels import LabelStatus
+from seesys.core.motion import translation_spread
 
 CONSTANT = "constant"
 ALWAYS_TOP = "always_top"
 MOTION_ISOTONIC = "motion_isotonic"
 CEILING = "ceiling"
-#: The channels of the motion statistic: the camera's displacement since the previous frame.
-MOTION_CHANNELS = ("rel_tx", "rel_ty", "rel_tz")
 
 
 @dataclass(frozen=True)
@@ -67,9 +66,9 @@ def motion_statistic(rts: np.ndarray) -> np.ndarray:
             f"the motion statistic takes windows of every RTS channel ({rts_schema.NUM_CHANNELS}), "
             f"got shape {rts.shape}"
         )
-    columns = [rts_schema.index_of(name) for name in MOTION_CHANNELS]
+    columns = [rts_schema.index_of(name) for name in rts_schema.TRANSLATION_CHANNELS]
     scales = np.array([rts_schema.CHANNELS[c].scale for c in columns])
-    return np.sqrt(np.sum(np.var(rts[..., columns] * scales, axis=1), axis=-1))
+    return translation_spread(rts[..., columns] * scales)
 
 
 @dataclass(frozen=True)

@@ -237,6 +237,8 @@ def channel_names(category: str) -> tuple[str, ...]:
 
 #: The relative-rotation channels (rad/frame), in roll, pitch, yaw order.
 ROTATION_CHANNELS: tuple[str, str, str] = ("rel_roll", "rel_pitch", "rel_yaw")
+#: The relative-translation channels (m/frame), in x, y, z order.
+TRANSLATION_CHANNELS: tuple[str, str, str] = ("rel_tx", "rel_ty", "rel_tz")
 
 
 def index_of(name: str) -> int:
