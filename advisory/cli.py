@@ -6,14 +6,14 @@ import argparse
 import math
 from pathlib import Path
 
-from advisory.conditions import Condition, pulse_rule
+from advisory.conditions import LIVE_CONDITIONS, Condition, pulse_rule
 from advisory.config import load_advisory_config
 from advisory.estimate_log import read_estimate_log
 from advisory.process import stop_on_signals
 from advisory.wav import WavWriter
 from seesys.io.network import load_network_config
 
-_CONDITIONS = [c.value for c in Condition]
+_CONDITIONS = list(LIVE_CONDITIONS)
 
 
 def _out_dir(args: argparse.Namespace, cfg) -> Path:

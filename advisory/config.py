@@ -78,9 +78,22 @@ class PulsesConfig:
 
 
 @dataclass(frozen=True)
+class MotionConfig:
+    """The ``motion`` condition: N = how many of ``thresholds_m_s`` (ascending) the moving mean of the motion
+    statistic (``advisory.motion``, m/s) reaches, capped at Equation 2's maximum; ``calibration`` says where the
+    thresholds came from."""
+
+    thresholds_m_s: list[float]
+    statistic_window_s: float
+    motion_max_frame_gap_s: float
+    calibration: str
+
+
+@dataclass(frozen=True)
 class AdvisoryConfig:
     equation2: Equation2Config
     rotation: RotationConfig
+    motion: MotionConfig
     timing: TimingConfig
     audio: AudioConfig
     no_information: NoInformationConfig
@@ -103,6 +116,8 @@ def _check(cfg: AdvisoryConfig, where: str) -> None:
         "degrees_per_step": cfg.rotation.degrees_per_step,
         "speed_resolution_deg_s": cfg.rotation.speed_resolution_deg_s,
         "max_frame_gap_s": cfg.rotation.max_frame_gap_s,
+        "statistic_window_s": cfg.motion.statistic_window_s,
+        "motion_max_frame_gap_s": cfg.motion.motion_max_frame_gap_s,
         "window_s": tm.window_s,
         "cadence_hz": tm.cadence_hz,
         "stale_after_s": tm.stale_after_s,
@@ -126,6 +141,9 @@ def _check(cfg: AdvisoryConfig, where: str) -> None:
         problems.append(f"cue_level must be in (0, 1] (got {ni.cue_level})")
     if 2 * ni.cue_tone_s + ni.cue_gap_s > tm.buffer_s:
         problems.append(f"the cue (two tones of cue_tone_s and cue_gap_s between) must fit in buffer_s ({tm.buffer_s})")
+    thresholds = cfg.motion.thresholds_m_s
+    if not thresholds or thresholds[0] <= 0 or any(b <= a for a, b in zip(thresholds, thresholds[1:])):
+        problems.append(f"motion thresholds_m_s must be positive and strictly ascending (got {thresholds})")
     if cfg.pulses.pulses_from not in (HEAD_SOURCE, ESTIMATE_SOURCE):
         problems.append(f"pulses_from must be {HEAD_SOURCE!r} or {ESTIMATE_SOURCE!r} (got {cfg.pulses.pulses_from!r})")
     if problems:

@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 import zmq
 
+from advisory.advice import Advice, Buffer
 from advisory.conditions import Condition, ConditionInput, condition_input
 from advisory.config import AdvisoryConfig
 from advisory.handoff import AudioBuffer, encode_buffer
 from advisory.logs import EventLog
-from advisory.scheduler import CUE, CueClock, Decision, PulseScheduler
+from advisory.scheduler import CUE
 from advisory.synth import synthesise, synthesise_cue
 from seesys.core.messages import MessageError, decode
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
@@ -54,20 +55,11 @@ class Generator:
             [self._input.topic],
             options=network.client_options(self._input.endpoint),
         )
-        self._scheduler = PulseScheduler(
-            self._input.rule,
-            cfg.timing.window_s,
-            cfg.timing.cadence_s,
-            cfg.timing.stale_after_s,
-            time.monotonic(),
-            self._input.rule_name,
-        )
-        self._status = self._scheduler.status
+        self._advice = Advice(condition, cfg, time.monotonic(), cfg.audio.schedule_latency_s)
+        self._status = self._advice.scheduler.status
         self._buffers: dict[int, np.ndarray] = {}
-        self._next_id = 0
         self._bad_messages = 0
         self._cue = synthesise_cue(cfg.no_information, cfg.audio.sample_rate, cfg.timing.buffer_s)
-        self._cues = CueClock(condition.audible, cfg.no_information.no_information_cue, cfg.no_information.cue_every_s)
         self._events.event(
             "started", f"condition={condition.value} input={self._input.endpoint} handoff={cfg.handoff.endpoint}"
         )
@@ -77,40 +69,28 @@ class Generator:
             self._buffers[n] = synthesise(n, self._cfg.equation2, self._cfg.audio, self._cfg.timing.buffer_s)
         return self._buffers[n]
 
-    def _emit(self, d: Decision) -> None:
-        played = d.n_pulses if self._condition.audible else 0
-        trigger = self._cues.trigger(d)
-        samples = self._cue if trigger == CUE else self._samples(played)
-        buf = AudioBuffer(
-            self._next_id,
-            trigger,
-            d.n_pulses,
-            played,
-            self._cfg.audio.sample_rate,
-            d.time,
-            d.time + self._cfg.audio.schedule_latency_s,
-            d.arrival,
-            samples,
+    def _emit(self, buffer: Buffer) -> None:
+        d = buffer.decision
+        samples = self._cue if buffer.trigger == CUE else self._samples(buffer.played)
+        self._pub.send(
+            encode_buffer(
+                AudioBuffer(
+                    buffer.buffer_id,
+                    buffer.trigger,
+                    d.n_pulses,
+                    buffer.played,
+                    self._cfg.audio.sample_rate,
+                    d.time,
+                    buffer.play_at,
+                    d.arrival,
+                    samples,
+                )
+            )
         )
-        self._next_id += 1
-        self._pub.send(encode_buffer(buf))
-        self._log.write(
-            time.time(),
-            d.time,
-            self._condition.value,
-            d.status,
-            trigger,
-            d.value,
-            d.n_pulses,
-            played,
-            buf.buffer_id,
-            d.arrival,
-            buf.play_at,
-            d.pulses_from,
-        )
+        self._log.write(*buffer.row(time.time(), self._condition))
 
     def _note_status(self) -> None:
-        status = self._scheduler.status
+        status = self._advice.scheduler.status
         if status != self._status:
             self._events.event(
                 "input " + status, f"{self._status} -> {status} (stale after {self._cfg.timing.stale_after_s} s)"
@@ -137,26 +117,25 @@ class Generator:
                 self._bad_message(e)
                 continue
             reading = self._input.sample(message)
-            if reading is None or not math.isfinite(reading.value):
+            if reading is None:
                 continue
-            decision = self._scheduler.add(arrival, reading.value, reading.head)
+            for buffer in self._advice.take(arrival, reading):
+                self._emit(buffer)
             self._note_status()
-            if decision is not None:
-                self._emit(decision)
 
     def run(self, stop: threading.Event) -> None:
         poll_s = self._cfg.handoff.poll_ms / 1000.0
         try:
             while not stop.is_set():
-                wait = min(max(self._scheduler.next_tick - time.monotonic(), 0.0), poll_s)
+                wait = min(max(self._advice.scheduler.next_tick - time.monotonic(), 0.0), poll_s)
                 if self._sub.poll(int(math.ceil(wait * 1000))):
                     self._receive()
                 now = time.monotonic()
-                if now >= self._scheduler.next_tick:
-                    self._emit(self._scheduler.tick(now))
+                if now >= self._advice.scheduler.next_tick:
+                    self._emit(self._advice.tick(now))
                     self._note_status()
         finally:
-            self._events.event("stopped", f"{self._next_id} buffers, {self._bad_messages} bad messages")
+            self._events.event("stopped", f"{self._advice.buffers} buffers, {self._bad_messages} bad messages")
             self._close()
 
     def _close(self) -> None:

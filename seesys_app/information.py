@@ -1,5 +1,5 @@
 """How long a run went without information: the seconds in which the device ran but no fresh input of the
-condition's advisory had come (estimates for Equation 2, tracked frames for the rotation rule).
+condition's advisory had come (estimates for Equation 2, tracked frames for the motion rules).
 
 Silence in the advisory means "error below α"; a run in which the estimates stopped must say that they did. The
 clock starts at the device's first logged frame. Until the first input it allows ``first_estimate_s`` (ORB-SLAM3

@@ -159,7 +159,7 @@ class App:
         self.config_dir: Path | None = None  # the run's copy of the configs, once written
         self._player_up = False
         self.information = InformationClock(self.advisory.timing.stale_after_s, self.cfg.supervision.first_estimate_s)
-        self._inputs_seen = 0  # of the condition's input: estimates, or tracked frames for the rotation rule
+        self._inputs_seen = 0  # of the condition's input: estimates, or tracked frames for the motion rules
         self._dropped_at_estimate: dict[str, int] = {}
         self._exits: dict[str, int | None] | None = None  # each child's exit status, once stopped
 
@@ -409,7 +409,7 @@ class App:
         state = observed.tracking_state
         if state in TrackingState.__members__ and state not in TRACKED_STATES:
             return f"tracking {state}"
-        if self.o.condition is Condition.ROTATION:
+        if self.o.condition.hears_features:
             return "no tracked frames from the device"
         if not self._inputs_seen:
             return "no estimate yet" + ("" if self.o.local else f" from {self.o.estimator}")
@@ -417,10 +417,10 @@ class App:
 
     def _inputs_now(self) -> int:
         """How many inputs of the kind the condition's advisory plays from have arrived: the device's tracked feature
-        frames for the rotation rule (its angular speed), the estimates otherwise (``none`` logs what Equation 2
-        would have played)."""
+        frames for the motion rules (rotation speed, motion statistic), the estimates otherwise (``none`` logs what
+        Equation 2 would have played)."""
         watcher = self._started_watcher
-        return watcher.tracked_frames if self.o.condition is Condition.ROTATION else watcher.estimates
+        return watcher.tracked_frames if self.o.condition.hears_features else watcher.estimates
 
     def _account_information(self) -> None:
         """Advance the information clock with what the device logged and the app received since the last look."""

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from advisory.conditions import Condition
+from advisory.conditions import LIVE_CONDITIONS, Condition
 from seesys.io.arguments import positive_int
 
 # A degraded run ended as its source did, but with seconds in which the advisory knew nothing.
@@ -84,9 +84,10 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
     )
     p.add_argument(
         "--condition",
-        choices=[c.value for c in Condition],
+        choices=LIVE_CONDITIONS,
         required=True,
-        help="what the advisory plays: seesys (Equation 2 on the estimates), rotation, none (silent)",
+        help="what the advisory plays: seesys (Equation 2 on the estimates), rotation, motion (the rate-matched "
+        "motion rule), none (silent)",
     )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="session folder to create (new or empty)")
     p.add_argument(

@@ -265,6 +265,48 @@ class MonitorStats:
 _STOP = object()
 
 
+class MonitorStep:
+    """The monitor's step of the per-frame chain, synchronous: a tracked frame → its feature frame, published first
+    (when there is a publisher: the estimate waits for the message, not for the logs) and then logged to the
+    session's ``rts.csv`` and ``psd/`` (when there is a session folder). The device's :class:`RtsMonitor` runs it on
+    its own thread; the simulated study calls it in its loop, so both write the same logs from the same code."""
+
+    def __init__(
+        self,
+        config: MonitorConfig,
+        session_dir: Path | None = None,
+        publisher: FeaturePublisher | None = None,
+        stream_session: int = 0,
+        settings: DeviceSettings | None = None,
+    ):
+        self.publisher = publisher
+        self.psd_matrices = 0
+        self._extractor = FeatureExtractor(config, stream_session, settings)
+        self._rts_log = RtsCsvWriter(session_dir / RTS_CSV, settings) if session_dir is not None else None
+        self._psd_log = (
+            PsdLogWriter(session_dir / PSD_DIR, config.log.psd_chunk_records) if session_dir is not None else None
+        )
+
+    def step(self, item: MonitorInput) -> FeatureFrame:
+        features = self._extractor.extract(item)
+        # Neither log depends on the stream.
+        if self.publisher is not None:
+            self.publisher.publish(features)
+        if self._rts_log is not None:
+            self._rts_log.write(features)
+        if features.psd is not None:
+            self.psd_matrices += 1
+            if self._psd_log is not None:
+                self._psd_log.write(features.frame_index, features.timestamp, features.psd)
+        return features
+
+    def close_logs(self) -> None:
+        """Close the logs (their files final); the publisher is its owner's to close."""
+        for log in (self._rts_log, self._psd_log):
+            if log is not None:
+                log.close()
+
+
 class RtsMonitor:
     """Device-worker observer: ``on_frame`` from the tracking loop, ``close`` at the end of the session."""
 
@@ -280,11 +322,7 @@ class RtsMonitor:
         self.session_dir = session_dir
         self.publisher = publisher
         self.stats = MonitorStats()
-        self._extractor = FeatureExtractor(config, stream_session, settings)
-        self._rts_log = RtsCsvWriter(session_dir / RTS_CSV, settings) if session_dir is not None else None
-        self._psd_log = (
-            PsdLogWriter(session_dir / PSD_DIR, config.log.psd_chunk_records) if session_dir is not None else None
-        )
+        self._step = MonitorStep(config, session_dir, publisher, stream_session, settings)
         self._queue: queue.Queue = queue.Queue(maxsize=config.queue_size)
         self._previous = PreviousPose()
         self._thread = threading.Thread(target=self._run, name="rts-monitor", daemon=True)
@@ -317,17 +355,8 @@ class RtsMonitor:
 
     def _process(self, item: MonitorInput) -> None:
         start, start_cpu = time.perf_counter(), time.thread_time()
-        features = self._extractor.extract(item)
-        # Publish first: the estimate waits for the message, not for the logs (the PSD log compresses the matrix
-        # again and both logs flush to disk). Neither log depends on the stream.
-        if self.publisher is not None:
-            self.publisher.publish(features)
-        if self._rts_log is not None:
-            self._rts_log.write(features)
-        if features.psd is not None:
-            self.stats.psd_matrices += 1
-            if self._psd_log is not None:
-                self._psd_log.write(features.frame_index, features.timestamp, features.psd)
+        features = self._step.step(item)
+        self.stats.psd_matrices = self._step.psd_matrices
         self.stats.monitor_ms.append((time.perf_counter() - start) * 1000.0)
         # CPU time of this thread: what the monitor costs, unlike wall time not inflated by waiting for a core
         self.stats.monitor_cpu_ms.append((time.thread_time() - start_cpu) * 1000.0)
@@ -344,9 +373,7 @@ class RtsMonitor:
         """
         self._queue.put(_STOP)
         self._thread.join()
-        for log in (self._rts_log, self._psd_log):
-            if log is not None:
-                log.close()
+        self._step.close_logs()
         if self.publisher is not None:
             self.stats.stream = asdict(self.publisher.stats)
             frames = self.stats.frames_processed

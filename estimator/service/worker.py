@@ -52,10 +52,11 @@ import zmq
 
 from estimator.service import envelope, stages
 from estimator.service.config import ServiceConfig
+from estimator.service.device_windows import SETTINGS_MISMATCH, SHAPE_MISMATCH, DeviceWindows
 from estimator.service.model import ServedModel
 from seesys.core import messages
 from seesys.core.messages import Estimate, FeatureFrame
-from seesys.core.windows import MISSING_PSD, MISSING_RTS, WindowAssembler, WindowConfig, WindowSample
+from seesys.core.windows import MISSING_PSD, MISSING_RTS, WindowConfig, WindowSample
 from seesys.io.processes import die_with_parent
 from seesys.io.transport import open_socket
 
@@ -64,7 +65,7 @@ _TIMING_SAMPLES = 512
 # Weight of the newest batch in the running cost per window (a few batches settle it; a slower machine shows soon).
 _COST_WEIGHT = 0.2
 #: Every reason a worker drops a frame or a window for, as the broker's status names it.
-DROP_REASONS = ("settings_mismatch", "shape_mismatch", MISSING_RTS, MISSING_PSD, "stale")
+DROP_REASONS = (SETTINGS_MISMATCH, SHAPE_MISMATCH, MISSING_RTS, MISSING_PSD, "stale")
 
 
 def batch_size(ages_ms: Sequence[float], max_batch: int, window_ms: float, stale_after_ms: float) -> int:
@@ -144,10 +145,7 @@ class Worker:
         self.name = name or f"{socket.gethostname()}:{os.getpid()}"
         self.counters = WorkerCounters()
         self._clock = clock  # seconds; only ever compared with itself
-        self._assemblers: dict[str, WindowAssembler] = {}
-        self._last_index: dict[str, int] = {}
-        self._session: dict[str, int] = {}
-        self._checked: dict[str, tuple[int, object, list[str]]] = {}  # device → (session, settings, differences)
+        self._windows = DeviceWindows(model, windows)
         self._ready: dict[str, _Ready] = {}
         self._stopping = False
         self._ctx = zmq.Context()
@@ -225,61 +223,43 @@ class Worker:
                     self._add(token, age_ms, self._clock() - age_ms / 1000.0, arrived, frame)
                     read += 1
 
-    def _settings_refused(self, frame: FeatureFrame) -> bool:
-        """True (and logged once per stream session) when the frame's device settings differ from the model's."""
+    def _note_settings(self, frame: FeatureFrame) -> None:
+        """Log (once per stream session) and record a device whose settings differ from the model's."""
         device = frame.device_id
-        checked = self._checked.get(device)
-        if checked is None or checked[:2] != (frame.stream_session, frame.settings):
-            differences = self.model.settings_differences(frame.settings)
-            if differences:
-                why = "; ".join(differences)
+        differences, news = self._windows.settings_differences(frame)
+        if differences:
+            why = "; ".join(differences)
+            if news:
                 print(
                     f"estimator worker {self.name}: device {device!r} (stream session {frame.stream_session:x}): "
                     f"frames refused, its settings differ from the model's: {why}",
                     file=sys.stderr,
                     flush=True,
                 )
-            checked = self._checked[device] = (frame.stream_session, frame.settings, differences)
-        if checked[2]:
-            self.counters.settings_refused[device] = "; ".join(checked[2])
-            self.counters.dropped["settings_mismatch"][device] += 1
-            return True
-        self.counters.settings_refused.pop(device, None)
-        return False
+            self.counters.settings_refused[device] = why
+        else:
+            self.counters.settings_refused.pop(device, None)
 
     def _add(self, token: float, ingest_ms: float, received: float, arrived: float, frame: FeatureFrame) -> None:
         unpacked = time.perf_counter()
         self.counters.frames += 1
         device = frame.device_id
-        if self._settings_refused(frame):
-            return
-        if frame.stream_session != self._session.get(
-            device, frame.stream_session
-        ) or frame.frame_index <= self._last_index.get(device, -1):
-            # A device that restarted (a new stream session, or its frames counted from 0 again): rows of its last
-            # session must not fill the new session's windows.
-            self._assemblers.pop(device, None)
+        self._note_settings(frame)
+        added = self._windows.add(frame)
+        if added.restarted:
             self._ready.pop(device, None)
             self.counters.restarts[device] += 1
-        self._session[device] = frame.stream_session
-        self._last_index[device] = frame.frame_index
-        assembler = self._assemblers.get(device)
-        if assembler is None:
-            assembler = self._assemblers[device] = WindowAssembler(self.windows)
-        sample = assembler.add(frame)
-        if sample is None:
-            if assembler.refused is not None:
-                self.counters.dropped[assembler.refused][device] += 1
-            return
-        self.counters.windows += 1
-        if not self.model.accepts(sample):
-            self.counters.dropped["shape_mismatch"][device] += 1
+        if added.formed:
+            self.counters.windows += 1
+        if added.refused is not None:
+            self.counters.dropped[added.refused][device] += 1
+        if added.window is None:
             return
         if device in self._ready:
             self.counters.dropped["stale"][device] += 1  # superseded before it was served
         formed = time.perf_counter()
         self._ready[device] = _Ready(
-            sample,
+            added.window,
             token,
             received,
             frame.stream_session,
