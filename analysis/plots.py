@@ -160,3 +160,37 @@ def error_over_time(data: StudyData, condition: str, cfg: AnalysisConfig, out: P
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def tradeoff(table: pd.DataFrame, conditions: list[str], x: Variable, y: Variable, out: Path) -> Path | None:
+    """Time on task against tracking error, one point per participant and condition, the conditions' means as
+    large markers, and the least-squares line through the points of the conditions that sound without information
+    (``none`` and ``yoked``, where present): an advisory that only slows the operator down lies on that line."""
+    data = table.dropna(subset=[x.column, y.column])
+    if data.empty:
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    for i, condition in enumerate(conditions):
+        rows = data[data.condition == condition]
+        if rows.empty:
+            continue
+        xs, ys = rows[x.column].to_numpy(float) * x.scale, rows[y.column].to_numpy(float) * y.scale
+        colour = f"C{i}"
+        ax.scatter(xs, ys, s=22, alpha=0.7, color=colour, label=condition)
+        ax.scatter([xs.mean()], [ys.mean()], s=140, marker="D", color=colour, edgecolor="black", zorder=4)
+    pacing = data[data.condition.isin(["none", "yoked"])]
+    if len(pacing) >= 3 and np.ptp(pacing[x.column].to_numpy(float)) > 0:
+        px, py = pacing[x.column].to_numpy(float) * x.scale, pacing[y.column].to_numpy(float) * y.scale
+        slope, intercept = np.polyfit(px, py, 1)
+        grid = np.linspace(data[x.column].min() * x.scale, data[x.column].max() * x.scale, 50)
+        ax.plot(grid, slope * grid + intercept, "k--", lw=1, label="pacing alone (fit to none and yoked)")
+    ax.set_xlabel(x.title)
+    ax.set_ylabel(y.title)
+    ax.set_title(f"{y.label} against {x.label.lower()} (one point per participant and condition)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = out / f"tradeoff_{x.column}_{y.column}.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

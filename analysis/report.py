@@ -9,6 +9,8 @@ Writes into the output folder (default ``STUDY/analysis``):
   variable and condition / check / test / pair, in the reported units (R and JASP read them as they are);
 - ``changes.csv``: the relative change of the means of ``changes_of`` (analysis.toml) against every other
   condition, with bootstrap CIs;
+- ``oracle_share.csv``: where the study has the ``yoked``, ``seesys`` and ``oracle`` arms, the share of the oracle's
+  gain that SEESys reaches on each error variable, (yoked − seesys) / (yoked − oracle), with a bootstrap CI;
 - ``figures/*.png`` and ``report.md`` / ``report.html`` (the same report; the HTML embeds nothing, it links the
   figures).
 """
@@ -24,7 +26,7 @@ from markdown_it import MarkdownIt
 
 from analysis import plots
 from analysis.config import AnalysisConfig
-from analysis.stats import Comparison, compare, relative_changes
+from analysis.stats import Comparison, compare, oracle_share, relative_changes
 from seesys.core.errors import SeesysError
 from study.config import MetricsConfig
 from study.sessions import DONE, advice_thresholds, collect_study
@@ -194,6 +196,7 @@ def render_report(
     title: str,
     note: str = "",
     changes: pd.DataFrame | None = None,
+    shares: pd.DataFrame | None = None,
 ) -> str:
     measured = table.dropna(subset=[c.variable.column for c in comparisons], how="all")
     counts = measured.groupby("condition").participant.nunique().reindex(conditions, fill_value=0)
@@ -227,6 +230,19 @@ def render_report(
             changes_table(changes, comparisons, cfg).to_markdown(index=False),
             "",
         ]
+    if shares is not None and not shares.empty:
+        lines += _shares_section(shares, comparisons, cfg)
+    tradeoffs = [p for key, p in figures.items() if key.startswith("tradeoff_")]
+    if tradeoffs:
+        lines += [
+            "## Time on task against tracking error",
+            "",
+            "One point per participant and condition; diamonds: the conditions' means; dashed: the least-squares line "
+            "through the conditions that sound without information about the error (none, yoked), i.e. what slowing "
+            "down alone buys.",
+            "",
+        ]
+        lines += [f"![{p.stem}]({p.relative_to(out)})\n" for p in tradeoffs]
     for c in comparisons:
         lines += _section(c, cfg, figures, out)
     extra = [p for key, p in figures.items() if key.startswith(("trajectories_", "error_over_time_"))]
@@ -234,6 +250,47 @@ def render_report(
         lines += ["## Trajectories and error over time", ""]
         lines += [f"![{p.stem}]({p.relative_to(out)})\n" for p in extra]
     return "\n".join(lines) + "\n"
+
+
+#: The error variables the oracle's share is reported on, where the participants table has them.
+SHARE_VARIABLES = ("error_per_metre", "error_per_radian", "rpe_mean_m")
+#: The trade-off figures: time on task against these.
+TRADEOFF_OF = ("time_on_task_s", ("rpe_mean_m", "error_per_metre"))
+
+
+def shares_of(table: pd.DataFrame, design: str, cfg: AnalysisConfig) -> pd.DataFrame:
+    """The oracle's share (:func:`analysis.stats.oracle_share`) of every variable of :data:`SHARE_VARIABLES`."""
+    rows = [oracle_share(table, v, design, cfg) for v in cfg.variables if v.column in SHARE_VARIABLES]
+    return pd.DataFrame([r for r in rows if r is not None])
+
+
+def _shares_section(shares: pd.DataFrame, comparisons: list[Comparison], cfg: AnalysisConfig) -> list[str]:
+    titles = {c.variable.column: c.variable for c in comparisons}
+    rows = []
+    for r in shares.itertuples():
+        v = titles.get(r.variable)
+        rows.append(
+            {
+                "Performance metric": v.title if v else r.variable,
+                "yoked": fmt(r.yoked_mean, 3),
+                "seesys": fmt(r.seesys_mean, 3),
+                "oracle": fmt(r.oracle_mean, 3),
+                f"share of the oracle's gain [{cfg.confidence:.0%} CI]": f"{fmt(100 * r.share_of_oracle_gain, 1)} % "
+                f"[{fmt(100 * r.ci_low, 1)}, {fmt(100 * r.ci_high, 1)}]",
+                "n": r.n,
+            }
+        )
+    return [
+        "## How much of the oracle's gain SEESys reaches",
+        "",
+        "(mean of yoked − mean of seesys) / (mean of yoked − mean of oracle), lower error being better: 0 % is no "
+        "better than the same sound without information, 100 % as good as Equation 2 on the true error. "
+        f"Means in the reported units; {cfg.confidence:.0%} percentile bootstrap CI over participants. "
+        "Tidy table: oracle_share.csv.",
+        "",
+        pd.DataFrame(rows).to_markdown(index=False),
+        "",
+    ]
 
 
 def write_report(markdown: str, out: Path, title: str) -> None:
@@ -264,9 +321,19 @@ def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: M
     write_tables(comparisons, out)
     changes = changes_of(table, comparisons, conditions, data.protocol.design, cfg)
     changes.to_csv(out / "changes.csv", index=False)
+    shares = shares_of(table, data.protocol.design, cfg)
+    if not shares.empty:
+        shares.to_csv(out / "oracle_share.csv", index=False)
     figures: dict[str, Path] = {
         c.variable.column: plots.box_strip(table, c.variable, conditions, figures_dir) for c in comparisons
     }
+    variables = {v.column: v for v in cfg.variables}
+    x_column, y_columns = TRADEOFF_OF
+    for y_column in y_columns:
+        if x_column in variables and y_column in variables:
+            path = plots.tradeoff(table, conditions, variables[x_column], variables[y_column], figures_dir)
+            if path is not None:
+                figures[f"tradeoff_{y_column}"] = path
     for condition in conditions:
         for kind, draw in (("trajectories", plots.trajectories), ("error_over_time", plots.error_over_time)):
             path = draw(data, condition, cfg, figures_dir)
@@ -285,6 +352,7 @@ def analyse_study(study: Path, out: Path | None, cfg: AnalysisConfig, metrics: M
             title,
             metrics_note(metrics),
             changes,
+            shares,
         ),
         out,
         title,

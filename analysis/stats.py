@@ -86,12 +86,17 @@ def _shapiro(x: np.ndarray) -> tuple[float, float]:
     return float(result.statistic), float(result.pvalue)
 
 
-def _bootstrap_ci(samples: list[np.ndarray], statistic, cfg: AnalysisConfig) -> tuple[float, float]:
+def _bootstrap_ci(
+    samples: list[np.ndarray], statistic, cfg: AnalysisConfig, paired: bool = False
+) -> tuple[float, float]:
+    """The percentile bootstrap CI of ``statistic`` (vectorised): groups resampled separately, or, ``paired``,
+    the rows of all samples together (participants with their pairs)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # degenerate resamples (a constant group) give NaN and a warning
         result = stats.bootstrap(
             samples,
             statistic,
+            paired=paired,
             n_resamples=cfg.bootstrap_resamples,
             confidence_level=cfg.confidence,
             method="percentile",
@@ -484,19 +489,7 @@ def relative_changes(
             if len(x) and len(y):
                 change = float(_ratio_minus_one(y, x))
             if len(x) > 1 and len(y) > 1 and math.isfinite(change):
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    result = stats.bootstrap(
-                        (y, x),
-                        _ratio_minus_one,
-                        paired=paired,
-                        vectorized=True,
-                        n_resamples=cfg.bootstrap_resamples,
-                        confidence_level=cfg.confidence,
-                        method="percentile",
-                        random_state=np.random.default_rng(cfg.bootstrap_seed),
-                    )
-                low, high = float(result.confidence_interval.low), float(result.confidence_interval.high)
+                low, high = _bootstrap_ci([y, x], _ratio_minus_one, cfg, paired)
             rows.append(
                 {
                     "variable": variable.column,
@@ -516,3 +509,45 @@ def compare(
     table: pd.DataFrame, variable: Variable, conditions: list[str], design: str, cfg: AnalysisConfig
 ) -> Comparison:
     return (compare_between if design == "between" else compare_within)(table, variable, conditions, cfg)
+
+
+#: The arms of the oracle-share question: sound without information, the advisory judged, the true error.
+SOUND_ONLY, JUDGED, ORACLE = "yoked", "seesys", "oracle"
+
+
+def _gain_share(yoked: np.ndarray, judged: np.ndarray, oracle: np.ndarray, axis: int = -1) -> np.ndarray:
+    """(mean yoked − mean judged) / (mean yoked − mean oracle); NaN where the oracle gains nothing."""
+    gain = np.mean(yoked, axis=axis) - np.mean(oracle, axis=axis)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(gain == 0, np.nan, (np.mean(yoked, axis=axis) - np.mean(judged, axis=axis)) / gain)
+
+
+def oracle_share(table: pd.DataFrame, variable: Variable, design: str, cfg: AnalysisConfig) -> dict | None:
+    """The share of the oracle's gain over the yoked arm that SEESys reaches, (yoked − seesys) / (yoked − oracle),
+    on ``variable`` (lower is better), with a percentile bootstrap CI: participants resampled with all three arms
+    within subjects, groups separately between. None when the study lacks one of the three arms."""
+    data = values_of(table, variable)
+    arms = (SOUND_ONLY, JUDGED, ORACLE)
+    if not set(arms) <= set(data.condition):
+        return None
+    if design == "between":
+        samples = [data.loc[data.condition == arm, "value"].to_numpy() for arm in arms]
+        paired = False
+    else:
+        wide = data.pivot_table(index="participant", columns="condition", values="value").dropna(subset=list(arms))
+        samples, paired = [wide[arm].to_numpy() for arm in arms], True
+    share, low, high = math.nan, math.nan, math.nan
+    if all(len(s) for s in samples):
+        share = float(_gain_share(*samples))
+    if all(len(s) > 1 for s in samples) and math.isfinite(share):
+        low, high = _bootstrap_ci(samples, _gain_share, cfg, paired)
+    return {
+        "variable": variable.column,
+        "n": min(len(s) for s in samples),
+        "yoked_mean": float(np.mean(samples[0])) if len(samples[0]) else math.nan,
+        "seesys_mean": float(np.mean(samples[1])) if len(samples[1]) else math.nan,
+        "oracle_mean": float(np.mean(samples[2])) if len(samples[2]) else math.nan,
+        "share_of_oracle_gain": share,
+        "ci_low": low,
+        "ci_high": high,
+    }

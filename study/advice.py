@@ -3,6 +3,8 @@
 - **Mean speed**: the reference trajectory's path length over the task, divided by its duration. The reference is
   sampled every ``speed_sample_s`` first, so that motion-capture jitter (millimetres at 100 Hz) does not add
   length. An advisory that only slows everyone down shows here and in time on task.
+- **Warning share**: the share of the task's buffers (from the first error pair to the task's end) that played
+  pulses: how much an advisory sounded, which a ``yoked`` or a rate-matched ``motion`` control matches.
 - **False alarms and misses**: each advisory buffer of the task (``advisory.csv``: one per 1/3 s, and one per
   change) against the true error of the moment it stands for, the mean of the tracking error's pairs (RPE, the study's
   error, which is the pose-error label the estimates were trained on, monocular included:
@@ -28,12 +30,15 @@ from seesys.core.trajectory import Poses
 
 @dataclass(frozen=True)
 class AdviceOutcome:
-    """Buffer counts of one session: true error low (below α) and of those warned; high and of those silent."""
+    """Buffer counts of one session: true error low (below α) and of those warned; high and of those silent; and
+    every buffer of the task and of those warned (whether or not a pair judged it)."""
 
     low: int = 0
     low_warned: int = 0
     high: int = 0
     high_silent: int = 0
+    buffers: int = 0
+    warned: int = 0
 
     def __add__(self, other: AdviceOutcome) -> AdviceOutcome:
         return AdviceOutcome(
@@ -41,7 +46,14 @@ class AdviceOutcome:
             self.low_warned + other.low_warned,
             self.high + other.high,
             self.high_silent + other.high_silent,
+            self.buffers + other.buffers,
+            self.warned + other.warned,
         )
+
+    @property
+    def warning_share(self) -> float:
+        """The share of the task's buffers that played pulses: how much an advisory sounded."""
+        return self.warned / self.buffers if self.buffers else float("nan")
 
     @property
     def false_alarm_rate(self) -> float:
@@ -88,6 +100,7 @@ def advice_outcome(
     warned = advisory["played_pulses"].to_numpy(float) > 0
     keep = (at >= times[0]) & (at <= (times[-1] if task_end_s is None else min(task_end_s, times[-1])) + window_s)
     at, warned = at[keep], warned[keep]
+    sounded = int(warned.sum())
     hi = np.searchsorted(times, at, side="right")
     lo = np.searchsorted(times, at - window_s, side="right")
     counts = hi - lo
@@ -96,4 +109,6 @@ def advice_outcome(
     seen = counts > 0
     low = seen & (true < alpha_m)
     high = seen & (true >= high_error_m)
-    return AdviceOutcome(int(low.sum()), int((low & warned).sum()), int(high.sum()), int((high & ~warned).sum()))
+    return AdviceOutcome(
+        int(low.sum()), int((low & warned).sum()), int(high.sum()), int((high & ~warned).sum()), len(at), sounded
+    )

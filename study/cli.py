@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from study import commands_mocap, commands_sessions
+from study import commands_calibration, commands_mocap, commands_sessions
 
 
 def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubParsersAction]:
@@ -13,4 +13,5 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
     commands = parser.add_subparsers(dest="study_command", metavar="COMMAND", required=True)
     commands_sessions.register(commands)
     commands_mocap.register(commands)
+    commands_calibration.register(commands)
     return {"study": commands}

@@ -13,6 +13,9 @@
   Each stretch is what evo's command line computes on that stretch's poses (``evo_rpe tum REF EST --delta 10
   --delta_unit f --pose_relation trans_part --align [--correct_scale] --t_max_diff 0.01 [--all_pairs]``); a
   trajectory without a loss is one stretch, and its error is evo's on the whole trajectory.
+- **Error per metre moved and per radian turned**: the sum of the pairs' errors over the sum of the distance the
+  reference moved (and of the angle it turned) over the same pairs. The 10-frame error is an error per third of a
+  second, so an operator who only slows down lowers it; per metre moved, slowing down alone changes little.
 - **Completeness** is the share of camera frames tracked from the first tracked frame on (initialisation, which
   the operator confirms, is not the participant's doing). With a frame log (a session's ``frames.csv``) it is
   counted on the frames; from two TUM files alone it is the share of time from the first estimated pose to the
@@ -30,7 +33,7 @@ device stopped, the frames logged after that end are left out (:func:`task_span`
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +59,8 @@ class TrackingMetrics:
     rpe_rmse_m: float
     rpe_median_m: float
     rpe_max_m: float
+    error_per_metre: float  # Σ pair error / Σ distance the reference moved over the pairs (m per m)
+    error_per_radian: float  # Σ pair error / Σ angle it turned over them (m per rad)
     pairs: int
     completeness: float
     tracking_losses: int
@@ -74,13 +79,33 @@ class TrackingMetrics:
 
 @dataclass(frozen=True)
 class RpeResult:
-    """evo's RPE over the tracked stretches: the per-pair errors (metres), the timestamps of the pairs' end poses
-    and how many stretches had pairs."""
+    """evo's RPE over the tracked stretches: the per-pair errors (metres), the timestamps of the pairs' end poses,
+    how many stretches had pairs, and how far the reference moved (metres) and turned (radians) over each pair."""
 
     errors_m: np.ndarray
     timestamps: np.ndarray
     alignment: str
     stretches: int = 0
+    moved_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    turned_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def reference_motion(reference: Poses, delta_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """How far ``reference`` moved (metres) and turned (radians, the angle of the relative rotation) over every
+    pair (k, k + ``delta_frames``)."""
+    if len(reference) <= delta_frames:
+        return np.zeros(0), np.zeros(0)
+    moved = np.linalg.norm(reference.positions[delta_frames:] - reference.positions[:-delta_frames], axis=1)
+    rotations = reference.rotations
+    turned = (rotations[:-delta_frames].inv() * rotations[delta_frames:]).magnitude()
+    return moved, np.asarray(turned, float)
+
+
+def per_motion(errors_m: np.ndarray, motion: np.ndarray) -> float:
+    """The error per unit of motion over the same pairs: Σ error / Σ motion (NaN without motion). A ratio of sums,
+    not a mean of ratios: pairs over which the device hardly moved do not blow it up."""
+    total = float(np.sum(motion))
+    return float(np.sum(errors_m)) / total if total > 0 else float("nan")
 
 
 @dataclass(frozen=True)
@@ -130,31 +155,35 @@ def relative_pose_error(
     if len(estimate) == 0 or len(reference) == 0:
         return RpeResult(np.zeros(0), np.zeros(0), alignment)
     est, ref = estimate.sorted_unique(), reference.sorted_unique()
-    errors, times = [], []
+    found = []
     for stretch in stretches_from_poses(est, cfg) if stretches is None else stretches:
         inside = (est.timestamps >= stretch.start_s) & (est.timestamps <= stretch.end_s)
         pairs = _stretch_rpe(est.take(inside), ref, monocular, cfg)
         if pairs is not None:
-            errors.append(pairs[0])
-            times.append(pairs[1])
-    if not errors:
+            found.append(pairs)
+    if not found:
         return RpeResult(np.zeros(0), np.zeros(0), alignment)
-    return RpeResult(np.concatenate(errors), np.concatenate(times), alignment, len(errors))
+    errors, times, moved, turned = (np.concatenate(column) for column in zip(*found))
+    return RpeResult(errors, times, alignment, len(found), moved, turned)
 
 
-def _stretch_rpe(est: Poses, ref: Poses, monocular: bool, cfg: MetricsConfig) -> tuple[np.ndarray, np.ndarray] | None:
-    """The errors and end timestamps of one stretch's pairs: the label's :func:`stretch_errors` on the stretch's
-    poses that have a reference pose within ``association_max_dt_s`` (as evo's association keeps them: a pose
-    without one is dropped, not a cut), or None when it has no pair or its Sim(3) fit failed."""
+def _stretch_rpe(
+    est: Poses, ref: Poses, monocular: bool, cfg: MetricsConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The errors, end timestamps and reference motion (:func:`reference_motion`) of one stretch's pairs: the
+    label's :func:`stretch_errors` on the stretch's poses that have a reference pose within
+    ``association_max_dt_s`` (as evo's association keeps them: a pose without one is dropped, not a cut), or None
+    when it has no pair or its Sim(3) fit failed."""
     ref_of_pose = ground_truth_of_frames(est.timestamps, ref, cfg.association_max_dt_s)
     associated = ref_of_pose >= 0
     est, ref = est.take(associated), ref.take(ref_of_pose[associated])
     pairs = stretch_errors(est, ref, monocular, cfg.delta_frames)
     if pairs.errors_m.size == 0:
         return None
+    moved, turned = reference_motion(ref, cfg.delta_frames)
     # evo's non-overlapping pairs (0, Δ), (Δ, 2Δ), ... are every Δ-th of all pairs.
     step = 1 if cfg.all_pairs else cfg.delta_frames
-    return pairs.errors_m[::step], est.timestamps[cfg.delta_frames :][::step]
+    return pairs.errors_m[::step], est.timestamps[cfg.delta_frames :][::step], moved[::step], turned[::step]
 
 
 @dataclass(frozen=True)
@@ -261,6 +290,8 @@ def combine(
     """The metrics of several recordings of one participant's task (a session resumed after a crash): the
     errors of all pairs pooled, completeness weighted by frames, losses and durations summed."""
     errors = np.concatenate([r.errors_m for r in rpes]) if rpes else np.zeros(0)
+    moved = np.concatenate([r.moved_m for r in rpes]) if rpes else np.zeros(0)
+    turned = np.concatenate([r.turned_rad for r in rpes]) if rpes else np.zeros(0)
     frames = sum(p.frames for p in parts)
     nan = float("nan")
     return TrackingMetrics(
@@ -268,6 +299,8 @@ def combine(
         rpe_rmse_m=float(np.sqrt(np.mean(errors**2))) if errors.size else nan,
         rpe_median_m=float(np.median(errors)) if errors.size else nan,
         rpe_max_m=float(errors.max()) if errors.size else nan,
+        error_per_metre=per_motion(errors, moved),
+        error_per_radian=per_motion(errors, turned),
         pairs=int(errors.size),
         completeness=float(sum(p.fraction * p.frames for p in parts) / frames) if frames else nan,
         tracking_losses=sum(p.losses for p in parts),
@@ -303,6 +336,8 @@ def format_metrics(m: TrackingMetrics) -> str:
             f"tracking completeness: {m.completeness * 100:.1f} % ({m.tracking_losses} losses, "
             f"{m.loss_duration_s:.2f} s lost; map resets {'unknown' if m.map_resets is None else m.map_resets})",
             f"  the error is over {m.stretches} tracked stretch(es), each aligned on its own",
+            f"  per motion: {m.error_per_metre * 1000:.2f} mm per metre moved, "
+            f"{m.error_per_radian * 1000:.2f} mm per radian turned",
             f"time on task: {m.time_on_task_s:.1f} s",
         ]
     )

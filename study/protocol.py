@@ -6,10 +6,11 @@ seeded random generator so that the same seed gives the same assignment.
 
 - **Between-subjects**: every condition gets the same number of participants; the list of condition slots is
   shuffled and dealt to P01, P02, ...
-- **Within-subjects**: every participant does every condition; the orders are the rows of a balanced Latin square
-  (Williams design: each condition equally often in each position and, for an even number of conditions,
-  equally often right after each other one; for an odd number the square and its mirror image are used), dealt
-  in shuffled order so that every order is used equally often.
+- **Within-subjects**: every participant does every condition, so N participants per condition are N participants;
+  the orders are the rows of a balanced Latin square (Williams design: each condition equally often in each position
+  and, for an even number of conditions, equally often right after each other one; for an odd number the square and
+  its mirror image are used), dealt in turn and shuffled, so that every order is used equally often when N is a
+  multiple of the number of orders (k for k conditions, 2k for an odd k).
 
 Layout: ``DIR/protocol.json`` and ``DIR/participants/<id>/<phase>[-<condition>]/attempt-<n>/``, one attempt
 folder per ``seesys study run`` (a device session folder plus the study's logs); the condition is part of the
@@ -19,11 +20,13 @@ phase folder's name in a within-subjects design only.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from advisory.conditions import LIVE_CONDITIONS
 from seesys.core.errors import SeesysError
 from seesys.io.logfiles import write_json_atomically
 from study.config import ProtocolConfig
@@ -31,7 +34,6 @@ from study.config import ProtocolConfig
 PROTOCOL_JSON = "protocol.json"
 PARTICIPANTS = "participants"
 DESIGNS = ("between", "within")
-KNOWN_CONDITIONS = ("none", "rotation", "seesys")
 
 
 class ProtocolError(SeesysError):
@@ -92,8 +94,10 @@ def make_protocol(
     design: str | None = None,
     seed: int | None = None,
     conditions: list[str] | None = None,
+    known: Sequence[str] = LIVE_CONDITIONS,
 ) -> Protocol:
-    """Draw the assignment (see the module docstring); arguments override ``configs/study.toml``."""
+    """Draw the assignment (see the module docstring); arguments override ``configs/study.toml``. ``known``: the
+    conditions a study may have (a study with people: those a live advisory runs)."""
     design = design or cfg.design
     conditions = list(conditions or cfg.conditions)
     per = cfg.participants_per_condition if participants_per_condition is None else participants_per_condition
@@ -103,18 +107,17 @@ def make_protocol(
     seed = cfg.assignment_seed if seed is None else seed
     if design not in DESIGNS:
         raise ProtocolError(f"unknown design {design!r} (one of {', '.join(DESIGNS)})")
-    unknown = [c for c in conditions if c not in KNOWN_CONDITIONS]
+    unknown = [c for c in conditions if c not in known]
     if unknown or len(set(conditions)) != len(conditions) or len(conditions) < 2:
-        raise ProtocolError(
-            f"conditions must be two or more distinct of {', '.join(KNOWN_CONDITIONS)}, got {conditions}"
-        )
+        raise ProtocolError(f"conditions must be two or more distinct of {', '.join(known)}, got {conditions}")
     rng = np.random.default_rng(seed)
     if design == "between":
         slots = [c for c in conditions for _ in range(per)]
         assigned = [[slots[i]] for i in rng.permutation(len(slots))]
     else:
+        # Every participant does every condition: N per condition is N participants.
         orders = williams_orders(len(conditions))
-        count = per * len(conditions)
+        count = per
         dealt = [orders[i % len(orders)] for i in range(count)]
         assigned = [[conditions[c] for c in dealt[i]] for i in rng.permutation(count)]
     width = len(str(len(assigned)))

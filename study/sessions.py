@@ -43,6 +43,8 @@ ATTEMPT = re.compile(r"attempt-(\d+)$")
 DONE, INCOMPLETE, PENDING = "done", "incomplete", "pending"
 # An attempt with one of these statuses did the phase: the source ended, or the operator ended the task (``q``).
 DONE_STATUSES = ("completed", "stopped")
+#: ``run.json``'s key for the advisory's start on the session's clock (a simulated session records it).
+ADVICE_START = "advice_start"
 FAILED_START = "failed-start-"
 
 
@@ -206,6 +208,8 @@ class StudyData:
 METRIC_COLUMNS = (
     "rpe_mean_m",
     "rpe_rmse_m",
+    "error_per_metre",
+    "error_per_radian",
     "pairs",
     "completeness",
     "tracking_losses",
@@ -213,7 +217,7 @@ METRIC_COLUMNS = (
     "map_resets",
     "time_on_task_s",
 )
-ADVICE_COLUMNS = ("mean_speed_mps", "false_alarm_rate", "miss_rate")
+ADVICE_COLUMNS = ("mean_speed_mps", "warning_share", "buffers", "false_alarm_rate", "miss_rate")
 
 
 @dataclass(frozen=True)
@@ -267,6 +271,8 @@ def participant_advice(
             )
     return {
         "mean_speed_mps": length / duration if duration > 0 else np.nan,
+        "warning_share": outcome.warning_share,
+        "buffers": outcome.buffers,
         "false_alarm_rate": outcome.false_alarm_rate,
         "miss_rate": outcome.miss_rate,
     }

@@ -194,3 +194,25 @@ def test_within_subjects_agrees_with_statsmodels_anovarm(tmp_path):
     posthoc = pd.read_csv(tmp_path / "out" / "posthoc.csv")
     for pr in paired.itertuples():
         assert row(posthoc, method="paired t (Holm)", a=pr.A, b=pr.B).p_adj == pytest.approx(pr.p_corr)
+
+
+def test_the_share_of_the_oracles_gain_is_the_gap_seesys_closes_with_a_paired_interval():
+    from analysis.config import load_analysis_config
+    from analysis.stats import oracle_share
+
+    cfg = load_analysis_config()
+    variable = next(v for v in cfg.variables if v.column == "error_per_metre")
+    rng = np.random.default_rng(5)
+    n = 10
+    base = rng.normal(0.010, 0.002, n)  # participants differ; within a participant the arms differ by a fixed gap
+    rows = []
+    for arm, gain in (("yoked", 0.0), ("seesys", 0.001), ("oracle", 0.002), ("none", -0.0005)):
+        rows += [
+            {"participant": f"P{i:02d}", "condition": arm, "position": 1, "error_per_metre": base[i] - gain}
+            for i in range(n)
+        ]
+    table = pd.DataFrame(rows)
+    share = oracle_share(table, variable, "within", cfg)
+    assert share["share_of_oracle_gain"] == pytest.approx(0.5) and share["n"] == n
+    assert share["ci_low"] == pytest.approx(0.5) and share["ci_high"] == pytest.approx(0.5)  # exact gaps: no spread
+    assert oracle_share(table[table.condition != "oracle"], variable, "within", cfg) is None

@@ -22,7 +22,11 @@ EXPECTED_COMMANDS = {
 # Commands a part above adds to a lower part's group, and the part that provides each: the diversity report reads
 # rendered frames through the device's image statistics, which the renderer never imports; the simulated study runs
 # the estimator in-process, which the study part never imports (their import contracts).
-EXTENSIONS = {("synth", "diversity"): "estimator", ("study", "simulate"): "seesys_app"}
+EXTENSIONS = {
+    ("synth", "diversity"): "estimator",
+    ("study", "simulate"): "seesys_app",
+    ("study", "simulate-session"): "seesys_app",
+}
 
 
 def _commands() -> dict[str, object]:

@@ -210,3 +210,32 @@ def test_a_loss_relocalised_in_the_same_map_is_no_reset():
     frames.loc[frames.state == "LOST", "state"] = "RECENTLY_LOST"
     result = completeness_from_frames(frames)
     assert (result.losses, result.map_resets) == (1, 0)
+
+
+def _line(times: np.ndarray, speed_m_s: float, yaw_rate: float) -> Poses:
+    from scipy.spatial.transform import Rotation
+
+    positions = np.column_stack([speed_m_s * times, np.zeros_like(times), np.zeros_like(times)])
+    return Poses(times, positions, Rotation.from_euler("z", (yaw_rate * times)[:, None]).as_quat())
+
+
+def test_the_error_per_metre_and_per_radian_divide_the_pairs_errors_by_the_motion_over_them():
+    """The same estimate noise on a slow and a fast walk: the 10-frame error is the same, the error per metre half
+    as large on the walk twice as fast; the motion is the reference's, over the very pairs of the error."""
+    cfg = load_study_config().metrics
+    times = np.arange(300) / 30.0
+    rng = np.random.default_rng(7)
+    noise = rng.normal(0, 0.002, (len(times), 3))
+    per_metre = []
+    for speed in (0.3, 0.6):
+        reference = _line(times, speed, 0.5)
+        estimate = Poses(times, reference.positions + noise, reference.quaternions_xyzw)
+        m = tracking_metrics(estimate, reference, False, cfg)
+        moved = speed * cfg.delta_frames / 30.0  # metres over each pair
+        turned = 0.5 * cfg.delta_frames / 30.0
+        assert m.error_per_metre == pytest.approx(m.rpe_mean_m / moved, rel=1e-6)
+        assert m.error_per_radian == pytest.approx(m.rpe_mean_m / turned, rel=1e-6)
+        per_metre.append(m.error_per_metre)
+    assert per_metre[1] == pytest.approx(per_metre[0] / 2, rel=1e-6)
+    still = tracking_metrics(Poses(times, noise, _line(times, 0, 0).quaternions_xyzw), _line(times, 0, 0), False, cfg)
+    assert np.isnan(still.error_per_metre) and still.rpe_mean_m > 0  # no motion: no error per metre

@@ -40,9 +40,9 @@ def test_williams_orders_balance_positions_and_carry_over(k):
 
 def test_within_subjects_orders_are_counterbalanced():
     cfg = load_study_config().protocol
-    p = make_protocol(cfg, participants_per_condition=2, design="within")
+    p = make_protocol(cfg, participants_per_condition=6, design="within")
     orders = Counter(tuple(x.conditions) for x in p.participants)
-    assert len(orders) == 6 and set(orders.values()) == {1}
+    assert len(p.participants) == 6 and len(orders) == 6 and set(orders.values()) == {1}
     assert all(sorted(x.conditions) == sorted(cfg.conditions) for x in p.participants)
 
 
@@ -85,7 +85,7 @@ def test_new_and_status_commands(tmp_path):
         cwd=REPO,
         timeout=120,
     )
-    made = run("new", str(tmp_path / "s"), "--per-condition", "2", "--design", "within")
+    made = run("new", str(tmp_path / "s"), "--per-condition", "6", "--design", "within")
     assert made.returncode == 0, made.stderr
     assert "within-subjects, 6 participants" in made.stdout
     status = run("status", str(tmp_path / "s"))
