@@ -61,6 +61,13 @@ def values_of(table: pd.DataFrame, variable: Variable) -> pd.DataFrame:
     return data.reset_index(drop=True)
 
 
+def paired_values(data: pd.DataFrame, conditions: list[str]) -> pd.DataFrame:
+    """One row per participant with a value in every one of ``conditions``, a column each (no rows when a
+    condition has no value at all)."""
+    wide = data.pivot_table(index="participant", columns="condition", values="value")
+    return wide.reindex(columns=conditions).dropna()
+
+
 def descriptives(data: pd.DataFrame, conditions: list[str], confidence: float) -> pd.DataFrame:
     rows = []
     for c in conditions:
@@ -321,9 +328,9 @@ def compare_within(table: pd.DataFrame, variable: Variable, conditions: list[str
         for s, p in [_shapiro(groups[c])]
     ]
     sphericity = pg.sphericity(data, dv="value", within="condition", subject="participant")
-    rows.append(
-        {"check": "Mauchly sphericity", "group": "all", "statistic": float(sphericity.W), "p": float(sphericity.pval)}
-    )
+    # With two conditions sphericity holds by definition, and pingouin says so with a plain tuple (True, nan, ...).
+    w, p = (float(sphericity.W), float(sphericity.pval)) if hasattr(sphericity, "W") else (1.0, math.nan)
+    rows.append({"check": "Mauchly sphericity", "group": "all", "statistic": w, "p": p})
     result.assumptions = pd.DataFrame(rows)
     result.assumptions["passed"] = ~(result.assumptions.p < cfg.alpha)
 
@@ -378,7 +385,8 @@ def compare_within(table: pd.DataFrame, variable: Variable, conditions: list[str
         table_ = pg.pairwise_tests(
             data=data, dv="value", within="condition", subject="participant", parametric=parametric, padjust="holm"
         )
-        p_col = "p_corr" if "p_corr" in table_ else "p-corr"
+        # One pair needs no correction: pingouin then gives only the uncorrected p.
+        p_col = next(c for c in ("p_corr", "p-corr", "p_unc", "p-unc") if c in table_)
         for r in table_.to_dict("records"):
             a, b = r["A"], r["B"]
             rows.append(
@@ -407,9 +415,13 @@ def compare_within(table: pd.DataFrame, variable: Variable, conditions: list[str
         f"{'holds' if spherical else 'violated'} (Mauchly): read the {result.recommended_test} "
         f"and {result.recommended_posthoc}"
     )
-    if 0 < float(rm.np2) < 1:
-        wide = data.pivot(index="participant", columns="condition", values="value")
+    wide = data.pivot(index="participant", columns="condition", values="value")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a condition whose values do not vary has no correlation (NaN)
         corr = float(np.nanmean(wide.corr().to_numpy()[np.triu_indices(len(conditions), 1)]))
+    if not math.isfinite(corr):
+        result.power_note = "no power note: a condition's values do not vary, so conditions have no correlation"
+    elif 0 < float(rm.np2) < 1:
         needed = pg.power_rm_anova(
             eta_squared=float(rm.np2),
             m=len(conditions),
@@ -483,7 +495,7 @@ def relative_changes(
                 y = data.loc[data.condition == b, "value"].to_numpy()
                 paired = False
             else:
-                wide = data.pivot_table(index="participant", columns="condition", values="value").dropna(subset=[a, b])
+                wide = paired_values(data, [a, b])
                 x, y, paired = wide[a].to_numpy(), wide[b].to_numpy(), True
             change, low, high = math.nan, math.nan, math.nan
             if len(x) and len(y):
@@ -534,7 +546,7 @@ def oracle_share(table: pd.DataFrame, variable: Variable, design: str, cfg: Anal
         samples = [data.loc[data.condition == arm, "value"].to_numpy() for arm in arms]
         paired = False
     else:
-        wide = data.pivot_table(index="participant", columns="condition", values="value").dropna(subset=list(arms))
+        wide = paired_values(data, list(arms))
         samples, paired = [wide[arm].to_numpy() for arm in arms], True
     share, low, high = math.nan, math.nan, math.nan
     if all(len(s) for s in samples):

@@ -42,6 +42,7 @@ class MotionCalibration:
     pilot's ``seesys`` sessions and of the ``motion`` rule replayed on them; and the shares of buffers that warned."""
 
     pilot: str
+    pilot_record: dict  # the pilot's simulation.json (settings, model version) where it is a simulated study
     sessions: list[str]
     thresholds_m_s: list[float]
     seesys_tick_shares: list[float]
@@ -70,6 +71,14 @@ def pilot_sessions(pilot: Path, condition: str = Condition.SEESYS.value) -> list
     if not found:
         raise SeesysError(f"{pilot} has no finished {condition} session to calibrate the motion condition on")
     return found
+
+
+def _simulation_record(pilot: Path) -> dict:
+    """What a simulated pilot was made with (its ``simulation.json``), or nothing for a pilot with people."""
+    try:
+        return json.loads((Path(pilot) / "simulation.json").read_text())
+    except (OSError, ValueError):
+        return {}
 
 
 def _advice_start(attempt: Path, first_frame: float) -> float:
@@ -136,7 +145,8 @@ def calibrate_motion(pilot: Path, cfg: AdvisoryConfig, latency_s: float = 0.0) -
         replayed_pulses.append(pulses)
         replayed_ticks.append(pulses[ticks])
     return MotionCalibration(
-        str(pilot),
+        Path(pilot).name,
+        _simulation_record(pilot),
         [str(a.relative_to(pilot)) for a in sessions],
         thresholds,
         target,

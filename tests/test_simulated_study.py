@@ -17,10 +17,16 @@ import pytest
 from testkit.polling import wait_for
 from testkit.sample import REPO
 
+from advisory.advice import Advice
+from advisory.conditions import Condition
+from advisory.config import load_advisory_config
+from advisory.scheduler import Reading
 from estimator.service.broker import default_model
 from estimator.service.config import load_service_config
 from seesys.core.errors import ConfigError
 from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from seesys.io.core_settings import load_label_config
+from seesys.io.session_labels import label_session
 from seesys.io.trajectory_files import read_tum
 from seesys_app.cli import main
 from seesys_app.simulate import study as simulated_study
@@ -29,6 +35,7 @@ from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
 from seesys_app.simulate.scan_task import build_scan_task
 from seesys_app.simulate.session import OPERATOR_JSON, Participant, simulate_session
 from seesys_app.simulate.study import Job, pending_jobs, run_study
+from seesys_app.simulate.yoking import partner_of
 from study.protocol import read_protocol
 from study.sessions import RUN_JSON, attempt_folders
 from synth.config import load_synth_config
@@ -97,7 +104,8 @@ def test_settings_that_cannot_work_are_refused_by_name(tmp_path):
 
 @pytest.fixture(scope="module")
 def reduced_study(tmp_path_factory):
-    """2 simulated participants per condition, one object, at most 2.5 s each: 6 sessions."""
+    """The default arms (none, motion, yoked, oracle, seesys), within subjects, 2 simulated participants, one object,
+    at most 2.5 s each: 10 sessions."""
     study = tmp_path_factory.mktemp("simulated") / "study"
     assert main(["study", "simulate", "--out", str(study), "--participants", "2", *SHORT]) == 0
     return study
@@ -106,9 +114,11 @@ def reduced_study(tmp_path_factory):
 @pytest.mark.system
 def test_a_reduced_study_runs_end_to_end_and_analyses_as_a_real_one(reduced_study, capsys):
     protocol = read_protocol(reduced_study)
-    assert protocol.phases == ["task"] and len(protocol.participants) == 6
-    for person in protocol.participants:
-        attempt = attempt_folders(protocol.phase_folder(reduced_study, person.id, "task", person.conditions[0]))[-1]
+    arms = {"none", "motion", "yoked", "oracle", "seesys"}
+    assert protocol.phases == ["task"] and len(protocol.participants) == 2 and protocol.design == "within"
+    assert all(set(person.conditions) == arms for person in protocol.participants)
+    for person, condition in ((p, c) for p in protocol.participants for c in p.conditions):
+        attempt = attempt_folders(protocol.phase_folder(reduced_study, person.id, "task", condition))[-1]
         run = json.loads((attempt / RUN_JSON).read_text())
         assert run["status"] == "completed" and run["simulated"] and run["frames"] > 60
         frames = pd.read_csv(attempt / "frames.csv")
@@ -127,18 +137,95 @@ def test_a_reduced_study_runs_end_to_end_and_analyses_as_a_real_one(reduced_stud
         advisory = pd.read_csv(attempt / "advisory.csv")
         live = advisory.dropna(subset=["arrival_mono"])
         assert (live.arrival_mono <= live.wall_time + 1e-9).all()
-        assert set(advisory.condition) == {person.conditions[0]}
-        if person.conditions[0] == "none":
+        assert set(advisory.condition) == {condition}
+        if condition == "none":
             assert (advisory.played_pulses == 0).all()
     capsys.readouterr()
     assert main(["analyze", str(reduced_study)]) == 0
     out = reduced_study / "analysis"
     table = pd.read_csv(out / "participants.csv")
     assert table.rpe_mean_m.notna().all() and table.mean_speed_mps.between(0.05, 2.0).all()
+    assert table.error_per_metre.notna().all() and table.warning_share.between(0, 1).all()
     changes = pd.read_csv(out / "changes.csv")
-    assert {("seesys", "none"), ("seesys", "rotation")} <= set(zip(changes.condition, changes.against))
+    assert {("seesys", arm) for arm in arms - {"seesys"}} <= set(zip(changes.condition, changes.against))
+    shares = pd.read_csv(out / "oracle_share.csv")
+    assert "error_per_metre" in set(shares.variable)
     report = (out / "report.md").read_text()
-    assert "Relative change of the means" in report and "Mean speed" in report
+    assert "Relative change of the means" in report and "Mean speed" in report and "oracle's gain" in report
+    assert (out / "figures" / "tradeoff_time_on_task_s_rpe_mean_m.png").stat().st_size > 0
+
+
+def _attempt(study, protocol, person, condition):
+    return attempt_folders(protocol.phase_folder(study, person, "task", condition))[-1]
+
+
+@pytest.mark.system
+def test_a_yoked_session_plays_exactly_its_partners_pulses_at_the_same_times(reduced_study):
+    protocol = read_protocol(reduced_study)
+    for person in protocol.participants:
+        partner = partner_of(protocol, person.id)
+        assert partner != person.id
+        yoked = _attempt(reduced_study, protocol, person.id, "yoked")
+        source = _attempt(reduced_study, protocol, partner, "seesys")
+        start = {a: json.loads((a / RUN_JSON).read_text())["advice_start"] for a in (yoked, source)}
+        played = pd.read_csv(yoked / "advisory.csv")
+        replayed = played[played.pulses_from == "replayed"]
+        original = pd.read_csv(source / "advisory.csv")
+        # Every buffer of the partner, while the yoked session lasted, at the same offset with the same pulses.
+        original = original[original.time_mono - start[source] <= played.time_mono.max() - start[yoked]]
+        np.testing.assert_allclose(
+            replayed.time_mono.to_numpy() - start[yoked], original.time_mono.to_numpy() - start[source], atol=1e-9
+        )
+        assert replayed.played_pulses.tolist() == original.played_pulses.tolist()
+        assert replayed.input_value.isna().all()  # nothing of this session's estimates or truth
+
+
+@pytest.mark.system
+def test_the_oracle_hears_the_labels_true_error_of_each_window_end_and_nothing_else(reduced_study):
+    """Replaying Equation 2 on the label of each window-end frame (from the session's own trajectory and ground
+    truth files), at the estimator's arrival times, through the same advice step gives the oracle's buffers."""
+    cfg = load_advisory_config()
+    protocol = read_protocol(reduced_study)
+    for person in protocol.participants:
+        attempt = _attempt(reduced_study, protocol, person.id, "oracle")
+        labels = label_session(attempt, False, load_label_config())
+        frames = pd.read_csv(attempt / "frames.csv")
+        assert len(labels.error_m) == len(frames)
+        truth = dict(zip(frames.frame_index, labels.error_m))
+        estimates = pd.read_csv(attempt / "estimates.csv")
+        advice = Advice(Condition.ORACLE, cfg, json.loads((attempt / RUN_JSON).read_text())["advice_start"], 0.1)
+        buffers = []
+        arrivals = dict(zip(estimates.frame_index, estimates.receipt_time))
+        for index, stamp in zip(frames.frame_index, frames.timestamp):
+            error = truth.get(index, np.nan)
+            if index in arrivals and np.isfinite(error):
+                buffers += advice.take(arrivals[index], Reading(float(error)))
+            buffers += advice.until(stamp)
+        logged = pd.read_csv(attempt / "advisory.csv")
+        assert len(buffers) == len(logged) and len(buffers) > 3
+        assert [b.decision.n_pulses for b in buffers] == logged.n_pulses.tolist()
+        # the trajectory file holds the poses to the micrometre
+        np.testing.assert_allclose([b.decision.value for b in buffers], logged.input_value, rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.system
+def test_every_arm_moves_as_the_silent_one_until_its_first_warning_is_heard(reduced_study):
+    """Within subjects, a participant's operator is the same in every arm: its ground truth is that of its silent
+    session until the first buffer of the arm that played pulses sounds and the operator can react."""
+    protocol = read_protocol(reduced_study)
+    for person in protocol.participants:
+        silent = read_tum(_attempt(reduced_study, protocol, person.id, "none") / "groundtruth.tum")
+        traits = json.loads((_attempt(reduced_study, protocol, person.id, "none") / OPERATOR_JSON).read_text())
+        for arm in ("motion", "yoked", "oracle", "seesys"):
+            attempt = _attempt(reduced_study, protocol, person.id, arm)
+            advisory = pd.read_csv(attempt / "advisory.csv")
+            warned = advisory.loc[advisory.played_pulses > 0, "play_at_mono"]
+            heard = float(warned.min()) + traits["reaction_delay_s"] if len(warned) else np.inf
+            moved = read_tum(attempt / "groundtruth.tum")
+            n = min(len(moved), len(silent))
+            before = moved.timestamps[:n] < heard
+            assert before.sum() > 10
+            np.testing.assert_allclose(moved.positions[:n][before], silent.positions[:n][before], atol=1e-9)
 
 
 @pytest.mark.system
@@ -146,7 +233,7 @@ def test_running_the_study_again_resumes_and_other_settings_are_refused(reduced_
     before = sorted(p for p in reduced_study.rglob("attempt-*"))
     assert main(["study", "simulate", "--out", str(reduced_study), "--participants", "2", *SHORT]) == 0
     assert sorted(p for p in reduced_study.rglob("attempt-*")) == before
-    assert "6 of 6 sessions done" in capsys.readouterr().out
+    assert "10 of 10 sessions done" in capsys.readouterr().out
     assert (
         main(
             [
@@ -210,6 +297,8 @@ def test_sigterm_stops_every_session_with_its_files_final(tmp_path):
         "1",
         "--conditions",
         "none,seesys",
+        "--design",
+        "between",
         "--objects",
         "3",
         "--max-task-s",
@@ -263,6 +352,8 @@ def test_a_session_that_reports_no_frame_is_killed_as_hung_and_the_study_says_so
             "1",
             "--conditions",
             "none,seesys",
+            "--design",
+            "between",
             *SHORT,
         ],
         cwd=REPO,
@@ -284,7 +375,9 @@ def _two_sessions():
     cfg = load_simulate_config()
     cfg = dataclasses.replace(
         cfg,
-        study=dataclasses.replace(cfg.study, participants_per_condition=1, conditions=["none", "seesys"]),
+        study=dataclasses.replace(
+            cfg.study, participants_per_condition=1, conditions=["none", "seesys"], design="between"
+        ),
         task=dataclasses.replace(cfg.task, objects=1, max_task_s=2.5),
     )
     return cfg, default_model(load_service_config(), None)

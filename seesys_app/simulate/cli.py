@@ -53,6 +53,7 @@ def simulate_command(args: argparse.Namespace) -> int:
                 ("conditions", args.conditions),
                 ("design", args.design),
                 ("processes", args.processes),
+                ("operator_seed", args.operator_seed),
             )
             if v is not None
         },
@@ -120,7 +121,12 @@ def register(study_commands: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the study folder (new, or one to resume)")
     p.add_argument("--participants", type=positive_int, metavar="N", help="simulated participants per condition")
-    p.add_argument("--conditions", type=_conditions, metavar="A,B,...", help="conditions (none, rotation, seesys)")
+    p.add_argument(
+        "--conditions",
+        type=_conditions,
+        metavar="A,B,...",
+        help=f"conditions ({', '.join(CONDITIONS)}; yoked and oracle are simulation-only controls)",
+    )
     p.add_argument(
         "--design",
         choices=DESIGNS,
@@ -129,6 +135,12 @@ def register(study_commands: argparse._SubParsersAction) -> None:
     p.add_argument("--objects", type=positive_int, metavar="N", help="objects to scan")
     p.add_argument("--max-task-s", type=_seconds, metavar="S", help="end a session that has not finished by then")
     p.add_argument("--processes", type=positive_int, metavar="P", help="sessions simulated at once")
+    p.add_argument(
+        "--operator-seed",
+        type=int,
+        metavar="S",
+        help="the seed the simulated operators are drawn from (a pilot uses another seed than its study)",
+    )
     p.add_argument("--model", type=Path, help="the ONNX model (default: configs/service.toml)")
     p.set_defaults(func=simulate_command)
     s = study_commands.add_parser(

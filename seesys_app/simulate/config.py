@@ -5,13 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from advisory.conditions import Condition
 from seesys.core.errors import ConfigError
 from seesys.io.config import load_section
 from seesys_app.simulate.operator import OperatorRanges, ResponseRanges
 from seesys_app.simulate.scan_task import TaskConfig
 
 DESIGNS = ("between", "within")
-CONDITIONS = ("none", "rotation", "seesys")
+#: Every advisory condition a simulated study may have, the simulation-only controls included.
+CONDITIONS = tuple(c.value for c in Condition)
 
 
 @dataclass(frozen=True)

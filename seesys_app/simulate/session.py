@@ -22,34 +22,35 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from advisory.conditions import Condition, estimate_reading, pulse_rule
+from advisory.advice import Advice, Buffer, RecordedBuffer, ReplayedAdvice
+from advisory.conditions import Condition, estimate_reading, feature_reading
 from advisory.config import load_advisory_config
-from advisory.rotation import RotationSpeed
-from advisory.scheduler import CueClock, Decision, PulseScheduler
+from advisory.scheduler import Reading
+from estimator.service.device_windows import DeviceWindows
 from estimator.service.model import ServedModel
 from seesys.core.errors import SeesysError
 from seesys.core.messages import Estimate
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV, GROUND_TRUTH, SETTINGS
 from seesys.core.trajectory import Poses
-from seesys.core.windows import WindowAssembler
 from seesys.io.config import as_dict, replace_fields
-from seesys.io.core_settings import load_device_settings
+from seesys.io.core_settings import load_device_settings, load_label_config
 from seesys.io.logfiles import CsvLog, write_json_atomically
-from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
+from seesys.io.rts_log import RTS_CSV
 from seesys.io.session_files import utc_now
 from seesys.io.trajectory_files import write_tum
 from seesys_app.simulate.config import SimulateConfig
 from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
+from seesys_app.simulate.oracle import TrueError
 from seesys_app.simulate.scan_task import build_scan_task
 from slam_monitor.device_worker import corrected_depth
 from slam_monitor.frame import Frame
-from slam_monitor.monitor import FeatureExtractor, MonitorInput, PreviousPose
+from slam_monitor.monitor import MonitorInput, MonitorStep, PreviousPose
 from slam_monitor.monitor_config import load_monitor_config
 from slam_monitor.orbslam_settings import SlamMode, build_settings, load_slam_config, vocabulary_path, write_settings
 from slam_monitor.session import SessionWriter, prepare_session_folder
@@ -58,13 +59,15 @@ from slam_monitor.sources.settings import load_camera_config
 from slam_monitor.tracker import Tracker
 from study.estimates import ESTIMATE_COLUMNS, ESTIMATES_CSV
 from study.runner import EVENT_COLUMNS
-from study.sessions import EVENTS_CSV, RUN_JSON
+from study.sessions import ADVICE_START, EVENTS_CSV, RUN_JSON
 from synth.camera_effects import LensDistortion
 from synth.config import load_synth_config
 from synth.lenses import model_camera
 from synth.renderer import RayGrid
 from synth.sequence import SequenceSpec, depth_png, plan_frames, render_images
 
+# The conditions whose advice listens to the estimates (the oracle listens to the truth, the yoked to a recording).
+ESTIMATE_CONDITIONS = (Condition.SEESYS, Condition.NONE)
 OPERATOR_JSON = "operator.json"
 TASK_JSON = "task.json"
 DEVICE_ID = "simulated"
@@ -79,6 +82,13 @@ class Participant:
     condition: str
 
 
+def true_pose(operator: SimulatedOperator, t: float) -> np.ndarray:
+    """The operator's pose at ``t`` (simulated seconds) as position and x y z w quaternion: the ground truth that
+    ``groundtruth.tum`` records."""
+    positions, rotations = operator.trajectory(since=t).interpolate(np.array([t]))
+    return np.concatenate([positions[0], rotations.as_quat()[0]])
+
+
 @dataclass(frozen=True)
 class SessionOutcome:
     folder: Path
@@ -86,52 +96,6 @@ class SessionOutcome:
     frames: int
     estimates: int
     objects_reached: int
-
-
-@dataclass
-class _Advice:
-    """The advisory in simulated time: its scheduler, the cue clock, and the log of its buffers."""
-
-    condition: Condition
-    scheduler: PulseScheduler
-    cues: CueClock
-    log: CsvLog
-    audio_latency_s: float
-    hear: Callable[[float, int], None]
-    buffers: int = 0
-
-    def emit(self, d: Decision) -> None:
-        played = d.n_pulses if self.condition.audible else 0
-        trigger = self.cues.trigger(d)
-        play_at = d.time + self.audio_latency_s
-        self.log.write(
-            d.time,
-            d.time,
-            self.condition.value,
-            d.status,
-            trigger,
-            d.value,
-            d.n_pulses,
-            played,
-            self.buffers,
-            d.arrival,
-            play_at,
-            d.pulses_from,
-        )
-        self.buffers += 1
-        # The cue is not a warning: the operator does not slow down for it.
-        self.hear(play_at, played if trigger != "cue" else 0)
-
-    def until(self, t: float) -> None:
-        """Emit every tick due by ``t``."""
-        while self.scheduler.next_tick <= t:
-            self.emit(self.scheduler.tick(self.scheduler.next_tick))
-
-    def sample(self, arrival: float, value: float, head: tuple[float, ...] | None = None) -> None:
-        self.until(arrival)
-        decision = self.scheduler.add(arrival, value, head)
-        if decision is not None:
-            self.emit(decision)
 
 
 def simulate_session(
@@ -142,12 +106,14 @@ def simulate_session(
     config_dir: Path | None = None,
     on_frame: Callable[[int, float], None] | None = None,
     stop: Callable[[], bool] | None = None,
+    recording: Sequence[RecordedBuffer] | None = None,
 ) -> SessionOutcome:
     """Run one session into ``folder`` (created; an earlier session's files in it are replaced).
 
     ``on_frame(frame_index, simulated_time)`` is called after every frame; the session ends ``interrupted`` before
-    the first frame at which ``stop()`` is true. Raises :class:`SeesysError` for a model
-    made for another device (camera, resolution, features) or settings that cannot work."""
+    the first frame at which ``stop()`` is true. ``recording``: the buffers a ``yoked`` session replays
+    (``seesys_app.simulate.yoking``). Raises :class:`SeesysError` for a model made for another device (camera,
+    resolution, features), settings that cannot work, or a yoked session without a recording."""
     synth = load_synth_config(config_dir)
     task_cfg, ranges, response = cfg.task, cfg.operator, cfg.response
     camera_model = synth.camera_model(task_cfg.camera_model)
@@ -204,6 +170,8 @@ def simulate_session(
     depth_correction = load_camera_config(config_dir).scale.depth_correction
     intrinsics = plan.told
     condition = Condition(participant.condition)
+    if condition is Condition.YOKED and recording is None:
+        raise SeesysError("a yoked session needs the pulses of its partner's seesys session to replay")
 
     folder = prepare_session_folder(folder)
     for name in (ESTIMATES_CSV, ADVISORY_CSV, EVENTS_CSV, RTS_CSV):
@@ -233,6 +201,7 @@ def simulate_session(
             "started": utc_now(),
             "model_version": model.version,
             "source": f"simulated:{task_cfg.environment}/{task_cfg.camera_model}",
+            ADVICE_START: float(synth.start_time_s + plan.frame_times[0]),
         },
     )
     writer = SessionWriter(
@@ -253,31 +222,25 @@ def simulate_session(
     )
     events = CsvLog(folder / EVENTS_CSV, EVENT_COLUMNS)
     estimates_log = CsvLog(folder / ESTIMATES_CSV, ESTIMATE_COLUMNS)
-    rts_log = RtsCsvWriter(folder / RTS_CSV, settings)
-    psd_log = PsdLogWriter(folder / PSD_DIR, monitor_config.log.psd_chunk_records)
+    monitor = MonitorStep(monitor_config, folder, settings=settings)
     start_time = synth.start_time_s
-    timing = advisory_cfg.timing
-    advice = _Advice(
-        condition,
-        PulseScheduler(
-            pulse_rule(condition, advisory_cfg),
-            timing.window_s,
-            timing.cadence_s,
-            timing.stale_after_s,
-            float(start_time + plan.frame_times[0]),
-            "rotation" if condition is Condition.ROTATION else "estimate",
-        ),
-        CueClock(
-            condition.audible, advisory_cfg.no_information.no_information_cue, advisory_cfg.no_information.cue_every_s
-        ),
-        CsvLog(folder / ADVISORY_CSV, ADVISORY_COLUMNS),
-        cfg.loop.audio_latency_s,
-        lambda at, pulses: operator.hear(at - start_time, pulses),
+    advice_start = float(start_time + plan.frame_times[0])
+    advice: Advice | ReplayedAdvice = (
+        ReplayedAdvice(recording or (), advisory_cfg, advice_start, cfg.loop.audio_latency_s)
+        if condition is Condition.YOKED
+        else Advice(condition, advisory_cfg, advice_start, cfg.loop.audio_latency_s)
     )
+    advisory_log = CsvLog(folder / ADVISORY_CSV, ADVISORY_COLUMNS)
+
+    def play(buffers: list[Buffer]) -> None:
+        for buffer in buffers:
+            advisory_log.write(*buffer.row(buffer.decision.time, condition))
+            operator.hear(buffer.play_at - start_time, buffer.heard_pulses)
+
     reading = estimate_reading(advisory_cfg)
-    rotation = RotationSpeed(advisory_cfg.rotation)
-    assembler = WindowAssembler(monitor_config.windows)
-    extractor = FeatureExtractor(monitor_config, settings=settings)
+    features_reading = feature_reading(condition, advisory_cfg) if condition.hears_features else None
+    true_error_of = TrueError(mode is SlamMode.MONO, load_label_config(config_dir).delta_frames)
+    windows = DeviceWindows(model, monitor_config.windows)
     version = model.version
     events.write(start_time, "start", f"simulated {condition.value}")
 
@@ -312,26 +275,30 @@ def simulate_session(
             if output.tracked and not initialised:
                 events.write(stamp, "initialised", "first tracked frame")
                 initialised = True
-            features = extractor.extract(MonitorInput.of(frame, output, previous))
-            rts_log.write(features)
-            if features.psd is not None:
-                psd_log.write(k, stamp, features.psd)
+            features = monitor.step(MonitorInput.of(frame, output, previous))
             arrival = stamp + cfg.loop.estimate_latency_s
-            if condition is Condition.ROTATION:
-                speed = rotation.update(features)
-                if speed is not None:
-                    advice.sample(arrival, speed)
-            window = assembler.add(features)
-            if window is not None and model.accepts(window):
+            if features_reading is not None:
+                sample = features_reading(features)
+                if sample is not None:
+                    play(advice.take(arrival, sample))
+            true_error = (
+                true_error_of.update(stamp, output.pose_wc if output.tracked else None, true_pose(operator, t))
+                if condition is Condition.ORACLE
+                else None
+            )
+            window = windows.add(features).window
+            if window is not None:
                 batch = model.estimate_batch([window])
                 estimate = Estimate(DEVICE_ID, k, stamp, float(batch.errors_m[0]), version, head=batch.head(0))
                 estimates_log.write(arrival, DEVICE_ID, k, stamp, estimate.error_m, version)
                 estimates += 1
-                if condition is not Condition.ROTATION:
-                    sample = reading(estimate)
-                    if sample is not None and np.isfinite(sample.value):
-                        advice.sample(arrival, sample.value, sample.head)
-            advice.until(stamp)
+                sample = reading(estimate)
+                if condition in ESTIMATE_CONDITIONS and sample is not None:
+                    play(advice.take(arrival, sample))
+            if window is not None and true_error is not None:
+                # at the estimator's cadence and latency: the same windows, the truth in place of the estimate
+                play(advice.take(arrival, Reading(true_error)))
+            play(advice.until(stamp))
             for number, at in operator.reached[reported:]:
                 events.write(start_time + at, "object", str(number))
             reported = len(operator.reached)
@@ -347,11 +314,10 @@ def simulate_session(
         raise
     finally:
         tracker.shutdown()
-        for log in (rts_log, psd_log):
-            log.close()
+        monitor.close_logs()
         last_time = max([float(plan.frame_times[max(frames - 1, 0)])] + [at for _, at in operator.reached])
         events.write(start_time + last_time, "stop", status)
-        for csv_log in (events, estimates_log, advice.log):
+        for csv_log in (events, estimates_log, advisory_log):
             csv_log.close()
         truth = operator.trajectory()
         times = plan.frame_times[:frames]

@@ -31,6 +31,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from advisory.conditions import Condition
 from estimator.service.model import model_version
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import FRAMES_CSV
@@ -39,8 +40,9 @@ from seesys.io.config import CONFIG_DIR_ENV, ConfigSet, as_dict, build
 from seesys.io.logfiles import write_json_atomically
 from seesys.io.supervision import DONE as EXITED_DONE
 from seesys.io.supervision import FAILED, Exit, PartSpec, SupervisionPolicy, Supervisor, exit_text
-from seesys_app.simulate.config import SimulateConfig, load_simulate_config
+from seesys_app.simulate.config import CONDITIONS, SimulateConfig, load_simulate_config
 from seesys_app.simulate.session import Participant, simulate_session
+from seesys_app.simulate.yoking import partner_folder, recorded_advice
 from study.config import load_study_config
 from study.protocol import Protocol, make_protocol, read_protocol, write_protocol
 from study.sessions import (
@@ -134,6 +136,7 @@ def prepare_study(study: Path, cfg: SimulateConfig, model: Path) -> Protocol:
         cfg.study.design,
         cfg.study.operator_seed,
         list(cfg.study.conditions),
+        known=CONDITIONS,
     )
     write_protocol(study, protocol)
     write_json_atomically(path, record)
@@ -141,14 +144,16 @@ def prepare_study(study: Path, cfg: SimulateConfig, model: Path) -> Protocol:
 
 
 def pending_jobs(study: Path, protocol: Protocol) -> tuple[list[Job], int]:
-    """The sessions not done yet, in participant order, and how many sessions the study has."""
+    """The sessions not done yet, in participant order, and how many sessions the study has. A ``yoked`` session
+    waits for the ``seesys`` session it replays (:mod:`seesys_app.simulate.yoking`)."""
     jobs, total = [], 0
     for number, person in enumerate(protocol.participants, start=1):
         for condition in person.conditions:
             total += 1
             folder = protocol.phase_folder(study, person.id, PHASE, condition)
             if phase_status(folder) != DONE:
-                jobs.append(Job(Participant(person.id, number, condition), folder))
+                after = partner_folder(study, protocol, PHASE, person.id) if condition == Condition.YOKED else None
+                jobs.append(Job(Participant(person.id, number, condition), folder, after))
     return jobs, total
 
 
@@ -206,11 +211,14 @@ def run_session(study: Path, participant_id: str, condition: str, model: Path, s
     model made for another device."""
     cfg = recorded_settings(study)
     participant, folder = study_session(study, participant_id, condition)
+    recording = None
+    if condition == Condition.YOKED:
+        recording = recorded_advice(partner_folder(study, read_protocol(study), PHASE, participant_id))
     # An earlier attempt cut short leaves the metrics: the session runs again from its start.
     supersede_attempts(folder)
     attempt = next_attempt_folder(folder)
     with _output_to(attempt / "orbslam3.log"):
-        return simulate_session(cfg, participant, attempt, model, None, None, stop).status
+        return simulate_session(cfg, participant, attempt, model, None, None, stop, recording).status
 
 
 def _mark_crashed(attempt: Path, reason: str) -> None:
