@@ -44,7 +44,7 @@ from pathlib import Path
 
 from advisory import config as advisory_config
 from advisory.conditions import Condition
-from advisory.config import load_advisory_config
+from advisory.config import AdvisoryConfig, load_advisory_config
 from advisory.output import AudioOutput, open_audio_output
 from advisory.process import stop_on_signals
 from advisory.supervisor import process_args
@@ -69,7 +69,7 @@ from seesys_app.records import RunRecord, RunState, StreamDrops
 from seesys_app.summary import TRACKED_STATES, write_summary
 from seesys_app.view import LiveView, ViewSetup
 from slam_monitor import monitor_config
-from slam_monitor.monitor_config import load_monitor_config, resolve_device_id
+from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
 from slam_monitor.sources import load_camera_config, open_source, parse_source_spec
 from study.watch import StreamWatcher
 
@@ -132,24 +132,59 @@ def _new_folder(out: Path) -> Path:
     return out
 
 
-class App:
-    """One run of ``seesys run`` (see the module docstring)."""
+@dataclass(frozen=True)
+class RunPlan:
+    """What a run was asked for and what was decided before anything starts: the settings it runs with, the SLAM
+    mode and pacing, the device's id and the session folder (made, empty)."""
 
-    def __init__(self, options: RunOptions, cfg: AppConfig | None = None):
-        if options.local == (options.estimator is not None):
-            raise SeesysError("give either --local (start the estimator on this machine) or --estimator HOST:PORT")
-        self.o = options
-        self.estimates_endpoint = estimates_endpoint(options.estimator) if options.estimator is not None else None
-        self.cfg = cfg or load_app_config()
-        self.advisory = load_advisory_config()
-        self.mode = options.mode or self.cfg.device.mode
-        self.pace = self.cfg.device.pace if options.pace is None else options.pace
-        check_source(options.source, self.mode)
+    options: RunOptions
+    cfg: AppConfig
+    advisory: AdvisoryConfig
+    monitor: MonitorConfig
+    mode: str
+    pace: bool
+    device_id: str
+    estimates_endpoint: str | None
+    folder: Path
+
+
+def plan_run(options: RunOptions, cfg: AppConfig | None = None) -> RunPlan:
+    """Check the options against the settings and the source, and make the session folder. Raises SeesysError
+    (SourceError for the source) naming the problem, before any part starts."""
+    if options.local == (options.estimator is not None):
+        raise SeesysError("give either --local (start the estimator on this machine) or --estimator HOST:PORT")
+    cfg = cfg or load_app_config()
+    mode = options.mode or cfg.device.mode
+    check_source(options.source, mode)
+    monitor = load_monitor_config()
+    return RunPlan(
+        options,
+        cfg,
+        load_advisory_config(),
+        monitor,
+        mode,
+        cfg.device.pace if options.pace is None else options.pace,
         # The device's id on the feature stream and the estimator, decided here and given to the device (its
         # configs): the advisory and the app listen to it alone.
-        self.monitor = load_monitor_config()
-        self.device_id = resolve_device_id(self.monitor.device_id, options.source)
-        self.folder = _new_folder(options.out)
+        resolve_device_id(monitor.device_id, options.source),
+        estimates_endpoint(options.estimator) if options.estimator is not None else None,
+        _new_folder(options.out),
+    )
+
+
+class App:
+    """One run of ``seesys run`` (see the module docstring), of a :class:`RunPlan`."""
+
+    def __init__(self, plan: RunPlan):
+        self.o = plan.options
+        self.estimates_endpoint = plan.estimates_endpoint
+        self.cfg = plan.cfg
+        self.advisory = plan.advisory
+        self.mode = plan.mode
+        self.pace = plan.pace
+        self.monitor = plan.monitor
+        self.device_id = plan.device_id
+        self.folder = plan.folder
         self.supervisor: Supervisor | None = None  # once the run's settings are written
         self.observer: RunObserver | None = None
         self.output: AudioOutput | None = None  # where the player's audio goes (audible conditions)

@@ -36,7 +36,7 @@ def final_line(status: str, summary: dict, folder: Path) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from seesys_app.run import App, RunOptions
+    from seesys_app.run import App, RunOptions, plan_run
 
     options = RunOptions(
         source=args.source,
@@ -50,7 +50,7 @@ def _run(args: argparse.Namespace) -> int:
         pace=args.pace,
         max_frames=args.max_frames,
     )
-    result = App(options).run()
+    result = App(plan_run(options)).run()
     print(
         final_line(result.status, result.summary, result.folder),
         file=sys.stderr if result.status == "failed" else sys.stdout,
