@@ -1,0 +1,178 @@
+"""What the geometry of a tracked frame says about the precision of its pose: pose observability and residuals.
+
+From the frame's matched inlier map points in the camera (``points_c``, metres), the keypoints they matched (pixels,
+paired by ``slam_monitor.slam_features``) and, in RGB-D, the depth the camera measured at those keypoints:
+
+- **The pose-only information matrix** H = Σᵢ Jᵢᵀ Σᵢ⁻¹ Jᵢ of the reprojection residuals (and, in RGB-D, of the depth
+  residuals), with the pose perturbed as the camera moves: its position by δc in the camera's axes and its rotation
+  by δθ, so that a point moves by ∂p/∂(δc, δθ) = [−I | [p]×] in the camera. H⁻¹ is the Cramér–Rao bound of the
+  pose fit ORB-SLAM3 does on these points (its pose-only optimisation, before its robust weights).
+- **Predicted translation σ** (metres): sqrt of the trace of the translation block of H⁻¹, the camera position's
+  standard deviation summed over the three axes.
+- **Translation information after the rotation is marginalised out** (the inverse of that block, the Schur
+  complement): its smallest eigenvalue (1/m², the weakest direction: a degeneracy, Zhang et al., ICRA 2016) and its
+  condition number (largest over smallest: a planar or one-sided point set gives a large one).
+- **Coverage**: the share of the cells of a ``coverage_grid`` × ``coverage_grid`` grid over the image that hold an
+  inlier keypoint, and the spread of the inliers' depths (the 10–90 % range over the median).
+- **Residuals** after the pose: the distances of each matched point's projection to its keypoint (px): median, 90th
+  percentile, and the share whose squared distance in units of σ exceeds the χ² gate of two degrees of freedom at 95 %
+  (5.991: ORB-SLAM3's own gate for a monocular observation).
+
+Not in the RTS schema yet: these are the functions the next schema's channels will be computed with; the dataset,
+the model and the monitor's log do not carry them until that schema is built and a model trained on it.
+
+Noise model (:class:`NoiseModel`): a keypoint's position has standard deviation ``pixel_sigma_px`` in
+each axis. ORB-SLAM3 scales it by 1.2 per pyramid level of the keypoint, but pyorbslam3 does not give the level, so
+every keypoint gets the level-0 value: H is an upper bound of the information (σ a lower bound) by up to the level
+factor of the points. A measured depth has σ_z = ``depth_sigma_at_1m_m`` · z² (stereo and structured-light depth
+noise grows with the square of the distance). pyorbslam3 exposes neither ORB-SLAM3's optimisation residuals, its
+outlier flags, the keypoints' levels nor the map points' observation counts (their track length and age), so the
+monitor recomputes the residuals on the current frame from the pairing and has no track length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: χ² with two degrees of freedom at 95 %: the gate of a monocular reprojection residual (ORB-SLAM3's).
+CHI2_GATE_2DOF = 5.991
+# Fewer points than this leave the 6-DoF pose unobservable: no channel values.
+_MIN_POINTS = 3
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """The measurement noise the information matrix assumes (see the module docstring)."""
+
+    pixel_sigma_px: float
+    depth_sigma_at_1m_m: float
+    coverage_grid: int
+
+
+@dataclass(frozen=True)
+class PoseObservability:
+    """The observability and residual channels of one frame (NaN where they cannot be computed)."""
+
+    translation_sigma_m: float
+    weakest_information: float
+    condition_number: float
+    image_coverage: float
+    depth_spread: float
+    residual_median_px: float
+    residual_p90_px: float
+    residual_over_gate: float
+
+    @classmethod
+    def unknown(cls) -> PoseObservability:
+        nan = float("nan")
+        return cls(nan, nan, nan, nan, nan, nan, nan, nan)
+
+
+def _skew(p: np.ndarray) -> np.ndarray:
+    """(N, 3) → (N, 3, 3) cross-product matrices [p]×."""
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    zero = np.zeros_like(x)
+    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+
+
+def point_jacobians(points_c: np.ndarray) -> np.ndarray:
+    """(N, 3, 6): how each camera-frame point moves with the camera's position (δc, camera axes) and rotation (δθ)."""
+    p = np.asarray(points_c, np.float64)
+    minus_identity = np.broadcast_to(-np.eye(3), (len(p), 3, 3))
+    return np.concatenate([minus_identity, _skew(p)], axis=2)
+
+
+def pose_information(
+    points_c: np.ndarray, fx: float, fy: float, noise: NoiseModel, depth_measured: bool = False
+) -> np.ndarray:
+    """The 6×6 information matrix of the camera pose (position first, then rotation) from points in front of the
+    camera (see the module docstring); with ``depth_measured`` each point adds its depth residual."""
+    p = np.asarray(points_c, np.float64).reshape(-1, 3)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    zero = np.zeros_like(z)
+    projection = np.stack(
+        [np.stack([fx / z, zero, -fx * x / z**2], -1), np.stack([zero, fy / z, -fy * y / z**2], -1)], -2
+    )
+    moves = point_jacobians(p)
+    pixel = projection @ moves  # (N, 2, 6)
+    information = np.einsum("nki,nkj->ij", pixel, pixel) / noise.pixel_sigma_px**2
+    if depth_measured:
+        depth = moves[:, 2, :]  # the depth residual is the point's z
+        weights = 1.0 / (noise.depth_sigma_at_1m_m * z**2) ** 2
+        information += np.einsum("n,ni,nj->ij", weights, depth, depth)
+    return information
+
+
+def coverage(keypoints_px: np.ndarray, width: int, height: int, grid: int) -> float:
+    """The share of a ``grid`` × ``grid`` partition of the image that holds at least one of the keypoints."""
+    kp = np.asarray(keypoints_px, np.float64).reshape(-1, 2)
+    inside = (kp[:, 0] >= 0) & (kp[:, 0] < width) & (kp[:, 1] >= 0) & (kp[:, 1] < height)
+    cells = (kp[inside, 1] * grid // height).astype(int) * grid + (kp[inside, 0] * grid // width).astype(int)
+    return len(np.unique(cells)) / grid**2
+
+
+def depth_spread(depths_m: np.ndarray) -> float:
+    """(p90 − p10) / median of the points' depths: 0 for points at one distance."""
+    z = np.asarray(depths_m, np.float64)
+    if len(z) < _MIN_POINTS:
+        return float("nan")
+    p10, p50, p90 = np.percentile(z, [10, 50, 90])
+    return float((p90 - p10) / p50)
+
+
+def translation_observability(information: np.ndarray) -> tuple[float, float, float]:
+    """(σ of the position in metres, smallest eigenvalue of the marginal translation information, its condition
+    number) from a 6×6 pose information matrix; NaN where the pose is not observable (a singular matrix)."""
+    try:
+        covariance = np.linalg.inv(information)
+    except np.linalg.LinAlgError:
+        nan = float("nan")
+        return nan, nan, nan
+    block = covariance[:3, :3]
+    sigma = float(np.sqrt(np.trace(block))) if np.trace(block) > 0 else float("nan")
+    eigen = np.linalg.eigvalsh(np.linalg.inv(block))
+    weakest = float(eigen[0])
+    return sigma, weakest, float(eigen[-1] / weakest) if weakest > 0 else float("inf")
+
+
+def residual_channels(distances_px: np.ndarray, pixel_sigma_px: float) -> tuple[float, float, float]:
+    """(median, 90th percentile, share beyond the χ² gate) of the matched points' reprojection distances."""
+    d = np.asarray(distances_px, np.float64)
+    d = d[np.isfinite(d)]
+    if len(d) == 0:
+        nan = float("nan")
+        return nan, nan, nan
+    median, p90 = np.percentile(d, [50, 90])
+    return float(median), float(p90), float(np.mean((d / pixel_sigma_px) ** 2 > CHI2_GATE_2DOF))
+
+
+def pose_observability(
+    points_c: np.ndarray,
+    keypoints_px: np.ndarray,
+    distances_px: np.ndarray,
+    camera_matrix: np.ndarray,
+    width: int,
+    height: int,
+    noise: NoiseModel,
+    depth_measured: bool,
+) -> PoseObservability:
+    """Every channel of one frame: ``points_c`` the matched inlier points in the camera (in front of it),
+    ``keypoints_px`` the keypoints they matched and ``distances_px`` how far each projects from its keypoint."""
+    p = np.asarray(points_c, np.float64).reshape(-1, 3)
+    if len(p) < _MIN_POINTS:
+        return PoseObservability.unknown()
+    information = pose_information(p, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured)
+    sigma, weakest, condition = translation_observability(information)
+    median, p90, over = residual_channels(distances_px, noise.pixel_sigma_px)
+    return PoseObservability(
+        sigma,
+        weakest,
+        condition,
+        coverage(keypoints_px, width, height, noise.coverage_grid),
+        depth_spread(p[:, 2]),
+        median,
+        p90,
+        over,
+    )
