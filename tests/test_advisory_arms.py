@@ -182,3 +182,17 @@ def test_the_calibrations_quantiles_give_the_wanted_shares_and_stay_ascending():
     assert thresholds[2] == math.inf
     same = _quantile_thresholds(np.zeros(10), [1.0, 1.0, 1.0])
     assert same[0] > 0 and same[0] < same[1] < same[2]
+
+
+def test_the_shipped_motion_thresholds_are_the_pilots_and_warn_as_often_as_seesys_did_there():
+    """The committed calibration record: the thresholds in advisory.toml are the ones it set, and on the pilot they
+    were set from, the motion rule warns within 10 % as often as SEESys did."""
+    import json
+
+    from testkit.sample import REPO
+
+    record = json.loads((REPO / "docs/simulated-study/pilot/motion-calibration.json").read_text())
+    assert CFG.motion.thresholds_m_s == record["thresholds_m_s"]
+    assert abs(record["motion_warning_share"] / record["seesys_warning_share"] - 1) <= 0.10
+    assert record["pilot_record"]["settings"]["study"]["operator_seed"] != 1  # not the study's operators
+    assert len(record["sessions"]) >= 5
