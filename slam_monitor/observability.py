@@ -36,6 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slam_monitor.slam_features import SlamFeatures
+
 #: χ² with two degrees of freedom at 95 %: the gate of a monocular reprojection residual (ORB-SLAM3's).
 CHI2_GATE_2DOF = 5.991
 # Fewer points than this leave the 6-DoF pose unobservable: no channel values.
@@ -175,4 +177,20 @@ def pose_observability(
         median,
         p90,
         over,
+    )
+
+
+def frame_observability(
+    slam: SlamFeatures, camera_matrix: np.ndarray, width: int, height: int, depth_measured: bool, noise: NoiseModel
+) -> PoseObservability:
+    """The channels of a tracked frame from its SLAM-side features' pairing (``slam_monitor.slam_features``)."""
+    return pose_observability(
+        slam.paired_points_c,
+        slam.paired_keypoints_px,
+        slam.paired_distances_px,
+        camera_matrix,
+        width,
+        height,
+        noise,
+        depth_measured,
     )

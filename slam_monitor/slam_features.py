@@ -95,6 +95,12 @@ class SlamFeatures:
     var_mp_depth: float
     reprojection_error_px: float
     inlier_keypoints: np.ndarray
+    # The pairing itself, for the observability channels (slam_monitor.observability): the matched points in front of
+    # the camera that pair with a keypoint within the gate, in the camera (metres), that keypoint (pixels), and how
+    # far the point projects from it (pixels).
+    paired_points_c: np.ndarray
+    paired_keypoints_px: np.ndarray
+    paired_distances_px: np.ndarray
 
 
 def slam_features(
@@ -135,7 +141,8 @@ def slam_features(
     nearest = nearest_keypoints(tree, uv[paired])
     matched = Association(nearest.keypoint[:n], nearest.distance[:n])
     inliers = np.zeros(len(kp), dtype=bool)
-    inliers[matched.keypoint[matched.distance <= match_gate_px]] = True
+    within = matched.distance <= match_gate_px
+    inliers[matched.keypoint[within]] = True
     candidates = nearest.keypoint[n:][nearest.distance[n:] <= match_gate_px]
     outliers = int(np.count_nonzero(~inliers[np.unique(candidates)])) if len(candidates) else 0
 
@@ -148,4 +155,7 @@ def slam_features(
         var_mp_depth=float(depth.var()) if len(depth) else float("nan"),
         reprojection_error_px=float(matched.distance.mean()) if len(depth) and tree is not None else float("nan"),
         inlier_keypoints=inliers,
+        paired_points_c=points_c[in_front][:n][within],
+        paired_keypoints_px=kp[matched.keypoint[within]] if tree is not None else np.zeros((0, 2)),
+        paired_distances_px=matched.distance[within],
     )

@@ -19,7 +19,11 @@ from slam_monitor.image_features import laplacian_variance as monitor_laplacian_
 from slam_monitor.local_map import LocalMap
 from slam_monitor.monitor import input_slam_features
 from slam_monitor.monitor_config import load_monitor_config
+from slam_monitor.observability import NoiseModel, frame_observability
 from slam_monitor.slam_features import RelativeMotion, project, to_camera
+
+# σ 1 px per keypoint axis, depth σ 4 mm at 1 m growing with z², a 4 × 4 coverage grid.
+OBSERVABILITY_NOISE = NoiseModel(1.0, 0.004, 4)
 
 pytestmark = pytest.mark.slam
 
@@ -92,5 +96,12 @@ def test_pairing_matches_brute_force_nearest_keypoints():
         assert (got.avg_mp_depth, got.var_mp_depth) == pytest.approx(
             (matched_c[:, 2].mean(), matched_c[:, 2].var()), rel=1e-12
         )
+        # The pairing the observability channels read: every matched point within the gate, its keypoint, its distance.
+        within = distance <= features.match_gate_px
+        assert same_rows(got.paired_points_c, matched_c[within])
+        np.testing.assert_allclose(np.sort(got.paired_distances_px), np.sort(distance[within]), rtol=1e-12)
+        seen = frame_observability(got, intr.matrix(), intr.width, intr.height, True, OBSERVABILITY_NOISE)
+        assert 1e-5 < seen.translation_sigma_m < 0.02 and seen.condition_number >= 1
+        assert 0 < seen.image_coverage <= 1 and seen.residual_median_px <= features.match_gate_px
         outliers_seen += outliers
     assert outliers_seen > 0
