@@ -168,6 +168,23 @@ def _label(args: argparse.Namespace) -> int:
     return 0
 
 
+def _candidates(args: argparse.Namespace) -> int:
+    import pandas as pd
+    from rich.progress import track
+
+    from estimator.dataset.candidates import candidate_frames, correlations, write_candidates_report
+    from seesys.io.core_settings import load_label_config
+    from slam_monitor.monitor_config import load_monitor_config
+
+    config, labels = load_monitor_config(), load_label_config()
+    frames = pd.concat([candidate_frames(s, config, labels) for s in track(args.sources, description="tracking")])
+    table = correlations(frames)
+    paths = write_candidates_report(frames, table, args.out)
+    print(paths[2].read_text(), end="")
+    print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``seesys dataset`` to the command line."""
     dataset = subparsers.add_parser("dataset", help="build the labelled training dataset, split it, report on it")
@@ -206,6 +223,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("roots", type=Path, nargs="+", help="dataset folders")
     p.add_argument("--out", type=Path, required=True, help="folder for label_report.md, CSV tables and PNG plots")
     p.set_defaults(func=_report)
+
+    p = sub.add_parser(
+        "candidates",
+        help="the next schema's candidate channels against the label, with and without the motion statistic",
+        description="Tracks each source (KIND:PATH with ground truth, e.g. tum:<a rendered folder>) once with "
+        "ORB-SLAM3 (RGB-D), computes the candidate channels of the next RTS schema on every frame (pose "
+        "observability, residuals, the optical-flow second opinion) and the label, and reports per source and "
+        "pooled each channel's Spearman rho with the label and its partial rho given the motion statistic.",
+    )
+    p.add_argument("sources", nargs="+", help="KIND:PATH sources with ground truth")
+    p.add_argument("--out", type=Path, required=True, help="folder for frames.csv, correlations.csv and .md")
+    p.set_defaults(func=_candidates)
 
     p = sub.add_parser("splits", help="grouped cross-validation splits by trajectory and motion group (JSON)")
     p.add_argument("roots", type=Path, nargs="+", help="dataset folders split together (e.g. pretraining + others)")

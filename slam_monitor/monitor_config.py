@@ -12,6 +12,8 @@ from seesys.core.windows import WindowConfig
 from seesys.io.config import ConfigSet, build
 from seesys.io.core_settings import load_window_config
 from slam_monitor.depth_features import DepthQualityConfig
+from slam_monitor.observability import NoiseModel
+from slam_monitor.second_opinion import FlowConfig
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,8 @@ class MonitorConfig:
     depth: DepthQualityConfig
     windows: WindowConfig
     log: LogConfig
+    observability: NoiseModel
+    second_opinion: FlowConfig
 
 
 def load_monitor_config(directory: Path | None = None) -> MonitorConfig:

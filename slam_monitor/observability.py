@@ -19,15 +19,17 @@ paired by ``slam_monitor.slam_features``) and, in RGB-D, the depth the camera me
   (5.991: ORB-SLAM3's own gate for a monocular observation).
 
 Not in the RTS schema yet: these are the functions the next schema's channels will be computed with; the dataset,
-the model and the monitor's log do not carry them until that schema is built and a model trained on it.
+the model and the monitor's log do not carry them until that schema is built and a model trained on it
+(``seesys dataset candidates`` judges them against the label meanwhile).
 
-Noise model (:class:`NoiseModel`): a keypoint's position has standard deviation ``pixel_sigma_px`` in
-each axis. ORB-SLAM3 scales it by 1.2 per pyramid level of the keypoint, but pyorbslam3 does not give the level, so
-every keypoint gets the level-0 value: H is an upper bound of the information (σ a lower bound) by up to the level
-factor of the points. A measured depth has σ_z = ``depth_sigma_at_1m_m`` · z² (stereo and structured-light depth
-noise grows with the square of the distance). pyorbslam3 exposes neither ORB-SLAM3's optimisation residuals, its
-outlier flags, the keypoints' levels nor the map points' observation counts (their track length and age), so the
-monitor recomputes the residuals on the current frame from the pairing and has no track length.
+Noise model (:class:`NoiseModel`, ``[observability]`` of monitor.toml): a keypoint's position has standard
+deviation ``pixel_sigma_px`` in each axis. ORB-SLAM3 scales it by 1.2 per pyramid level of the keypoint, but
+pyorbslam3 does not give the level, so every keypoint gets the level-0 value: H is an upper bound of the
+information (σ a lower bound) by up to the level factor of the points. A measured depth has σ_z =
+``depth_sigma_at_1m_m`` · z² (stereo and structured-light depth noise grows with the square of the distance).
+pyorbslam3 exposes neither ORB-SLAM3's optimisation residuals, its outlier flags, the keypoints' levels nor the map
+points' observation counts (their track length and age), so the monitor recomputes the residuals on the current
+frame from the pairing and has no track length.
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ _MIN_INLIERS = 12
 
 @dataclass(frozen=True)
 class FlowConfig:
-    """How the second opinion follows the image."""
+    """How the second opinion follows the image (``[second_opinion]`` of monitor.toml)."""
 
     max_corners: int
     corner_quality: float
