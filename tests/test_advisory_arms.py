@@ -196,3 +196,14 @@ def test_the_shipped_motion_thresholds_are_the_pilots_and_warn_as_often_as_seesy
     assert abs(record["motion_warning_share"] / record["seesys_warning_share"] - 1) <= 0.10
     assert record["pilot_record"]["settings"]["study"]["operator_seed"] != 1  # not the study's operators
     assert len(record["sessions"]) >= 5
+
+
+def test_a_simulated_study_with_a_yoked_arm_and_no_seesys_arm_is_refused(tmp_path):
+    from seesys_app.simulate.config import load_simulate_config
+    from seesys_app.simulate.study import prepare_study
+
+    cfg = load_simulate_config()
+    cfg = dataclasses.replace(cfg, study=dataclasses.replace(cfg.study, conditions=["none", "yoked"]))
+    with pytest.raises(SeesysError, match="replays the seesys sessions"):
+        prepare_study(tmp_path / "study", cfg, tmp_path / "model.onnx")
+    assert not (tmp_path / "study").exists()

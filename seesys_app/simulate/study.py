@@ -42,7 +42,7 @@ from seesys.io.supervision import DONE as EXITED_DONE
 from seesys.io.supervision import FAILED, Exit, PartSpec, SupervisionPolicy, Supervisor, exit_text
 from seesys_app.simulate.config import CONDITIONS, SimulateConfig, load_simulate_config
 from seesys_app.simulate.session import Participant, simulate_session
-from seesys_app.simulate.yoking import partner_folder, recorded_advice
+from seesys_app.simulate.yoking import YOKED_TO, partner_folder, recorded_advice
 from study.config import load_study_config
 from study.protocol import Protocol, make_protocol, read_protocol, write_protocol
 from study.sessions import (
@@ -116,6 +116,9 @@ def prepare_study(study: Path, cfg: SimulateConfig, model: Path) -> Protocol:
     """The study's protocol: drawn and written for a new folder, read (after checking that the settings and model
     are those it was made with) for an existing one."""
     study = Path(study)
+    conditions = cfg.study.conditions
+    if Condition.YOKED.value in conditions and YOKED_TO not in conditions:
+        raise SeesysError(f"the yoked condition replays the {YOKED_TO} sessions of the study: add {YOKED_TO}")
     record = simulation_record(cfg, model)
     record["settings"]["study"] = {k: v for k, v in record["settings"]["study"].items() if k not in RUN_ONLY}
     path = study / SIMULATION_JSON
