@@ -160,7 +160,7 @@ def _attempt(study, protocol, person, condition):
 
 
 @pytest.mark.system
-def test_a_yoked_session_plays_exactly_its_partners_pulses_at_the_same_times(reduced_study):
+def test_a_yoked_session_waits_for_its_partner_and_plays_exactly_its_pulses_at_the_same_times(reduced_study):
     protocol = read_protocol(reduced_study)
     for person in protocol.participants:
         partner = partner_of(protocol, person.id)
@@ -170,6 +170,9 @@ def test_a_yoked_session_plays_exactly_its_partners_pulses_at_the_same_times(red
         start = {a: json.loads((a / RUN_JSON).read_text())["advice_start"] for a in (yoked, source)}
         played = pd.read_csv(yoked / "advisory.csv")
         replayed = played[played.pulses_from == "replayed"]
+        # It waited for its partner's session: started once that one had ended.
+        ran = {a: json.loads((a / RUN_JSON).read_text()) for a in (yoked, source)}
+        assert ran[yoked]["started"] >= ran[source]["ended"]
         original = pd.read_csv(source / "advisory.csv")
         # Every buffer of the partner, while the yoked session lasted, at the same offset with the same pulses.
         original = original[original.time_mono - start[source] <= played.time_mono.max() - start[yoked]]
@@ -381,29 +384,6 @@ def _two_sessions():
         task=dataclasses.replace(cfg.task, objects=1, max_task_s=2.5),
     )
     return cfg, default_model(load_service_config(), None)
-
-
-@pytest.mark.system
-def test_a_session_waits_until_its_partners_session_is_done_and_then_runs(tmp_path, monkeypatch):
-    """P01's session is given P02's as its partner (the order pending_jobs returns puts it first): P02's starts
-    first although a second process is free, P01's once P02's is done, and both are done."""
-
-    def partnered(study, protocol):
-        (first, second), total = pending_jobs(study, protocol)
-        return [dataclasses.replace(first, after=second.folder), second], total
-
-    monkeypatch.setattr(simulated_study, "pending_jobs", partnered)
-    notes: list[tuple[str, str]] = []
-    cfg, model = _two_sessions()
-    outcome = run_study(tmp_path / "study", cfg, model, show=lambda name, _, note: notes.append((name, note)))
-    assert outcome.done == outcome.sessions == 2 and not outcome.failed
-    assert notes[0] == ("P02 seesys", "attempt-1")
-    protocol = read_protocol(tmp_path / "study")
-    partner, waited = (
-        json.loads((protocol.phase_folder(tmp_path / "study", p, "task", c) / "attempt-1" / RUN_JSON).read_text())
-        for p, c in (("P02", "seesys"), ("P01", "none"))
-    )
-    assert waited["started"] >= partner["ended"]
 
 
 @pytest.mark.system
