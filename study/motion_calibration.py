@@ -114,12 +114,16 @@ def _shares(pulses: np.ndarray, most: int) -> list[float]:
 
 
 def _quantile_thresholds(values: np.ndarray, shares: list[float]) -> list[float]:
-    """Thresholds t_k with P(value ≥ t_k) ≈ shares[k]: ascending, positive, +inf where no value should reach it."""
+    """Thresholds t_k with P(value ≥ t_k) ≈ shares[k], strictly ascending and positive; a pulse count the pilot
+    never reached gets none (the rule then never plays it). Raises SeesysError when no count was reached."""
     out: list[float] = []
     for share in shares:
-        t = math.inf if share <= 0 else float(np.quantile(values, 1.0 - share))
-        t = max(t, np.nextafter(out[-1], math.inf) if out else np.nextafter(0.0, 1.0))
-        out.append(t)
+        if share <= 0:
+            break
+        t = float(np.quantile(values, 1.0 - share))
+        out.append(max(t, float(np.nextafter(out[-1], math.inf)) if out else float(np.nextafter(0.0, 1.0))))
+    if not out:
+        raise SeesysError("the pilot's seesys sessions never warned: there is no pulse rate to match")
     return out
 
 

@@ -410,3 +410,16 @@ def test_a_session_refused_with_a_seesys_error_is_not_retried_and_its_partner_fa
     assert (study / "logs" / "P09-seesys.log").read_text().count("seesys: error:") == 1
     assert not (study / "participants" / "P09").exists()
     assert not (study / "logs" / "P01-none.log").exists()
+
+
+@pytest.mark.system
+def test_the_motion_calibration_of_a_studys_seesys_sessions_matches_their_pulse_shares(reduced_study, tmp_path):
+    """calibrate-motion on the reduced study's two seesys sessions: ascending thresholds whose replayed motion rule
+    gives N >= 1 about as often as SEESys did on the same ticks, and a record naming the sessions."""
+    out = tmp_path / "calibration.json"
+    assert main(["study", "calibrate-motion", str(reduced_study), "--latency-s", "0.03", "--out", str(out)]) == 0
+    record = json.loads(out.read_text())
+    thresholds = record["thresholds_m_s"]
+    assert 1 <= len(thresholds) <= 3 and thresholds[0] > 0 and all(a < b for a, b in zip(thresholds, thresholds[1:]))
+    assert len(record["sessions"]) == 2 and all("task-seesys" in s for s in record["sessions"])
+    assert abs(record["motion_tick_shares"][0] - record["seesys_tick_shares"][0]) <= 0.2
