@@ -70,14 +70,12 @@ def threshold_pulses(value: float, thresholds: Sequence[float], most: int) -> in
 
 @dataclass(frozen=True)
 class ConditionInput:
-    """Where a condition's input comes from and how it becomes a number of pulses."""
+    """Where a live condition's input comes from and what a received message gives (its rule and rule name are the
+    advice step's: :func:`pulse_rule`, :func:`rule_name`)."""
 
     endpoint: str
     topic: bytes
     sample: Callable[[Estimate | FeatureFrame], Reading | None]  # a received message → input (or none)
-    rule: Callable[[float], int]  # moving average → N
-    unit: str
-    rule_name: str  # how advisory.csv names the rule: "estimate" (Equation 2) or "rotation"
 
 
 def head_rule(cfg: AdvisoryConfig) -> Callable[[Sequence[float]], bool]:
@@ -151,18 +149,6 @@ def condition_input(condition: Condition, cfg: AdvisoryConfig, network: NetworkC
     device = cfg.timing.listen_to_device
     if condition.hears_features:
         return ConditionInput(
-            network.features_endpoint,
-            _subscription(FEATURE_TOPIC, device),
-            feature_reading(condition, cfg),
-            pulse_rule(condition, cfg),
-            "deg/s" if condition is Condition.ROTATION else "m/s",
-            rule_name(condition),
+            network.features_endpoint, _subscription(FEATURE_TOPIC, device), feature_reading(condition, cfg)
         )
-    return ConditionInput(
-        network.estimates_endpoint,
-        _subscription(ESTIMATE_TOPIC, device),
-        estimate_reading(cfg),
-        pulse_rule(condition, cfg),
-        "m",
-        rule_name(condition),
-    )
+    return ConditionInput(network.estimates_endpoint, _subscription(ESTIMATE_TOPIC, device), estimate_reading(cfg))

@@ -33,7 +33,7 @@ from seesys.core.session_layout import ADVISORY_CSV
 from seesys.io.logfiles import read_csv_log
 from seesys.io.rts_log import read_feature_frames
 from study.protocol import read_protocol
-from study.sessions import ADVICE_START, DONE_STATUSES, RUN_JSON, read_run, used_attempts
+from study.sessions import advice_start, done_attempts
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ def pilot_sessions(pilot: Path, condition: str = Condition.SEESYS.value) -> list
         if condition not in person.conditions:
             continue
         folder = protocol.phase_folder(pilot, person.id, protocol.analysed_phase, condition)
-        found += [a for a in used_attempts(folder) if read_run(a).get("status") in DONE_STATUSES]
+        found += done_attempts(folder)
     if not found:
         raise SeesysError(f"{pilot} has no finished {condition} session to calibrate the motion condition on")
     return found
@@ -81,20 +81,14 @@ def _simulation_record(pilot: Path) -> dict:
         return {}
 
 
-def _advice_start(attempt: Path, first_frame: float) -> float:
-    try:
-        return float(json.loads((attempt / RUN_JSON).read_text())[ADVICE_START])
-    except (OSError, ValueError, KeyError):
-        return first_frame
-
-
 def replay_motion(attempt: Path, cfg: AdvisoryConfig, latency_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The ``motion`` condition replayed on a session's feature log (each frame arriving ``latency_s`` after its
     timestamp): every buffer's (moving mean, N, whether a tick), in order."""
     frames = list(read_feature_frames(attempt, "pilot"))
     if not frames:
         raise SeesysError(f"{attempt}: no feature frames to replay")
-    advice = Advice(Condition.MOTION, cfg, _advice_start(attempt, frames[0].timestamp), 0.0)
+    start = advice_start(attempt)
+    advice = Advice(Condition.MOTION, cfg, frames[0].timestamp if start is None else start, 0.0)
     reading = feature_reading(Condition.MOTION, cfg)
     buffers = []
     for frame in frames:

@@ -118,6 +118,18 @@ def used_attempts(phase_folder: Path) -> list[Path]:
     return [a for a in attempt_folders(phase_folder) if not read_run(a).get("superseded")]
 
 
+def done_attempts(phase_folder: Path) -> list[Path]:
+    """The used attempts of a phase folder that finished (:data:`DONE_STATUSES`)."""
+    return [a for a in used_attempts(phase_folder) if read_run(a).get("status") in DONE_STATUSES]
+
+
+def advice_start(attempt: Path) -> float | None:
+    """Where the attempt's advisory started on the session's clock (``run.json``'s :data:`ADVICE_START`, which a
+    simulated session records), or None where it is not recorded."""
+    value = read_run(attempt).get(ADVICE_START)
+    return None if value is None else float(value)
+
+
 def phase_status(phase_folder: Path) -> str:
     runs = [read_run(a) for a in used_attempts(phase_folder)]
     if any(r.get("status") in DONE_STATUSES for r in runs):

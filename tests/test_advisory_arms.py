@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from advisory.advice import REPLAY_ENDED, Advice, RecordedBuffer, ReplayedAdvice
-from advisory.conditions import LIVE_CONDITIONS, Condition, condition_input, pulse_rule, threshold_pulses
+from advisory.conditions import (
+    LIVE_CONDITIONS,
+    Condition,
+    condition_input,
+    pulse_rule,
+    rule_name,
+    threshold_pulses,
+)
 from advisory.config import load_advisory_config
 from advisory.motion import MotionStatistic
 from advisory.scheduler import CUE, LIVE, TICK, Reading
@@ -87,7 +94,7 @@ def test_only_the_live_conditions_run_live_and_the_others_say_why():
         with pytest.raises(SeesysError, match="runs only in a simulated study"):
             condition_input(condition, CFG, network)
     motion = condition_input(Condition.MOTION, CFG, network)
-    assert motion.endpoint == network.features_endpoint and motion.rule_name == "motion"
+    assert motion.endpoint == network.features_endpoint and rule_name(Condition.MOTION) == "motion"
     with pytest.raises(SeesysError, match="no pulse rule"):
         pulse_rule(Condition.YOKED, CFG)
 

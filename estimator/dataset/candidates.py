@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation
 
 from estimator.deepsee.yardsticks import partial_spearman
 from seesys.core.errors import SeesysError
@@ -93,11 +92,9 @@ def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) ->
     columns = ["frame_index", "timestamp", *CHANNELS, MOTION]
     table = pd.DataFrame(rows).reindex(columns=columns).astype(dict.fromkeys(columns[2:], float))
     tracked = [item.pose_wc is not None for item in inputs]
-    positions = np.array([i.pose_wc[:3, 3] if i.pose_wc is not None else np.zeros(3) for i in inputs])
-    quaternions = np.array(
-        [Rotation.from_matrix(i.pose_wc[:3, :3]).as_quat() if i.pose_wc is not None else [0, 0, 0, 1.0] for i in inputs]
-    )
-    estimate = Poses(table.timestamp.to_numpy(float), positions, quaternions)
+    # A frame without a pose gets the identity in its place, and no label (below).
+    poses = [i.pose_wc if i.pose_wc is not None else np.eye(4) for i in inputs]
+    estimate = Poses.from_matrices(table.timestamp.to_numpy(float), np.array(poses))
     states = np.array([i.state.name for i in inputs])
     table[LABEL] = label_frames(estimate, states, truth, False, labels).error_m
     table.loc[~np.array(tracked), LABEL] = np.nan

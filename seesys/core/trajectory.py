@@ -55,6 +55,12 @@ class Poses:
     def from_rotations(cls, timestamps: np.ndarray, positions: np.ndarray, rotations: Rotation) -> Poses:
         return cls(np.asarray(timestamps, dtype=float), np.asarray(positions, dtype=float), rotations.as_quat())
 
+    @classmethod
+    def from_matrices(cls, timestamps: np.ndarray, matrices: np.ndarray) -> Poses:
+        """Poses from (N, 4, 4) T_world_camera matrices: the inverse of :attr:`matrices`."""
+        m = np.asarray(matrices, dtype=float).reshape(-1, 4, 4)
+        return cls.from_rotations(timestamps, m[:, :3, 3], Rotation.from_matrix(m[:, :3, :3]))
+
     @property
     def rotations(self) -> Rotation:
         """R_world_camera of every pose (scipy)."""

@@ -25,8 +25,8 @@ class TrueError:
         self._delta = delta_frames
         keep = None if monocular else delta_frames + 1
         self._times: deque[float] = deque(maxlen=keep)
-        self._estimate: deque[np.ndarray] = deque(maxlen=keep)
-        self._truth: deque[np.ndarray] = deque(maxlen=keep)
+        self._estimate: deque[np.ndarray] = deque(maxlen=keep)  # T_world_camera matrices
+        self._truth: deque[np.ndarray] = deque(maxlen=keep)  # positions and quaternions
 
     def update(self, timestamp: float, pose_wc: np.ndarray | None, truth_xyz_quat: np.ndarray) -> float | None:
         """Add a frame (``pose_wc``: the tracker's T_world_camera, None when it was not tracked, which ends the
@@ -37,17 +37,14 @@ class TrueError:
             self._estimate.clear()
             self._truth.clear()
             return None
-        from scipy.spatial.transform import Rotation
-
         self._times.append(timestamp)
-        self._estimate.append(np.concatenate([pose_wc[:3, 3], Rotation.from_matrix(pose_wc[:3, :3]).as_quat()]))
+        self._estimate.append(np.array(pose_wc, float))
         self._truth.append(np.asarray(truth_xyz_quat, float))
         if len(self._times) <= self._delta:
             return None
-        times = np.array(self._times)
-        estimate, truth = np.array(self._estimate), np.array(self._truth)
+        times, truth = np.array(self._times), np.array(self._truth)
         errors = stretch_errors(
-            Poses(times, estimate[:, :3], estimate[:, 3:]),
+            Poses.from_matrices(times, np.array(self._estimate)),
             Poses(times, truth[:, :3], truth[:, 3:]),
             self._monocular,
             self._delta,

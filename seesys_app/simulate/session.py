@@ -173,6 +173,8 @@ def simulate_session(
     if condition is Condition.YOKED and recording is None:
         raise SeesysError("a yoked session needs the pulses of its partner's seesys session to replay")
 
+    # The advisory's clock starts at the first frame (a yoked session replays from there too).
+    advice_start = float(synth.start_time_s + plan.frame_times[0])
     folder = prepare_session_folder(folder)
     for name in (ESTIMATES_CSV, ADVISORY_CSV, EVENTS_CSV, RTS_CSV):
         (folder / name).unlink(missing_ok=True)
@@ -201,7 +203,7 @@ def simulate_session(
             "started": utc_now(),
             "model_version": model.version,
             "source": f"simulated:{task_cfg.environment}/{task_cfg.camera_model}",
-            ADVICE_START: float(synth.start_time_s + plan.frame_times[0]),
+            ADVICE_START: advice_start,
         },
     )
     writer = SessionWriter(
@@ -224,7 +226,6 @@ def simulate_session(
     estimates_log = CsvLog(folder / ESTIMATES_CSV, ESTIMATE_COLUMNS)
     monitor = MonitorStep(monitor_config, folder, settings=settings)
     start_time = synth.start_time_s
-    advice_start = float(start_time + plan.frame_times[0])
     advice: Advice | ReplayedAdvice = (
         ReplayedAdvice(recording or (), advisory_cfg, advice_start, cfg.loop.audio_latency_s)
         if condition is Condition.YOKED

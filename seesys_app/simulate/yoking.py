@@ -8,7 +8,6 @@ times taken from the start of the partner's advisory (``advice_start`` of its ``
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from advisory.advice import RecordedBuffer
@@ -16,7 +15,7 @@ from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV
 from seesys.io.logfiles import read_csv_log
 from study.protocol import Protocol
-from study.sessions import ADVICE_START, DONE_STATUSES, RUN_JSON, read_run, used_attempts
+from study.sessions import advice_start, done_attempts
 
 #: The condition a yoked session replays.
 YOKED_TO = "seesys"
@@ -39,14 +38,16 @@ def partner_folder(study: Path, protocol: Protocol, phase: str, participant_id: 
 def recorded_advice(phase_folder: Path) -> list[RecordedBuffer]:
     """The buffers the used attempt of ``phase_folder`` played, their times from its advisory's start;
     :class:`SeesysError` when it has none to replay (not done, or made without the start recorded)."""
-    attempts = [a for a in used_attempts(phase_folder) if read_run(a).get("status") in DONE_STATUSES]
+    attempts = done_attempts(phase_folder)
     if not attempts:
         raise SeesysError(f"{phase_folder} has no session to replay for a yoked condition")
     attempt = attempts[-1]
+    start = advice_start(attempt)
+    if start is None:
+        raise SeesysError(f"{attempt}: its run.json records no advice_start to replay the pulses from")
     try:
-        start = float(json.loads((attempt / RUN_JSON).read_text())[ADVICE_START])
         log = read_csv_log(attempt / ADVISORY_CSV)
-    except (OSError, ValueError, KeyError) as e:
+    except (OSError, ValueError) as e:
         raise SeesysError(f"{attempt}: cannot read the pulses to replay ({e})") from None
     return [
         RecordedBuffer(float(row.time_mono) - start, int(row.n_pulses), int(row.played_pulses), str(row.trigger))
