@@ -74,7 +74,12 @@ def _replay(args: argparse.Namespace) -> int:
     log = read_estimate_log(Path(args.estimates))
     sent_log = Path(args.sent_log) if args.sent_log else None
     sent = replay_estimates(
-        log, load_advisory_config().replay, load_network_config(), show_progress=True, sent_log=sent_log
+        log,
+        load_advisory_config().replay,
+        load_network_config(),
+        show_progress=True,
+        sent_log=sent_log,
+        start_with_device=args.start_with_device,
     )
     print(f"published {sent} estimates" + (f"; send times in {sent_log}" if sent_log else ""))
     return 0
@@ -126,7 +131,13 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
     p.add_argument(
         "--sent-log",
         metavar="CSV",
-        help="also write each estimate's send time to this CSV (frame_index,timestamp,sent_mono)",
+        help="also write each estimate's send time to this CSV (frame_index,timestamp,sent_mono); it appears "
+        "once the publisher is bound",
+    )
+    p.add_argument(
+        "--start-with-device",
+        metavar="ID",
+        help="begin the schedule when this device's first feature frame arrives (features_endpoint)",
     )
     p.set_defaults(func=_replay)
     return {}

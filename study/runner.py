@@ -8,7 +8,8 @@ Each run writes a new attempt folder (``study.sessions``) and, as child processe
 - the advisory in the participant's condition: ``seesys advisory run --condition C``;
 - the motion-capture logger: ``seesys study mocap log`` (``mocap.tum``);
 - optionally an estimate source: ``seesys advisory replay --estimates CSV`` (until the estimator service runs
-  on the edge server, or for dry runs), started when the device has tracked its first frame.
+  on the edge server, or for dry runs), started with the advisory and sending from the device's first frame on
+  (``replay_sent.csv``: when it sent each estimate).
 
 In the runner itself, a thread logs every estimate it receives (``study.watch``), another reads the operator's
 event keys (``study.operator``) into ``events.csv``, and a status line shows the tracking state, the latest
@@ -84,6 +85,7 @@ EVENT_COLUMNS = ("time", "kind", "detail")
 CONFIGS = "configs"
 # How long the runner waits for its subscriber sockets before starting the publishers.
 SUBSCRIBER_READY_S = 5.0
+REPLAY_SENT_CSV = "replay_sent.csv"  # the estimate replay's send times (its file is its "ready")
 
 
 @dataclass(frozen=True)
@@ -211,8 +213,8 @@ class Session:
         )
 
     def _start_children(self, supervisor: Supervisor, stop: threading.Event) -> None:
-        """The advisory and the mocap logger first; the device once both are running, so that the participant
-        never starts without audio or ground truth. KeyboardInterrupt when a signal comes meanwhile."""
+        """The advisory, the mocap logger and the estimate replay first; the device once they run, so that the
+        participant never starts without audio or ground truth. KeyboardInterrupt when a signal comes meanwhile."""
         first = [
             PartSpec(
                 "advisory",
@@ -220,6 +222,11 @@ class Session:
                 ready=lambda: self.advisory_rows() > 0,
             )
         ]
+        if self.o.replay_estimates is not None:
+            # ready once bound; its schedule starts with the device's first frame, however long its start took
+            sent = self.attempt / REPLAY_SENT_CSV
+            replay = ("advisory", "replay", "--estimates", str(self.o.replay_estimates), "--sent-log", str(sent))
+            first.append(PartSpec("replay", (*replay, "--start-with-device", self.device_id), ready=sent.exists))
         if self.record_mocap:
             first.insert(
                 0,
@@ -316,10 +323,6 @@ class Session:
                         return "stopped"
                 except queue.Empty:
                     pass
-                if self.o.replay_estimates and "replay" not in supervisor.parts and self.frames() > 0:
-                    supervisor.start(
-                        PartSpec("replay", ("advisory", "replay", "--estimates", str(self.o.replay_estimates)))
-                    )
                 if live is not None:
                     live.update(self._status_line(watcher))
         return None
