@@ -180,7 +180,7 @@ def _candidates(args: argparse.Namespace) -> int:
     frames = pd.concat([candidate_frames(s, config, labels) for s in track(args.sources, description="tracking")])
     table = correlations(frames)
     paths = write_candidates_report(frames, table, args.out)
-    print(paths[2].read_text(), end="")
+    print(paths[-1].read_text(), end="")
     print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 

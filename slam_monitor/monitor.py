@@ -34,9 +34,11 @@ from seesys.core.camera_normalisation import CameraNormalisation
 from seesys.core.device_settings import DeviceSettings
 from seesys.core.messages import FeatureFrame, stream_resolution
 from seesys.core.psd import PsdGeometry, build_psd
+from seesys.core.session_layout import POSE_COVARIANCE_COLUMNS, POSE_COVARIANCE_CSV, covariance_row
 from seesys.core.tracking_state import TrackingState
 from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_device_settings
+from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
 from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from slam_monitor.depth_features import DepthQuality
@@ -44,6 +46,7 @@ from slam_monitor.frame import Frame
 from slam_monitor.image_features import image_features, keypoint_responses, reference_scale
 from slam_monitor.local_map import LocalMap
 from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
+from slam_monitor.observability import frame_pose_covariance
 from slam_monitor.slam_features import RelativeMotion, SlamFeatures, project, relative_motion, slam_features, to_camera
 from slam_monitor.stream import FeaturePublisher
 
@@ -147,6 +150,11 @@ class FeatureExtractor:
         return self._normalisation
 
     def extract(self, item: MonitorInput) -> FeatureFrame:
+        return self.extract_with_covariance(item)[0]
+
+    def extract_with_covariance(self, item: MonitorInput) -> tuple[FeatureFrame, np.ndarray | None]:
+        """The frame's features, and its predicted 6×6 pose covariance in the world's axes where it has one
+        (``slam_monitor.observability``: a tracked frame with three or more paired points)."""
         frame, cfg = item.frame, self.config
         index = frame.index
         intr = frame.intrinsics
@@ -157,6 +165,7 @@ class FeatureExtractor:
         channels.update(vars(image_features(frame.gray, reference_gray)))
 
         slam: SlamFeatures | None = None
+        covariance: np.ndarray | None = None
         if item.state.tracked and item.pose_cw is not None and item.pose_wc is not None:
             if item.map_changed or item.prev_pose_wc is None:
                 # A loop closure or global BA moved the map, or tracking resumes (maybe in a new map): the kept
@@ -170,6 +179,9 @@ class FeatureExtractor:
             )
             slam = input_slam_features(item, motion, self.local_map.lost_points(), cfg)
             channels.update(_slam_channels(slam, normalisation))
+            covariance = frame_pose_covariance(
+                slam, intr.matrix(), frame.depth is not None, cfg.observability, item.pose_wc[:3, :3]
+            )
         moved = (
             np.linalg.inv(item.prev_pose_wc) @ item.pose_wc
             if item.pose_wc is not None and item.prev_pose_wc is not None and not item.map_changed
@@ -180,7 +192,7 @@ class FeatureExtractor:
         psd = self._psd(item, slam, normalisation, reference_gray) if cfg.windows.is_psd_frame(index) else None
         # At the stream's resolution (float16 where a value fits): rts.csv, the stream and a dataset hold one value.
         rts = stream_resolution(np.array([channels[name] for name in rts_schema.CHANNEL_NAMES], dtype=np.float32))
-        return FeatureFrame(
+        features = FeatureFrame(
             cfg.device_id,
             index,
             frame.timestamp,
@@ -191,6 +203,7 @@ class FeatureExtractor:
             stream_session=self.stream_session,
             settings=self.settings,
         )
+        return features, covariance
 
     def _psd(
         self,
@@ -268,7 +281,8 @@ _STOP = object()
 class MonitorStep:
     """The monitor's step of the per-frame chain, synchronous: a tracked frame → its feature frame, published first
     (when there is a publisher: the estimate waits for the message, not for the logs) and then logged to the
-    session's ``rts.csv`` and ``psd/`` (when there is a session folder). The device's :class:`RtsMonitor` runs it on
+    session's ``rts.csv`` and ``psd/``, with the frame's predicted pose covariance in ``pose_covariance.csv`` (when
+    there is a session folder). The device's :class:`RtsMonitor` runs it on
     its own thread; the simulated study calls it in its loop, so both write the same logs from the same code."""
 
     def __init__(
@@ -286,14 +300,19 @@ class MonitorStep:
         self._psd_log = (
             PsdLogWriter(session_dir / PSD_DIR, config.log.psd_chunk_records) if session_dir is not None else None
         )
+        self._covariance_log = (
+            CsvLog(session_dir / POSE_COVARIANCE_CSV, POSE_COVARIANCE_COLUMNS) if session_dir is not None else None
+        )
 
     def step(self, item: MonitorInput) -> FeatureFrame:
-        features = self._extractor.extract(item)
-        # Neither log depends on the stream.
+        features, covariance = self._extractor.extract_with_covariance(item)
+        # No log depends on the stream.
         if self.publisher is not None:
             self.publisher.publish(features)
         if self._rts_log is not None:
             self._rts_log.write(features)
+        if self._covariance_log is not None and covariance is not None:
+            self._covariance_log.write(features.frame_index, features.timestamp, *covariance_row(covariance))
         if features.psd is not None:
             self.psd_matrices += 1
             if self._psd_log is not None:
@@ -302,7 +321,7 @@ class MonitorStep:
 
     def close_logs(self) -> None:
         """Close the logs (their files final); the publisher is its owner's to close."""
-        for log in (self._rts_log, self._psd_log):
+        for log in (self._rts_log, self._psd_log, self._covariance_log):
             if log is not None:
                 log.close()
 

@@ -18,9 +18,15 @@ paired by ``slam_monitor.slam_features``) and, in RGB-D, the depth the camera me
   percentile, and the share whose squared distance in units of σ exceeds the χ² gate of two degrees of freedom at 95 %
   (5.991: ORB-SLAM3's own gate for a monocular observation).
 
-Not in the RTS schema yet: these are the functions the next schema's channels will be computed with; the dataset,
-the model and the monitor's log do not carry them until that schema is built and a model trained on it
-(``seesys dataset candidates`` judges them against the label meanwhile).
+- **The pose covariance** H⁻¹, turned into the world's axes in ROS's order (:func:`pose_covariance_world`): the
+  monitor logs it for every tracked frame (``pose_covariance.csv``, exported as ``PoseWithCovarianceStamped``), and
+  :func:`relative_translation_covariance` carries two frames' covariances to the label's relative translation.
+  It assumes the map points exact: what the pose fit alone contributes, not the map's error or drift.
+
+The channels are not in the RTS schema yet: these are the functions the next schema's channels will be computed
+with; the dataset and the model do not carry them until that schema is built and a model trained on it
+(``seesys dataset candidates`` judges them, and the covariance's coverage of the label, meanwhile). In a monocular
+session the map's scale is arbitrary, and so is the covariance's unit.
 
 Noise model (:class:`NoiseModel`, ``[observability]`` of monitor.toml): a keypoint's position has standard
 deviation ``pixel_sigma_px`` in each axis. ORB-SLAM3 scales it by 1.2 per pyramid level of the keypoint, but
@@ -74,20 +80,6 @@ class PoseObservability:
         return cls(nan, nan, nan, nan, nan, nan, nan, nan)
 
 
-def _skew(p: np.ndarray) -> np.ndarray:
-    """(N, 3) → (N, 3, 3) cross-product matrices [p]×."""
-    x, y, z = p[:, 0], p[:, 1], p[:, 2]
-    zero = np.zeros_like(x)
-    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-
-
-def point_jacobians(points_c: np.ndarray) -> np.ndarray:
-    """(N, 3, 6): how each camera-frame point moves with the camera's position (δc, camera axes) and rotation (δθ)."""
-    p = np.asarray(points_c, np.float64)
-    minus_identity = np.broadcast_to(-np.eye(3), (len(p), 3, 3))
-    return np.concatenate([minus_identity, _skew(p)], axis=2)
-
-
 def pose_information(
     points_c: np.ndarray, fx: float, fy: float, noise: NoiseModel, depth_measured: bool = False
 ) -> np.ndarray:
@@ -95,18 +87,23 @@ def pose_information(
     camera (see the module docstring); with ``depth_measured`` each point adds its depth residual."""
     p = np.asarray(points_c, np.float64).reshape(-1, 3)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
-    zero = np.zeros_like(z)
-    projection = np.stack(
-        [np.stack([fx / z, zero, -fx * x / z**2], -1), np.stack([zero, fy / z, -fy * y / z**2], -1)], -2
-    )
-    moves = point_jacobians(p)
-    pixel = projection @ moves  # (N, 2, 6)
-    information = np.einsum("nki,nkj->ij", pixel, pixel) / noise.pixel_sigma_px**2
+    inverse_z = 1.0 / z
+    xz, yz = x * inverse_z, y * inverse_z
+    # The rows of (projection Jacobian) @ [−I | [p]×], written out: one stacked matrix and one product cost a
+    # tenth of the batched products (the monitor computes this on every tracked frame).
+    rows = 3 if depth_measured else 2
+    jacobian = np.zeros((len(p), rows, 6))
+    u, v = jacobian[:, 0], jacobian[:, 1]
+    u[:, 0], u[:, 2], u[:, 3], u[:, 4], u[:, 5] = -inverse_z, xz * inverse_z, xz * yz, -(1 + xz * xz), yz
+    v[:, 1], v[:, 2], v[:, 3], v[:, 4], v[:, 5] = -inverse_z, yz * inverse_z, 1 + yz * yz, -xz * yz, -xz
+    u *= fx / noise.pixel_sigma_px
+    v *= fy / noise.pixel_sigma_px
     if depth_measured:
-        depth = moves[:, 2, :]  # the depth residual is the point's z
-        weights = 1.0 / (noise.depth_sigma_at_1m_m * z**2) ** 2
-        information += np.einsum("n,ni,nj->ij", weights, depth, depth)
-    return information
+        depth = jacobian[:, 2]  # the depth residual is the point's z: row 3 of [−I | [p]×], per its σ_z
+        depth[:, 2], depth[:, 3], depth[:, 4] = -1.0, -y, x
+        depth /= (noise.depth_sigma_at_1m_m * z**2)[:, None]
+    flat = jacobian.reshape(-1, 6)
+    return flat.T @ flat
 
 
 def coverage(keypoints_px: np.ndarray, width: int, height: int, grid: int) -> float:
@@ -139,6 +136,36 @@ def translation_observability(information: np.ndarray) -> tuple[float, float, fl
     eigen = np.linalg.eigvalsh(np.linalg.inv(block))
     weakest = float(eigen[0])
     return sigma, weakest, float(eigen[-1] / weakest) if weakest > 0 else float("inf")
+
+
+def pose_covariance_world(information: np.ndarray, rotation_wc: np.ndarray) -> np.ndarray | None:
+    """The 6×6 covariance of the pose in the world's axes, ROS's order (position x, y, z, then rotation about the
+    fixed x, y, z axes): H⁻¹, whose perturbations are in the camera's axes, turned by R_wc (both blocks); None
+    where H is singular."""
+    try:
+        covariance = np.linalg.inv(information)
+    except np.linalg.LinAlgError:
+        return None
+    turn = np.zeros((6, 6))
+    turn[:3, :3] = turn[3:, 3:] = rotation_wc
+    return turn @ covariance @ turn.T
+
+
+def relative_translation_covariance(
+    covariance_i: np.ndarray, covariance_j: np.ndarray, position_i: np.ndarray, position_j: np.ndarray
+) -> np.ndarray:
+    """The 3×3 covariance (world axes) of the error of the translation from pose i to pose j — the label's pair —
+    from their 6×6 world-axes covariances (:func:`pose_covariance_world`), taken as independent.
+
+    With world-axes perturbations (c + δc, exp(δθ) R), the relative translation Rᵢᵀ(cⱼ − cᵢ) moves by
+    Rᵢᵀ(δcⱼ − δcᵢ + [cⱼ − cᵢ]× δθᵢ): the rotation error of the first pose swings the path travelled since. Its norm,
+    and so the trace returned here, does not depend on the axes it is written in."""
+    lever = np.asarray(position_j, np.float64) - np.asarray(position_i, np.float64)
+    x, y, z = lever
+    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    from_i = np.hstack([-np.eye(3), cross])
+    from_j = np.hstack([np.eye(3), np.zeros((3, 3))])
+    return from_i @ covariance_i @ from_i.T + from_j @ covariance_j @ from_j.T
 
 
 def residual_channels(distances_px: np.ndarray, pixel_sigma_px: float) -> tuple[float, float, float]:
@@ -196,3 +223,15 @@ def frame_observability(
         noise,
         depth_measured,
     )
+
+
+def frame_pose_covariance(
+    slam: SlamFeatures, camera_matrix: np.ndarray, depth_measured: bool, noise: NoiseModel, rotation_wc: np.ndarray
+) -> np.ndarray | None:
+    """The world-axes 6×6 pose covariance of a tracked frame (:func:`pose_covariance_world` of its pairing's
+    information); None with fewer than three paired points or a singular information matrix."""
+    points = slam.paired_points_c
+    if len(points) < _MIN_POINTS:
+        return None
+    information = pose_information(points, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured)
+    return pose_covariance_world(information, rotation_wc)

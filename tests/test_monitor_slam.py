@@ -12,10 +12,11 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
 
-from seesys.core import rts_schema
+from seesys.core import rts_schema, session_layout
 from seesys.core.windows import assemble_windows
 from seesys.io.config import config_dir
 from seesys.io.rts_log import read_feature_frames, read_psd_log, read_rts_csv
@@ -94,6 +95,14 @@ def check_session(
     assert all(r.psd.shape == (96, 128, 3) and r.psd.dtype == np.uint8 for r in psds)
     last = [r.psd for r in psds if r.frame_index in set(tracked["frame_index"])][-1]
     assert all(np.count_nonzero(last[..., layer]) > 50 for layer in range(3))
+
+    # every tracked frame's predicted pose covariance: symmetric positive definite, positions to within centimetres
+    logged = pd.read_csv(session / session_layout.POSE_COVARIANCE_CSV)
+    assert set(logged.frame_index) <= set(tracked.frame_index) and len(logged) >= 0.95 * len(tracked)
+    covariances = session_layout.covariance_matrices(logged[list(session_layout.POSE_COVARIANCE_COLUMNS[2:])])
+    assert (np.linalg.eigvalsh(covariances) > 0).all()
+    position_sigma = np.sqrt(np.trace(covariances[:, :3, :3], axis1=1, axis2=2))
+    assert (position_sigma < 0.05).all() and (position_sigma > 1e-5).all()
 
     # relative rotation agrees with the ground truth in sign and size (scale-free, so mono too), on frames whose
     # previous frame was tracked (the first frame after a gap has zero motion by definition)

@@ -15,8 +15,10 @@ from slam_monitor.observability import (
     NoiseModel,
     coverage,
     depth_spread,
+    pose_covariance_world,
     pose_information,
     pose_observability,
+    relative_translation_covariance,
     residual_channels,
     translation_observability,
 )
@@ -62,6 +64,51 @@ def test_the_predicted_translation_sigma_matches_a_monte_carlo_of_the_pose_fit(d
         fitted.append(_fit(points, uv, z)[:3])
     measured = float(np.sqrt(np.trace(np.cov(np.array(fitted).T))))
     assert measured == pytest.approx(sigma, rel=0.10)
+
+
+def test_the_world_axes_covariance_matches_a_monte_carlo_of_the_fitted_camera_pose():
+    """A camera turned and placed in a room: the fits' world positions and fixed-axis rotation vectors (ROS's
+    convention) scatter as the covariance says, blocks and cross terms."""
+    rng = np.random.default_rng(17)
+    points_c = _points(rng)
+    rotation_wc = Rotation.from_rotvec([0.3, -1.1, 0.4]).as_matrix()
+    covariance = pose_covariance_world(pose_information(points_c, K[0, 0], K[1, 1], NOISE, True), rotation_wc)
+    truth = project(points_c, K)
+    world = []
+    for _ in range(300):
+        uv = truth + rng.normal(0, NOISE.pixel_sigma_px, truth.shape)
+        z = points_c[:, 2] + rng.normal(0, NOISE.depth_sigma_at_1m_m * points_c[:, 2] ** 2)
+        fit = _fit(points_c, uv, z)  # camera-axes δc, δθ (R' = R exp(δθ))
+        turned = Rotation.from_matrix(rotation_wc @ Rotation.from_rotvec(fit[3:]).as_matrix() @ rotation_wc.T)
+        world.append(np.concatenate([rotation_wc @ fit[:3], turned.as_rotvec()]))
+    measured = np.cov(np.array(world).T)
+    for block in (slice(0, 3), slice(3, 6)):
+        assert np.trace(measured[block, block]) == pytest.approx(np.trace(covariance[block, block]), rel=0.10)
+    # every entry within 15 % of the diagonal's scale: the axes and the cross terms, not only the total
+    scale = np.sqrt(np.outer(np.diag(covariance), np.diag(covariance)))
+    assert np.abs(measured - covariance).max() / scale.max() < 0.15
+
+
+def test_the_relative_translation_covariance_matches_a_monte_carlo_of_two_perturbed_poses():
+    rng = np.random.default_rng(23)
+    a = rng.normal(size=(6, 6))
+    b = rng.normal(size=(6, 6))
+    cov_i, cov_j = a @ a.T * 1e-6, b @ b.T * 1e-6
+    pose_i = (Rotation.from_rotvec([0.2, 0.5, -0.1]).as_matrix(), np.array([1.0, 2.0, 0.5]))
+    pose_j = (Rotation.from_rotvec([0.25, 0.4, 0.0]).as_matrix(), np.array([1.3, 1.8, 0.7]))
+
+    def relative(ri, ci, cj):
+        return ri.T @ (cj - ci)
+
+    exact = relative(pose_i[0], pose_i[1], pose_j[1])
+    errors = []
+    for _ in range(20000):
+        xi, xj = rng.multivariate_normal(np.zeros(6), cov_i), rng.multivariate_normal(np.zeros(6), cov_j)
+        ri = Rotation.from_rotvec(xi[3:]).as_matrix() @ pose_i[0]  # fixed (world) axes
+        errors.append(relative(ri, pose_i[1] + xi[:3], pose_j[1] + xj[:3]) - exact)
+    predicted = relative_translation_covariance(cov_i, cov_j, pose_i[1], pose_j[1])
+    measured = np.mean(np.sum(np.array(errors) ** 2, axis=1))
+    assert measured == pytest.approx(np.trace(predicted), rel=0.05)
 
 
 def test_a_far_one_sided_patch_is_ill_conditioned_and_a_spread_room_is_not():

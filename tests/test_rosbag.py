@@ -145,7 +145,18 @@ def write_session(folder, frames=20):
         model_version="deepsee-test",
     )
     pd.DataFrame(estimates).to_csv(folder / session_layout.ESTIMATES_CSV, index=False)
+    # A predicted covariance for every tracked frame but frame 7 (too few points), distinct per frame.
+    rows = [[i, times[i], *session_layout.covariance_row(_covariance(i))] for i in range(3, frames) if i != 7]
+    pd.DataFrame(rows, columns=session_layout.POSE_COVARIANCE_COLUMNS).to_csv(
+        folder / session_layout.POSE_COVARIANCE_CSV, index=False
+    )
     return times
+
+
+def _covariance(i: int) -> np.ndarray:
+    c = np.diag([1e-6 * i, 2e-6, 3e-6, 1e-5, 2e-5, 3e-5])
+    c[0, 4] = c[4, 0] = 1e-7 * i
+    return c
 
 
 @pytest.mark.system
@@ -164,6 +175,7 @@ def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
     assert types == {
         "/seesys/pose": "geometry_msgs/msg/PoseStamped",
         "/seesys/path": "nav_msgs/msg/Path",
+        "/seesys/pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
         "/seesys/ground_truth": "geometry_msgs/msg/PoseStamped",
         "/seesys/tracking_state": "std_msgs/msg/String",
         "/seesys/pose_error": "std_msgs/msg/Float64",
@@ -174,6 +186,13 @@ def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
     assert first.header.frame_id == "world"
     assert (first.pose.position.x, first.pose.position.z, first.pose.orientation.w) == pytest.approx((0.04, -0.08, 0.8))
     assert first.header.stamp.sec + first.header.stamp.nanosec * 1e-9 == pytest.approx(times[4], abs=1e-6)
+    with_covariance = read["/seesys/pose_with_covariance"]
+    assert [ns for ns, _ in with_covariance] == [
+        ns for k, (ns, _) in enumerate(poses) if k != 7 - 3
+    ]  # the poses' times
+    ninth = with_covariance[5][1]  # frame 9
+    assert ninth.pose.pose.position.x == pytest.approx(0.09) and ninth.header.frame_id == "world"
+    assert ninth.pose.covariance.reshape(6, 6) == pytest.approx(_covariance(9))
     assert [m.data for _, m in read["/seesys/tracking_state"]] == ["NOT_INITIALIZED"] * 3 + ["OK"] * 17
     assert len(read["/seesys/path"]) == 1 and len(read["/seesys/path"][0][1].poses) == 17
     assert [m.data for _, m in read["/seesys/pose_error"]] == pytest.approx([0.004, 0.008, 0.012])

@@ -11,6 +11,12 @@ label measures; the disagreement already spans them), sources are named by kind 
 statistic is the motion yardstick's (``seesys.core.motion``: the spread of the relative
 translation, m/frame, over the model window's ``rts_length`` frames).
 
+The predicted pose covariance the monitor logs (``slam_monitor.observability``) is judged as an uncertainty: each
+labelled frame gets the predicted σ of its pair's relative translation (``pair_sigma_m``, the square root of the
+trace of :func:`relative_translation_covariance` of the two frames' covariances), a channel like the others, and the
+coverage table gives the share of labels within 1σ and 2σ of it beside the share a Gaussian of that covariance
+would put there (computed per frame from its 3×3 covariance), and the median of label / σ.
+
 The report: per source and pooled, per channel, the frames it has a value on, its Spearman ρ with the label and its
 partial Spearman ρ given the motion statistic (how much of its ranking is not the motion's), and the motion
 statistic's own ρ. This is the check a channel passes before it joins the schema; the dataset report gives the same
@@ -33,7 +39,12 @@ from seesys.core.motion import translation_spread
 from seesys.core.trajectory import Poses
 from slam_monitor.monitor import MonitorInput, input_slam_features
 from slam_monitor.monitor_config import MonitorConfig
-from slam_monitor.observability import PoseObservability, frame_observability
+from slam_monitor.observability import (
+    PoseObservability,
+    frame_observability,
+    frame_pose_covariance,
+    relative_translation_covariance,
+)
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.replay import record_inputs
 from slam_monitor.second_opinion import SecondOpinion
@@ -42,7 +53,11 @@ from slam_monitor.sources import load_camera_config, open_source, parse_source_s
 
 #: The candidate channels, as the report names them: the per-frame ones, and the second opinion's over the label's span.
 PER_FRAME = tuple(PoseObservability.__dataclass_fields__)
-CHANNELS = (*PER_FRAME, "disagreement_m")
+PAIR_SIGMA = "pair_sigma_m"
+CHANNELS = (*PER_FRAME, "disagreement_m", PAIR_SIGMA)
+GAUSSIAN_WITHIN = ("gaussian_within_1sigma", "gaussian_within_2sigma")
+# Draws per frame for the share of a Gaussian within 1σ and 2σ; a fixed seed keeps a report reproducible.
+_GAUSSIAN_DRAWS = 4000
 MOTION = "motion"
 LABEL = "label_m"
 POOLED = "pooled"
@@ -56,8 +71,11 @@ def _ground_truth(source: str) -> Poses:
     return truth
 
 
-def _frame_row(item: MonitorInput, opinion: SecondOpinion, recent: deque, config: MonitorConfig) -> dict:
-    """One frame's candidate channels and motion statistic (NaN where it has none)."""
+def _frame_row(
+    item: MonitorInput, opinion: SecondOpinion, recent: deque, config: MonitorConfig, covariances: list
+) -> dict:
+    """One frame's candidate channels and motion statistic (NaN where it has none); its world-axes pose
+    covariance (or None) is appended to ``covariances``."""
     frame = item.frame
     if frame.depth is None:
         raise SeesysError(f"frame {frame.index} has no depth: the second opinion is RGB-D's")
@@ -66,6 +84,7 @@ def _frame_row(item: MonitorInput, opinion: SecondOpinion, recent: deque, config
     row: dict = {"frame_index": frame.index, "timestamp": frame.timestamp, "disagreement_m": disagreement}
     if item.pose_wc is None or item.pose_cw is None:
         recent.clear()
+        covariances.append(None)
         return row
     previous = item.prev_pose_wc
     motion = relative_motion(previous, item.pose_wc) if previous is not None else RelativeMotion.still()
@@ -75,8 +94,31 @@ def _frame_row(item: MonitorInput, opinion: SecondOpinion, recent: deque, config
         slam, k, frame.intrinsics.width, frame.intrinsics.height, frame.depth is not None, config.observability
     )
     row.update(asdict(seen))
+    covariances.append(frame_pose_covariance(slam, k, True, config.observability, item.pose_wc[:3, :3]))
     row[MOTION] = float(translation_spread(np.array(recent))) if len(recent) > 2 else None
     return row
+
+
+def _pair_covariance(covariances: list, poses: list, j: int, delta: int) -> np.ndarray | None:
+    """The 3×3 covariance of frame j's pair (j − delta, j), where both frames have one."""
+    i = j - delta
+    if i < 0 or covariances[i] is None or covariances[j] is None:
+        return None
+    return relative_translation_covariance(covariances[i], covariances[j], poses[i][:3, 3], poses[j][:3, 3])
+
+
+def _gaussian_coverage(pair: list) -> np.ndarray:
+    """(N, 2): per frame, the shares of a zero-mean Gaussian of its pair's covariance whose norm lies within 1σ and
+    2σ (σ the square root of the trace); NaN where the frame has none."""
+    draws = np.random.default_rng(0).standard_normal((_GAUSSIAN_DRAWS, 3))
+    shares = np.full((len(pair), 2), np.nan)
+    for k, c in enumerate(pair):
+        if c is not None:
+            # in the covariance's own axes: a rotation does not change a norm
+            norms = np.linalg.norm(draws * np.sqrt(np.clip(np.linalg.eigvalsh(c), 0, None)), axis=1)
+            sigma = np.sqrt(np.trace(c))
+            shares[k] = np.mean(norms <= sigma), np.mean(norms <= 2 * sigma)
+    return shares
 
 
 def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) -> pd.DataFrame:
@@ -86,7 +128,8 @@ def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) ->
     inputs = record_inputs(source, SlamMode.RGBD)
     opinion = SecondOpinion(config.second_opinion, labels.delta_frames)
     recent: deque = deque(maxlen=config.windows.rts_length)
-    rows = [_frame_row(item, opinion, recent, config) for item in inputs]
+    covariances: list = []
+    rows = [_frame_row(item, opinion, recent, config, covariances) for item in inputs]
     if not rows:
         raise SeesysError(f"{source} gave no frames")
     columns = ["frame_index", "timestamp", *CHANNELS, MOTION]
@@ -98,6 +141,9 @@ def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) ->
     states = np.array([i.state.name for i in inputs])
     table[LABEL] = label_frames(estimate, states, truth, False, labels).error_m
     table.loc[~np.array(tracked), LABEL] = np.nan
+    pair = [_pair_covariance(covariances, poses, j, labels.delta_frames) for j in range(len(inputs))]
+    table[PAIR_SIGMA] = [np.sqrt(np.trace(c)) if c is not None else np.nan for c in pair]
+    table[list(GAUSSIAN_WITHIN)] = _gaussian_coverage(pair)
     # A frame's channels over the label's pair; the disagreement already spans it.
     for channel in PER_FRAME:
         table[channel] = table[channel].rolling(labels.delta_frames, min_periods=1).mean()
@@ -129,16 +175,46 @@ def correlations(frames: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def coverage(frames: pd.DataFrame) -> pd.DataFrame:
+    """Per source and pooled: how often the label lies within 1σ and 2σ of its pair's predicted σ, what a Gaussian of
+    the predicted covariance would give (the mean over the frames), and the median of label / σ."""
+    rows = []
+    groups = [(name, group) for name, group in frames.groupby("source", sort=False)] + [(POOLED, frames)]
+    for name, group in groups:
+        d = group.dropna(subset=[PAIR_SIGMA, LABEL])
+        ratio = d[LABEL] / d[PAIR_SIGMA]
+        rows.append(
+            {
+                "source": name,
+                "n": len(d),
+                "within_1sigma": float(np.mean(ratio <= 1)) if len(d) else np.nan,
+                "gaussian_1sigma": float(d[GAUSSIAN_WITHIN[0]].mean()) if len(d) else np.nan,
+                "within_2sigma": float(np.mean(ratio <= 2)) if len(d) else np.nan,
+                "gaussian_2sigma": float(d[GAUSSIAN_WITHIN[1]].mean()) if len(d) else np.nan,
+                "median_label_over_sigma": float(ratio.median()) if len(d) else np.nan,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
 def write_candidates_report(frames: pd.DataFrame, table: pd.DataFrame, out: Path) -> list[Path]:
-    """``frames.csv``, ``correlations.csv`` and ``correlations.md`` in ``out`` (created)."""
+    """``frames.csv``, ``correlations.csv``, ``coverage.csv`` and ``correlations.md`` (both tables) in ``out``
+    (created)."""
     out.mkdir(parents=True, exist_ok=True)
-    paths = [out / "frames.csv", out / "correlations.csv", out / "correlations.md"]
+    paths = [out / "frames.csv", out / "correlations.csv", out / "coverage.csv", out / "correlations.md"]
     frames.to_csv(paths[0], index=False)
     table.to_csv(paths[1], index=False)
+    covered = coverage(frames)
+    covered.to_csv(paths[2], index=False)
     shown = table.assign(**{c: table[c].round(3) for c in ("rho", "partial_rho_given_motion", "motion_rho")})
-    paths[2].write_text(
+    paths[3].write_text(
         "# Candidate channels against the label\n\n"
         "Spearman ρ of each channel (averaged over the label's frames) with the label, and partial ρ given the motion "
-        "statistic; per source and pooled.\n\n" + shown.to_markdown(index=False) + "\n"
+        "statistic; per source and pooled.\n\n" + shown.to_markdown(index=False) + "\n\n"
+        "## The predicted covariance as an uncertainty\n\n"
+        "Share of labels within 1σ and 2σ of the pair's predicted σ (`pair_sigma_m`), beside the share a Gaussian of "
+        "the predicted covariance puts there, and the median label / σ.\n\n"
+        + covered.round(3).to_markdown(index=False)
+        + "\n"
     )
     return paths

@@ -4,10 +4,13 @@ part that reads it (docs/device.md, docs/advisory.md).
 - ``session.json``: the device's manifest; ``frames.csv``: one row per frame given to SLAM (:data:`FRAMES_HEADER`);
   ``trajectory.tum`` / ``groundtruth.tum``: estimated and true poses; ``orbslam3.yaml`` / ``orbslam3.log``: the
   SLAM settings and console;
+- ``pose_covariance.csv``: each tracked frame's predicted pose covariance (:data:`POSE_COVARIANCE_COLUMNS`);
 - ``estimates.csv``: the estimates the device received, with where their time went (:data:`ESTIMATE_COLUMNS`);
 - ``advisory.csv``, ``playback.csv``, ``advisory_events.csv``: the advisory's generated buffers, played buffers and
   events.
 """
+
+import numpy as np
 
 MANIFEST = "session.json"
 FRAMES_CSV = "frames.csv"
@@ -16,6 +19,28 @@ GROUND_TRUTH = "groundtruth.tum"
 SETTINGS = "orbslam3.yaml"
 SLAM_LOG = "orbslam3.log"
 FRAMES_HEADER = "frame_index,timestamp,state,tracked_points,track_ms"
+
+POSE_COVARIANCE_CSV = "pose_covariance.csv"
+# The upper triangle, row by row, of the 6×6 covariance in ROS's order: position x, y, z (m), then rotation about
+# the world's fixed x, y, z axes (rad); cov_ij is row i, column j.
+COVARIANCE_INDICES = tuple(zip(*np.triu_indices(6)))
+POSE_COVARIANCE_COLUMNS = ("frame_index", "timestamp", *(f"cov_{i}{j}" for i, j in COVARIANCE_INDICES))
+
+
+def covariance_row(covariance: np.ndarray) -> list[float]:
+    """A 6×6 covariance's upper triangle as :data:`POSE_COVARIANCE_COLUMNS` stores it."""
+    return [float(covariance[i, j]) for i, j in COVARIANCE_INDICES]
+
+
+def covariance_matrices(rows: np.ndarray) -> np.ndarray:
+    """(N, 21) upper triangles → (N, 6, 6) symmetric covariances."""
+    rows = np.asarray(rows, np.float64).reshape(-1, len(COVARIANCE_INDICES))
+    matrices = np.zeros((len(rows), 6, 6))
+    upper = np.triu_indices(6)
+    matrices[:, upper[0], upper[1]] = rows
+    matrices[:, upper[1], upper[0]] = rows
+    return matrices
+
 
 ESTIMATES_CSV = "estimates.csv"
 ESTIMATE_COLUMNS = (

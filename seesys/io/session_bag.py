@@ -6,6 +6,9 @@ frame ids and storage come from ``configs/export.toml``:
 
 - poses (``trajectory.tum``): ``geometry_msgs/PoseStamped`` per tracked frame and one ``nav_msgs/Path`` of them all,
   logged at the last pose's time;
+- poses with their predicted covariance (``pose_covariance.csv``, when present):
+  ``geometry_msgs/PoseWithCovarianceStamped`` for each tracked frame that has both, matched by time; the
+  covariance is the monitor's (``slam_monitor.observability``), row-major 6×6 in ROS's order and the world's axes;
 - ground truth (``groundtruth.tum``, when present): ``geometry_msgs/PoseStamped``;
 - tracking states (``frames.csv``): ``std_msgs/String`` with the state's name (``OK``, ``LOST``, ...) per frame;
   a String because ROS has no standard message for a SLAM tracking state, and a name reads the same in every tool;
@@ -23,6 +26,7 @@ import pandas as pd
 
 from seesys.core import session_layout
 from seesys.core.errors import SeesysError
+from seesys.core.session_layout import POSE_COVARIANCE_COLUMNS, covariance_matrices
 from seesys.core.trajectory import Poses
 from seesys.io.config import load_section
 from seesys.io.trajectory_files import read_tum
@@ -40,6 +44,7 @@ class ExportSettings:
     export_camera_frame: str
     export_pose_topic: str
     export_path_topic: str
+    export_pose_covariance_topic: str
     export_ground_truth_topic: str
     export_tracking_state_topic: str
     export_pose_error_topic: str
@@ -73,19 +78,33 @@ class _Messages:
         )
         return self.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
 
-    def poses(self, poses: Poses) -> list:
+    def pose(self, p: np.ndarray, q: np.ndarray):
         types = self.types
+        return types["geometry_msgs/msg/Pose"](
+            position=types["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
+            orientation=types["geometry_msgs/msg/Quaternion"](
+                x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
+            ),
+        )
+
+    def poses(self, poses: Poses) -> list:
         return [
-            types["geometry_msgs/msg/PoseStamped"](
-                header=self.header(float(t), self.settings.export_world_frame),
-                pose=types["geometry_msgs/msg/Pose"](
-                    position=types["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                    orientation=types["geometry_msgs/msg/Quaternion"](
-                        x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
-                    ),
-                ),
+            self.types["geometry_msgs/msg/PoseStamped"](
+                header=self.header(float(t), self.settings.export_world_frame), pose=self.pose(p, q)
             )
             for t, p, q in zip(poses.timestamps, poses.positions, poses.quaternions_xyzw)
+        ]
+
+    def poses_with_covariance(self, poses: Poses, covariances: np.ndarray) -> list:
+        types = self.types
+        return [
+            types["geometry_msgs/msg/PoseWithCovarianceStamped"](
+                header=self.header(float(t), self.settings.export_world_frame),
+                pose=types["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=self.pose(p, q), covariance=np.ascontiguousarray(c, np.float64).ravel()
+                ),
+            )
+            for t, p, q, c in zip(poses.timestamps, poses.positions, poses.quaternions_xyzw, covariances)
         ]
 
 
@@ -98,6 +117,21 @@ def _read_csv(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     if missing:
         raise SeesysError(f"{path} has no column(s) {', '.join(missing)}")
     return table
+
+
+# Poses and covariance rows of one frame: the same frame time, written with different precisions.
+_SAME_FRAME_S = 1e-4
+
+
+def _covariance_poses(poses: Poses, table: pd.DataFrame) -> tuple[Poses, np.ndarray]:
+    """The poses that have a covariance row at their time (evo's time association), and those covariances."""
+    from evo.core import sync
+
+    pose_index, row_index = sync.matching_time_indices(
+        poses.timestamps, table.timestamp.to_numpy(float), max_diff=_SAME_FRAME_S
+    )
+    rows = table.loc[:, list(POSE_COVARIANCE_COLUMNS[2:])].to_numpy(float)[row_index]
+    return poses.take(np.asarray(pose_index, int)), covariance_matrices(rows)
 
 
 def export_session_bag(session: Path, out: Path, settings: ExportSettings) -> dict[str, int]:
@@ -120,6 +154,12 @@ def export_session_bag(session: Path, out: Path, settings: ExportSettings) -> di
     truth = read_tum(truth_file) if truth_file.is_file() else None
     estimates_file = session / session_layout.ESTIMATES_CSV
     estimates = _read_csv(estimates_file, ("timestamp", "error_m")) if estimates_file.is_file() else None
+    covariance_file = session / session_layout.POSE_COVARIANCE_CSV
+    covariances = (
+        _read_csv(covariance_file, session_layout.POSE_COVARIANCE_COLUMNS).sort_values("timestamp")
+        if covariance_file.is_file()
+        else None
+    )
 
     store = get_typestore(Stores.LATEST)
     build = _Messages(store, settings)
@@ -133,6 +173,12 @@ def export_session_bag(session: Path, out: Path, settings: ExportSettings) -> di
             header=build.header(float(poses.timestamps[-1]), settings.export_world_frame), poses=pose_messages
         )
         topics[settings.export_path_topic] = (path_type, [(_ns(poses.timestamps[-1]), path)])
+    if covariances is not None:
+        with_covariance, matrices = _covariance_poses(poses, covariances)
+        topics[settings.export_pose_covariance_topic] = (
+            "geometry_msgs/msg/PoseWithCovarianceStamped",
+            list(zip(map(_ns, with_covariance.timestamps), build.poses_with_covariance(with_covariance, matrices))),
+        )
     if truth is not None:
         topics[settings.export_ground_truth_topic] = (
             pose_type,
