@@ -34,6 +34,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import zmq
 
 from seesys.core import messages
@@ -53,7 +54,11 @@ class EstimateRecord:
     estimate (the audio advisory applies Equation 2 to a 0.33 s moving mean instead); ``frame_index`` and
     ``timestamp``: the device's frame it estimates (the device's clock); ``model_version``: the model that made it;
     ``server_ms``: its time in the service; ``received``: :func:`time.monotonic` when it arrived here;
-    ``stream_session``: the device's stream session the estimated frame belongs to.
+    ``stream_session``: the device's stream session the estimated frame belongs to; ``translation_covariance``:
+    the estimated frame's predicted translation covariance (3×3, m², the world's axes, float16's three significant
+    digits; None when the device's monitor predicted none), the Cramér–Rao bound of its pose fit, which leaves out
+    the map's own error: on renders about two times too small in σ (docs/rts-features.md), to be inflated before an
+    application fuses it.
     """
 
     device_id: str
@@ -65,6 +70,7 @@ class EstimateRecord:
     server_ms: float
     received: float
     stream_session: int = 0
+    translation_covariance: np.ndarray | None = None
 
     @property
     def age_s(self) -> float:
@@ -135,6 +141,7 @@ class EstimateClient:
             estimate.server_ms,
             time.monotonic(),
             estimate.stream_session,
+            estimate.translation_covariance,
         )
 
     def __iter__(self) -> Iterator[EstimateRecord]:

@@ -202,6 +202,7 @@ class FeatureExtractor:
             item.frames_skipped,
             stream_session=self.stream_session,
             settings=self.settings,
+            translation_covariance=covariance[:3, :3] if covariance is not None else None,
         )
         return features, covariance
 

@@ -229,9 +229,11 @@ def frame_pose_covariance(
     slam: SlamFeatures, camera_matrix: np.ndarray, depth_measured: bool, noise: NoiseModel, rotation_wc: np.ndarray
 ) -> np.ndarray | None:
     """The world-axes 6×6 pose covariance of a tracked frame (:func:`pose_covariance_world` of its pairing's
-    information); None with fewer than three paired points or a singular information matrix."""
+    information); None with fewer than three paired points or a singular (or numerically useless) information
+    matrix."""
     points = slam.paired_points_c
     if len(points) < _MIN_POINTS:
         return None
     information = pose_information(points, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured)
-    return pose_covariance_world(information, rotation_wc)
+    covariance = pose_covariance_world(information, rotation_wc)
+    return covariance if covariance is not None and np.isfinite(covariance).all() else None

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from testkit.polling import wait_for
 from testkit.sample import SAMPLE, run_seesys
@@ -43,8 +44,10 @@ def test_the_client_yields_typed_records_with_equation2_classes_and_skips_what_i
             pub.send_multipart([messages.topic(messages.ESTIMATE_TOPIC, DEVICE), b"garbage"])
             pub.send_multipart(messages.encode(Estimate("other-device", 5, 10.1, 0.5, "m1", 2.0, 5)))
             pub.send_multipart(messages.encode(Estimate(DEVICE, 6, 10.1, 0.5, "m1", 2.0, 6)))  # another stream session
-            pub.send_multipart(messages.encode(Estimate(DEVICE, 7, 10.2, 0.009, "m1", 3.5, 5)))
+            covariance = np.diag([4e-6, 1e-6, 9e-6])
+            pub.send_multipart(messages.encode(Estimate(DEVICE, 7, 10.2, 0.009, "m1", 3.5, 5, (), covariance)))
             record = client.receive(60)
+            np.testing.assert_allclose(record.translation_covariance, covariance, rtol=1e-3)
             assert (record.device_id, record.frame_index, record.timestamp, record.error_m) == (DEVICE, 7, 10.2, 0.009)
             assert (record.error_class, record.model_version, record.server_ms) == (2, "m1", 3.5)  # 250/m * 9 mm
             assert record.stream_session == 5 and client.foreign == 1

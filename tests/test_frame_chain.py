@@ -1,7 +1,7 @@
 """One per-frame chain: a simulated session's feature stream, served by the estimator service process over ZeroMQ
 (its worker's window step), gives the very estimates the simulated study's loop made in-process with the same window
-step, and those estimates, through the advice step the live generator runs, give the session's advisory log buffer
-for buffer."""
+step, each with its frame's predicted translation covariance, and those estimates, through the advice step the
+live generator runs, give the session's advisory log buffer for buffer."""
 
 from __future__ import annotations
 
@@ -51,6 +51,11 @@ def test_the_service_and_the_simulated_loop_run_one_chain_from_features_to_pulse
     by_frame = {e.frame_index: e for e in served}
     assert sorted(by_frame) == made.frame_index.tolist()
     np.testing.assert_allclose([by_frame[i].error_m for i in made.frame_index], made.error_m, rtol=1e-5)
+    # each estimate carries its frame's predicted translation covariance (pose_covariance.csv), at the wire's resolution
+    logged = {f.frame_index: f.translation_covariance for f in frames}
+    for i in made.frame_index:
+        assert logged[i] is not None
+        np.testing.assert_array_equal(by_frame[i].translation_covariance, messages.covariance_resolution(logged[i]))
 
     # The served estimates, arriving when the loop's did, through the generator's advice step: the session's buffers.
     advisory_cfg = load_advisory_config()

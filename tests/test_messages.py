@@ -104,12 +104,12 @@ def test_frames_of_another_rts_schema_are_refused_by_name():
     )
 
 
-@pytest.mark.parametrize("version", [1, 2, 3, 5])
+@pytest.mark.parametrize("version", [1, 2, 3, 5, 6])
 @pytest.mark.parametrize("kind", ["feature", "estimate"])
 def test_a_message_of_an_earlier_protocol_version_is_refused(version, kind):
     """Version 2 had no stream session and no device settings, version 3 no head probabilities in an estimate,
-    version 5 a device id in a feature frame's body and its RTS row in float32: refused naming both versions, never
-    misread."""
+    version 5 a device id in a feature frame's body and its RTS row in float32, version 6 no covariance: refused
+    naming both versions, never misread."""
     topic, body = encode(feature() if kind == "feature" else Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1"))
     old = body[:4] + bytes([version]) + body[5:]
     with pytest.raises(
@@ -282,3 +282,33 @@ def test_a_head_that_cannot_be_read_is_refused(head, problem):
     msg = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", head=tuple(Exceedance(*e) for e in head))
     with pytest.raises(MessageError, match=problem):
         decode(encode(msg))
+
+
+def _covariance(scale: float) -> np.ndarray:
+    a = np.array([[1.0, 0.2, -0.1], [0.0, 0.8, 0.3], [0.0, 0.0, 0.5]])
+    return a @ a.T * scale
+
+
+@pytest.mark.parametrize("scale", [1e-8, 1e-5, 1.0])  # σ of 0.1 mm, 3 mm and 1 m: float16 in mm² up to ~0.25 m
+def test_a_translation_covariance_travels_with_the_frame_and_its_estimate_at_the_wires_resolution(scale):
+    covariance = _covariance(scale)
+    frame = dataclasses.replace(feature(), translation_covariance=covariance)
+    estimate = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", translation_covariance=covariance)
+    for message in (frame, estimate):
+        out = decode(encode(message)).translation_covariance
+        assert out is not None and np.array_equal(out, out.T)
+        np.testing.assert_array_equal(out, messages.covariance_resolution(covariance))
+        np.testing.assert_allclose(out, covariance, rtol=1e-3, atol=1e-3 * scale)
+    small, large = (len(encode(dataclasses.replace(frame, translation_covariance=c))[1]) for c in (None, covariance))
+    assert large - small == (12 if scale < 1 else 24)  # six float16 (float32 beyond float16's range)
+    assert decode(encode(feature())).translation_covariance is None
+
+
+def test_a_covariance_that_cannot_be_one_is_refused():
+    topic, body = encode(dataclasses.replace(feature(), translation_covariance=_covariance(1e-6)))
+    start = body.index(bytes([2]) + messages._covariance_values(_covariance(1e-6)).astype("<f2").tobytes())
+    negative = np.array([-1, 0, 0, 1, 0, 1], "<f2").tobytes()
+    with pytest.raises(MessageError, match="non-negative diagonal"):
+        decode([topic, body[: start + 1] + negative + body[start + 13 :]])
+    with pytest.raises(MessageError, match="covariance values of 3 bytes"):
+        decode([topic, body[:start] + bytes([3]) + body[start + 1 :]])

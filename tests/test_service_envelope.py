@@ -34,6 +34,7 @@ def _frame(with_psd: bool, with_settings: bool) -> FeatureFrame:
         rts_schema_fingerprint=0xABCDEF12,
         stream_session=0xFEEDFACE12345678,
         settings=settings,
+        translation_covariance=np.array([[4e-6, 1e-7, 0], [1e-7, 2e-6, -3e-7], [0, -3e-7, 9e-6]]) if with_psd else None,
     )
 
 

@@ -37,7 +37,9 @@ _META = struct.Struct("<dqQ")
 # token, age (ms), then the frame's stream session, frame index, timestamp, tracking state, frames skipped, RTS schema
 # version and fingerprint, and the lengths of what follows: device id (bytes), settings (bytes), RTS row (values),
 # PSD (H, W, L; 0 × 0 × 0 without one)
-_FRAME_HEAD = struct.Struct("<ddQqdbIHIHBHHHH")
+_FRAME_HEAD = struct.Struct("<ddQqdbIHIHBHHHHB")
+_COVARIANCE = struct.Struct("<6d")  # the translation covariance's upper triangle, m²
+_UPPER = np.triu_indices(3)
 # fps, ORB features, PSD patch, PSD expansion, near depth, camera normalisation; then the SLAM mode (utf-8)
 _SETTINGS = struct.Struct("<HHHHdH")
 
@@ -58,6 +60,8 @@ def pack_frame(token: float, age_ms: float, frame: FeatureFrame) -> bytes:
     rts = np.ascontiguousarray(frame.rts, dtype="<f4")
     psd = np.ascontiguousarray(frame.psd, dtype=np.uint8) if frame.psd is not None else None
     shape = psd.shape if psd is not None else (0, 0, 0)
+    c = frame.translation_covariance
+    covariance = _COVARIANCE.pack(*np.asarray(c, np.float64)[_UPPER]) if c is not None else b""
     head = _FRAME_HEAD.pack(
         token,
         age_ms,
@@ -72,8 +76,9 @@ def pack_frame(token: float, age_ms: float, frame: FeatureFrame) -> bytes:
         len(settings),
         rts.size,
         *shape,
+        c is not None,
     )
-    return b"".join([head, device, settings, rts.data, psd.data if psd is not None else b""])
+    return b"".join([head, device, settings, rts.data, covariance, psd.data if psd is not None else b""])
 
 
 def unpack_frames(parts: list[bytes]) -> Iterator[tuple[float, float, FeatureFrame]]:
@@ -100,6 +105,7 @@ def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
         h,
         w,
         layers,
+        has_covariance,
     ) = _FRAME_HEAD.unpack_from(data)
     at = _FRAME_HEAD.size
     device = data[at : at + device_bytes].decode()
@@ -108,12 +114,29 @@ def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
     at += settings_bytes
     rts = np.frombuffer(data, "<f4", rts_values, at)
     at += 4 * rts_values
+    covariance = None
+    if has_covariance:
+        covariance = np.zeros((3, 3))
+        covariance[_UPPER] = _COVARIANCE.unpack_from(data, at)
+        covariance += np.triu(covariance, 1).T
+        at += _COVARIANCE.size
     psd = np.frombuffer(data, np.uint8, h * w * layers, at).reshape(h, w, layers) if h else None
     return (
         token,
         age_ms,
         FeatureFrame(
-            device, index, timestamp, TrackingState(state), rts, psd, skipped, version, fingerprint, session, settings
+            device,
+            index,
+            timestamp,
+            TrackingState(state),
+            rts,
+            psd,
+            skipped,
+            version,
+            fingerprint,
+            session,
+            settings,
+            covariance,
         ),
     )
 

@@ -127,6 +127,7 @@ class _Ready:
     unpack_ms: float
     assemble_ms: float
     formed: float  # perf_counter: the window was formed
+    covariance: np.ndarray | None  # the window's last frame's predicted translation covariance, for its estimate
 
 
 class Worker:
@@ -268,6 +269,7 @@ class Worker:
             (unpacked - arrived) * 1000.0,
             (formed - unpacked) * 1000.0,
             formed,
+            frame.translation_covariance,
         )
 
     def _serve_batch(self) -> None:
@@ -313,6 +315,7 @@ class Worker:
                 (sent - ready.received) * 1000.0,
                 ready.stream_session,
                 estimates.head(i),
+                ready.covariance,
             )
             encoded.append((ready, messages.encode(estimate)))
         # The stages end where the message leaves: every estimate of the batch carries the batch's encoding time.

@@ -14,7 +14,8 @@ frame's device id is its topic's: the device's most frequent message does not ca
   i8 tracking state | u16 C | u8 B + C × B-byte float RTS row | u8 has_settings`` and, when has_settings, the
   device's settings (:class:`~seesys.core.device_settings.DeviceSettings`: ``u8 SLAM mode | u16 fps |
   u16 ORB features | u16 PSD patch px | u16 PSD expansion | f64 near depth | u16 camera normalisation version``),
-  then ``u8 has_psd`` and, when has_psd, the PSD as :func:`pack_stream_psd` writes it. The row travels as float16
+  then the frame's predicted translation covariance (below), then ``u8 has_psd`` and, when has_psd, the PSD as
+  :func:`pack_stream_psd` writes it. The row travels as float16
   (B = 2) when every value is one (the monitor rounds its values to :func:`stream_resolution`), else as float32
   (B = 4): either way a receiver gets exactly the values sent. "Frames skipped" is the device's running count of
   frames it tracked but did not publish (its monitor fell behind): a receiver that sees a gap in frame indices can
@@ -23,7 +24,13 @@ frame's device id is its topic's: the device's most frequent message does not ca
   ``f32 threshold (m) | f32 probability``: the model's ordinal head, P(error ≥ threshold) for each of its thresholds
   in increasing order (:class:`Exceedance`; K = 0 from a model without a head). Each probability travels with its
   threshold, so a receiver knows what it is for without loading the model (8 bytes per threshold, 24 for
-  Equation 2's three classes), and a model of other thresholds is told apart from Equation 2's at once.
+  Equation 2's three classes), and a model of other thresholds is told apart from Equation 2's at once. Then the
+  estimated frame's predicted translation covariance, as its feature frame carried it.
+
+A *translation covariance* (3×3, m², the world's axes: the device monitor's Cramér–Rao bound of the frame's pose,
+``slam_monitor.observability``) travels as ``u8 B`` (0: none) and, for B = 2 or 4, its upper triangle (xx, xy, xz,
+yy, yz, zz) in mm² as six B-byte floats: float16 (three significant digits, :func:`covariance_resolution`) when
+every value is within float16's range, else float32. 13 bytes a frame.
 
 The *stream session* is a random number a device draws when it starts streaming and carries in every frame: the
 service binds a device id to the stream session that used it first (ZeroMQ tells a subscriber nothing of its
@@ -52,7 +59,8 @@ from seesys.core.tracking_state import TrackingState
 
 # 4: estimates carry the ordinal head's thresholds and probabilities (3 had none). 6: a feature frame's device id
 # only in its topic, its RTS row as float16 where it can be, its PSD in the stream's own code (5: the log's code).
-PROTOCOL_VERSION = 6
+# 7: feature frames and estimates carry the frame's predicted translation covariance.
+PROTOCOL_VERSION = 7
 MAGIC = b"SEES"
 #: Topic prefixes of the two kinds; subscribe to one alone to receive every device's messages of that kind.
 FEATURE_TOPIC = b"F/"
@@ -94,6 +102,7 @@ class FeatureFrame:
     rts_schema_fingerprint: int = rts_schema.FINGERPRINT
     stream_session: int = 0
     settings: DeviceSettings | None = None  # None: the device states none (the service refuses such frames)
+    translation_covariance: np.ndarray | None = None  # 3×3, m², world axes; None: the monitor predicted none
 
 
 @dataclass(frozen=True)
@@ -118,6 +127,7 @@ class Estimate:
     server_ms: float = math.nan
     stream_session: int = 0  # the stream session of the frames it was made from
     head: tuple[Exceedance, ...] = ()
+    translation_covariance: np.ndarray | None = None  # the estimated frame's, as its feature frame carried it
 
 
 def topic(kind: bytes, device_id: str) -> bytes:
@@ -154,6 +164,7 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
             ),
             _pack_row(rts),
             _pack_settings(message.settings),
+            _pack_covariance(message.translation_covariance),
         ]
         if message.psd is None:
             parts.append(b"\x00")
@@ -169,6 +180,7 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
                 _ESTIMATE.pack(float(message.error_m), float(message.server_ms)),
                 _pack_text(message.model_version, "model version"),
                 _pack_head(message.head),
+                _pack_covariance(message.translation_covariance),
             ]
         )
         return [topic(ESTIMATE_TOPIC, message.device_id), body]
@@ -199,6 +211,56 @@ def _read_row(r: _Reader, n_channels: int) -> np.ndarray:
     if dtype is None:
         raise MessageError(f"RTS values of {width} bytes are not a float16 or float32 row")
     return np.frombuffer(r.take(width * n_channels, "RTS row"), dtype=dtype).astype(np.float32)
+
+
+_COVARIANCE_UPPER = np.triu_indices(3)
+_MM2_PER_M2 = 1e6
+
+
+def _covariance_values(covariance: np.ndarray) -> np.ndarray:
+    c = np.asarray(covariance, dtype=np.float64)
+    if c.shape != (3, 3):
+        raise ValueError(f"a translation covariance is 3×3, got {c.shape}")
+    return (c[_COVARIANCE_UPPER] * _MM2_PER_M2).astype(np.float32)
+
+
+def _covariance_matrix(values_mm2: np.ndarray) -> np.ndarray:
+    c = np.zeros((3, 3))
+    c[_COVARIANCE_UPPER] = np.asarray(values_mm2, np.float64) / _MM2_PER_M2
+    return c + np.triu(c, 1).T
+
+
+def covariance_resolution(covariance: np.ndarray) -> np.ndarray:
+    """The 3×3 translation covariance ``covariance`` (m²) as a receiver decodes it (see the module docstring)."""
+    values = _covariance_values(covariance)
+    with np.errstate(over="ignore"):
+        half = values.astype("<f2")
+    return _covariance_matrix(half if np.isfinite(half).all() else values)
+
+
+def _pack_covariance(covariance: np.ndarray | None) -> bytes:
+    if covariance is None:
+        return b"\x00"
+    values = _covariance_values(covariance)
+    with np.errstate(over="ignore"):
+        half = values.astype("<f2")
+    if np.isfinite(half).all():
+        return b"\x02" + half.tobytes()
+    return b"\x04" + values.astype("<f4").tobytes()
+
+
+def _read_covariance(r: _Reader) -> np.ndarray | None:
+    (width,) = r.take(1, "covariance width")
+    if width == 0:
+        return None
+    dtype = _ROW_TYPES.get(width)
+    if dtype is None:
+        raise MessageError(f"covariance values of {width} bytes are not float16 or float32")
+    values = np.frombuffer(r.take(6 * width, "translation covariance"), dtype=dtype)
+    covariance = _covariance_matrix(values)
+    if not np.isfinite(covariance).all() or (np.diag(covariance) < 0).any():
+        raise MessageError(f"a translation covariance must be finite with a non-negative diagonal, got {values}")
+    return covariance
 
 
 def _pack_head(head: tuple[Exceedance, ...]) -> bytes:
@@ -304,10 +366,13 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     error_m, server_ms = r.unpack(_ESTIMATE, "estimate")
     model_version = r.text("model version")
     head = _read_head(r)
+    covariance = _read_covariance(r)
     r.finish()
     if not math.isfinite(error_m) or error_m < 0:
         raise MessageError(f"estimated error must be a finite non-negative number of metres, got {error_m}")
-    return Estimate(device_id, frame_index, timestamp, error_m, model_version, server_ms, stream_session, head)
+    return Estimate(
+        device_id, frame_index, timestamp, error_m, model_version, server_ms, stream_session, head, covariance
+    )
 
 
 def _topic_device(received_topic: bytes, kind: bytes) -> str:
@@ -533,6 +598,7 @@ def _decode_feature(
         )
     rts = _read_row(r, n_channels)
     settings = _read_settings(r)
+    covariance = _read_covariance(r)
     (has_psd,) = r.take(1, "PSD flag")
     psd = None
     if has_psd == 1:
@@ -552,4 +618,5 @@ def _decode_feature(
         schema_fingerprint,
         stream_session,
         settings,
+        covariance,
     )

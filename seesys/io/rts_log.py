@@ -29,7 +29,7 @@ from typing import BinaryIO
 import numpy as np
 import pandas as pd
 
-from seesys.core import rts_schema
+from seesys.core import rts_schema, session_layout
 from seesys.core.device_settings import DeviceSettings
 from seesys.core.errors import SeesysError
 from seesys.core.messages import FeatureFrame, MessageError, pack_psd, unpack_psd
@@ -193,8 +193,10 @@ def read_rts_csv(session: Path) -> pd.DataFrame:
 
 def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]:
     """The session's monitor logs as :class:`FeatureFrame` records in frame order, PSD attached where logged
-    (for :func:`seesys.core.windows.assemble_windows`), with the device settings ``rts.json`` records."""
+    (for :func:`seesys.core.windows.assemble_windows`), with the device settings ``rts.json`` records and, where
+    the session has ``pose_covariance.csv``, each frame's predicted translation covariance (its block of the 6×6)."""
     psds = {r.frame_index: r.psd for r in read_psd_log(session)}
+    covariances = _translation_covariances(session)
     table = read_rts_csv(session)
     settings = table.attrs["device_settings"]
     rts = table[list(rts_schema.CHANNEL_NAMES)].to_numpy(dtype=np.float32)
@@ -206,5 +208,25 @@ def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]
         except KeyError:
             raise MonitorLogError(f"{session}/{RTS_CSV}: unknown tracking state {state!r} at frame {index}") from None
         yield FeatureFrame(
-            device_id, int(index), float(timestamp), tracking_state, rts[k], psds.get(int(index)), settings=settings
+            device_id,
+            int(index),
+            float(timestamp),
+            tracking_state,
+            rts[k],
+            psds.get(int(index)),
+            settings=settings,
+            translation_covariance=covariances.get(int(index)),
         )
+
+
+def _translation_covariances(session: Path) -> dict[int, np.ndarray]:
+    """frame index → 3×3 translation covariance from the session's ``pose_covariance.csv`` (empty without one)."""
+    path = session / session_layout.POSE_COVARIANCE_CSV
+    if not path.is_file():
+        return {}
+    try:
+        table = pd.read_csv(path)
+        matrices = session_layout.covariance_matrices(table[list(session_layout.POSE_COVARIANCE_COLUMNS[2:])])
+    except (OSError, KeyError, ValueError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
+        raise MonitorLogError(f"{path}: {e}") from None
+    return {int(i): m[:3, :3] for i, m in zip(table.frame_index, matrices)}
