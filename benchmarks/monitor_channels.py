@@ -7,9 +7,9 @@ inlier keypoints) are prepared once, so that each row below times only its own w
 frame ``--repeats`` times and reports the median pass's mean thread CPU ms per frame (``time.thread_time``: not
 inflated by waiting for a core on a loaded machine). Rows marked "per PSD frame" run only on the frames that end a
 model window (every ``end_stride``-th, as on a device); their "per frame" figure is amortised over all frames.
-"monitor thread, whole" is the monitor thread's own work per frame: features, PSD, the stream message's encoding
-and both logs (``RtsMonitor._process`` without the socket send). Last, the feature stream's size: wire bytes per
-message with and without a PSD, and kbit/s at 30 Hz.
+"monitor thread, whole" is the monitor thread's own work per frame: its step (``MonitorStep``: features, PSD, the
+pose covariance and every log) and the stream message's encoding, without the socket send. Last, the feature
+stream's size: wire bytes per message with and without a PSD, and kbit/s at 30 Hz.
 
     .venv/bin/python benchmarks/monitor_channels.py [--source tum:data/sample] [--mode rgbd] [--repeats 5]
 """
@@ -32,7 +32,6 @@ from seesys.core import messages
 from seesys.core.camera_normalisation import CameraNormalisation
 from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_device_settings
-from seesys.io.rts_log import PSD_DIR, RTS_CSV, PsdLogWriter, RtsCsvWriter
 from slam_monitor.depth_features import (
     RegistrationFit,
     edge_crossings,
@@ -48,8 +47,9 @@ from slam_monitor.image_features import (
     reference_scale,
 )
 from slam_monitor.local_map import LocalMap
-from slam_monitor.monitor import FeatureExtractor, MonitorInput, input_slam_features
+from slam_monitor.monitor import FeatureExtractor, MonitorInput, MonitorStep, input_slam_features
 from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
+from slam_monitor.observability import frame_pose_covariance
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.replay import record_inputs
 from slam_monitor.slam_features import (
@@ -154,21 +154,17 @@ def _whole_monitor(config: MonitorConfig, with_logs: bool) -> Callable[[Sequence
     settings = load_device_settings(SlamMode.RGBD.value, 30.0)
 
     def run(frames: Sequence[Prepared]) -> None:
-        extractor = FeatureExtractor(config, 1, settings)
-        with tempfile.TemporaryDirectory() as tmp:
-            rts_log = RtsCsvWriter(Path(tmp) / RTS_CSV, settings) if with_logs else None
-            psd_log = PsdLogWriter(Path(tmp) / PSD_DIR, config.log.psd_chunk_records) if with_logs else None
+        if not with_logs:
+            extractor = FeatureExtractor(config, 1, settings)
             for p in frames:
-                features = extractor.extract(p.item)
-                if not with_logs:
-                    continue
-                messages.encode(features)
-                rts_log.write(features)
-                if features.psd is not None:
-                    psd_log.write(features.frame_index, features.timestamp, features.psd)
-            if with_logs:
-                rts_log.close()
-                psd_log.close()
+                extractor.extract_with_covariance(p.item)
+            return
+        # the device's own step: features, PSD, covariance and every log, then the stream message's encoding
+        with tempfile.TemporaryDirectory() as tmp:
+            step = MonitorStep(config, Path(tmp), None, 1, settings)
+            for p in frames:
+                messages.encode(step.step(p.item))
+            step.close_logs()
 
     return run
 
@@ -221,6 +217,22 @@ def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> 
             False,
         ),
         "depth_registration": (_registration_pass(config), False),
+        "pose covariance (information matrix, inverse, world axes)": (
+            _each(
+                lambda p: (
+                    frame_pose_covariance(
+                        p.slam,
+                        p.item.frame.intrinsics.matrix(),
+                        p.item.frame.depth is not None,
+                        config.observability,
+                        p.item.pose_wc[:3, :3],
+                    )
+                    if p.slam is not None and p.item.pose_wc is not None
+                    else None
+                )
+            ),
+            False,
+        ),
         "PSD matrix": (_each(lambda p: extractor._psd(p.item, p.slam, p.normalisation, p.reference_gray)), True),
         "FeatureFrame encoding (stream)": (_each(lambda p: messages.encode(encoded[p.item.frame.index])), False),
     }
