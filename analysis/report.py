@@ -10,7 +10,8 @@ Writes into the output folder (default ``STUDY/analysis``):
 - ``changes.csv``: the relative change of the means of ``changes_of`` (analysis.toml) against every other
   condition, with bootstrap CIs;
 - ``oracle_share.csv``: where the study has the ``yoked``, ``seesys`` and ``oracle`` arms, the share of the oracle's
-  gain that SEESys reaches on each error variable, (yoked − seesys) / (yoked − oracle), with a bootstrap CI;
+  gain that SEESys reaches on each error variable, (yoked − seesys) / (yoked − oracle), with a bootstrap CI, and
+  the oracle's own change against yoked with its CI (the share means something only where the oracle gains);
 - ``figures/*.png`` and ``report.md`` / ``report.html`` (the same report; the HTML embeds nothing, it links the
   figures).
 """
@@ -275,6 +276,8 @@ def _shares_section(shares: pd.DataFrame, comparisons: list[Comparison], cfg: An
                 "yoked": fmt(r.yoked_mean, 3),
                 "seesys": fmt(r.seesys_mean, 3),
                 "oracle": fmt(r.oracle_mean, 3),
+                f"oracle vs yoked [{cfg.confidence:.0%} CI]": f"{fmt(100 * r.oracle_vs_yoked, 1)} % "
+                f"[{fmt(100 * r.oracle_ci_low, 1)}, {fmt(100 * r.oracle_ci_high, 1)}]",
                 f"share of the oracle's gain [{cfg.confidence:.0%} CI]": f"{fmt(100 * r.share_of_oracle_gain, 1)} % "
                 f"[{fmt(100 * r.ci_low, 1)}, {fmt(100 * r.ci_high, 1)}]",
                 "n": r.n,
@@ -286,6 +289,8 @@ def _shares_section(shares: pd.DataFrame, comparisons: list[Comparison], cfg: An
         "(mean of yoked − mean of seesys) / (mean of yoked − mean of oracle), lower error being better: 0 % is no "
         "better than the same sound without information, 100 % as good as Equation 2 on the true error. "
         f"Means in the reported units; {cfg.confidence:.0%} percentile bootstrap CI over participants. "
+        "The share means something only where the oracle gains over yoked (its change's interval below 0): where "
+        "the oracle's gain is near 0 the ratio, and its interval, are a division by almost nothing. "
         "Tidy table: oracle_share.csv.",
         "",
         pd.DataFrame(rows).to_markdown(index=False),

@@ -537,7 +537,10 @@ def _gain_share(yoked: np.ndarray, judged: np.ndarray, oracle: np.ndarray, axis:
 def oracle_share(table: pd.DataFrame, variable: Variable, design: str, cfg: AnalysisConfig) -> dict | None:
     """The share of the oracle's gain over the yoked arm that SEESys reaches, (yoked − seesys) / (yoked − oracle),
     on ``variable`` (lower is better), with a percentile bootstrap CI: participants resampled with all three arms
-    within subjects, groups separately between. None when the study lacks one of the three arms."""
+    within subjects, groups separately between. None when the study lacks one of the three arms.
+
+    Beside it, the oracle's own change against yoked (mean oracle / mean yoked − 1, with its CI): the share means
+    something only where the oracle gains, i.e. where that interval lies below 0."""
     data = values_of(table, variable)
     arms = (SOUND_ONLY, JUDGED, ORACLE)
     if not set(arms) <= set(data.condition):
@@ -549,10 +552,14 @@ def oracle_share(table: pd.DataFrame, variable: Variable, design: str, cfg: Anal
         wide = paired_values(data, list(arms))
         samples, paired = [wide[arm].to_numpy() for arm in arms], True
     share, low, high = math.nan, math.nan, math.nan
+    oracle_change, oracle_low, oracle_high = math.nan, math.nan, math.nan
     if all(len(s) for s in samples):
         share = float(_gain_share(*samples))
+        oracle_change = float(_ratio_minus_one(samples[2], samples[0]))
     if all(len(s) > 1 for s in samples) and math.isfinite(share):
         low, high = _bootstrap_ci(samples, _gain_share, cfg, paired)
+    if all(len(s) > 1 for s in samples) and math.isfinite(oracle_change):
+        oracle_low, oracle_high = _bootstrap_ci([samples[2], samples[0]], _ratio_minus_one, cfg, paired)
     return {
         "variable": variable.column,
         "n": min(len(s) for s in samples),
@@ -562,4 +569,7 @@ def oracle_share(table: pd.DataFrame, variable: Variable, design: str, cfg: Anal
         "share_of_oracle_gain": share,
         "ci_low": low,
         "ci_high": high,
+        "oracle_vs_yoked": oracle_change,
+        "oracle_ci_low": oracle_low,
+        "oracle_ci_high": oracle_high,
     }

@@ -215,4 +215,6 @@ def test_the_share_of_the_oracles_gain_is_the_gap_seesys_closes_with_a_paired_in
     share = oracle_share(table, variable, "within", cfg)
     assert share["share_of_oracle_gain"] == pytest.approx(0.5) and share["n"] == n
     assert share["ci_low"] == pytest.approx(0.5) and share["ci_high"] == pytest.approx(0.5)  # exact gaps: no spread
+    expected = (base.mean() - 0.002) / base.mean() - 1  # the oracle's own change against yoked
+    assert share["oracle_vs_yoked"] == pytest.approx(expected) and share["oracle_ci_high"] < 0
     assert oracle_share(table[table.condition != "oracle"], variable, "within", cfg) is None
