@@ -25,7 +25,7 @@ import numpy as np
 
 from estimator.service import stages
 from seesys.core.device_settings import DeviceSettings
-from seesys.core.messages import FeatureFrame
+from seesys.core.messages import FeatureFrame, symmetric_from_upper
 from seesys.core.tracking_state import TrackingState
 
 FRAME = b"F"
@@ -116,9 +116,7 @@ def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
     at += 4 * rts_values
     covariance = None
     if has_covariance:
-        covariance = np.zeros((3, 3))
-        covariance[_UPPER] = _COVARIANCE.unpack_from(data, at)
-        covariance += np.triu(covariance, 1).T
+        covariance = symmetric_from_upper(np.array(_COVARIANCE.unpack_from(data, at)), 3)
         at += _COVARIANCE.size
     psd = np.frombuffer(data, np.uint8, h * w * layers, at).reshape(h, w, layers) if h else None
     return (

@@ -224,10 +224,15 @@ def _covariance_values(covariance: np.ndarray) -> np.ndarray:
     return (c[_COVARIANCE_UPPER] * _MM2_PER_M2).astype(np.float32)
 
 
+def symmetric_from_upper(values: np.ndarray, size: int) -> np.ndarray:
+    """The symmetric ``size`` × ``size`` matrix whose upper triangle, row by row, is ``values``."""
+    m = np.zeros((size, size))
+    m[np.triu_indices(size)] = values
+    return m + np.triu(m, 1).T
+
+
 def _covariance_matrix(values_mm2: np.ndarray) -> np.ndarray:
-    c = np.zeros((3, 3))
-    c[_COVARIANCE_UPPER] = np.asarray(values_mm2, np.float64) / _MM2_PER_M2
-    return c + np.triu(c, 1).T
+    return symmetric_from_upper(np.asarray(values_mm2, np.float64) / _MM2_PER_M2, 3)
 
 
 def covariance_resolution(covariance: np.ndarray) -> np.ndarray:
