@@ -25,8 +25,9 @@ import numpy as np
 
 from estimator.service import stages
 from seesys.core.device_settings import DeviceSettings
-from seesys.core.messages import FeatureFrame, symmetric_from_upper
+from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
+from seesys.core.upper_triangle import symmetric_from_upper, upper_triangle
 
 FRAME = b"F"
 STOP = b"Q"
@@ -39,7 +40,6 @@ _META = struct.Struct("<dqQ")
 # PSD (H, W, L; 0 × 0 × 0 without one)
 _FRAME_HEAD = struct.Struct("<ddQqdbIHIHBHHHHB")
 _COVARIANCE = struct.Struct("<6d")  # the translation covariance's upper triangle, m²
-_UPPER = np.triu_indices(3)
 # fps, ORB features, PSD patch, PSD expansion, near depth, camera normalisation; then the SLAM mode (utf-8)
 _SETTINGS = struct.Struct("<HHHHdH")
 
@@ -61,7 +61,7 @@ def pack_frame(token: float, age_ms: float, frame: FeatureFrame) -> bytes:
     psd = np.ascontiguousarray(frame.psd, dtype=np.uint8) if frame.psd is not None else None
     shape = psd.shape if psd is not None else (0, 0, 0)
     c = frame.translation_covariance
-    covariance = _COVARIANCE.pack(*np.asarray(c, np.float64)[_UPPER]) if c is not None else b""
+    covariance = _COVARIANCE.pack(*upper_triangle(c)) if c is not None else b""
     head = _FRAME_HEAD.pack(
         token,
         age_ms,
@@ -116,7 +116,7 @@ def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
     at += 4 * rts_values
     covariance = None
     if has_covariance:
-        covariance = symmetric_from_upper(np.array(_COVARIANCE.unpack_from(data, at)), 3)
+        covariance = symmetric_from_upper(np.array(_COVARIANCE.unpack_from(data, at)))
         at += _COVARIANCE.size
     psd = np.frombuffer(data, np.uint8, h * w * layers, at).reshape(h, w, layers) if h else None
     return (

@@ -56,6 +56,7 @@ from seesys.core.device_settings import SLAM_MODES, DeviceSettings
 from seesys.core.errors import SeesysError
 from seesys.core.psd import KEYPOINT_LAYER
 from seesys.core.tracking_state import TrackingState
+from seesys.core.upper_triangle import symmetric_from_upper, upper_triangle
 
 # 4: estimates carry the ordinal head's thresholds and probabilities (3 had none). 6: a feature frame's device id
 # only in its topic, its RTS row as float16 where it can be, its PSD in the stream's own code (5: the log's code).
@@ -213,45 +214,34 @@ def _read_row(r: _Reader, n_channels: int) -> np.ndarray:
     return np.frombuffer(r.take(width * n_channels, "RTS row"), dtype=dtype).astype(np.float32)
 
 
-_COVARIANCE_UPPER = np.triu_indices(3)
 _MM2_PER_M2 = 1e6
 
 
-def _covariance_values(covariance: np.ndarray) -> np.ndarray:
+def _wire_covariance(covariance: np.ndarray) -> np.ndarray:
+    """The upper triangle in mm² as it travels: float16 where every value fits, else float32."""
     c = np.asarray(covariance, dtype=np.float64)
     if c.shape != (3, 3):
         raise ValueError(f"a translation covariance is 3×3, got {c.shape}")
-    return (c[_COVARIANCE_UPPER] * _MM2_PER_M2).astype(np.float32)
-
-
-def symmetric_from_upper(values: np.ndarray, size: int) -> np.ndarray:
-    """The symmetric ``size`` × ``size`` matrix whose upper triangle, row by row, is ``values``."""
-    m = np.zeros((size, size))
-    m[np.triu_indices(size)] = values
-    return m + np.triu(m, 1).T
+    values = (upper_triangle(c) * _MM2_PER_M2).astype("<f4")
+    with np.errstate(over="ignore"):
+        half = values.astype("<f2")
+    return half if np.isfinite(half).all() else values
 
 
 def _covariance_matrix(values_mm2: np.ndarray) -> np.ndarray:
-    return symmetric_from_upper(np.asarray(values_mm2, np.float64) / _MM2_PER_M2, 3)
+    return symmetric_from_upper(np.asarray(values_mm2, np.float64) / _MM2_PER_M2)
 
 
 def covariance_resolution(covariance: np.ndarray) -> np.ndarray:
     """The 3×3 translation covariance ``covariance`` (m²) as a receiver decodes it (see the module docstring)."""
-    values = _covariance_values(covariance)
-    with np.errstate(over="ignore"):
-        half = values.astype("<f2")
-    return _covariance_matrix(half if np.isfinite(half).all() else values)
+    return _covariance_matrix(_wire_covariance(covariance))
 
 
 def _pack_covariance(covariance: np.ndarray | None) -> bytes:
     if covariance is None:
         return b"\x00"
-    values = _covariance_values(covariance)
-    with np.errstate(over="ignore"):
-        half = values.astype("<f2")
-    if np.isfinite(half).all():
-        return b"\x02" + half.tobytes()
-    return b"\x04" + values.astype("<f4").tobytes()
+    values = _wire_covariance(covariance)
+    return bytes([values.itemsize]) + values.tobytes()
 
 
 def _read_covariance(r: _Reader) -> np.ndarray | None:

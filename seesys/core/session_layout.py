@@ -12,6 +12,8 @@ part that reads it (docs/device.md, docs/advisory.md).
 
 import numpy as np
 
+from seesys.core.upper_triangle import symmetric_from_upper, upper_triangle
+
 MANIFEST = "session.json"
 FRAMES_CSV = "frames.csv"
 TRAJECTORY = "trajectory.tum"
@@ -23,23 +25,17 @@ FRAMES_HEADER = "frame_index,timestamp,state,tracked_points,track_ms"
 POSE_COVARIANCE_CSV = "pose_covariance.csv"
 # The upper triangle, row by row, of the 6×6 covariance in ROS's order: position x, y, z (m), then rotation about
 # the world's fixed x, y, z axes (rad); cov_ij is row i, column j.
-COVARIANCE_INDICES = tuple(zip(*np.triu_indices(6)))
-POSE_COVARIANCE_COLUMNS = ("frame_index", "timestamp", *(f"cov_{i}{j}" for i, j in COVARIANCE_INDICES))
+POSE_COVARIANCE_COLUMNS = ("frame_index", "timestamp", *(f"cov_{i}{j}" for i, j in zip(*np.triu_indices(6))))
 
 
 def covariance_row(covariance: np.ndarray) -> list[float]:
     """A 6×6 covariance's upper triangle as :data:`POSE_COVARIANCE_COLUMNS` stores it."""
-    return [float(covariance[i, j]) for i, j in COVARIANCE_INDICES]
+    return upper_triangle(covariance).tolist()
 
 
 def covariance_matrices(rows: np.ndarray) -> np.ndarray:
     """(N, 21) upper triangles → (N, 6, 6) symmetric covariances."""
-    rows = np.asarray(rows, np.float64).reshape(-1, len(COVARIANCE_INDICES))
-    matrices = np.zeros((len(rows), 6, 6))
-    upper = np.triu_indices(6)
-    matrices[:, upper[0], upper[1]] = rows
-    matrices[:, upper[1], upper[0]] = rows
-    return matrices
+    return symmetric_from_upper(np.asarray(rows, np.float64).reshape(-1, len(POSE_COVARIANCE_COLUMNS) - 2))
 
 
 ESTIMATES_CSV = "estimates.csv"

@@ -1,0 +1,28 @@
+"""A symmetric matrix as its upper triangle, row by row: how covariances travel on the wire (the stream, the
+estimator's envelope) and sit in session files (``pose_covariance.csv``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def upper_triangle(matrix: np.ndarray) -> np.ndarray:
+    """The upper triangle of a square matrix (or of each of a stack), row by row: (..., n, n) → (..., n(n+1)/2)."""
+    m = np.asarray(matrix, np.float64)
+    return m[..., *np.triu_indices(m.shape[-1])]
+
+
+def symmetric_from_upper(values: np.ndarray) -> np.ndarray:
+    """The symmetric matrix (or stack of them) whose upper triangle, row by row, is ``values``: (..., n(n+1)/2) →
+    (..., n, n). Raises ValueError when the last axis is not a triangle's length."""
+    v = np.asarray(values, np.float64)
+    size = (math.isqrt(8 * v.shape[-1] + 1) - 1) // 2
+    if size * (size + 1) // 2 != v.shape[-1]:
+        raise ValueError(f"{v.shape[-1]} values are no square matrix's upper triangle")
+    rows, columns = np.triu_indices(size)
+    m = np.zeros((*v.shape[:-1], size, size))
+    m[..., rows, columns] = v
+    m[..., columns, rows] = v
+    return m
