@@ -72,10 +72,10 @@ def _ground_truth(source: str) -> Poses:
 
 
 def _frame_row(
-    item: MonitorInput, opinion: SecondOpinion, recent: deque, config: MonitorConfig, covariances: list
-) -> dict:
-    """One frame's candidate channels and motion statistic (NaN where it has none); its world-axes pose
-    covariance (or None) is appended to ``covariances``."""
+    item: MonitorInput, opinion: SecondOpinion, recent: deque, config: MonitorConfig
+) -> tuple[dict, np.ndarray | None]:
+    """One frame's candidate channels and motion statistic (NaN where it has none), and its world-axes pose
+    covariance (None where it has none)."""
     frame = item.frame
     if frame.depth is None:
         raise SeesysError(f"frame {frame.index} has no depth: the second opinion is RGB-D's")
@@ -84,8 +84,7 @@ def _frame_row(
     row: dict = {"frame_index": frame.index, "timestamp": frame.timestamp, "disagreement_m": disagreement}
     if item.pose_wc is None or item.pose_cw is None:
         recent.clear()
-        covariances.append(None)
-        return row
+        return row, None
     previous = item.prev_pose_wc
     motion = relative_motion(previous, item.pose_wc) if previous is not None else RelativeMotion.still()
     recent.append(motion.translation)
@@ -94,9 +93,8 @@ def _frame_row(
         slam, k, frame.intrinsics.width, frame.intrinsics.height, frame.depth is not None, config.observability
     )
     row.update(asdict(seen))
-    covariances.append(frame_pose_covariance(slam, k, True, config.observability, item.pose_wc[:3, :3]))
     row[MOTION] = float(translation_spread(np.array(recent))) if len(recent) > 2 else None
-    return row
+    return row, frame_pose_covariance(slam, k, True, config.observability, item.pose_wc[:3, :3])
 
 
 def _pair_covariance(covariances: list, poses: list, j: int, delta: int) -> np.ndarray | None:
@@ -128,12 +126,11 @@ def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) ->
     inputs = record_inputs(source, SlamMode.RGBD)
     opinion = SecondOpinion(config.second_opinion, labels.delta_frames)
     recent: deque = deque(maxlen=config.windows.rts_length)
-    covariances: list = []
-    rows = [_frame_row(item, opinion, recent, config, covariances) for item in inputs]
-    if not rows:
+    framed = [_frame_row(item, opinion, recent, config) for item in inputs]
+    if not framed:
         raise SeesysError(f"{source} gave no frames")
     columns = ["frame_index", "timestamp", *CHANNELS, MOTION]
-    table = pd.DataFrame(rows).reindex(columns=columns).astype(dict.fromkeys(columns[2:], float))
+    table = pd.DataFrame([row for row, _ in framed]).reindex(columns=columns).astype(dict.fromkeys(columns[2:], float))
     tracked = [item.pose_wc is not None for item in inputs]
     # A frame without a pose gets the identity in its place, and no label (below).
     poses = [i.pose_wc if i.pose_wc is not None else np.eye(4) for i in inputs]
@@ -141,6 +138,7 @@ def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) ->
     states = np.array([i.state.name for i in inputs])
     table[LABEL] = label_frames(estimate, states, truth, False, labels).error_m
     table.loc[~np.array(tracked), LABEL] = np.nan
+    covariances = [covariance for _, covariance in framed]
     pair = [_pair_covariance(covariances, poses, j, labels.delta_frames) for j in range(len(inputs))]
     table[PAIR_SIGMA] = [np.sqrt(np.trace(c)) if c is not None else np.nan for c in pair]
     table[list(GAUSSIAN_WITHIN)] = _gaussian_coverage(pair)
@@ -152,12 +150,16 @@ def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) ->
     return table
 
 
+def _per_source(frames: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
+    """Each source's frames, then all of them (:data:`POOLED`)."""
+    return [(str(name), group) for name, group in frames.groupby("source", sort=False)] + [(POOLED, frames)]
+
+
 def correlations(frames: pd.DataFrame) -> pd.DataFrame:
     """Per source and pooled, per channel: n, ρ with the label, partial ρ given the motion statistic, and the motion
     statistic's own ρ on the same frames."""
     rows = []
-    groups = [(name, group) for name, group in frames.groupby("source", sort=False)] + [(POOLED, frames)]
-    for name, group in groups:
+    for name, group in _per_source(frames):
         for channel in CHANNELS:
             d = group.dropna(subset=[channel, LABEL, MOTION])
             rows.append(
@@ -179,8 +181,7 @@ def coverage(frames: pd.DataFrame) -> pd.DataFrame:
     """Per source and pooled: how often the label lies within 1σ and 2σ of its pair's predicted σ, what a Gaussian of
     the predicted covariance would give (the mean over the frames), and the median of label / σ."""
     rows = []
-    groups = [(name, group) for name, group in frames.groupby("source", sort=False)] + [(POOLED, frames)]
-    for name, group in groups:
+    for name, group in _per_source(frames):
         d = group.dropna(subset=[PAIR_SIGMA, LABEL])
         ratio = d[LABEL] / d[PAIR_SIGMA]
         rows.append(
