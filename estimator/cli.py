@@ -7,10 +7,11 @@ import argparse
 from pathlib import Path
 
 from estimator import dataset_commands, model_commands, service_commands
-from estimator.diversity import diversity_report, write_report
 
 
 def _diversity(args: argparse.Namespace) -> int:
+    from estimator.diversity import diversity_report, write_report  # image statistics and plots: when it runs
+
     report = diversity_report(args.root, args.stride)
     paths = write_report(report, args.out)
     print((args.out / "diversity.md").read_text(), end="")

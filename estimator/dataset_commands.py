@@ -6,23 +6,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from estimator.dataset.build import DatasetBuilder, plan_from_config
-from estimator.dataset.config import load_dataset_config
-from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
-from estimator.dataset.sample import make_sample
-from estimator.dataset.splits import write_splits
-from estimator.dataset.store import WITH_SAMPLES
-from estimator.jobs import add_ray_argument, ray_executor
+from estimator.jobs import add_ray_argument
 from seesys.core import session_layout
 from seesys.core.errors import SeesysError
-from seesys.io import session_files
 from seesys.io.config import replace_fields
-from seesys.io.core_settings import load_label_config, load_window_config
-from seesys.io.session_labels import label_session
-from synth.config import load_synth_config
-from synth.sequence import SequenceSpec
+
+# Each command imports the dataset code it runs when it runs: the service and the model commands share this part's
+# command line, and the builder, the report and the labels (pandas, SciPy, Matplotlib, the renderer) would cost every
+# `seesys estimator ...` process over a second of start-up.
 
 
 def _names(text: str) -> list[str]:
@@ -50,6 +41,14 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _build(args: argparse.Namespace) -> int:
+    from estimator.dataset.build import DatasetBuilder, plan_from_config
+    from estimator.dataset.config import load_dataset_config
+    from estimator.dataset.store import WITH_SAMPLES
+    from estimator.jobs import ray_executor
+    from seesys.io.core_settings import load_label_config, load_window_config
+    from synth.config import load_synth_config
+    from synth.sequence import SequenceSpec
+
     config = load_dataset_config()
     synth = load_synth_config()
     if args.frames is not None and args.frames < 1:
@@ -93,6 +92,9 @@ def _build(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
+    from estimator.dataset.config import load_dataset_config
+    from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
+
     config = load_dataset_config()
     report = write_report(args.roots, config.report, config.targets, args.out)
     print((args.out / REPORT_MD).read_text(), end="")
@@ -102,6 +104,9 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _splits(args: argparse.Namespace) -> int:
+    from estimator.dataset.config import load_dataset_config
+    from estimator.dataset.splits import write_splits
+
     dataset = load_dataset_config()
     config = dataset.splits
     if args.heldout is not None:
@@ -132,6 +137,10 @@ def _splits(args: argparse.Namespace) -> int:
 
 
 def _sample(args: argparse.Namespace) -> int:
+    from estimator.dataset.config import load_dataset_config
+    from estimator.dataset.sample import make_sample
+    from synth.config import load_synth_config
+
     config = load_dataset_config().sample
     if args.env or args.motion or args.seed is not None:
         config = replace_fields(
@@ -150,6 +159,13 @@ def _sample(args: argparse.Namespace) -> int:
 
 
 def _label(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from estimator.dataset.report import MM_PER_M
+    from seesys.io import session_files
+    from seesys.io.core_settings import load_label_config
+    from seesys.io.session_labels import label_session
+
     if not (args.session / session_layout.MANIFEST).is_file():
         raise SeesysError(f"{args.session} is not a session folder (no {session_layout.MANIFEST})")
     mode = session_files.read_manifest(args.session).get("mode")

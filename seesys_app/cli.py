@@ -5,7 +5,10 @@ Each part (``slam_monitor``, ``synth``, ``estimator``, ``advisory``, ``study``, 
 name; a part above may add commands to a lower part's group (``GROUP_EXTENSIONS``). A registered command sets
 ``func`` to a callable taking the parsed arguments and returning an exit status. The CLI layer only parses and
 reports: the work is in the libraries. The parts are imported by name, when the parser is built, so that importing
-this module loads none of them.
+this module loads none of them; a command line that names a group imports only the parts that make that group
+(``COMMAND_GROUPS``), because every process that the app, the study runner and the service start is a ``seesys``
+command, and importing every part (SciPy, pandas, Matplotlib, the dataset builder) cost each of them about 3 s of
+start-up on a 2-core machine.
 """
 
 from __future__ import annotations
@@ -17,16 +20,6 @@ import sys
 from seesys import __version__
 from seesys.core.errors import SeesysError
 
-PART_MODULES = (
-    "slam_monitor.cli",
-    "synth.cli",
-    "estimator.cli",
-    "advisory.cli",
-    "study.cli",
-    "analysis.cli",
-    "seesys_app.run_cli",
-)
-
 # Commands that a part adds to a lower part's group: (group, module, function taking the group's subcommands).
 # `synth diversity` reads rendered frames through the device's image statistics, which the renderer never imports;
 # `study simulate` runs the estimator in-process, which the study's own commands never import.
@@ -36,7 +29,27 @@ GROUP_EXTENSIONS = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
+# The part that makes each command group (its ``register`` adds the group's top-level command). A first word not
+# listed here (a typo, ``--help``) builds the whole parser, so that argparse names the choices.
+COMMAND_GROUPS = {
+    "track": "slam_monitor.cli",
+    "vocab": "slam_monitor.cli",
+    "monitor": "slam_monitor.cli",
+    "session": "slam_monitor.cli",
+    "camera": "slam_monitor.cli",
+    "synth": "synth.cli",
+    "dataset": "estimator.cli",
+    "estimator": "estimator.cli",
+    "advisory": "advisory.cli",
+    "study": "study.cli",
+    "analyze": "analysis.cli",
+    "run": "seesys_app.run_cli",
+}
+PART_MODULES = tuple(dict.fromkeys(COMMAND_GROUPS.values()))
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``seesys`` parser; given the group a command line names (its first word), only that group's parts."""
     parser = argparse.ArgumentParser(
         prog="seesys",
         description="SEESys: online pose error estimation for visual SLAM, with an audio error advisory.",
@@ -44,15 +57,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"seesys {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     groups: dict[str, argparse._SubParsersAction] = {}
+    part = COMMAND_GROUPS.get(command or "")
     for name in PART_MODULES:
-        groups.update(importlib.import_module(name).register(subparsers))
+        if part is None or part == name:
+            groups.update(importlib.import_module(name).register(subparsers))
     for group, name, function in GROUP_EXTENSIONS:
-        getattr(importlib.import_module(name), function)(groups[group])
+        if group in groups and (part is None or group == command):
+            getattr(importlib.import_module(name), function)(groups[group])
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    words = sys.argv[1:] if argv is None else argv
+    parser = build_parser(words[0] if words else None)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

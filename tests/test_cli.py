@@ -60,6 +60,36 @@ def test_every_part_registers_its_commands():
         assert _subcommands(commands[group])[name].get_default("func").__module__.split(".")[0] == part
 
 
+def _shape(parser) -> object:
+    """A parser's commands and options, at any depth: what two parsers of the same command line must share."""
+    options = sorted(a.dest for a in parser._actions if not isinstance(a.choices, dict))
+    groups = {
+        name: _shape(sub) for a in parser._actions if isinstance(a.choices, dict) for name, sub in a.choices.items()
+    }
+    return options, groups
+
+
+def test_a_command_line_that_names_a_group_builds_that_group_alone_and_the_same_as_the_whole_parser():
+    whole = _commands()
+    assert set(cli.COMMAND_GROUPS) == set(whole)  # every group is mapped to the part that makes it, and only those
+    for name in cli.COMMAND_GROUPS:
+        commands = next(a for a in cli.build_parser(name)._actions if a.dest == "command").choices
+        assert name in commands and set(commands) <= {
+            g for g, part in cli.COMMAND_GROUPS.items() if part == cli.COMMAND_GROUPS[name]
+        }
+        assert _shape(commands[name]) == _shape(whole[name]), name
+
+
+@pytest.mark.system
+def test_an_advisory_command_starts_without_the_estimators_dataset_code_or_plotting():
+    probe = "import sys; from seesys_app import cli; cli.build_parser('advisory'); print(' '.join(sorted(sys.modules)))"
+    loaded = set(
+        subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split()
+    )
+    assert "advisory.cli" in loaded
+    assert not {"estimator.dataset.build", "matplotlib.pyplot", "slam_monitor.cli", "torch"} & loaded
+
+
 @pytest.mark.system
 def test_help_lists_every_command_in_a_subprocess():
     out = subprocess.run([sys.executable, "-m", "seesys", "--help"], capture_output=True, text=True, check=True)
