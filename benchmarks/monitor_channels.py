@@ -6,7 +6,8 @@ every frame are kept, and the monitor's intermediate results (the local map's lo
 inlier keypoints) are prepared once, so that each row below times only its own work. Each row runs over every
 frame ``--repeats`` times and reports the median pass's mean thread CPU ms per frame (``time.thread_time``: not
 inflated by waiting for a core on a loaded machine). Rows marked "per PSD frame" run only on the frames that end a
-model window (every ``end_stride``-th, as on a device); their "per frame" figure is amortised over all frames.
+model window (every ``end_stride``-th, as on a device), and the second opinion's work is on its hop frames (every
+``hop_frames``-th); their "per frame" figure is amortised over all frames.
 "monitor thread, whole" is the monitor thread's own work per frame: its step (``MonitorStep``: features, PSD, the
 pose covariance and every log) and the stream message's encoding, without the socket send. Last, the feature
 stream's size: wire bytes per message with and without a PSD, and kbit/s at 30 Hz.
@@ -49,9 +50,10 @@ from slam_monitor.image_features import (
 from slam_monitor.local_map import LocalMap
 from slam_monitor.monitor import FeatureExtractor, MonitorInput, MonitorStep, input_slam_features
 from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
-from slam_monitor.observability import frame_pose_covariance
+from slam_monitor.observability import frame_geometry
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.replay import record_inputs
+from slam_monitor.second_opinion import SecondOpinion
 from slam_monitor.slam_features import (
     RelativeMotion,
     SlamFeatures,
@@ -181,25 +183,42 @@ def _depth_only(step: Callable[[np.ndarray], object]) -> Callable[[Prepared], ob
     return lambda p: step(p.item.frame.depth) if p.item.frame.depth is not None else None
 
 
-def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> dict[str, tuple[Callable, bool]]:
-    """Row label → (a pass over the frames, whether it runs on PSD frames only)."""
+# Where a row's work happens: on every frame, on PSD frames only (its pass gets those), or on the second opinion's hop
+# frames (its pass gets every frame, as the channel must see every frame, and its per-call figure is per hop frame).
+FRAME, PSD, HOP = "frame", "psd", "hop"
+
+
+def _second_opinion_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], None]:
+    def run(frames: Sequence[Prepared]) -> None:
+        opinion = SecondOpinion(config.second_opinion)
+        for p in frames:
+            frame = p.item.frame
+            opinion.update(
+                frame.index, frame.gray, frame.depth, p.item.keypoints, frame.intrinsics.matrix(), p.item.pose_wc
+            )
+
+    return run
+
+
+def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> dict[str, tuple[Callable, str]]:
+    """Row label → (a pass over the frames, where its work happens: FRAME, PSD or HOP)."""
     s = config.depth.stride
     edge_jump = config.depth.edge_jump
     extractor = FeatureExtractor(config)
     return {
-        "brightness, contrast, entropy": (_each(lambda p: intensity_statistics(p.item.frame.gray)), False),
+        "brightness, contrast, entropy": (_each(lambda p: intensity_statistics(p.item.frame.gray)), FRAME),
         "laplacian (with the reference-scale resampling)": (
             _each(lambda p: laplacian_variance(reference_scale(p.item.frame.gray, p.normalisation))),
-            False,
+            FRAME,
         ),
-        "local map (update, lost points)": (_local_map_pass(config), False),
+        "local map (update, lost points)": (_local_map_pass(config), FRAME),
         "matched_inliers, outliers, matches_before_po, avg/var_mp_depth, local_mapping_visual_error": (
             _each(
                 lambda p: (
                     input_slam_features(p.item, p.motion, p.lost_points_w, config) if p.motion is not None else None
                 )
             ),
-            False,
+            FRAME,
         ),
         "rel_tx/ty/tz, rel_roll/pitch/yaw": (
             _each(
@@ -209,20 +228,22 @@ def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> 
                     else None
                 )
             ),
-            False,
+            FRAME,
         ),
-        "depth_holes": (_each(_depth_only(hole_share)), False),
+        "depth_holes": (_each(_depth_only(hole_share)), FRAME),
         "depth_noise": (
             _each(_depth_only(lambda d: noise_over_z2(inverse_depth(d[s // 2 :: s, s // 2 :: s]), edge_jump))),
-            False,
+            FRAME,
         ),
-        "depth_registration": (_registration_pass(config), False),
-        "pose covariance (information matrix, inverse, world axes)": (
+        "depth_registration": (_registration_pass(config), FRAME),
+        "translation_sigma ... residual_over_gate, and the pose covariance (one information matrix)": (
             _each(
                 lambda p: (
-                    frame_pose_covariance(
+                    frame_geometry(
                         p.slam,
                         p.item.frame.intrinsics.matrix(),
+                        p.item.frame.intrinsics.width,
+                        p.item.frame.intrinsics.height,
                         p.item.frame.depth is not None,
                         config.observability,
                         p.item.pose_wc[:3, :3],
@@ -231,10 +252,11 @@ def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> 
                     else None
                 )
             ),
-            False,
+            FRAME,
         ),
-        "PSD matrix": (_each(lambda p: extractor._psd(p.item, p.slam, p.normalisation, p.reference_gray)), True),
-        "FeatureFrame encoding (stream)": (_each(lambda p: messages.encode(encoded[p.item.frame.index])), False),
+        "flow_disagreement (second opinion; per hop frame)": (_second_opinion_pass(config), HOP),
+        "PSD matrix": (_each(lambda p: extractor._psd(p.item, p.slam, p.normalisation, p.reference_gray)), PSD),
+        "FeatureFrame encoding (stream)": (_each(lambda p: messages.encode(encoded[p.item.frame.index])), FRAME),
     }
 
 
@@ -266,10 +288,12 @@ def main() -> None:
     extractor = FeatureExtractor(device, new_stream_session(), load_device_settings(args.mode, 30.0))
     encoded = {item.frame.index: extractor.extract(item) for item in inputs}
     rows: dict[str, dict[str, float]] = {}
-    for label, (run, psd_only) in stages(config, encoded).items():
-        subset = psd_frames if psd_only else frames
-        per_call = thread_ms_per_call(run, subset, args.repeats)
-        rows[label] = {"per_call_ms": per_call, "per_frame_ms": per_call * len(subset) / len(frames)}
+    hops = sum(p.item.frame.index % config.second_opinion.hop_frames == 0 for p in frames)
+    for label, (run, cadence) in stages(config, encoded).items():
+        subset = psd_frames if cadence == PSD else frames
+        per_frame = thread_ms_per_call(run, subset, args.repeats) * len(subset) / len(frames)
+        per_call = per_frame * len(frames) / {FRAME: len(frames), PSD: len(psd_frames), HOP: hops}[cadence]
+        rows[label] = {"per_call_ms": per_call, "per_frame_ms": per_frame}
     for label, with_logs in (
         ("monitor features, whole (FeatureExtractor.extract)", False),
         ("monitor thread, whole (features, PSD, encoding, logs)", True),
@@ -281,12 +305,12 @@ def main() -> None:
         f"{len(frames)} frames ({tracked} tracked, {len(psd_frames)} PSD frames), {args.mode}, "
         f"{args.repeats} passes per row, load average {os.getloadavg()[0]:.2f} (1 min)"
     )
-    print("| channel(s) | thread CPU ms per frame | per PSD frame |")
+    print("| channel(s) | thread CPU ms per frame | per PSD or hop frame |")
     print("|---|---|---|")
-    psd_labels = {label for label, (_, psd_only) in stages(config, encoded).items() if psd_only}
+    sparse = {label for label, (_, cadence) in stages(config, encoded).items() if cadence != FRAME}
     for label, row in rows.items():
-        per_psd = f"{row['per_call_ms']:.3f}" if label in psd_labels else ""
-        print(f"| {label} | {row['per_frame_ms']:.3f} | {per_psd} |")
+        per_call = f"{row['per_call_ms']:.3f}" if label in sparse else ""
+        print(f"| {label} | {row['per_frame_ms']:.3f} | {per_call} |")
     whole = rows["monitor thread, whole (features, PSD, encoding, logs)"]["per_frame_ms"]
     print(f"monitor thread: {whole:.2f} ms per frame = {whole * 30 / 10:.1f} % of a core at 30 Hz")
     stream = stream_size(encoded.values())

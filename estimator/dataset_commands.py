@@ -93,7 +93,8 @@ def _build(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace) -> int:
     from estimator.dataset.config import load_dataset_config
-    from estimator.dataset.report import MM_PER_M, REPORT_MD, write_report
+    from estimator.dataset.report import REPORT_MD, write_report
+    from seesys.core.units import MM_PER_M
 
     config = load_dataset_config()
     report = write_report(args.roots, config.report, config.targets, args.out)
@@ -161,7 +162,7 @@ def _sample(args: argparse.Namespace) -> int:
 def _label(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from estimator.dataset.report import MM_PER_M
+    from seesys.core.units import MM_PER_M
     from seesys.io import session_files
     from seesys.io.core_settings import load_label_config
     from seesys.io.session_labels import label_session

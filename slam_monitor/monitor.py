@@ -36,6 +36,7 @@ from seesys.core.messages import FeatureFrame, stream_resolution
 from seesys.core.psd import PsdGeometry, build_psd
 from seesys.core.session_layout import POSE_COVARIANCE_COLUMNS, POSE_COVARIANCE_CSV, covariance_row
 from seesys.core.tracking_state import TrackingState
+from seesys.core.units import MM_PER_M
 from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_device_settings
 from seesys.io.logfiles import CsvLog
@@ -46,7 +47,8 @@ from slam_monitor.frame import Frame
 from slam_monitor.image_features import image_features, keypoint_responses, reference_scale
 from slam_monitor.local_map import LocalMap
 from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, resolve_device_id
-from slam_monitor.observability import frame_pose_covariance
+from slam_monitor.observability import PoseObservability, frame_geometry
+from slam_monitor.second_opinion import SecondOpinion
 from slam_monitor.slam_features import RelativeMotion, SlamFeatures, project, relative_motion, slam_features, to_camera
 from slam_monitor.stream import FeaturePublisher
 
@@ -143,6 +145,7 @@ class FeatureExtractor:
         self._geometry = PsdGeometry(reference.width, reference.height, config.psd.patch_px, config.psd.expansion)
         self._normalisation: CameraNormalisation | None = None
         self._depth_quality = DepthQuality(config.depth)
+        self._second_opinion = SecondOpinion(config.second_opinion)
 
     def _normalised(self, intrinsics: Intrinsics) -> CameraNormalisation:
         if self._normalisation is None or self._normalisation.camera != intrinsics:
@@ -179,9 +182,21 @@ class FeatureExtractor:
             )
             slam = input_slam_features(item, motion, self.local_map.lost_points(), cfg)
             channels.update(_slam_channels(slam, normalisation))
-            covariance = frame_pose_covariance(
-                slam, intr.matrix(), frame.depth is not None, cfg.observability, item.pose_wc[:3, :3]
+            seen, covariance = frame_geometry(
+                slam,
+                intr.matrix(),
+                intr.width,
+                intr.height,
+                frame.depth is not None,
+                cfg.observability,
+                item.pose_wc[:3, :3],
             )
+            channels.update(_geometry_channels(seen, normalisation))
+        disagreement = self._second_opinion.update(
+            index, frame.gray, frame.depth, item.keypoints, intr.matrix(), item.pose_wc
+        )
+        if disagreement is not None:
+            channels["flow_disagreement"] = disagreement * MM_PER_M
         moved = (
             np.linalg.inv(item.prev_pose_wc) @ item.pose_wc
             if item.pose_wc is not None and item.prev_pose_wc is not None and not item.map_changed
@@ -246,6 +261,19 @@ def _slam_channels(slam: SlamFeatures, normalisation: CameraNormalisation) -> di
         "avg_mp_depth": slam.avg_mp_depth,
         "var_mp_depth": slam.var_mp_depth,
         "local_mapping_visual_error": slam.reprojection_error_px / normalisation.pixel_ratio,
+    }
+
+
+def _geometry_channels(seen: PoseObservability, normalisation: CameraNormalisation) -> dict[str, float]:
+    return {
+        "translation_sigma": seen.translation_sigma_m * MM_PER_M,
+        "weakest_information": seen.weakest_information,
+        "condition_number": seen.condition_number,
+        "image_coverage": seen.image_coverage,
+        "depth_spread": seen.depth_spread,
+        "residual_median": seen.residual_median_px / normalisation.pixel_ratio,
+        "residual_p90": seen.residual_p90_px / normalisation.pixel_ratio,
+        "residual_over_gate": seen.residual_over_gate,
     }
 
 

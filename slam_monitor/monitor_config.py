@@ -10,7 +10,7 @@ from seesys.core.camera_normalisation import ReferenceCamera
 from seesys.core.errors import ConfigError
 from seesys.core.windows import WindowConfig
 from seesys.io.config import ConfigSet, build
-from seesys.io.core_settings import load_window_config
+from seesys.io.core_settings import load_label_config, load_window_config
 from slam_monitor.depth_features import DepthQualityConfig
 from slam_monitor.observability import NoiseModel
 from slam_monitor.second_opinion import FlowConfig
@@ -78,10 +78,14 @@ class MonitorConfig:
 
 
 def load_monitor_config(directory: Path | None = None) -> MonitorConfig:
-    """``configs/monitor.toml``, with the shared model windows of ``configs/windows.toml``."""
+    """``configs/monitor.toml``, with the shared model windows of ``configs/windows.toml`` and the second opinion's
+    span, the label's ``delta_frames`` of ``configs/labels.toml``."""
     configs = ConfigSet.read(directory)
     path, data = configs.path(SECTION), configs.data(SECTION)
     if "windows" in data:
         raise ConfigError(f"{path}: [windows] belongs in windows.toml, the definition every part shares")
+    if "span_frames" in data.get("second_opinion", {}):
+        raise ConfigError(f"{path}: the second opinion's span is the label's delta_frames (labels.toml)")
     windows = asdict(load_window_config(directory))
-    return build(MonitorConfig, {**data, "windows": windows}, str(path))
+    second_opinion = {**data.get("second_opinion", {}), "span_frames": load_label_config(directory).delta_frames}
+    return build(MonitorConfig, {**data, "windows": windows, "second_opinion": second_opinion}, str(path))

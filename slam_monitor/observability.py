@@ -23,10 +23,10 @@ paired by ``slam_monitor.slam_features``) and, in RGB-D, the depth the camera me
   :func:`relative_translation_covariance` carries two frames' covariances to the label's relative translation.
   It assumes the map points exact: what the pose fit alone contributes, not the map's error or drift.
 
-The channels are not in the RTS schema yet: these are the functions the next schema's channels will be computed
-with; the dataset and the model do not carry them until that schema is built and a model trained on it
-(``seesys dataset candidates`` judges them, and the covariance's coverage of the label, meanwhile). In a monocular
-session the map's scale is arbitrary, and so is the covariance's unit.
+The monitor computes them on every tracked frame (:func:`frame_geometry`, one information matrix for the channels and
+the covariance): the RTS schema's observability and residual channels since its version 4 (the σ in millimetres, the
+residuals in the reference camera's pixels; seesys/core/rts_schema.py). In a monocular session the map's scale is
+arbitrary, and so are the lengths' and the covariance's unit.
 
 Noise model (:class:`NoiseModel`, ``[observability]`` of monitor.toml): a keypoint's position has standard
 deviation ``pixel_sigma_px`` in each axis. ORB-SLAM3 scales it by 1.2 per pyramid level of the keypoint, but
@@ -179,6 +179,29 @@ def residual_channels(distances_px: np.ndarray, pixel_sigma_px: float) -> tuple[
     return float(median), float(p90), float(np.mean((d / pixel_sigma_px) ** 2 > CHI2_GATE_2DOF))
 
 
+def _observability(
+    information: np.ndarray,
+    points_c: np.ndarray,
+    keypoints_px: np.ndarray,
+    distances_px: np.ndarray,
+    width: int,
+    height: int,
+    noise: NoiseModel,
+) -> PoseObservability:
+    sigma, weakest, condition = translation_observability(information)
+    median, p90, over = residual_channels(distances_px, noise.pixel_sigma_px)
+    return PoseObservability(
+        sigma,
+        weakest,
+        condition,
+        coverage(keypoints_px, width, height, noise.coverage_grid),
+        depth_spread(points_c[:, 2]),
+        median,
+        p90,
+        over,
+    )
+
+
 def pose_observability(
     points_c: np.ndarray,
     keypoints_px: np.ndarray,
@@ -195,45 +218,26 @@ def pose_observability(
     if len(p) < _MIN_POINTS:
         return PoseObservability.unknown()
     information = pose_information(p, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured)
-    sigma, weakest, condition = translation_observability(information)
-    median, p90, over = residual_channels(distances_px, noise.pixel_sigma_px)
-    return PoseObservability(
-        sigma,
-        weakest,
-        condition,
-        coverage(keypoints_px, width, height, noise.coverage_grid),
-        depth_spread(p[:, 2]),
-        median,
-        p90,
-        over,
-    )
+    return _observability(information, p, keypoints_px, distances_px, width, height, noise)
 
 
-def frame_observability(
-    slam: SlamFeatures, camera_matrix: np.ndarray, width: int, height: int, depth_measured: bool, noise: NoiseModel
-) -> PoseObservability:
-    """The channels of a tracked frame from its SLAM-side features' pairing (``slam_monitor.slam_features``)."""
-    return pose_observability(
-        slam.paired_points_c,
-        slam.paired_keypoints_px,
-        slam.paired_distances_px,
-        camera_matrix,
-        width,
-        height,
-        noise,
-        depth_measured,
-    )
-
-
-def frame_pose_covariance(
-    slam: SlamFeatures, camera_matrix: np.ndarray, depth_measured: bool, noise: NoiseModel, rotation_wc: np.ndarray
-) -> np.ndarray | None:
-    """The world-axes 6×6 pose covariance of a tracked frame (:func:`pose_covariance_world` of its pairing's
-    information); None with fewer than three paired points or a singular (or numerically useless) information
-    matrix."""
-    points = slam.paired_points_c
+def frame_geometry(
+    slam: SlamFeatures,
+    camera_matrix: np.ndarray,
+    width: int,
+    height: int,
+    depth_measured: bool,
+    noise: NoiseModel,
+    rotation_wc: np.ndarray,
+) -> tuple[PoseObservability, np.ndarray | None]:
+    """A tracked frame's observability and residual channels from its SLAM-side features' pairing
+    (``slam_monitor.slam_features``), and its world-axes 6×6 pose covariance (:func:`pose_covariance_world`), from
+    one information matrix; unknown channels and None with fewer than three paired points, None for a singular (or
+    numerically useless) information matrix."""
+    points = np.asarray(slam.paired_points_c, np.float64).reshape(-1, 3)
     if len(points) < _MIN_POINTS:
-        return None
+        return PoseObservability.unknown(), None
     information = pose_information(points, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured)
+    seen = _observability(information, points, slam.paired_keypoints_px, slam.paired_distances_px, width, height, noise)
     covariance = pose_covariance_world(information, rotation_wc)
-    return covariance if covariance is not None and np.isfinite(covariance).all() else None
+    return seen, covariance if covariance is not None and np.isfinite(covariance).all() else None

@@ -1,19 +1,25 @@
-"""A second opinion on the camera's motion, independent of ORB-SLAM3, and its disagreement with ORB-SLAM3's.
+"""A second opinion on the camera's motion, independent of ORB-SLAM3's matcher and solver, and its disagreement with
+ORB-SLAM3's over the label's span (RTS channel ``flow_disagreement``).
 
-Frame to frame, corners of the previous image (OpenCV ``goodFeaturesToTrack``) are followed into the current one by
-pyramidal Lucas–Kanade optical flow (``calcOpticalFlowPyrLK``, kept where the flow back to the previous image returns
-within ``max_flow_error_px``). In RGB-D the corners are lifted to 3D with the previous frame's depth and the current
-camera's pose relative to the previous one is fitted by PnP with RANSAC (``solvePnPRansac``, reprojection gate
-``ransac_gate_px``): metric, from other features, another matcher and another solver than ORB-SLAM3's. Monocular
-flow gives the rotation and only the direction of the translation (``findEssentialMat``, ``recoverPose``), so the
-monocular second opinion has no metric disagreement.
+Every ``hop_frames``-th frame (a frame whose index is a multiple of it: on a device, where the model's windows end),
+ORB-SLAM3's keypoints of the previous hop frame that have a measured depth (at most ``max_points``, evenly taken) are
+followed into the current image by pyramidal Lucas–Kanade optical flow (``calcOpticalFlowPyrLK``, a
+``window_px`` window over ``pyramid_levels`` levels), lifted to 3D with the previous hop frame's depth, and the
+current camera's pose relative to that frame is fitted by PnP with RANSAC (``solvePnPRansac``, reprojection gate
+``ransac_gate_px``): metric, from another matcher (flow, not ORB descriptors) and another solver (OpenCV's, not g2o's)
+than ORB-SLAM3's. The keypoints' positions are shared with ORB-SLAM3: detecting corners of our own
+(``goodFeaturesToTrack``) cost 7 ms a frame on the sample, and following them frame by frame 6 ms more, against
+about 2.4 ms for one hop of 150 keypoints every fifth frame (docs/rts-features.md).
 
-The disagreement at a frame is that of the label's span: the flow's motions over the last ``delta_frames`` frames
-composed, against ORB-SLAM3's relative pose over the same frames (T_wc(k − Δ)⁻¹ T_wc(k)), as the norm of the
-translation of one relative pose against the other, in metres — the same kind of quantity as the label, with the
-flow standing in for the ground truth. A frame the flow cannot follow (too few corners or inliers, no depth) and an
-untracked frame break the span, which then starts again. Not in the RTS schema yet (see
-``slam_monitor.observability``).
+The disagreement at a hop frame is that of the label's span (``span_frames``, the label's ``delta_frames``): the
+flow's hops over the span composed, against ORB-SLAM3's relative pose over the same frames (T_wc(k − Δ)⁻¹ T_wc(k)),
+as the norm of the translation of one relative pose against the other, in metres — the same kind of quantity as the
+label, with the flow standing in for the ground truth. Frames between two hop frames hold the last hop frame's value
+(at most ``hop_frames`` − 1 frames old), so that every frame has the channel and a window ending on a hop frame has
+it fresh. A hop the flow cannot follow (too few keypoints with depth or inliers), an untracked frame or a missing hop
+frame (dropped) break the span, which then starts again: the channel has no value (NaN) until the span is whole.
+Monocular flow gives only the direction of the translation, so a monocular device has no metric disagreement and no
+value.
 """
 
 from __future__ import annotations
@@ -30,15 +36,24 @@ _MIN_INLIERS = 12
 
 @dataclass(frozen=True)
 class FlowConfig:
-    """How the second opinion follows the image (``[second_opinion]`` of monitor.toml)."""
+    """How the second opinion follows the image (``[second_opinion]`` of monitor.toml; ``span_frames`` is the
+    label's ``delta_frames``, from labels.toml)."""
 
-    max_corners: int
-    corner_quality: float
-    min_corner_distance_px: float
-    max_flow_error_px: float
+    hop_frames: int
+    span_frames: int
+    max_points: int
+    window_px: int
+    pyramid_levels: int
     ransac_gate_px: float
     min_depth_m: float
     max_depth_m: float
+
+    def __post_init__(self) -> None:
+        if self.hop_frames < 1 or self.span_frames % self.hop_frames:
+            raise ValueError(
+                f"second_opinion.hop_frames ({self.hop_frames}) must divide the label's span ({self.span_frames} "
+                "frames)"
+            )
 
 
 def _to_pose(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
@@ -48,105 +63,115 @@ def _to_pose(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
     return pose
 
 
-def followed_corners(previous: np.ndarray, current: np.ndarray, cfg: FlowConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Corners of ``previous`` and where the flow puts them in ``current`` (N, 2 each, pixels), kept where the flow
-    back lands within ``max_flow_error_px`` of the corner."""
-    corners = cv2.goodFeaturesToTrack(previous, cfg.max_corners, cfg.corner_quality, cfg.min_corner_distance_px)
-    if corners is None:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    ahead, found, _ = cv2.calcOpticalFlowPyrLK(previous, current, corners, np.empty_like(corners))
-    back, found_back, _ = cv2.calcOpticalFlowPyrLK(current, previous, ahead, np.empty_like(ahead))
-    error = np.linalg.norm((back - corners).reshape(-1, 2), axis=1)
-    keep = (found.ravel() == 1) & (found_back.ravel() == 1) & (error < cfg.max_flow_error_px)
-    return corners.reshape(-1, 2)[keep].astype(np.float64), ahead.reshape(-1, 2)[keep].astype(np.float64)
-
-
 def rgbd_motion(
-    previous: np.ndarray, current: np.ndarray, previous_depth_m: np.ndarray, camera_matrix: np.ndarray, cfg: FlowConfig
+    previous: np.ndarray,
+    current: np.ndarray,
+    previous_points_px: np.ndarray,
+    previous_depth_m: np.ndarray,
+    camera_matrix: np.ndarray,
+    cfg: FlowConfig,
 ) -> np.ndarray | None:
-    """The camera's motion from the previous frame to the current one, T_previous_current (4×4, metres), or None
-    where the flow cannot tell it."""
-    before, after = followed_corners(previous, current, cfg)
-    if len(before) < _MIN_INLIERS:
-        return None
-    columns, rows = np.round(before).astype(int).T
+    """The camera's motion from the previous image to the current one, T_previous_current (4×4, metres), from the
+    flow of ``previous_points_px`` (N, 2: the previous image's keypoints); None where the flow cannot tell it."""
+    points = np.asarray(previous_points_px, np.float64).reshape(-1, 2)
+    columns, rows = np.round(points).astype(int).T
     inside = (columns >= 0) & (columns < previous_depth_m.shape[1]) & (rows >= 0) & (rows < previous_depth_m.shape[0])
-    z = np.full(len(before), np.nan)
+    z = np.full(len(points), np.nan)
     z[inside] = previous_depth_m[rows[inside], columns[inside]]
-    usable = np.isfinite(z) & (z > cfg.min_depth_m) & (z < cfg.max_depth_m)
-    if usable.sum() < _MIN_INLIERS:
+    usable = np.flatnonzero(np.isfinite(z) & (z > cfg.min_depth_m) & (z < cfg.max_depth_m))
+    if len(usable) < _MIN_INLIERS:
         return None
-    k_inv = np.linalg.inv(camera_matrix)
-    rays = np.column_stack([before[usable], np.ones(usable.sum())]) @ k_inv.T
-    points = rays * z[usable, None]
-    found, rvec, tvec, inliers = cv2.solvePnPRansac(
-        points, after[usable], camera_matrix, None, reprojectionError=cfg.ransac_gate_px, flags=cv2.SOLVEPNP_ITERATIVE
+    if len(usable) > cfg.max_points:
+        usable = usable[np.linspace(0, len(usable) - 1, cfg.max_points).astype(int)]
+    before = points[usable].astype(np.float32).reshape(-1, 1, 2)
+    after, found, _ = cv2.calcOpticalFlowPyrLK(
+        previous,
+        current,
+        before,
+        np.empty_like(before),
+        winSize=(cfg.window_px, cfg.window_px),
+        maxLevel=cfg.pyramid_levels,
     )
-    if not found or inliers is None or len(inliers) < _MIN_INLIERS:
+    kept = found.ravel() == 1
+    if kept.sum() < _MIN_INLIERS:
+        return None
+    rays = np.column_stack([points[usable][kept], np.ones(kept.sum())]) @ np.linalg.inv(camera_matrix).T
+    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+        rays * z[usable][kept, None],
+        after.reshape(-1, 2)[kept].astype(np.float64),
+        camera_matrix,
+        None,
+        reprojectionError=cfg.ransac_gate_px,
+        flags=cv2.SOLVEPNP_ITERATIVE,
+    )
+    if not ok or inliers is None or len(inliers) < _MIN_INLIERS:
         return None
     # PnP gives T_current_previous (previous camera's points into the current camera); the motion is its inverse.
     return np.linalg.inv(_to_pose(rvec, tvec))
 
 
-def mono_motion(
-    previous: np.ndarray, current: np.ndarray, camera_matrix: np.ndarray, cfg: FlowConfig
-) -> np.ndarray | None:
-    """The camera's rotation and translation direction (unit vector) from the previous frame to the current one, as
-    T_previous_current with a unit translation, or None."""
-    before, after = followed_corners(previous, current, cfg)
-    if len(before) < _MIN_INLIERS:
-        return None
-    essential, mask = cv2.findEssentialMat(before, after, camera_matrix, cv2.RANSAC, 0.999, cfg.ransac_gate_px)
-    if essential is None or essential.shape != (3, 3):
-        return None
-    count, rotation, translation, _ = cv2.recoverPose(essential, before, after, camera_matrix, mask=mask)
-    if count < _MIN_INLIERS:
-        return None
-    pose = np.eye(4)
-    pose[:3, :3], pose[:3, 3] = rotation, translation.ravel()
-    return np.linalg.inv(pose)
+@dataclass(frozen=True)
+class _HopFrame:
+    index: int
+    gray: np.ndarray
+    depth_m: np.ndarray
+    keypoints_px: np.ndarray
+    pose_wc: np.ndarray
 
 
 class SecondOpinion:
-    """The disagreement (metres) of the flow's motion with ORB-SLAM3's over the last ``delta_frames`` frames of an
-    RGB-D device, frame by frame."""
+    """The disagreement (metres) of the flow's motion with ORB-SLAM3's over the label's span, for an RGB-D device,
+    frame by frame (see the module docstring)."""
 
-    def __init__(self, cfg: FlowConfig, delta_frames: int):
+    def __init__(self, cfg: FlowConfig):
         self._cfg = cfg
-        self._delta = delta_frames
-        self._previous: tuple[np.ndarray, np.ndarray] | None = None  # gray and depth of the previous frame
-        self._flow: deque[np.ndarray] = deque(maxlen=delta_frames)
-        self._poses: deque[np.ndarray] = deque(maxlen=delta_frames + 1)
+        self._hops: deque[np.ndarray] = deque(maxlen=cfg.span_frames // cfg.hop_frames)
+        self._hop_frames: deque[_HopFrame] = deque(maxlen=cfg.span_frames // cfg.hop_frames + 1)
+        self._value: float | None = None
 
     def _restart(self) -> None:
-        self._flow.clear()
-        self._poses.clear()
+        self._hops.clear()
+        self._hop_frames.clear()
+        self._value = None
 
     def update(
-        self, gray: np.ndarray, depth_m: np.ndarray, camera_matrix: np.ndarray, pose_wc: np.ndarray | None
+        self,
+        index: int,
+        gray: np.ndarray,
+        depth_m: np.ndarray | None,
+        keypoints_px: np.ndarray,
+        camera_matrix: np.ndarray,
+        pose_wc: np.ndarray | None,
     ) -> float | None:
-        """Add a frame (``pose_wc``: ORB-SLAM3's T_world_camera, None when untracked); the disagreement over the
-        span ending here, or None while the span is shorter than ``delta_frames``."""
-        previous, self._previous = self._previous, (gray, depth_m)
-        if pose_wc is None or previous is None:
+        """Add frame ``index`` (``pose_wc``: ORB-SLAM3's T_world_camera, None when untracked; ``keypoints_px``: its
+        keypoints); the disagreement over the span ending at the last hop frame, or None while there is none."""
+        if pose_wc is None or depth_m is None:
             self._restart()
-            if pose_wc is not None:
-                self._poses.append(pose_wc)
             return None
-        motion = rgbd_motion(previous[0], gray, previous[1], camera_matrix, self._cfg)
+        if index % self._cfg.hop_frames:
+            return self._value
+        previous = self._hop_frames[-1] if self._hop_frames else None
+        here = _HopFrame(index, gray, depth_m, keypoints_px, pose_wc)
+        if previous is None or previous.index != index - self._cfg.hop_frames:
+            self._restart()
+            self._hop_frames.append(here)
+            return None
+        motion = rgbd_motion(previous.gray, gray, previous.keypoints_px, previous.depth_m, camera_matrix, self._cfg)
         if motion is None:
             self._restart()
-            self._poses.append(pose_wc)
+            self._hop_frames.append(here)
             return None
-        self._flow.append(motion)
-        self._poses.append(pose_wc)
-        if len(self._flow) < self._delta:
+        self._hops.append(motion)
+        self._hop_frames.append(here)
+        if len(self._hops) < self._hops.maxlen:  # type: ignore[operator]
+            self._value = None
             return None
         flow = np.eye(4)
-        for step in self._flow:
+        for step in self._hops:
             flow = flow @ step
-        slam = np.linalg.inv(self._poses[0]) @ self._poses[-1]
-        return relative_translation_error(flow, slam)
+        slam = np.linalg.inv(self._hop_frames[0].pose_wc) @ pose_wc
+        self._value = relative_translation_error(flow, slam)
+        return self._value
 
 
 def relative_translation_error(reference: np.ndarray, estimate: np.ndarray) -> float:

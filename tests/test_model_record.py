@@ -25,6 +25,8 @@ from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
 from seesys.io.core_settings import load_device_settings, load_window_config
 from seesys.io.resources import resolve
 
+# The RTS channels of the shipped model: schema v3's.
+SHIPPED_CHANNELS = 19
 # What the shipped model was trained with (docs/table3/README.md: the defaults of configs/*.toml then and now):
 # camera normalisation v1 with the ideal camera as its reference.
 SHIPPED_DEVICE = {
@@ -44,10 +46,18 @@ def test_the_shipped_model_carries_the_full_record_in_both_files():
     import torch
 
     transform = LabelTransform(load_estimator_config().label_transform.k)
-    # Every channel of today's RTS schema, and the ordinal head at Equation 2's boundaries.
+    # Every channel of RTS schema v3 (the first 19 of today's v4, taken from its rows by name), and the ordinal head
+    # at Equation 2's boundaries.
     head = (0.004, 0.008, 0.012)
-    expected = compatibility(load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE), head_thresholds_m=head)
-    assert expected == compatibility(load_window_config(), transform, head_thresholds_m=head)
+    channels = rts_schema.CHANNEL_NAMES[:SHIPPED_CHANNELS]
+    expected = {
+        **compatibility(
+            load_window_config(), transform, ModelSetup(10, SHIPPED_DEVICE), channels, head_thresholds_m=head
+        ),
+        "rts_schema_version": 3,
+    }
+    assert expected["rts_fingerprint"] == 0x8490F111  # v3's
+    assert {**compatibility(load_window_config(), transform, None, channels, head), "rts_schema_version": 3} == expected
     assert expected["windows"]["max_missing_rts"] == 0
     meta = {p.key: p.value for p in onnx.load(str(resolve("data/models/deepsee.onnx"))).metadata_props}
     assert json.loads(meta[COMPATIBILITY_KEY]) == expected
@@ -55,7 +65,7 @@ def test_the_shipped_model_carries_the_full_record_in_both_files():
     assert payload["compatibility"] == expected
     served = ServedModel.load(resolve("data/models/deepsee.onnx"), load_window_config())
     assert served.device_record == SHIPPED_DEVICE
-    assert list(served._model.rts_columns) == list(range(rts_schema.NUM_CHANNELS))
+    assert list(served._model.rts_columns) == list(range(SHIPPED_CHANNELS))
 
 
 @pytest.mark.system

@@ -99,8 +99,15 @@ def test_feature_row_of_constructed_frames():
     assert f11.rts[row_of["brightness"]] == pytest.approx(gray(11).mean() / 255, rel=2**-11)
     assert f11.rts[row_of["matched_inliers"]] == 300
     assert f11.rts[row_of["local_mapping_visual_error"]] == pytest.approx(0.0, abs=1e-3)
-    depth = [row_of[name] for name in rts_schema.channel_names("depth")]
-    assert depth and np.isnan(f11.rts[depth]).all()  # no depth image: unknown
+    # No depth image: the depth channels and the second opinion (RGB-D only) unknown.
+    depth = [row_of[name] for name in (*rts_schema.channel_names("depth"), *rts_schema.channel_names("second_opinion"))]
+    assert depth and np.isnan(f11.rts[depth]).all()
+    # Exact projections: no residual, every inlier within the gate; a plane of points spread over the image.
+    assert (
+        f11.rts[row_of["residual_median"]] == pytest.approx(0.0, abs=1e-3)
+        and f11.rts[row_of["residual_over_gate"]] == 0
+    )
+    assert f11.rts[row_of["translation_sigma"]] > 0 and f11.rts[row_of["image_coverage"]] > 0.5
     assert not np.isnan(np.delete(f10.rts, depth)).any() and not np.isnan(np.delete(f11.rts, depth)).any()
     # PSD on tau-th frames only; all points matched → as many inlier cells as keypoint cells
     assert f10.psd is not None and f11.psd is None and f10.psd.shape == (96, 128, 3)

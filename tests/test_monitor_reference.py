@@ -19,7 +19,7 @@ from slam_monitor.image_features import laplacian_variance as monitor_laplacian_
 from slam_monitor.local_map import LocalMap
 from slam_monitor.monitor import input_slam_features
 from slam_monitor.monitor_config import load_monitor_config
-from slam_monitor.observability import NoiseModel, frame_observability
+from slam_monitor.observability import NoiseModel, frame_geometry
 from slam_monitor.slam_features import RelativeMotion, project, to_camera
 
 # σ 1 px per keypoint axis, depth σ 4 mm at 1 m growing with z², a 4 × 4 coverage grid.
@@ -100,8 +100,12 @@ def test_pairing_matches_brute_force_nearest_keypoints():
         within = distance <= features.match_gate_px
         assert same_rows(got.paired_points_c, matched_c[within])
         np.testing.assert_allclose(np.sort(got.paired_distances_px), np.sort(distance[within]), rtol=1e-12)
-        seen = frame_observability(got, intr.matrix(), intr.width, intr.height, True, OBSERVABILITY_NOISE)
+        seen, covariance = frame_geometry(
+            got, intr.matrix(), intr.width, intr.height, True, OBSERVABILITY_NOISE, item.pose_wc[:3, :3]
+        )
         assert 1e-5 < seen.translation_sigma_m < 0.02 and seen.condition_number >= 1
+        # One information matrix for both: the channel's σ is the covariance's (a rotation keeps the trace).
+        assert np.sqrt(np.trace(covariance[:3, :3])) == pytest.approx(seen.translation_sigma_m, rel=1e-6)
         assert 0 < seen.image_coverage <= 1 and seen.residual_median_px <= features.match_gate_px
         outliers_seen += outliers
     assert outliers_seen > 0

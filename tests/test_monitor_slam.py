@@ -81,7 +81,8 @@ def check_session(
     tracked = table[table["tracking_state"].isin(["OK", "OK_KLT"])]
     assert len(tracked) >= min_tracked * len(table)
     depth_channels = list(rts_schema.channel_names("depth"))
-    others = [name for name in rts_schema.CHANNEL_NAMES if name not in depth_channels]
+    sparse = [*depth_channels, "flow_disagreement"]  # the second opinion once its span is whole (and RGB-D only)
+    others = [name for name in rts_schema.CHANNEL_NAMES if name not in sparse]
     assert not tracked[others].isna().any().any(), "NaN on a tracked frame"
     if depth:  # every RGB-D frame has them; the registration once tracked frames have given it enough depth edges
         assert not table[["depth_holes", "depth_noise"]].isna().any().any()
@@ -90,8 +91,12 @@ def check_session(
         # An ideal render: 16-bit depth quantisation only, and depth edges on the colour edges (f = 525 px).
         assert (table["depth_noise"] < 1e-3).all()
         assert registration.max() < 0.5 / 525, registration.max() * 525
+        # A hop every 5th frame, held between: a value from the second hop frame on, wherever the flow followed.
+        flow = table.set_index("frame_index")["flow_disagreement"]
+        assert flow.loc[: 2 * load_monitor_config().second_opinion.hop_frames - 1].isna().all()
+        assert flow.notna().mean() > 0.8 and (flow.dropna() < 30).all(), flow.describe()  # mm, on an ideal render
     else:
-        assert table[depth_channels].isna().all().all()
+        assert table[sparse].isna().all().all()
     assert (tracked["matched_inliers"] >= 10).all()
     assert (tracked["avg_mp_depth"] > 0).all() and (tracked["local_mapping_visual_error"] < 3).all()
 

@@ -5,7 +5,7 @@ Label (paper §5.2): the 10-frame RPE is heavily right-skewed, so every model re
 with ``(exp(y) − 1) / k``. Estimates below zero on the transformed scale map to negative metres; they are
 clipped to 0, the smallest error there is.
 
-Ablation masks (Table 3): a channel category of the RTS window (sensor input, tracking, mapping; the categories
+Ablation masks (Table 3): a channel category of the RTS window (sensor input, tracking, mapping, ...: the categories
 of :mod:`seesys.core.rts_schema`) or a layer of the PSD matrices (keypoint, inlier, map point) is set to zero,
 in training and in inference alike, so the model never sees it.
 """
@@ -19,7 +19,6 @@ import numpy as np
 from seesys.core import psd as psd_layers
 from seesys.core import rts_schema
 
-RTS_CATEGORIES = ("sensor_input", "tracking", "mapping", "depth")
 PSD_LAYERS = {
     "keypoint": psd_layers.KEYPOINT_LAYER,
     "inlier": psd_layers.INLIER_LAYER,
@@ -46,9 +45,9 @@ class LabelTransform:
 def rts_channel_mask(drop_categories: tuple[str, ...] = (), channels: tuple[str, ...] | None = None) -> np.ndarray:
     """(C,) float32 over ``channels`` (names; default every channel of the schema, in its order): 1 for the RTS
     channels the model sees, 0 for those of the dropped categories."""
-    unknown = sorted(set(drop_categories) - set(RTS_CATEGORIES))
+    unknown = sorted(set(drop_categories) - set(rts_schema.CATEGORIES))
     if unknown:
-        raise ValueError(f"unknown RTS categories {unknown}; categories are {', '.join(RTS_CATEGORIES)}")
+        raise ValueError(f"unknown RTS categories {unknown}; categories are {', '.join(rts_schema.CATEGORIES)}")
     category = {c.name: c.category for c in rts_schema.CHANNELS}
     names = rts_schema.CHANNEL_NAMES if channels is None else channels
     return np.array([0.0 if category[name] in drop_categories else 1.0 for name in names], np.float32)

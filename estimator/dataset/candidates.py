@@ -1,4 +1,6 @@
-"""The candidate channels of the next RTS schema against the label, on sequences with ground truth.
+"""The RTS schema's geometry channels (its version 4's observability, residual and second-opinion channels, and the
+pose covariance) against the label, on sequences with ground truth: the check a channel passed before it joined the
+schema, kept to judge them, and the covariance, on new sequences.
 
 ``seesys dataset candidates SOURCE... --out DIR``: each source (``KIND:PATH`` with ground truth, e.g. a rendered
 TUM folder) is tracked once by ORB-SLAM3 (RGB-D, in this process, unpaced), and for every tracked frame the candidate
@@ -19,8 +21,7 @@ would put there (computed per frame from its 3×3 covariance), and the median of
 
 The report: per source and pooled, per channel, the frames it has a value on, its Spearman ρ with the label and its
 partial Spearman ρ given the motion statistic (how much of its ranking is not the motion's), and the motion
-statistic's own ρ. This is the check a channel passes before it joins the schema; the dataset report gives the same
-figures on a whole build once it has.
+statistic's own ρ. The dataset report gives the same figures for every channel of a whole build.
 """
 
 from __future__ import annotations
@@ -39,12 +40,7 @@ from seesys.core.motion import translation_spread
 from seesys.core.trajectory import Poses
 from slam_monitor.monitor import MonitorInput, input_slam_features
 from slam_monitor.monitor_config import MonitorConfig
-from slam_monitor.observability import (
-    PoseObservability,
-    frame_observability,
-    frame_pose_covariance,
-    relative_translation_covariance,
-)
+from slam_monitor.observability import PoseObservability, frame_geometry, relative_translation_covariance
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.replay import record_inputs
 from slam_monitor.second_opinion import SecondOpinion
@@ -80,7 +76,7 @@ def _frame_row(
     if frame.depth is None:
         raise SeesysError(f"frame {frame.index} has no depth: the second opinion is RGB-D's")
     k = frame.intrinsics.matrix()
-    disagreement = opinion.update(frame.gray, frame.depth, k, item.pose_wc)
+    disagreement = opinion.update(frame.index, frame.gray, frame.depth, item.keypoints, k, item.pose_wc)
     row: dict = {"frame_index": frame.index, "timestamp": frame.timestamp, "disagreement_m": disagreement}
     if item.pose_wc is None or item.pose_cw is None:
         recent.clear()
@@ -89,12 +85,12 @@ def _frame_row(
     motion = relative_motion(previous, item.pose_wc) if previous is not None else RelativeMotion.still()
     recent.append(motion.translation)
     slam = input_slam_features(item, motion, np.zeros((0, 3)), config)
-    seen = frame_observability(
-        slam, k, frame.intrinsics.width, frame.intrinsics.height, frame.depth is not None, config.observability
+    seen, covariance = frame_geometry(
+        slam, k, frame.intrinsics.width, frame.intrinsics.height, True, config.observability, item.pose_wc[:3, :3]
     )
     row.update(asdict(seen))
     row[MOTION] = float(translation_spread(np.array(recent))) if len(recent) > 2 else None
-    return row, frame_pose_covariance(slam, k, True, config.observability, item.pose_wc[:3, :3])
+    return row, covariance
 
 
 def _pair_covariance(covariances: list, poses: list, j: int, delta: int) -> np.ndarray | None:
@@ -124,7 +120,7 @@ def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) ->
     the label (see the module docstring). Raises SeesysError for a source without ground truth or a failed run."""
     truth = _ground_truth(source)
     inputs = record_inputs(source, SlamMode.RGBD)
-    opinion = SecondOpinion(config.second_opinion, labels.delta_frames)
+    opinion = SecondOpinion(config.second_opinion)
     recent: deque = deque(maxlen=config.windows.rts_length)
     framed = [_frame_row(item, opinion, recent, config) for item in inputs]
     if not framed:

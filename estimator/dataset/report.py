@@ -27,13 +27,15 @@ from scipy.stats import spearmanr
 
 from estimator.dataset.config import ReportConfig, TargetConfig
 from estimator.dataset.store import DatasetError, DatasetReader
+from estimator.deepsee.yardsticks import partial_spearman
 from seesys.core import rts_schema
 from seesys.core.labels import LabelStatus, LabelSummary
+from seesys.core.motion import translation_spread
+from seesys.core.units import MM_PER_M
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-MM_PER_M = 1000.0
 WINDOW_STATISTICS: dict[str, Callable[..., np.ndarray]] = {
     "mean": np.nanmean,
     "min": np.nanmin,
@@ -67,8 +69,19 @@ def window_features(rts: np.ndarray) -> pd.DataFrame:
     return pd.DataFrame(columns)
 
 
-def feature_correlations(features: pd.DataFrame, errors: np.ndarray, min_samples: int) -> pd.DataFrame:
-    """Spearman ρ (and p-value, sample count) of each feature against the errors, strongest first."""
+def window_motion(rts: np.ndarray) -> np.ndarray:
+    """Per sample, the motion yardstick's statistic of its raw RTS window (``seesys.core.motion``: the spread of the
+    relative translation, m/frame); NaN where a frame of the window has no pose."""
+    columns = [rts_schema.index_of(name) for name in rts_schema.TRANSLATION_CHANNELS]
+    return translation_spread(rts[:, :, columns]) if len(rts) else np.zeros(0)
+
+
+def feature_correlations(
+    features: pd.DataFrame, errors: np.ndarray, min_samples: int, motion: np.ndarray | None = None
+) -> pd.DataFrame:
+    """Spearman ρ (and p-value, sample count) of each feature against the errors, strongest first; with the windows'
+    ``motion`` statistic also the partial Spearman ρ given it (how much of the feature's ranking of the label is not
+    the motion's), on the samples where the motion is known."""
     rows = []
     for name in features.columns:
         x = features[name].to_numpy(float)
@@ -76,8 +89,13 @@ def feature_correlations(features: pd.DataFrame, errors: np.ndarray, min_samples
         if keep.sum() < min_samples or np.ptp(x[keep]) == 0:
             continue
         result = spearmanr(x[keep], errors[keep])
-        rows.append((name, float(result.statistic), float(result.pvalue), int(keep.sum())))
-    table = pd.DataFrame(rows, columns=["feature", "spearman_rho", "p_value", "samples"])
+        partial = float("nan")
+        if motion is not None:
+            known = keep & np.isfinite(motion)
+            if known.sum() >= min_samples:
+                partial = partial_spearman(x[known], errors[known], motion[known])
+        rows.append((name, float(result.statistic), partial, float(result.pvalue), int(keep.sum())))
+    table = pd.DataFrame(rows, columns=["feature", "spearman_rho", "partial_rho_given_motion", "p_value", "samples"])
     return table.reindex(table.spearman_rho.abs().sort_values(ascending=False).index).reset_index(drop=True)
 
 
@@ -183,13 +201,14 @@ def label_report(roots: list[Path], config: ReportConfig, targets: TargetConfig)
     frames = DatasetReader(roots).frame_labels()
     if frames.empty:
         raise DatasetError(f"no completed runs in {', '.join(map(str, roots))}")
-    features = window_features(reader.rts_windows())
+    windows = reader.rts_windows()
+    features, motion = window_features(windows), window_motion(windows)
     errors = reader.index.error_m.to_numpy(float)
     modes = []
     for mode, mode_frames in frames.groupby("mode", sort=True):
         in_mode = (reader.index["mode"] == mode).to_numpy()
         mode_features = features[in_mode].reset_index(drop=True)
-        correlations = feature_correlations(mode_features, errors[in_mode], config.min_samples)
+        correlations = feature_correlations(mode_features, errors[in_mode], config.min_samples, motion[in_mode])
         summary = LabelSummary.of(mode_frames, config.thresholds_m)
         best = float(correlations.spearman_rho.iloc[0]) if len(correlations) else float("nan")
         modes.append(
@@ -260,9 +279,10 @@ def render_markdown(report: LabelReport, config: ReportConfig) -> str:
             ]
         top = m.correlations.head(config.top_features)
         out += [
-            f"RTS window features with the largest |Spearman ρ| against the label ({m.mode}, usable samples):",
+            f"RTS window features with the largest |Spearman ρ| against the label ({m.mode}, usable samples), and "
+            "their partial ρ given the window's motion statistic (the spread of its relative translation):",
             "",
-            _markdown_table(top[["feature", "spearman_rho", "samples"]], digits=3),
+            _markdown_table(top[["feature", "spearman_rho", "partial_rho_given_motion", "samples"]], digits=3),
             "",
         ]
     out += [

@@ -23,6 +23,10 @@ Conventions (the authors' code differs; see docs/rts-features.md):
   yaw about y, roll about z (the optical axis). Each component keeps its sign; there is no Euler-angle range
   folding.
 - Depths are z in the current camera frame. In monocular mode all lengths are in map units (arbitrary scale).
+- Version 4 adds what the geometry of the tracked points says about the pose's precision (observability and
+  residual channels, from the frame's matched inliers: slam_monitor/observability.py) and a second opinion on the
+  motion (slam_monitor/second_opinion.py). A model of an earlier version takes its own channels from a v4 row by name
+  (:func:`columns_of`).
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ import numpy as np
 
 from seesys.core.errors import SeesysError
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -191,6 +195,84 @@ CHANNELS: tuple[Channel, ...] = (
         "identity",
         0.005,
     ),
+    Channel(
+        "translation_sigma",
+        "observability",
+        "mm (map units / 1000 in monocular)",
+        "predicted standard deviation of the camera position: sqrt of the trace of the translation block of the "
+        "inverse of the pose-only information matrix of the matched inlier points' reprojections (and, in RGB-D, "
+        "depths), the Cramér–Rao bound of the pose fit",
+        "log1p",
+        3.0,
+    ),
+    Channel(
+        "weakest_information",
+        "observability",
+        "1/m^2 (1/map units^2 in monocular)",
+        "smallest eigenvalue of the translation information with the rotation marginalised out: its weakest "
+        "direction (a degeneracy)",
+        "log1p",
+        20.0,
+    ),
+    Channel(
+        "condition_number",
+        "observability",
+        "ratio",
+        "largest over smallest eigenvalue of that translation information (large: a planar or one-sided point set)",
+        "log1p",
+        5.0,
+    ),
+    Channel(
+        "image_coverage",
+        "observability",
+        "fraction of cells",
+        "share of the cells of a coverage_grid x coverage_grid grid over the image holding a matched inlier keypoint",
+        "identity",
+        1.0,
+    ),
+    Channel(
+        "depth_spread",
+        "observability",
+        "ratio",
+        "(p90 - p10) / median of the matched inlier points' depths in the current camera",
+        "identity",
+        1.0,
+    ),
+    Channel(
+        "residual_median",
+        "residual",
+        "px",
+        "median distance of the matched map points' projections to their keypoints after the pose, in the "
+        "reference camera's pixels",
+        "log1p",
+        1.0,
+    ),
+    Channel(
+        "residual_p90",
+        "residual",
+        "px",
+        "90th percentile of those distances, in the reference camera's pixels",
+        "log1p",
+        2.0,
+    ),
+    Channel(
+        "residual_over_gate",
+        "residual",
+        "fraction",
+        "share of the matched points whose squared distance in units of the keypoint noise exceeds the chi-square "
+        "gate of two degrees of freedom at 95 % (5.991)",
+        "identity",
+        0.2,
+    ),
+    Channel(
+        "flow_disagreement",
+        "second_opinion",
+        "mm",
+        "disagreement of an optical-flow + PnP estimate of the motion over the label's span with ORB-SLAM3's, "
+        "refreshed every hop_frames-th frame and held between (RGB-D only)",
+        "log1p",
+        3.0,
+    ),
 )
 
 
@@ -201,7 +283,7 @@ def fingerprint(channels: tuple[Channel, ...]) -> int:
 
 
 #: The fingerprint of each released schema version.
-_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F, 3: 0x8490F111}
+_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F, 3: 0x8490F111, 4: 0x97A6A5A3}
 FINGERPRINT = fingerprint(CHANNELS)
 if _FINGERPRINTS.get(SCHEMA_VERSION) != FINGERPRINT:
     raise RuntimeError(
@@ -225,13 +307,15 @@ def check_compatible(version: int, schema_fingerprint: int, source: str) -> None
 
 
 CHANNEL_NAMES: tuple[str, ...] = tuple(c.name for c in CHANNELS)
+#: The channel categories, in schema order: the paper's sensor_input, tracking and mapping, then depth,
+#: observability, residual and second_opinion.
+CATEGORIES: tuple[str, ...] = tuple(dict.fromkeys(c.category for c in CHANNELS))
 NUM_CHANNELS = len(CHANNELS)
 _INDEX = {name: i for i, name in enumerate(CHANNEL_NAMES)}
 
 
 def channel_names(category: str) -> tuple[str, ...]:
-    """The names of the channels of ``category`` (``sensor_input``, ``tracking``, ``mapping``, ``depth``), in
-    schema order."""
+    """The names of the channels of ``category`` (one of :data:`CATEGORIES`), in schema order."""
     return tuple(c.name for c in CHANNELS if c.category == category)
 
 

@@ -141,6 +141,15 @@ def to_toml_data(value: Any) -> Any:
     return value
 
 
+def _keys_of(data: dict[str, Any], own: Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` with only the keys ``own`` has, table by table."""
+    return {
+        key: _keys_of(v, own[key]) if isinstance(v, dict) and isinstance(own[key], Mapping) else v
+        for key, v in data.items()
+        if key in own
+    }
+
+
 def _find_key(table: Any, key: str) -> list[str | int] | None:
     """The path of the first ``key`` in ``table``, its sub-tables and arrays of tables, in the file's order (None:
     not there)."""
@@ -199,10 +208,10 @@ class ConfigSet:
     def replaced(self, name: str, value: Any) -> ConfigSet:
         """This set with file ``name`` holding the settings ``value`` (a dataclass built from it, changed with
         ``dataclasses.replace``). A value that carries another file's settings too (the monitor's shared windows)
-        writes only the keys this file has."""
-        own = self.data(name)
-        data = {key: v for key, v in to_toml_data(value).items() if key in own}
-        return dataclasses.replace(self, sections={**self.sections, name: data})
+        writes only the keys this file has (the monitor's shared windows, its second opinion's span)."""
+        return dataclasses.replace(
+            self, sections={**self.sections, name: _keys_of(to_toml_data(value), self.data(name))}
+        )
 
     def with_values(self, values: Mapping[str, object]) -> ConfigSet:
         """This set with settings changed by key: ``key`` where one file has it, else ``file.key`` (the first

@@ -18,6 +18,7 @@ import numpy as np
 
 from seesys.core.camera import Intrinsics
 from seesys.core.trajectory import Poses
+from seesys.core.units import MM_PER_M
 from slam_monitor.frame import Frame
 from slam_monitor.sources.base import (
     DepthLimits,
@@ -38,7 +39,6 @@ TF = "tf2_msgs/msg/TFMessage"
 IMAGE_TYPES = (IMAGE, COMPRESSED_IMAGE)
 # A topic whose name contains this is taken for depth when topics are found by type (REP 118 names).
 DEPTH_WORD = "depth"
-MM_PER_M = 1000.0
 NS_PER_S = 1e9
 ROS2_STORAGE_SUFFIXES = (".db3", ".mcap")
 

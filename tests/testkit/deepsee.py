@@ -106,6 +106,16 @@ def write_session(
             "avg_mp_depth": 2.0 + d,
             "var_mp_depth": 0.5,
             "local_mapping_visual_error": 0.8 + 2 * d,
+            # schema v4's geometry channels, as a monitor gives them: a harder stretch is less well observed
+            "translation_sigma": 1.0 + 4.0 * d + 0.2 * rng.normal(),
+            "weakest_information": 1e7 * (1.0 - 0.8 * d),
+            "condition_number": 5.0 + 20.0 * d,
+            "image_coverage": 0.9 - 0.5 * d,
+            "depth_spread": 0.8,
+            "residual_median": 0.5 + d,
+            "residual_p90": 1.2 + 2.0 * d,
+            "residual_over_gate": 0.02 + 0.1 * d,
+            "flow_disagreement": 1.0 + 5.0 * d + 0.5 * rng.normal(),
         }
         for name, value in values.items():
             row[rts_schema.index_of(name)] = value
