@@ -267,8 +267,9 @@ def _slam_channels(slam: SlamFeatures, normalisation: CameraNormalisation) -> di
 def _geometry_channels(seen: PoseObservability, normalisation: CameraNormalisation) -> dict[str, float]:
     return {
         "translation_sigma": seen.translation_sigma_m * MM_PER_M,
-        "weakest_information": seen.weakest_information,
-        "condition_number": seen.condition_number,
+        # Per mm² and inverted: a float16 holds them (the stream sends a row as float16 only if every value fits).
+        "weakest_information": seen.weakest_information / MM_PER_M**2,
+        "inverse_condition": 1.0 / seen.condition_number,
         "image_coverage": seen.image_coverage,
         "depth_spread": seen.depth_spread,
         "residual_median": seen.residual_median_px / normalisation.pixel_ratio,

@@ -104,12 +104,12 @@ def test_frames_of_another_rts_schema_are_refused_by_name():
     )
 
 
-@pytest.mark.parametrize("version", [1, 2, 3, 5, 6])
+@pytest.mark.parametrize("version", [1, 2, 3, 5, 6, 7])
 @pytest.mark.parametrize("kind", ["feature", "estimate"])
 def test_a_message_of_an_earlier_protocol_version_is_refused(version, kind):
     """Version 2 had no stream session and no device settings, version 3 no head probabilities in an estimate,
-    version 5 a device id in a feature frame's body and its RTS row in float32, version 6 no covariance: refused
-    naming both versions, never misread."""
+    version 5 a device id in a feature frame's body and its RTS row in float32, version 6 no covariance, version 7
+    the settings and the covariance on every frame: refused naming both versions, never misread."""
     topic, body = encode(feature() if kind == "feature" else Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1"))
     old = body[:4] + bytes([version]) + body[5:]
     with pytest.raises(
@@ -118,7 +118,7 @@ def test_a_message_of_an_earlier_protocol_version_is_refused(version, kind):
         decode([topic, old])
 
 
-def test_stream_session_and_device_settings_travel_with_every_frame_and_estimate():
+def test_stream_session_and_device_settings_travel_with_every_window_end_and_estimate():
     from seesys.core.device_settings import DeviceSettings
 
     settings = DeviceSettings.of("mono", 29.97, 1200, 10, 2, 0.3)
@@ -126,7 +126,11 @@ def test_stream_session_and_device_settings_travel_with_every_frame_and_estimate
     frame = dataclasses.replace(feature(np.ones((4, 4, 3), np.uint8)), stream_session=2**64 - 5, settings=settings)
     out = decode(encode(frame))
     assert (out.stream_session, out.settings) == (2**64 - 5, settings)
-    assert decode(encode(feature())).settings is None  # a frame may state none (the service refuses it)
+    assert decode(encode(feature(np.ones((4, 4, 3), np.uint8)))).settings is None  # may state none: refused
+    # A frame without a PSD (between two window ends) carries neither settings nor covariance, nor their bytes.
+    between = decode(encode(dataclasses.replace(frame, psd=None, translation_covariance=np.eye(3) * 1e-6)))
+    assert between.settings is None and between.translation_covariance is None and between.stream_session == 2**64 - 5
+    assert len(encode(dataclasses.replace(frame, psd=None))[1]) == len(encode(feature())[1])
     estimate = decode(encode(Estimate("dev-1", 7, 12.25, 0.0061, "m", 3.5, stream_session=99)))
     assert (estimate.stream_session, estimate.frame_index) == (99, 7)
 
@@ -292,7 +296,7 @@ def _covariance(scale: float) -> np.ndarray:
 @pytest.mark.parametrize("scale", [1e-8, 1e-5, 1.0])  # σ of 0.1 mm, 3 mm and 1 m: float16 in mm² up to ~0.25 m
 def test_a_translation_covariance_travels_with_the_frame_and_its_estimate_at_the_wires_resolution(scale):
     covariance = _covariance(scale)
-    frame = dataclasses.replace(feature(), translation_covariance=covariance)
+    frame = dataclasses.replace(feature(np.ones((4, 4, 3), np.uint8)), translation_covariance=covariance)
     estimate = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", translation_covariance=covariance)
     for message in (frame, estimate):
         out = decode(encode(message)).translation_covariance
@@ -301,11 +305,12 @@ def test_a_translation_covariance_travels_with_the_frame_and_its_estimate_at_the
         np.testing.assert_allclose(out, covariance, rtol=1e-3, atol=1e-3 * scale)
     small, large = (len(encode(dataclasses.replace(frame, translation_covariance=c))[1]) for c in (None, covariance))
     assert large - small == (12 if scale < 1 else 24)  # six float16 (float32 beyond float16's range)
-    assert decode(encode(feature())).translation_covariance is None
+    assert decode(encode(feature(np.ones((4, 4, 3), np.uint8)))).translation_covariance is None
 
 
 def test_a_covariance_that_cannot_be_one_is_refused():
-    topic, body = encode(dataclasses.replace(feature(), translation_covariance=_covariance(1e-6)))
+    window_end = feature(np.ones((4, 4, 3), np.uint8))
+    topic, body = encode(dataclasses.replace(window_end, translation_covariance=_covariance(1e-6)))
     start = body.index(bytes([2]) + messages._wire_covariance(_covariance(1e-6)).tobytes())
     negative = np.array([-1, 0, 0, 1, 0, 1], "<f2").tobytes()
     with pytest.raises(MessageError, match="non-negative diagonal"):

@@ -3,9 +3,10 @@ takes.
 
 Per device a :class:`~seesys.core.windows.WindowAssembler`, started afresh when the device restarts (a new stream
 session, or frame indices that do not increase: rows of its last session must not fill the new session's windows);
-frames whose device settings differ from the model's (or state none) and windows of another PSD shape are refused
-with the reason the service counts. The service worker adds every frame it receives; the simulated study adds its
-device's frames in its loop; both then run the model on the windows this gives.
+frames ending a window whose device settings differ from the model's (or state none; the stream states them on those
+frames, with the PSD) and windows of another PSD shape are refused with the reason the service counts. The service
+worker adds every frame it receives; the simulated study adds its device's frames in its loop; both then run the model
+on the windows this gives.
 """
 
 from __future__ import annotations
@@ -56,9 +57,10 @@ class DeviceWindows:
 
     def add(self, frame: FeatureFrame) -> Added:
         """Add one frame of its device (see the module docstring)."""
-        differences, _ = self.settings_differences(frame)
-        if differences:
-            return Added(refused=SETTINGS_MISMATCH)
+        if frame.psd is not None:  # the stream states the settings on the frames that end a window, with the PSD
+            differences, _ = self.settings_differences(frame)
+            if differences:
+                return Added(refused=SETTINGS_MISMATCH)
         device = frame.device_id
         restarted = frame.stream_session != self._session.get(
             device, frame.stream_session

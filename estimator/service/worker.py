@@ -10,12 +10,12 @@ worker's own monotonic clock, from the moment the worker received the frame, plu
 it forwarded it: no wall clock of another machine is compared with this one's. Every ``heartbeat_ms`` it reports
 its counters to the broker.
 
-Drops, counted per device by reason and reported with every heartbeat: ``settings_mismatch`` (a frame whose
-device settings differ from the model's, or that states none: refused, and the difference logged once per stream
-session), ``shape_mismatch`` (a window whose PSD is of another shape than the model's: another PSD grid),
-``missing_rts`` and ``missing_psd`` (a window end whose history arrived but with more than ``max_missing_rts`` rows
-missing or untracked, or a PSD sample missing) and ``stale``. Non-finite RTS values
-(NaN, ±inf) the model sees as 0 are counted per device too (``nonfinite``).
+Drops, counted per device by reason and reported with every heartbeat: ``settings_mismatch`` (a frame ending a window,
+which carries the device settings with its PSD, whose settings differ from the model's, or that states none: refused,
+and the difference logged once per stream session), ``shape_mismatch`` (a window whose PSD is of another shape than the
+model's: another PSD grid), ``missing_rts`` and ``missing_psd`` (a window end whose history arrived but with more than
+``max_missing_rts`` rows missing or untracked, or a PSD sample missing) and ``stale``. Non-finite RTS values (NaN, ±inf)
+the model sees as 0 are counted per device too (``nonfinite``).
 
 Order. Below capacity the queue is short and the order hardly matters. Overloaded, oldest first would serve every
 window just before its deadline, one at a time (the oldest leaves no room for a batch), while the fresher ones
@@ -245,7 +245,8 @@ class Worker:
         unpacked = time.perf_counter()
         self.counters.frames += 1
         device = frame.device_id
-        self._note_settings(frame)
+        if frame.psd is not None:  # where the stream states the settings (DeviceWindows.add)
+            self._note_settings(frame)
         added = self._windows.add(frame)
         if added.restarted:
             self._ready.pop(device, None)

@@ -60,8 +60,9 @@ from seesys.core.upper_triangle import symmetric_from_upper, upper_triangle
 
 # 4: estimates carry the ordinal head's thresholds and probabilities (3 had none). 6: a feature frame's device id
 # only in its topic, its RTS row as float16 where it can be, its PSD in the stream's own code (5: the log's code).
-# 7: feature frames and estimates carry the frame's predicted translation covariance.
-PROTOCOL_VERSION = 7
+# 7: feature frames and estimates carry the frame's predicted translation covariance. 8: a feature frame carries the
+# device settings and the covariance only with its PSD (the frames that end a model window, where they are read).
+PROTOCOL_VERSION = 8
 MAGIC = b"SEES"
 #: Topic prefixes of the two kinds; subscribe to one alone to receive every device's messages of that kind.
 FEATURE_TOPIC = b"F/"
@@ -102,7 +103,8 @@ class FeatureFrame:
     rts_schema_version: int = rts_schema.SCHEMA_VERSION
     rts_schema_fingerprint: int = rts_schema.FINGERPRINT
     stream_session: int = 0
-    settings: DeviceSettings | None = None  # None: the device states none (the service refuses such frames)
+    # The device settings and the covariance travel with the PSD only (see :func:`encode`).
+    settings: DeviceSettings | None = None  # None: the device states none (the service refuses its windows)
     translation_covariance: np.ndarray | None = None  # 3×3, m², world axes; None: the monitor predicted none
 
 
@@ -146,7 +148,10 @@ def _pack_text(text: str, what: str) -> bytes:
 
 
 def encode(message: FeatureFrame | Estimate) -> list[bytes]:
-    """The ``[topic, body]`` frames of ``message``."""
+    """The ``[topic, body]`` frames of ``message``. A feature frame's device settings and translation covariance
+    are sent only on a frame with a PSD, a frame that ends a model window, where the service checks the settings and
+    copies the covariance to its estimate: on the frames between, 44 of the stream's bytes a frame went to what
+    nobody reads (decoded, such a frame has neither)."""
     device = _pack_text(message.device_id, "device id")
     ident = _FRAME_ID.pack(int(message.stream_session), int(message.frame_index), float(message.timestamp))
     if isinstance(message, FeatureFrame):
@@ -164,8 +169,8 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
                 rts.size,
             ),
             _pack_row(rts),
-            _pack_settings(message.settings),
-            _pack_covariance(message.translation_covariance),
+            _pack_settings(message.settings if message.psd is not None else None),
+            _pack_covariance(message.translation_covariance if message.psd is not None else None),
         ]
         if message.psd is None:
             parts.append(b"\x00")

@@ -208,19 +208,20 @@ CHANNELS: tuple[Channel, ...] = (
     Channel(
         "weakest_information",
         "observability",
-        "1/m^2 (1/map units^2 in monocular)",
+        "1/mm^2 (1/(map units/1000)^2 in monocular)",
         "smallest eigenvalue of the translation information with the rotation marginalised out: its weakest "
         "direction (a degeneracy)",
         "log1p",
-        20.0,
+        5.0,
     ),
     Channel(
-        "condition_number",
+        "inverse_condition",
         "observability",
         "ratio",
-        "largest over smallest eigenvalue of that translation information (large: a planar or one-sided point set)",
-        "log1p",
-        5.0,
+        "smallest over largest eigenvalue of that translation information: 1 for points spread round the camera, "
+        "near 0 for a planar or one-sided point set",
+        "identity",
+        1.0,
     ),
     Channel(
         "image_coverage",
@@ -283,7 +284,7 @@ def fingerprint(channels: tuple[Channel, ...]) -> int:
 
 
 #: The fingerprint of each released schema version.
-_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F, 3: 0x8490F111, 4: 0x97A6A5A3}
+_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F, 3: 0x8490F111, 4: 0x4722F1F7}
 FINGERPRINT = fingerprint(CHANNELS)
 if _FINGERPRINTS.get(SCHEMA_VERSION) != FINGERPRINT:
     raise RuntimeError(

@@ -108,8 +108,8 @@ def write_session(
             "local_mapping_visual_error": 0.8 + 2 * d,
             # schema v4's geometry channels, as a monitor gives them: a harder stretch is less well observed
             "translation_sigma": 1.0 + 4.0 * d + 0.2 * rng.normal(),
-            "weakest_information": 1e7 * (1.0 - 0.8 * d),
-            "condition_number": 5.0 + 20.0 * d,
+            "weakest_information": 10.0 * (1.0 - 0.8 * d),
+            "inverse_condition": 0.2 - 0.15 * d,
             "image_coverage": 0.9 - 0.5 * d,
             "depth_spread": 0.8,
             "residual_median": 0.5 + d,
