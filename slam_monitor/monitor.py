@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from seesys.core import rts_schema
@@ -453,6 +454,9 @@ def create_observer(
     ``end_stride`` the windows' end stride of windows.toml (the dataset builder computes the PSD on every frame,
     ``end_stride = 1``; a stride that does not divide ``psd_stride`` raises ``ValueError``). Frames carry the
     session's stream session and the device's settings (mode, frame rate, ORB features, PSD)."""
+    # OpenCV's own threads (the second opinion's flow and PnP, the image statistics) would take the cores ORB-SLAM3
+    # tracks on, and their work would not count in the monitor thread's CPU time: the monitor runs on its one thread.
+    cv2.setNumThreads(1)
     config_dir = context.options.config_dir
     config = load_monitor_config(config_dir)
     config = replace_fields(config, device_id=resolve_device_id(device_id or config.device_id, context.options.source))
