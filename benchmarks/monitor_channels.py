@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from seesys.core import messages
@@ -281,6 +282,9 @@ def main() -> None:
         parser.error(f"--repeats must be at least 1, got {args.repeats}")
     config = load_monitor_config()
     inputs = record_inputs(args.source, SlamMode(args.mode))
+    # As in a device process (slam_monitor.monitor.create_observer): OpenCV on the calling thread, so that the thread
+    # CPU time holds all of a channel's work.
+    cv2.setNumThreads(1)
     frames = prepare(inputs, config)
     psd_frames = [p for p in frames if config.windows.is_psd_frame(p.item.frame.index)]
     # The frames as the device sends them: its device id and settings, a fresh stream session.

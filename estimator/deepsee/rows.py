@@ -66,6 +66,15 @@ ROWS: tuple[Row, ...] = (
         Variant(drop_rts=("mapping",)),
         ablation=True,
     ),
+    # Schema v4's geometry channels removed: what the pose observability, residuals and second opinion add.
+    Row(
+        "wo_geometry",
+        "DeepSEE-w/o-Geometry",
+        "RTS Ablation Study",
+        DEEPSEE,
+        Variant(drop_rts=("observability", "residual", "second_opinion")),
+        ablation=True,
+    ),
     Row(
         "wo_keypoint",
         "DeepSEE-w/o-Keypoint",
