@@ -105,3 +105,7 @@ def test_evaluation_judges_each_held_out_camera_as_a_set_of_its_own():
         HELDOUT_ENVIRONMENTS: ["c", "f"],
         heldout_camera_set("kinect_v1"): ["b", "d"],
     }
+    # A round that holds out no room (splits made with --heldout-per-round 0) has no held-out set to judge.
+    assert {name: list(data.meta.run) for name, data in _sets(windows, [], []).items()} == {
+        TEST_TRAJECTORIES: list("abcdef")
+    }

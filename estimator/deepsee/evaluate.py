@@ -98,7 +98,8 @@ def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windo
 
 def _sets(test: Windows, environments: list[str], cameras: list[str]) -> dict[str, Windows]:
     """The test windows of a round by set: the test trajectories, the held-out ``environments`` and each held-out
-    camera of ``cameras`` (through which a held-out environment's run counts for its camera)."""
+    camera of ``cameras`` (through which a held-out environment's run counts for its camera); a set without windows
+    (a round that holds out no room) is left out."""
     camera = test.meta.camera_model.to_numpy() if len(test.meta) else np.zeros(0, str)
     unseen_camera = np.isin(camera, cameras)
     in_heldout = test.meta.environment.isin(environments).to_numpy() & ~unseen_camera
@@ -108,7 +109,7 @@ def _sets(test: Windows, environments: list[str], cameras: list[str]) -> dict[st
     }
     for name in cameras:
         sets[heldout_camera_set(name)] = test.subset(np.flatnonzero(camera == name))
-    return sets
+    return {name: data for name, data in sets.items() if len(data.meta)}
 
 
 @dataclass
