@@ -193,8 +193,9 @@ class FeatureExtractor:
                 item.pose_wc[:3, :3],
             )
             channels.update(_geometry_channels(seen, normalisation))
+        # A map change (loop closure, global BA) moves ORB-SLAM3's poses within the span: the span starts again.
         disagreement = self._second_opinion.update(
-            index, frame.gray, frame.depth, item.keypoints, intr.matrix(), item.pose_wc
+            index, frame.gray, frame.depth, item.keypoints, intr.matrix(), None if item.map_changed else item.pose_wc
         )
         if disagreement is not None:
             channels["flow_disagreement"] = disagreement * MM_PER_M
