@@ -15,7 +15,10 @@ import dataclasses
 import importlib
 import itertools
 import secrets
+import signal
+import threading
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -246,9 +249,10 @@ def run_device_session(
                 for frame in itertools.islice(frames, options.max_frames):
                     pacer.wait(frame.timestamp)
                     output = tracker.track(frame)
-                    writer.write_frame(output)
-                    for observer in active:
-                        observer.on_frame(frame, output)
+                    with holding_interrupt():
+                        writer.write_frame(output)
+                        for observer in active:
+                            observer.on_frame(frame, output)
                     if progress:
                         progress(FrameTracked(output.frame_index, output.tracked))
             finally:
@@ -266,6 +270,27 @@ def run_device_session(
         raise
     writer.finish("completed", mapping_wait_s=round(pacer.mapping_wait_s, 3))
     return SessionResult(writer.folder, writer.frames_written, writer.frames_tracked, ground_truth is not None)
+
+
+@contextmanager
+def holding_interrupt() -> Iterator[None]:
+    """Hold a SIGINT that arrives inside the block until its end: a frame is logged and handed to every observer, or
+    neither (an interrupt between the two left ``frames.csv`` a frame ahead of the monitor's logs). Outside the main
+    thread, where no handler can be set, a plain block."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    handler = signal.signal(signal.SIGINT, lambda signum, _frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, handler)
+    if held:
+        if callable(handler):
+            handler(signal.SIGINT, None)
+        elif handler == signal.SIG_DFL:
+            raise KeyboardInterrupt
 
 
 def _expected_frames(source: FrameSource, max_frames: int | None) -> int | None:
