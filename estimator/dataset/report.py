@@ -41,6 +41,9 @@ WINDOW_STATISTICS: dict[str, Callable[..., np.ndarray]] = {
     "min": np.nanmin,
     "max": np.nanmax,
     "std": np.nanstd,
+    # The window end's own value: the frame the label is of (the second opinion's disagreement spans the label's
+    # frames there, and its window mean smears six hops over them).
+    "end": lambda values, axis: np.take(values, -1, axis=axis),
 }
 REPORT_MD = "label_report.md"
 HISTOGRAM_PNG = "label_histogram.png"
@@ -59,7 +62,8 @@ class TargetCheck:
 
 
 def window_features(rts: np.ndarray) -> pd.DataFrame:
-    """Per sample, each channel's mean/min/max/std over its RTS window (``<channel>_<statistic>``)."""
+    """Per sample, each channel's mean/min/max/std over its RTS window and its value at the window's end
+    (``<channel>_<statistic>``)."""
     columns = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a channel NaN over a whole window gives NaN, as wanted
