@@ -38,6 +38,7 @@ from estimator.dataset.store import (
     DatasetError,
     DatasetReader,
     check_label_definition,
+    check_rts_schema,
     gather_rts,
     label_definition,
     list_runs,
@@ -497,3 +498,14 @@ def test_a_dataset_labelled_under_another_definition_is_refused_for_its_modes(tm
     else:
         with pytest.raises(DatasetError, match=f"{tmp_path / DATASET_JSON}: .*{re.escape(refused)}"):
             check_label_definition(tmp_path, modes)
+
+
+def test_a_dataset_built_with_another_rts_schema_is_refused_by_name(tmp_path):
+    path = tmp_path / DATASET_JSON
+    path.write_text(
+        json.dumps({"rts_schema_version": rts_schema.SCHEMA_VERSION, "rts_channels": rts_schema.CHANNEL_NAMES})
+    )
+    check_rts_schema(tmp_path)
+    path.write_text(json.dumps({"rts_schema_version": 3, "rts_channels": rts_schema.CHANNEL_NAMES[:19]}))
+    with pytest.raises(DatasetError, match=rf"{re.escape(str(path))}: built with RTS schema v3 \(19 channels\)"):
+        check_rts_schema(tmp_path)

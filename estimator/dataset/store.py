@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from seesys.core import rts_schema
 from seesys.core.camera_normalisation import BEFORE_NORMALISATION
 from seesys.core.device_settings import MONO
 from seesys.core.errors import SeesysError
@@ -169,6 +170,23 @@ def check_label_definition(root: Path, modes: set[str]) -> None:
         )
 
 
+def check_rts_schema(root: Path) -> None:
+    """Refuse a dataset folder built with other RTS channels than this installation's (``dataset.json``): its
+    ``rts.npy`` columns are not this schema's. A folder without ``dataset.json`` records nothing to check.
+    DatasetError naming the folder, its schema and this one."""
+    path = root / DATASET_JSON
+    if not path.is_file():
+        return
+    recorded = json.loads(path.read_text())
+    channels = recorded.get("rts_channels")
+    if channels is not None and list(channels) != list(rts_schema.CHANNEL_NAMES):
+        raise DatasetError(
+            f"{path}: built with RTS schema v{recorded.get('rts_schema_version')} ({len(channels)} channels); this "
+            f"SEESys reads v{rts_schema.SCHEMA_VERSION} ({rts_schema.NUM_CHANNELS}): build the runs again into a new "
+            "folder"
+        )
+
+
 def gather_rts(rts: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """RTS windows from stored rows: ``rows`` (..., T) of ``rts`` (R, C); a row −1 (frame not logged) is NaN."""
     out = np.asarray(rts[np.maximum(rows, 0).ravel()], dtype=np.float32).reshape(*rows.shape, rts.shape[-1])
@@ -293,6 +311,7 @@ class DatasetReader:
                 info for info in list_runs(root) if info.status in WITH_SAMPLES and (runs is None or info.run in runs)
             ]
             check_label_definition(root, {info.mode for info in included})
+            check_rts_schema(root)
             for info in included:
                 if info.run in self._folders:
                     raise DatasetError(f"run {info.run} is in two dataset folders ({self._folders[info.run]}, {root})")
