@@ -123,12 +123,16 @@ def depth_spread(depths_m: np.ndarray) -> float:
     return float((p90 - p10) / p50)
 
 
-def translation_observability(information: np.ndarray) -> tuple[float, float, float]:
-    """(σ of the position in metres, smallest eigenvalue of the marginal translation information, its condition
-    number) from a 6×6 pose information matrix; NaN where the pose is not observable (a singular matrix)."""
+def _inverse(information: np.ndarray) -> np.ndarray | None:
+    """H⁻¹, the pose covariance in the camera's axes; None where H is singular."""
     try:
-        covariance = np.linalg.inv(information)
+        return np.linalg.inv(information)
     except np.linalg.LinAlgError:
+        return None
+
+
+def _translation_observability_of(covariance: np.ndarray | None) -> tuple[float, float, float]:
+    if covariance is None:
         nan = float("nan")
         return nan, nan, nan
     block = covariance[:3, :3]
@@ -138,17 +142,24 @@ def translation_observability(information: np.ndarray) -> tuple[float, float, fl
     return sigma, weakest, float(eigen[-1] / weakest) if weakest > 0 else float("inf")
 
 
+def translation_observability(information: np.ndarray) -> tuple[float, float, float]:
+    """(σ of the position in metres, smallest eigenvalue of the marginal translation information, its condition
+    number) from a 6×6 pose information matrix; NaN where the pose is not observable (a singular matrix)."""
+    return _translation_observability_of(_inverse(information))
+
+
+def _turned(covariance: np.ndarray, rotation_wc: np.ndarray) -> np.ndarray:
+    turn = np.zeros((6, 6))
+    turn[:3, :3] = turn[3:, 3:] = rotation_wc
+    return turn @ covariance @ turn.T
+
+
 def pose_covariance_world(information: np.ndarray, rotation_wc: np.ndarray) -> np.ndarray | None:
     """The 6×6 covariance of the pose in the world's axes, ROS's order (position x, y, z, then rotation about the
     fixed x, y, z axes): H⁻¹, whose perturbations are in the camera's axes, turned by R_wc (both blocks); None
     where H is singular."""
-    try:
-        covariance = np.linalg.inv(information)
-    except np.linalg.LinAlgError:
-        return None
-    turn = np.zeros((6, 6))
-    turn[:3, :3] = turn[3:, 3:] = rotation_wc
-    return turn @ covariance @ turn.T
+    covariance = _inverse(information)
+    return _turned(covariance, rotation_wc) if covariance is not None else None
 
 
 def relative_translation_covariance(
@@ -180,7 +191,7 @@ def residual_channels(distances_px: np.ndarray, pixel_sigma_px: float) -> tuple[
 
 
 def _observability(
-    information: np.ndarray,
+    covariance: np.ndarray | None,
     points_c: np.ndarray,
     keypoints_px: np.ndarray,
     distances_px: np.ndarray,
@@ -188,7 +199,8 @@ def _observability(
     height: int,
     noise: NoiseModel,
 ) -> PoseObservability:
-    sigma, weakest, condition = translation_observability(information)
+    """The channels from H⁻¹ (``covariance``, camera axes; None for a singular H) and the pairing."""
+    sigma, weakest, condition = _translation_observability_of(covariance)
     median, p90, over = residual_channels(distances_px, noise.pixel_sigma_px)
     return PoseObservability(
         sigma,
@@ -218,7 +230,7 @@ def pose_observability(
     if len(p) < _MIN_POINTS:
         return PoseObservability.unknown()
     information = pose_information(p, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured)
-    return _observability(information, p, keypoints_px, distances_px, width, height, noise)
+    return _observability(_inverse(information), p, keypoints_px, distances_px, width, height, noise)
 
 
 def frame_geometry(
@@ -232,12 +244,13 @@ def frame_geometry(
 ) -> tuple[PoseObservability, np.ndarray | None]:
     """A tracked frame's observability and residual channels from its SLAM-side features' pairing
     (``slam_monitor.slam_features``), and its world-axes 6×6 pose covariance (:func:`pose_covariance_world`), from
-    one information matrix; unknown channels and None with fewer than three paired points, None for a singular (or
-    numerically useless) information matrix."""
+    one information matrix and its one inverse; unknown channels and None with fewer than three paired points, None
+    for a singular (or numerically useless) information matrix."""
     points = np.asarray(slam.paired_points_c, np.float64).reshape(-1, 3)
     if len(points) < _MIN_POINTS:
         return PoseObservability.unknown(), None
-    information = pose_information(points, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured)
-    seen = _observability(information, points, slam.paired_keypoints_px, slam.paired_distances_px, width, height, noise)
-    covariance = pose_covariance_world(information, rotation_wc)
+    # One inverse for both: the channels read H⁻¹ in the camera's axes, the log and the stream in the world's.
+    inverse = _inverse(pose_information(points, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured))
+    seen = _observability(inverse, points, slam.paired_keypoints_px, slam.paired_distances_px, width, height, noise)
+    covariance = _turned(inverse, rotation_wc) if inverse is not None else None
     return seen, covariance if covariance is not None and np.isfinite(covariance).all() else None

@@ -125,8 +125,9 @@ class SecondOpinion:
 
     def __init__(self, cfg: FlowConfig):
         self._cfg = cfg
-        self._hops: deque[np.ndarray] = deque(maxlen=cfg.span_frames // cfg.hop_frames)
-        self._hop_frames: deque[_HopFrame] = deque(maxlen=cfg.span_frames // cfg.hop_frames + 1)
+        self._hops_per_span = cfg.span_frames // cfg.hop_frames
+        self._hops: deque[np.ndarray] = deque(maxlen=self._hops_per_span)
+        self._hop_frames: deque[_HopFrame] = deque(maxlen=self._hops_per_span + 1)
         self._value: float | None = None
 
     def _restart(self) -> None:
@@ -163,7 +164,7 @@ class SecondOpinion:
             return None
         self._hops.append(motion)
         self._hop_frames.append(here)
-        if len(self._hops) < self._hops.maxlen:  # type: ignore[operator]
+        if len(self._hops) < self._hops_per_span:
             self._value = None
             return None
         flow = np.eye(4)
