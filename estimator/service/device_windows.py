@@ -57,7 +57,7 @@ class DeviceWindows:
 
     def add(self, frame: FeatureFrame) -> Added:
         """Add one frame of its device (see the module docstring)."""
-        if frame.psd is not None:  # the stream states the settings on the frames that end a window, with the PSD
+        if frame.states_settings:
             differences, _ = self.settings_differences(frame)
             if differences:
                 return Added(refused=SETTINGS_MISMATCH)

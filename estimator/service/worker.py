@@ -245,7 +245,7 @@ class Worker:
         unpacked = time.perf_counter()
         self.counters.frames += 1
         device = frame.device_id
-        if frame.psd is not None:  # where the stream states the settings (DeviceWindows.add)
+        if frame.states_settings:
             self._note_settings(frame)
         added = self._windows.add(frame)
         if added.restarted:

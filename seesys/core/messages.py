@@ -107,6 +107,12 @@ class FeatureFrame:
     settings: DeviceSettings | None = None  # None: the device states none (the service refuses its windows)
     translation_covariance: np.ndarray | None = None  # 3×3, m², world axes; None: the monitor predicted none
 
+    @property
+    def states_settings(self) -> bool:
+        """Whether the stream states the device settings (and the covariance) on this frame: on a frame with a PSD,
+        one that ends a model window (:func:`encode`). A receiver checks settings on these frames only."""
+        return self.psd is not None
+
 
 @dataclass(frozen=True)
 class Exceedance:
@@ -169,8 +175,8 @@ def encode(message: FeatureFrame | Estimate) -> list[bytes]:
                 rts.size,
             ),
             _pack_row(rts),
-            _pack_settings(message.settings if message.psd is not None else None),
-            _pack_covariance(message.translation_covariance if message.psd is not None else None),
+            _pack_settings(message.settings if message.states_settings else None),
+            _pack_covariance(message.translation_covariance if message.states_settings else None),
         ]
         if message.psd is None:
             parts.append(b"\x00")

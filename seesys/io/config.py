@@ -207,8 +207,8 @@ class ConfigSet:
 
     def replaced(self, name: str, value: Any) -> ConfigSet:
         """This set with file ``name`` holding the settings ``value`` (a dataclass built from it, changed with
-        ``dataclasses.replace``). A value that carries another file's settings too (the monitor's shared windows)
-        writes only the keys this file has (the monitor's shared windows, its second opinion's span)."""
+        ``dataclasses.replace``). A value that carries another file's settings too (the monitor's shared windows, its
+        second opinion's span from labels.toml) writes only the keys this file has, table by table."""
         return dataclasses.replace(
             self, sections={**self.sections, name: _keys_of(to_toml_data(value), self.data(name))}
         )
