@@ -85,11 +85,9 @@ def test_the_default_build_draws_the_configured_cameras_and_preset_means_each_pr
 
 
 def test_evaluation_judges_each_held_out_camera_as_a_set_of_its_own():
-    import numpy as np
     import pandas as pd
 
-    from estimator.deepsee.data import Windows
-    from estimator.deepsee.evaluate import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, _sets, heldout_camera_set
+    from estimator.deepsee.evaluate import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, heldout_camera_set, set_indices
 
     meta = pd.DataFrame(
         {
@@ -98,14 +96,14 @@ def test_evaluation_judges_each_held_out_camera_as_a_set_of_its_own():
             "camera_model": ["ideal", "kinect_v1", "ideal", "kinect_v1", "d435", "d435"],
         }
     )
-    windows = Windows(np.zeros((6, 30, 19), np.float32), np.zeros((6, 4, 8, 8, 3), np.uint8), np.arange(6.0), meta)
-    sets = _sets(windows, ["hall"], ["kinect_v1"])
-    assert {name: list(data.meta.run) for name, data in sets.items()} == {
+    runs = meta.run.to_numpy()
+    sets = set_indices(meta, ["hall"], ["kinect_v1"])
+    assert {name: list(runs[rows]) for name, rows in sets.items()} == {
         TEST_TRAJECTORIES: ["a", "e"],
         HELDOUT_ENVIRONMENTS: ["c", "f"],
         heldout_camera_set("kinect_v1"): ["b", "d"],
     }
     # A round that holds out no room (splits made with --heldout-per-round 0) has no held-out set to judge.
-    assert {name: list(data.meta.run) for name, data in _sets(windows, [], []).items()} == {
+    assert {name: list(runs[rows]) for name, rows in set_indices(meta, [], []).items()} == {
         TEST_TRAJECTORIES: list("abcdef")
     }

@@ -16,6 +16,7 @@ from testkit.deepsee import tiny_config, tiny_config_dir, write_session
 from advisory.estimate_log import read_estimate_log
 from estimator.artefact.onnx_model import recorded_cameras
 from estimator.artefact.transforms import LabelTransform
+from estimator.deepsee.channels import judged_channels
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, payload_standardisation
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import DataError, concat, session_windows
@@ -26,6 +27,7 @@ from estimator.deepsee.predictors import WindowEstimates, load_predictor
 from estimator.deepsee.report import (
     CALIBRATION_CSV,
     CAMERAS_CSV,
+    CHANNELS_CSV,
     CONFUSION_PNG,
     RELIABILITY_PNG,
     REPORT_MD,
@@ -124,6 +126,13 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     calibration = pd.read_csv(out / CALIBRATION_CSV)
     assert set(calibration.row) == {"deepsee", "wo_psd"} and calibration.threshold_m.nunique() == 3
     assert (out / RELIABILITY_PNG).stat().st_size > 5000
+    # The geometry channels alone, per dataset set, each by the feature chosen on the training windows.
+    channels = pd.read_csv(out / CHANNELS_CSV)
+    assert set(channels.set) == {"test trajectories", "held-out environments"}
+    assert set(channels.channel) == set(judged_channels())
+    chosen = channels[channels.chosen]
+    assert not chosen.empty and chosen.groupby(["set", "round", "channel"]).size().eq(1).all()
+    assert "The geometry channels alone" in report
 
 
 @pytest.mark.system
@@ -193,6 +202,8 @@ def test_the_lockbox_is_judged_for_a_shipped_model_only_through_its_own_command(
     assert set(scores.set) == {"lockbox", f"lockbox room {lockbox.environment}"}  # no run through its camera
     assert set(scores.row) == {"deepsee", "constant", "always_top", "motion_isotonic"}
     assert (scores.windows == len(arrays.samples[arrays.samples.usable.astype(bool)])).all()
+    channels = pd.read_csv(out / CHANNELS_CSV)
+    assert set(channels.set) == set(scores.set) and channels.chosen.any()
     # The splits of the rounds hold none: nothing to judge, said in one line.
     capsys.readouterr()
     assert (

@@ -61,13 +61,14 @@ class TargetCheck:
     met: bool
 
 
-def window_features(rts: np.ndarray) -> pd.DataFrame:
-    """Per sample, each channel's mean/min/max/std over its RTS window and its value at the window's end
-    (``<channel>_<statistic>``)."""
+def window_features(rts: np.ndarray, channels: list[int] | None = None) -> pd.DataFrame:
+    """Per sample, each channel's (or each of the ``channels`` columns') mean/min/max/std over its raw RTS window
+    (N, T, C) and its value at the window's end (``<channel>_<statistic>``)."""
     columns = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a channel NaN over a whole window gives NaN, as wanted
-        for c, name in enumerate(rts_schema.CHANNEL_NAMES):
+        for c in range(rts_schema.NUM_CHANNELS) if channels is None else channels:
+            name = rts_schema.CHANNEL_NAMES[c]
             for stat, function in WINDOW_STATISTICS.items():
                 columns[f"{name}_{stat}"] = function(rts[:, :, c], axis=1) if len(rts) else np.zeros(0)
     return pd.DataFrame(columns)

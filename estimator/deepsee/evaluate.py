@@ -27,9 +27,10 @@ import torch
 from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.splits import Splits
 from estimator.dataset.store import DatasetReader
+from estimator.deepsee.channels import RawSet, channel_table, choose_features
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import Windows, concat, reader_windows, session_windows, split_windows
-from estimator.deepsee.metrics import equation2_head, score
+from estimator.deepsee.metrics import bootstrap_settings, equation2_head, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import (
     CEILING,
@@ -69,6 +70,7 @@ class Evaluation:
     runs: Path
     cameras: pd.DataFrame  # one row per (set, row, round, camera model): windows, median ratio
     calibration: pd.DataFrame  # one row per (set, row, round, head threshold, probability bin): reliability
+    channels: pd.DataFrame  # one row per (set, round, channel, window feature): the channel alone (channels.py)
 
 
 def heldout_camera_set(camera: str) -> str:
@@ -96,20 +98,20 @@ def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windo
     return sets
 
 
-def _sets(test: Windows, environments: list[str], cameras: list[str]) -> dict[str, Windows]:
-    """The test windows of a round by set: the test trajectories, the held-out ``environments`` and each held-out
-    camera of ``cameras`` (through which a held-out environment's run counts for its camera); a set without windows
-    (a round that holds out no room) is left out."""
-    camera = test.meta.camera_model.to_numpy() if len(test.meta) else np.zeros(0, str)
+def set_indices(meta: pd.DataFrame, environments: list[str], cameras: list[str]) -> dict[str, np.ndarray]:
+    """The windows (indices into ``meta``) of a round's test sets: the test trajectories, the held-out
+    ``environments`` and each held-out camera of ``cameras`` (through which a held-out environment's run counts for
+    its camera); a set without windows (a round that holds out no room) is left out."""
+    camera = meta.camera_model.to_numpy() if len(meta) else np.zeros(0, str)
     unseen_camera = np.isin(camera, cameras)
-    in_heldout = test.meta.environment.isin(environments).to_numpy() & ~unseen_camera
+    in_heldout = (meta.environment.isin(environments).to_numpy() if len(meta) else np.zeros(0, bool)) & ~unseen_camera
     sets = {
-        TEST_TRAJECTORIES: test.subset(np.flatnonzero(~in_heldout & ~unseen_camera)),
-        HELDOUT_ENVIRONMENTS: test.subset(np.flatnonzero(in_heldout)),
+        TEST_TRAJECTORIES: np.flatnonzero(~in_heldout & ~unseen_camera),
+        HELDOUT_ENVIRONMENTS: np.flatnonzero(in_heldout),
     }
     for name in cameras:
-        sets[heldout_camera_set(name)] = test.subset(np.flatnonzero(camera == name))
-    return {name: data for name, data in sets.items() if len(data.meta)}
+        sets[heldout_camera_set(name)] = np.flatnonzero(camera == name)
+    return {name: index for name, index in sets.items() if len(index)}
 
 
 @dataclass
@@ -120,6 +122,7 @@ class _Tables:
     predictions: list = field(default_factory=list)
     cameras: list = field(default_factory=list)
     calibration: list = field(default_factory=list)
+    channels: list = field(default_factory=list)
 
 
 def judge(
@@ -239,6 +242,25 @@ def _judge_round(
             )
 
 
+def raw_set(roots: list[Path], runs: list[str]) -> RawSet:
+    """The usable windows of dataset ``runs`` as the channel table reads them (raw RTS), in the order of
+    :func:`estimator.deepsee.data.split_windows`'s windows of the same runs."""
+    reader = DatasetReader(roots, runs=runs, usable_only=True)
+    return RawSet(
+        reader.rts_windows(), reader.index.error_m.to_numpy(np.float64), reader.index.run.to_numpy().astype(str)
+    )
+
+
+def _judge_channels(tables: _Tables, r: int, sets: dict[str, RawSet], train_runs: list[str], how: _Judging) -> None:
+    """The geometry channels alone on every dataset set of round ``r``, each by its window feature chosen on the
+    round's training runs."""
+    chosen = choose_features(raw_set(how.roots, train_runs))
+    for name, data in sets.items():
+        if len(data.error_m):
+            table = channel_table(data, chosen, bootstrap_settings(how.config.evaluation))
+            tables.channels.append(table.assign(set=name, round=r))
+
+
 def _evaluation(tables: _Tables, runs: Path) -> Evaluation:
     calibrated = (
         pd.concat(tables.calibration, ignore_index=True)
@@ -253,6 +275,7 @@ def _evaluation(tables: _Tables, runs: Path) -> Evaluation:
         Path(runs),
         pd.DataFrame(tables.cameras, columns=["set", "row", "round", "camera_model", "windows", "median_ratio"]),
         calibrated,
+        pd.concat(tables.channels, ignore_index=True) if tables.channels else pd.DataFrame(columns=["set", "round"]),
     )
 
 
@@ -277,10 +300,14 @@ def evaluate(
             raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
         parts = split_windows(roots, splits, r, ("train", "test"))
         environments, cameras = splits.heldout(r)
-        sets = _sets(parts["test"], environments, cameras)
+        index = set_indices(parts["test"].meta, environments, cameras)
+        sets = {name: parts["test"].subset(rows) for name, rows in index.items()}
         dataset_sets = set(sets)
         sets.update(other)
         _judge_round(tables, r, sets, dataset_sets, parts["train"], trained, how)
+        test = raw_set(how.roots, splits.rounds[r].test)
+        raw_sets = {name: test.subset(rows) for name, rows in index.items()}
+        _judge_channels(tables, r, raw_sets, splits.rounds[r].train, how)
     return _evaluation(tables, runs)
 
 
@@ -307,25 +334,18 @@ def evaluate_lockbox(
             "room and camera): there is nothing to judge"
         )
     data = reader_windows(DatasetReader(roots, runs=box.runs, usable_only=True))
-    sets = {
-        LOCKBOX: data,
-        f"{LOCKBOX} room {box.environment}": data.subset(
-            np.flatnonzero((data.meta.environment == box.environment).to_numpy())
-        ),
-        f"{LOCKBOX} camera {box.camera_model}": data.subset(
-            np.flatnonzero((data.meta.camera_model == box.camera_model).to_numpy())
-        ),
+    index = {
+        LOCKBOX: np.arange(len(data)),
+        f"{LOCKBOX} room {box.environment}": np.flatnonzero((data.meta.environment == box.environment).to_numpy()),
+        f"{LOCKBOX} camera {box.camera_model}": np.flatnonzero((data.meta.camera_model == box.camera_model).to_numpy()),
     }
-    sets = {name: windows_of for name, windows_of in sets.items() if len(windows_of)}
+    index = {name: rows for name, rows in index.items() if len(rows)}
+    sets = {name: data.subset(rows) for name, rows in index.items()}
     train = split_windows(roots, splits, round_index, ("train",))["train"]
     tables = _Tables()
-    _judge_round(
-        tables,
-        round_index,
-        sets,
-        set(sets),
-        train,
-        [(DEEPSEE, Path(model))],
-        _Judging([Path(r) for r in roots], config, pulses, windows, device),
-    )
+    how = _Judging([Path(r) for r in roots], config, pulses, windows, device)
+    _judge_round(tables, round_index, sets, set(sets), train, [(DEEPSEE, Path(model))], how)
+    raw = raw_set(how.roots, box.runs)
+    train_runs = splits.rounds[round_index].train
+    _judge_channels(tables, round_index, {name: raw.subset(rows) for name, rows in index.items()}, train_runs, how)
     return _evaluation(tables, Path(model).parent)

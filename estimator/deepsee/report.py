@@ -44,6 +44,7 @@ CONFUSION_PNG = "estimator-advisory-confusion.png"
 RELIABILITY_PNG = "estimator-head-reliability.png"
 CAMERAS_CSV = "camera_ratios.csv"
 CALIBRATION_CSV = "head_calibration.csv"
+CHANNELS_CSV = "channels.csv"
 # (column, heading, format) of the Table 3 layout; the yardsticks of WITH_INTERVALS show their interval too.
 COLUMNS = (
     ("rmse_cm", "RMSE (cm)", "{:.3f}"),
@@ -244,6 +245,37 @@ def camera_table(cameras: pd.DataFrame, set_name: str) -> list[str]:
     return lines + [""]
 
 
+def channel_lines(channels: pd.DataFrame, set_name: str) -> list[str]:
+    """The geometry channels alone on the set (estimator/deepsee/channels.py): per round, each channel's window
+    feature chosen on that round's training windows, its ρ and partial ρ given motion with their intervals."""
+    if "chosen" not in channels:
+        return []
+    part = channels[(channels.set == set_name) & channels.chosen.astype(bool)]
+    if part.empty:
+        return []
+    lines = [
+        "The geometry channels alone (each by the window feature with the largest |partial ρ| on the round's "
+        f"training windows; all five features of every channel in {CHANNELS_CSV}):",
+        "",
+        "| round | channel | feature | windows | runs | Spearman ρ | partial ρ given motion |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in part.itertuples():
+        rho, partial = (
+            _cell(
+                pd.Series([getattr(row, c)]),
+                "{:.2f}",
+                pd.Series([getattr(row, f"{c}_low")]),
+                pd.Series([getattr(row, f"{c}_high")]),
+            )
+            for c in ("spearman", "partial_spearman")
+        )
+        lines.append(
+            f"| {row.round} | {row.channel} | {row.feature} | {row.windows} | {row.runs} | {rho} | {partial} |"
+        )
+    return lines + [""]
+
+
 def _plot_timeseries(predictions: pd.DataFrame, count: int, out: Path) -> Path:
     runs = list(dict.fromkeys(predictions.run))[:count]
     fig, axes = plt.subplots(len(runs), 1, figsize=(10, 2.4 * len(runs)), squeeze=False)
@@ -320,6 +352,7 @@ def write_report(
     predictions.to_csv(out / PREDICTIONS_CSV, index=False)
     evaluation.cameras.to_csv(out / CAMERAS_CSV, index=False)
     evaluation.calibration.to_csv(out / CALIBRATION_CSV, index=False)
+    evaluation.channels.to_csv(out / CHANNELS_CSV, index=False)
     lines = (
         ["# DeepSEE evaluation (Table 3 layout)", ""]
         + [f"- {n}" for n in notes]
@@ -355,7 +388,7 @@ def write_report(
     for set_name in dict.fromkeys(scores.set):
         lines += [f"## {set_name}", ""] + table(scores, set_name, evaluation.runs) + [""]
         lines += improvements(scores, set_name, config.targets) + target_lines(scores, set_name, config.targets)
-        lines += [""] + camera_table(evaluation.cameras, set_name)
+        lines += [""] + camera_table(evaluation.cameras, set_name) + channel_lines(evaluation.channels, set_name)
     focus_row = DEEPSEE if DEEPSEE in set(predictions.row) else predictions.row.iloc[0]
     focus = predictions[(predictions.set == TEST_TRAJECTORIES) & (predictions["round"] == predictions["round"].min())]
     if not focus.empty:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from seesys.core import rts_schema
 from seesys.core.errors import SeesysError
 
 DEEPSEE = "deepsee"
@@ -72,7 +73,7 @@ ROWS: tuple[Row, ...] = (
         "DeepSEE-w/o-Geometry",
         "RTS Ablation Study",
         DEEPSEE,
-        Variant(drop_rts=("observability", "residual", "second_opinion")),
+        Variant(drop_rts=rts_schema.GEOMETRY_CATEGORIES),
         ablation=True,
     ),
     Row(

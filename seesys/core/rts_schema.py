@@ -311,6 +311,9 @@ CHANNEL_NAMES: tuple[str, ...] = tuple(c.name for c in CHANNELS)
 #: The channel categories, in schema order: the paper's sensor_input, tracking and mapping, then depth,
 #: observability, residual and second_opinion.
 CATEGORIES: tuple[str, ...] = tuple(dict.fromkeys(c.category for c in CHANNELS))
+#: The categories schema v4 added, from the geometry of what ORB-SLAM3 tracked rather than from the image or the
+#: motion: what the ``wo_geometry`` ablation removes and the channel table judges alone.
+GEOMETRY_CATEGORIES: tuple[str, ...] = ("observability", "residual", "second_opinion")
 NUM_CHANNELS = len(CHANNELS)
 _INDEX = {name: i for i, name in enumerate(CHANNEL_NAMES)}
 
