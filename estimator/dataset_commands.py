@@ -202,6 +202,22 @@ def _candidates(args: argparse.Namespace) -> int:
     return 0
 
 
+def _coverage(args: argparse.Namespace) -> int:
+    from estimator.dataset.covariance import build_frames, coverage_by_set, write_coverage_report
+    from estimator.dataset.splits import read_splits
+    from seesys.io.core_settings import load_label_config
+
+    splits = read_splits(args.splits, args.roots)
+    rounds = list(range(len(splits.rounds))) if args.rounds is None else args.rounds
+    frames = build_frames(args.roots, load_label_config().delta_frames)
+    table = coverage_by_set(frames, splits, rounds)
+    notes = [f"Data: {', '.join(str(r) for r in args.roots)}; splits {args.splits}; rounds {rounds}."]
+    path = write_coverage_report(table, args.out, notes)
+    print(path.read_text(), end="")
+    print(f"wrote {path}")
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``seesys dataset`` to the command line."""
     dataset = subparsers.add_parser("dataset", help="build the labelled training dataset, split it, report on it")
@@ -252,6 +268,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("sources", nargs="+", help="KIND:PATH sources with ground truth")
     p.add_argument("--out", type=Path, required=True, help="folder for frames.csv, correlations.csv and .md")
     p.set_defaults(func=_candidates)
+
+    p = sub.add_parser(
+        "coverage",
+        help="the predicted pose covariance against the label on a build's test sets, as computed and scaled",
+        description="For every labelled frame of the build's runs (their kept device sessions' pose_covariance.csv), "
+        "the label's pair's predicted sigma; per round and test set of the splits, the share of labels within 1 and "
+        "2 sigma, beside a Gaussian's, as computed and with sigma scaled by a factor fitted on the round's training "
+        "runs.",
+    )
+    p.add_argument("roots", type=Path, nargs="+", help="dataset folders (built with keep_sessions)")
+    p.add_argument("--splits", type=Path, required=True, help="splits JSON of these folders")
+    p.add_argument("--rounds", type=_ints, help="comma-separated rounds (default: all)")
+    p.add_argument("--out", type=Path, required=True, help="folder for covariance_coverage.csv and .md")
+    p.set_defaults(func=_coverage)
 
     p = sub.add_parser("splits", help="grouped cross-validation splits by trajectory and motion group (JSON)")
     p.add_argument("roots", type=Path, nargs="+", help="dataset folders split together (e.g. pretraining + others)")

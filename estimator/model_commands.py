@@ -65,7 +65,8 @@ def _context(args: argparse.Namespace, extra: dict):
 
 
 def _train(args: argparse.Namespace) -> int:
-    from estimator.deepsee.data import read_splits, split_windows
+    from estimator.dataset.splits import read_splits
+    from estimator.deepsee.data import split_windows
     from estimator.deepsee.stages import train_row
 
     ctx = _context(args, {"round": args.round})
@@ -77,8 +78,8 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _train_table_on_ray(args: argparse.Namespace) -> int:
+    from estimator.dataset.splits import read_splits
     from estimator.deepsee.config import load_estimator_config
-    from estimator.deepsee.data import read_splits
     from estimator.deepsee.loop import progress_bar
     from estimator.deepsee.table import TrainSpec, table_jobs
     from estimator.jobs import load_ray_settings, ray_executor
@@ -100,7 +101,7 @@ def _train_table_on_ray(args: argparse.Namespace) -> int:
 
 
 def _train_table(args: argparse.Namespace) -> int:
-    from estimator.deepsee.data import read_splits
+    from estimator.dataset.splits import read_splits
     from estimator.deepsee.table import train_table
 
     if args.ray is not None:
@@ -115,8 +116,8 @@ def _train_table(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    from estimator.dataset.splits import read_splits
     from estimator.deepsee.config import load_estimator_config
-    from estimator.deepsee.data import read_splits
     from estimator.deepsee.evaluate import evaluate
     from estimator.deepsee.report import write_report
     from seesys.io.core_settings import load_pulse_settings, load_window_config
@@ -138,8 +139,8 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _lockbox(args: argparse.Namespace) -> int:
+    from estimator.dataset.splits import read_splits
     from estimator.deepsee.config import load_estimator_config
-    from estimator.deepsee.data import read_splits
     from estimator.deepsee.evaluate import evaluate_lockbox
     from estimator.deepsee.report import write_report
     from seesys.io.core_settings import load_pulse_settings, load_window_config

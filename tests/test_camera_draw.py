@@ -87,7 +87,7 @@ def test_the_default_build_draws_the_configured_cameras_and_preset_means_each_pr
 def test_evaluation_judges_each_held_out_camera_as_a_set_of_its_own():
     import pandas as pd
 
-    from estimator.deepsee.evaluate import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, heldout_camera_set, set_indices
+    from estimator.dataset.splits import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, heldout_camera_set, set_indices
 
     meta = pd.DataFrame(
         {

@@ -28,7 +28,7 @@ def test_the_candidate_channels_are_reported_against_the_label_with_and_without_
     assert frames.translation_sigma_m.dropna().between(1e-5, 0.02).all()
     # The pair's predicted σ, judged as an uncertainty: shares are shares, a Gaussian's within the χ bounds of 3-D.
     covered = pd.read_csv(tmp_path / "report" / "coverage.csv").set_index("source")
-    assert covered.loc[POOLED, "n"] > 100 and 0 <= covered.loc[POOLED, "within_1sigma"] <= 1
+    assert covered.loc[POOLED, "frames"] > 100 and 0 <= covered.loc[POOLED, "within_1sigma"] <= 1
     assert 0.5 < covered.loc[POOLED, "gaussian_1sigma"] < 0.75 and covered.loc[POOLED, "gaussian_2sigma"] > 0.95
     assert covered.loc[POOLED, "median_label_over_sigma"] > 0
 

@@ -509,3 +509,48 @@ def test_a_dataset_built_with_another_rts_schema_is_refused_by_name(tmp_path):
     path.write_text(json.dumps({"rts_schema_version": 3, "rts_channels": rts_schema.CHANNEL_NAMES[:19]}))
     with pytest.raises(DatasetError, match=rf"{re.escape(str(path))}: built with RTS schema v3 \(19 channels\)"):
         check_rts_schema(tmp_path)
+
+
+@pytest.mark.system
+def test_the_covariance_is_judged_against_the_label_on_each_test_set_with_a_scale_fitted_on_training(tiny, tmp_path):
+    from estimator.dataset.covariance import PAIR_SIGMA, build_frames, coverage_by_set, fitted_scale
+    from estimator.dataset.splits import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, SplitRound, Splits
+    from seesys.core import session_layout
+    from slam_monitor.observability import relative_translation_covariance
+
+    root, _ = tiny
+    delta = load_label_config().delta_frames
+    frames = build_frames([root], delta)
+    runs = sorted(set(frames.run))
+    assert len(runs) == len(ENVIRONMENTS) and (frames[PAIR_SIGMA].dropna() > 0).all()
+    # One frame's σ by hand, from the session's logged covariances and trajectory.
+    row = frames.dropna(subset=[PAIR_SIGMA]).iloc[5]
+    session = root / "sessions" / row.run
+    logged = pd.read_csv(session / session_layout.POSE_COVARIANCE_CSV).set_index("frame_index")
+    matrices = session_layout.covariance_matrices(logged[list(session_layout.POSE_COVARIANCE_COLUMNS[2:])])
+    of = dict(zip(logged.index, matrices))
+    trajectory = pd.read_csv(session / session_layout.TRAJECTORY, sep=" ", header=None, comment="#")
+    where = {round(t, 6): p for t, p in zip(trajectory[0], trajectory[[1, 2, 3]].to_numpy())}
+    j, i = int(row.frame_index), int(row.frame_index) - delta
+    c = relative_translation_covariance(
+        of[i], of[j], where[round(logged.timestamp[i], 6)], where[round(logged.timestamp[j], 6)]
+    )
+    assert row[PAIR_SIGMA] == pytest.approx(np.sqrt(np.trace(c)))
+    # The scale is fitted on the training run alone and applied to the test sets.
+    environment = {r: frames[frames.run == r].environment.iloc[0] for r in runs}
+    split = SplitRound([], [], [runs[0]], [], runs[1:], [], heldout_environments=[environment[runs[2]]])
+    table = coverage_by_set(frames, Splits([environment[runs[2]]], [split]), [0])
+    scale = fitted_scale(frames[frames.run == runs[0]])
+    assert scale > 0 and (table.scale == scale).all()
+    pooled = table[table.camera_model == "all"].set_index("set")
+    assert set(pooled.index) == {TEST_TRAJECTORIES, HELDOUT_ENVIRONMENTS}
+    heldout = frames[frames.run == runs[2]].dropna(subset=[PAIR_SIGMA, "label_m"])
+    ratio = heldout.label_m / heldout[PAIR_SIGMA]
+    assert pooled.loc[HELDOUT_ENVIRONMENTS, "within_2sigma_scaled"] == pytest.approx(np.mean(ratio <= 2 * scale))
+    assert pooled.loc[HELDOUT_ENVIRONMENTS, "within_1sigma"] == pytest.approx(np.mean(ratio <= 1))
+    # A build without its sessions cannot be judged, and says why.
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns("sequences"))
+    shutil.rmtree(copy / "sessions" / row.run)
+    with pytest.raises(DatasetError, match="pose_covariance.csv is missing"):
+        build_frames([copy], delta)

@@ -14,8 +14,9 @@ from testkit.deepsee import PSD_SHAPE, tiny_config
 from estimator.artefact.compatibility import InputShape
 from estimator.artefact.onnx_model import OnnxModel
 from estimator.artefact.transforms import LabelTransform
+from estimator.dataset.splits import read_splits
 from estimator.deepsee.checkpoint import load_model, save_model
-from estimator.deepsee.data import read_splits, split_windows
+from estimator.deepsee.data import split_windows
 from estimator.deepsee.export import PARITY_TOLERANCE, export_onnx, parity
 from estimator.deepsee.inference import predict_outputs
 from estimator.deepsee.metrics import equation2_head, score

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from testkit.deepsee import PSD_SHAPE
 
+from estimator.dataset.splits import read_splits
 from estimator.dataset.store import DatasetReader
-from estimator.deepsee.data import read_splits, session_windows, split_windows
+from estimator.deepsee.data import session_windows, split_windows
 from seesys.core import rts_schema
 from seesys.io.core_settings import load_window_config
 

@@ -14,8 +14,9 @@ from rich.progress import Progress
 from testkit.deepsee import tiny_config, train_context
 
 from estimator.artefact.transforms import LabelTransform
+from estimator.dataset.splits import read_splits
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, save_model
-from estimator.deepsee.data import read_splits, split_windows
+from estimator.deepsee.data import split_windows
 from estimator.deepsee.inference import batch_tensors, predict
 from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant, row

@@ -12,7 +12,7 @@ import pytest
 from rich.progress import Progress
 from testkit.deepsee import TRAINED_ROWS, tiny_config, tiny_config_dir
 
-from estimator.deepsee.data import read_splits
+from estimator.dataset.splits import read_splits
 from estimator.deepsee.run_folder import CONFIG_JSON, METRICS_CSV
 from estimator.deepsee.table import TrainSpec, table_jobs
 from estimator.jobs import RayExecutor

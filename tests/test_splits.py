@@ -11,9 +11,8 @@ import pandas as pd
 import pytest
 
 from estimator.dataset.config import LockboxConfig, SplitConfig, load_dataset_config, lockbox_hash
-from estimator.dataset.splits import SplitError, build_fingerprint, check_no_leak, make_splits, run_table
+from estimator.dataset.splits import SplitError, build_fingerprint, check_no_leak, make_splits, read_splits, run_table
 from estimator.dataset.store import COMPLETED, RunInfo, record_crashed_run
-from estimator.deepsee.data import read_splits
 from seesys.core.errors import ConfigError
 from seesys.io.config import config_dir
 

@@ -33,6 +33,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from estimator.dataset.covariance import (
+    GAUSSIAN_WITHIN,
+    LABEL,
+    PAIR_SIGMA,
+    coverage_figures,
+    pair_columns,
+    pair_covariance,
+)
 from estimator.deepsee.yardsticks import partial_spearman
 from seesys.core.errors import SeesysError
 from seesys.core.labels import LabelConfig, label_frames
@@ -40,7 +48,7 @@ from seesys.core.motion import translation_spread
 from seesys.core.trajectory import Poses
 from slam_monitor.monitor import MonitorInput, input_slam_features
 from slam_monitor.monitor_config import MonitorConfig
-from slam_monitor.observability import PoseObservability, frame_geometry, relative_translation_covariance
+from slam_monitor.observability import PoseObservability, frame_geometry
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.replay import record_inputs
 from slam_monitor.second_opinion import SecondOpinion
@@ -49,13 +57,8 @@ from slam_monitor.sources import load_camera_config, open_source, parse_source_s
 
 #: The candidate channels, as the report names them: the per-frame ones, and the second opinion's over the label's span.
 PER_FRAME = tuple(PoseObservability.__dataclass_fields__)
-PAIR_SIGMA = "pair_sigma_m"
 CHANNELS = (*PER_FRAME, "disagreement_m", PAIR_SIGMA)
-GAUSSIAN_WITHIN = ("gaussian_within_1sigma", "gaussian_within_2sigma")
-# Draws per frame for the share of a Gaussian within 1σ and 2σ; a fixed seed keeps a report reproducible.
-_GAUSSIAN_DRAWS = 4000
 MOTION = "motion"
-LABEL = "label_m"
 POOLED = "pooled"
 
 
@@ -93,28 +96,6 @@ def _frame_row(
     return row, covariance
 
 
-def _pair_covariance(covariances: list, poses: list, j: int, delta: int) -> np.ndarray | None:
-    """The 3×3 covariance of frame j's pair (j − delta, j), where both frames have one."""
-    i = j - delta
-    if i < 0 or covariances[i] is None or covariances[j] is None:
-        return None
-    return relative_translation_covariance(covariances[i], covariances[j], poses[i][:3, 3], poses[j][:3, 3])
-
-
-def _gaussian_coverage(pair: list) -> np.ndarray:
-    """(N, 2): per frame, the shares of a zero-mean Gaussian of its pair's covariance whose norm lies within 1σ and
-    2σ (σ the square root of the trace); NaN where the frame has none."""
-    draws = np.random.default_rng(0).standard_normal((_GAUSSIAN_DRAWS, 3))
-    shares = np.full((len(pair), 2), np.nan)
-    for k, c in enumerate(pair):
-        if c is not None:
-            # in the covariance's own axes: a rotation does not change a norm
-            norms = np.linalg.norm(draws * np.sqrt(np.clip(np.linalg.eigvalsh(c), 0, None)), axis=1)
-            sigma = np.sqrt(np.trace(c))
-            shares[k] = np.mean(norms <= sigma), np.mean(norms <= 2 * sigma)
-    return shares
-
-
 def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) -> pd.DataFrame:
     """Every frame of ``source``: its candidate channels averaged over the label's frames, the motion statistic and
     the label (see the module docstring). Raises SeesysError for a source without ground truth or a failed run."""
@@ -134,10 +115,10 @@ def candidate_frames(source: str, config: MonitorConfig, labels: LabelConfig) ->
     states = np.array([i.state.name for i in inputs])
     table[LABEL] = label_frames(estimate, states, truth, False, labels).error_m
     table.loc[~np.array(tracked), LABEL] = np.nan
-    covariances = [covariance for _, covariance in framed]
-    pair = [_pair_covariance(covariances, poses, j, labels.delta_frames) for j in range(len(inputs))]
-    table[PAIR_SIGMA] = [np.sqrt(np.trace(c)) if c is not None else np.nan for c in pair]
-    table[list(GAUSSIAN_WITHIN)] = _gaussian_coverage(pair)
+    covariances = {j: covariance for j, (_, covariance) in enumerate(framed) if covariance is not None}
+    positions = {j: pose[:3, 3] for j, pose in enumerate(poses)}
+    pairs = [pair_covariance(covariances, positions, j, labels.delta_frames) for j in range(len(inputs))]
+    table[[PAIR_SIGMA, *GAUSSIAN_WITHIN]] = pair_columns(pairs).to_numpy()
     # A frame's channels over the label's pair; the disagreement already spans it.
     for channel in PER_FRAME:
         table[channel] = table[channel].rolling(labels.delta_frames, min_periods=1).mean()
@@ -176,22 +157,7 @@ def correlations(frames: pd.DataFrame) -> pd.DataFrame:
 def coverage(frames: pd.DataFrame) -> pd.DataFrame:
     """Per source and pooled: how often the label lies within 1σ and 2σ of its pair's predicted σ, what a Gaussian of
     the predicted covariance would give (the mean over the frames), and the median of label / σ."""
-    rows = []
-    for name, group in _per_source(frames):
-        d = group.dropna(subset=[PAIR_SIGMA, LABEL])
-        ratio = d[LABEL] / d[PAIR_SIGMA]
-        rows.append(
-            {
-                "source": name,
-                "n": len(d),
-                "within_1sigma": float(np.mean(ratio <= 1)) if len(d) else np.nan,
-                "gaussian_1sigma": float(d[GAUSSIAN_WITHIN[0]].mean()) if len(d) else np.nan,
-                "within_2sigma": float(np.mean(ratio <= 2)) if len(d) else np.nan,
-                "gaussian_2sigma": float(d[GAUSSIAN_WITHIN[1]].mean()) if len(d) else np.nan,
-                "median_label_over_sigma": float(ratio.median()) if len(d) else np.nan,
-            }
-        )
-    return pd.DataFrame(rows)
+    return pd.DataFrame([{"source": name, **coverage_figures(group)} for name, group in _per_source(frames)])
 
 
 def write_candidates_report(frames: pd.DataFrame, table: pd.DataFrame, out: Path) -> list[Path]:

@@ -299,8 +299,44 @@ def check_splits(splits: Splits, roots: list[Path], source: str) -> None:
     check_no_leak(splits, runs)
 
 
+def read_splits(path: Path, roots: list[Path]) -> Splits:
+    """The splits of ``path``, checked against the dataset folders ``roots`` they will be used on: made from
+    their build, no leak between parts, no lockbox run in a round (:func:`check_splits`); raises a one-line
+    :class:`SplitError`."""
+    try:
+        splits = Splits.from_json(Path(path).read_text())
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise SplitError(f"cannot read the splits {path}: {e}") from None
+    check_splits(splits, [Path(r) for r in roots], str(path))
+    return splits
+
+
 def write_splits(roots: list[Path], config: SplitConfig, out: Path, lockbox: LockboxConfig | None = None) -> Splits:
     splits = make_splits(run_table(roots), config, lockbox)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(splits.to_json())
     return splits
+
+
+TEST_TRAJECTORIES = "test trajectories"
+HELDOUT_ENVIRONMENTS = "held-out environments"
+
+
+def heldout_camera_set(camera: str) -> str:
+    return f"held-out camera {camera}"
+
+
+def set_indices(meta: pd.DataFrame, environments: list[str], cameras: list[str]) -> dict[str, np.ndarray]:
+    """The windows (indices into ``meta``) of a round's test sets: the test trajectories, the held-out
+    ``environments`` and each held-out camera of ``cameras`` (through which a held-out environment's run counts for
+    its camera); a set without windows (a round that holds out no room) is left out."""
+    camera = meta.camera_model.to_numpy() if len(meta) else np.zeros(0, str)
+    unseen_camera = np.isin(camera, cameras)
+    in_heldout = (meta.environment.isin(environments).to_numpy() if len(meta) else np.zeros(0, bool)) & ~unseen_camera
+    sets = {
+        TEST_TRAJECTORIES: np.flatnonzero(~in_heldout & ~unseen_camera),
+        HELDOUT_ENVIRONMENTS: np.flatnonzero(in_heldout),
+    }
+    for name in cameras:
+        sets[heldout_camera_set(name)] = np.flatnonzero(camera == name)
+    return {name: index for name, index in sets.items() if len(index)}

@@ -20,7 +20,7 @@ import pandas as pd
 
 from estimator.artefact.compatibility import InputShape
 from estimator.artefact.transforms import prepare_rts
-from estimator.dataset.splits import Splits, check_splits
+from estimator.dataset.splits import Splits
 from estimator.dataset.store import DatasetReader
 from seesys.core import rts_schema, session_layout
 from seesys.core.errors import SeesysError
@@ -114,18 +114,6 @@ def split_windows(
     return {
         part: reader_windows(DatasetReader(roots, runs=getattr(split_round, part), usable_only=True)) for part in parts
     }
-
-
-def read_splits(path: Path, roots: list[Path]) -> Splits:
-    """The splits of ``path``, checked against the dataset folders ``roots`` they will be used on: made from
-    their build, no leak between parts, no lockbox run in a round (:func:`estimator.dataset.splits.check_splits`,
-    which raises a one-line :class:`~estimator.dataset.splits.SplitError`)."""
-    try:
-        splits = Splits.from_json(Path(path).read_text())
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise DataError(f"cannot read the splits {path}: {e}") from None
-    check_splits(splits, [Path(r) for r in roots], str(path))
-    return splits
 
 
 def limit(windows: Windows, count: int, seed: int) -> Windows:

@@ -25,7 +25,7 @@ import pandas as pd
 import torch
 
 from estimator.artefact.transforms import LabelTransform
-from estimator.dataset.splits import Splits
+from estimator.dataset.splits import Splits, set_indices
 from estimator.dataset.store import DatasetReader
 from estimator.deepsee.channels import RawSet, channel_table, choose_features
 from estimator.deepsee.config import EstimatorConfig
@@ -47,8 +47,6 @@ from seesys.core.errors import SeesysError
 from seesys.core.exceedance import class_boundaries_m
 from seesys.core.windows import WindowConfig
 
-TEST_TRAJECTORIES = "test trajectories"
-HELDOUT_ENVIRONMENTS = "held-out environments"
 OUT_OF_DOMAIN = "out-of-domain sessions"
 
 
@@ -73,10 +71,6 @@ class Evaluation:
     channels: pd.DataFrame  # one row per (set, round, channel, window feature): the channel alone (channels.py)
 
 
-def heldout_camera_set(camera: str) -> str:
-    return f"held-out camera {camera}"
-
-
 def session_set(name: str) -> str:
     return f"session {name}"
 
@@ -96,22 +90,6 @@ def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windo
     if len(each) > 1:
         sets.update({session_set(name): data for name, data in zip(names, each)})
     return sets
-
-
-def set_indices(meta: pd.DataFrame, environments: list[str], cameras: list[str]) -> dict[str, np.ndarray]:
-    """The windows (indices into ``meta``) of a round's test sets: the test trajectories, the held-out
-    ``environments`` and each held-out camera of ``cameras`` (through which a held-out environment's run counts for
-    its camera); a set without windows (a round that holds out no room) is left out."""
-    camera = meta.camera_model.to_numpy() if len(meta) else np.zeros(0, str)
-    unseen_camera = np.isin(camera, cameras)
-    in_heldout = (meta.environment.isin(environments).to_numpy() if len(meta) else np.zeros(0, bool)) & ~unseen_camera
-    sets = {
-        TEST_TRAJECTORIES: np.flatnonzero(~in_heldout & ~unseen_camera),
-        HELDOUT_ENVIRONMENTS: np.flatnonzero(in_heldout),
-    }
-    for name in cameras:
-        sets[heldout_camera_set(name)] = np.flatnonzero(camera == name)
-    return {name: index for name, index in sets.items() if len(index)}
 
 
 @dataclass

@@ -19,8 +19,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from estimator.dataset.splits import TEST_TRAJECTORIES
 from estimator.deepsee.config import EstimatorConfig, TargetsConfig
-from estimator.deepsee.evaluate import TEST_TRAJECTORIES, Evaluation, round_folder
+from estimator.deepsee.evaluate import Evaluation, round_folder
 from estimator.deepsee.metrics import CM_PER_M, advisory_bins, confusion
 from estimator.deepsee.references import (
     CEILING,

@@ -24,9 +24,8 @@ from scipy.spatial.transform import Rotation
 
 from estimator.dataset.build import label_run
 from estimator.dataset.config import load_dataset_config
-from estimator.dataset.splits import SplitRound, Splits
+from estimator.dataset.splits import SplitRound, Splits, read_splits
 from estimator.dataset.store import COMPLETED, RunInfo, write_run
-from estimator.deepsee.data import read_splits
 from seesys.core import camera_normalisation, rts_schema, session_layout
 from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
