@@ -29,6 +29,7 @@ from estimator.deepsee.report import (
     CAMERAS_CSV,
     CHANNELS_CSV,
     CONFUSION_PNG,
+    DIFFERENCES_CSV,
     RELIABILITY_PNG,
     REPORT_MD,
     SCATTER_PNG,
@@ -133,6 +134,20 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     chosen = channels[channels.chosen]
     assert not chosen.empty and chosen.groupby(["set", "round", "channel"]).size().eq(1).all()
     assert "The geometry channels alone" in report
+    # Every trained row against the motion row and the forest, paired over runs; the forest not against itself.
+    differences = pd.read_csv(out / DIFFERENCES_CSV)
+    pooled_pairs = differences[differences.set == OUT_OF_DOMAIN]
+    assert set(zip(pooled_pairs.row, pooled_pairs.against)) == {
+        (row, against)
+        for row in ("deepsee", "wo_psd", "lstm", "random_forest")
+        for against in ("motion_isotonic", "random_forest")
+        if row != against
+    }
+    deepsee_pair = pooled_pairs[(pooled_pairs.row == "deepsee") & (pooled_pairs.against == "motion_isotonic")].iloc[0]
+    by_row = scores[scores.set == OUT_OF_DOMAIN].set_index("row").kappa
+    assert deepsee_pair.kappa == pytest.approx(by_row["deepsee"] - by_row["motion_isotonic"])
+    assert deepsee_pair.kappa_low <= deepsee_pair.kappa <= deepsee_pair.kappa_high
+    assert "Paired over runs" in report
 
 
 @pytest.mark.system

@@ -24,6 +24,7 @@ from estimator.deepsee.yardsticks import (
     Judged,
     bootstrap_over_runs,
     calibration,
+    paired_differences,
     partial_spearman,
     quadratic_kappa,
     sparsification,
@@ -145,6 +146,34 @@ def test_bootstrap_over_runs_resamples_whole_runs():
     single = dataclasses.replace(judged, window_run=np.array(["a"] * 4), bin_run=np.array(["a", "a"]))
     intervals, n = bootstrap_over_runs(single, statistic, ("agreement",), Bootstrap(200, 0.95, 0))
     assert n == 1 and all(np.isnan(intervals["agreement"]))
+
+
+def test_a_paired_difference_resamples_the_same_runs_for_both_rows():
+    # Three runs; estimator a right in runs a and b, wrong in c; estimator b wrong in a, right in b and c. Drawn
+    # together, the difference of agreement is (right_a − right_b) / 3 over the drawn runs, from −1 (only c drawn)
+    # to +1 (only a); drawn apart (two intervals side by side) the spread would come from both draws.
+    runs = np.array(["a", "b", "c"])
+    truth_class = np.array([1, 1, 1])
+    a = Judged(
+        runs, np.ones(3), np.ones(3), np.zeros(3), runs, np.ones(3), np.ones(3), truth_class, np.array([1, 1, 0])
+    )
+    b = dataclasses.replace(a, bin_estimate_class=np.array([0, 1, 1]))
+
+    def statistic(j: Judged) -> dict[str, float]:
+        return {"agreement": float(np.mean(j.bin_true_class == j.bin_estimate_class))}
+
+    points, intervals = paired_differences(a, b, statistic, ("agreement",), Bootstrap(400, 0.95, 0))
+    assert points["agreement"] == pytest.approx(0.0)
+    low, high = intervals["agreement"]
+    assert -1.0 <= low < 0 < high <= 1.0
+    # The same estimates: every draw differs by exactly 0.
+    points, intervals = paired_differences(a, a, statistic, ("agreement",), Bootstrap(50, 0.95, 0))
+    assert points["agreement"] == 0 and intervals["agreement"] == (0.0, 0.0)
+    # A row right everywhere against one wrong everywhere: the interval excludes 0.
+    right = dataclasses.replace(a, bin_estimate_class=truth_class)
+    wrong = dataclasses.replace(a, bin_estimate_class=np.zeros(3, int))
+    _, intervals = paired_differences(right, wrong, statistic, ("agreement",), Bootstrap(50, 0.95, 0))
+    assert intervals["agreement"] == (1.0, 1.0)
 
 
 def _windows(motion_per_run: list[float], truth_per_run: list[float], windows_per_run: int = 30) -> Windows:

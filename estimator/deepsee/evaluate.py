@@ -30,18 +30,19 @@ from estimator.dataset.store import DatasetReader
 from estimator.deepsee.channels import RawSet, channel_table, choose_features
 from estimator.deepsee.config import EstimatorConfig
 from estimator.deepsee.data import Windows, concat, reader_windows, session_windows, split_windows
-from estimator.deepsee.metrics import bootstrap_settings, equation2_head, score
+from estimator.deepsee.metrics import bootstrap_settings, equation2_head, judged, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import (
     CEILING,
+    MOTION_ISOTONIC,
     ceiling_estimates,
     fit_references,
     motion_statistic,
 )
-from estimator.deepsee.rows import DEEPSEE, ROWS
+from estimator.deepsee.rows import DEEPSEE, RANDOM_FOREST, ROWS
 from estimator.deepsee.run_folder import MODEL_PT
 from estimator.deepsee.stages import FOREST_PICKLE
-from estimator.deepsee.yardsticks import calibration, median_ratio
+from estimator.deepsee.yardsticks import Judged, calibration, median_ratio, paired_differences, yardsticks
 from seesys.core.equation2 import PulseSettings
 from seesys.core.errors import SeesysError
 from seesys.core.exceedance import class_boundaries_m
@@ -69,6 +70,7 @@ class Evaluation:
     cameras: pd.DataFrame  # one row per (set, row, round, camera model): windows, median ratio
     calibration: pd.DataFrame  # one row per (set, row, round, head threshold, probability bin): reliability
     channels: pd.DataFrame  # one row per (set, round, channel, window feature): the channel alone (channels.py)
+    differences: pd.DataFrame  # one row per (set, round, row, compared row): paired differences (COMPARED)
 
 
 def session_set(name: str) -> str:
@@ -101,6 +103,7 @@ class _Tables:
     cameras: list = field(default_factory=list)
     calibration: list = field(default_factory=list)
     channels: list = field(default_factory=list)
+    differences: list = field(default_factory=list)
 
 
 def judge(
@@ -184,8 +187,11 @@ def _judge_round(
     transform = LabelTransform(config.label_transform.k)
     motion = {name: motion_statistic(data.rts) for name, data in sets.items()}
     references = fit_references(train, pulses)
+    # Every row's estimates by set, for the paired comparisons once all are made.
+    estimated: dict[str, dict[str, np.ndarray]] = {}
     for name, data in sets.items():
-        for row_name, estimate in references.estimates(data).items():
+        estimated[name] = references.estimates(data)
+        for row_name, estimate in estimated[name].items():
             judge(
                 tables, {"set": name, "row": row_name, "round": r}, data, estimate, None, motion[name], config, pulses
             )
@@ -207,6 +213,7 @@ def _judge_round(
         predictor = load_predictor(path, transform, config.evaluation.batch_size, how.device, how.windows)
         for name, data in sets.items():
             estimates = predictor.estimates(data)
+            estimated[name][row_name] = estimates.metres
             head = equation2_head(estimates.probabilities, predictor.thresholds_m, pulses)
             judge(
                 tables,
@@ -218,6 +225,55 @@ def _judge_round(
                 config,
                 pulses,
             )
+    for name, data in sets.items():
+        _compare(
+            tables, {"set": name, "round": r}, data, estimated[name], [row for row, _ in models], motion[name], how
+        )
+
+
+#: The rows every trained row is compared with, run by run: the motion alone and the forest.
+COMPARED = (MOTION_ISOTONIC, RANDOM_FOREST)
+#: The yardsticks of a paired comparison.
+DIFFERENCES = ("kappa", "aurg", "spearman", "partial_spearman")
+
+
+def _difference_columns() -> list[str]:
+    return [f"{name}{suffix}" for name in DIFFERENCES for suffix in ("", "_low", "_high")]
+
+
+def _compare(
+    tables: _Tables,
+    key: dict,
+    data: Windows,
+    estimated: dict[str, np.ndarray],
+    trained: list[str],
+    motion: np.ndarray,
+    how: _Judging,
+) -> None:
+    """Each trained row minus each row of :data:`COMPARED` on the same windows, with the interval of the difference
+    over runs (:func:`estimator.deepsee.yardsticks.paired_differences`)."""
+    if not len(data):
+        return
+    evaluation, pulses = how.config.evaluation, how.pulses
+
+    def statistic(j: Judged) -> dict[str, float]:
+        return yardsticks(j, pulses.max_pulses + 1, evaluation.large_error_m)
+
+    def as_judged(row: str) -> Judged:
+        return judged(data.meta, estimated[row], data.error_m, motion, pulses)
+
+    for row in trained:
+        for against in COMPARED:
+            if row == against or against not in estimated:
+                continue
+            points, intervals = paired_differences(
+                as_judged(row), as_judged(against), statistic, DIFFERENCES, bootstrap_settings(evaluation)
+            )
+            values = {}
+            for name in DIFFERENCES:
+                values[name] = points[name]
+                values[f"{name}_low"], values[f"{name}_high"] = intervals[name]
+            tables.differences.append({**key, "row": row, "against": against, **values})
 
 
 def raw_set(roots: list[Path], runs: list[str]) -> RawSet:
@@ -254,6 +310,7 @@ def _evaluation(tables: _Tables, runs: Path) -> Evaluation:
         pd.DataFrame(tables.cameras, columns=["set", "row", "round", "camera_model", "windows", "median_ratio"]),
         calibrated,
         pd.concat(tables.channels, ignore_index=True) if tables.channels else pd.DataFrame(columns=["set", "round"]),
+        pd.DataFrame(tables.differences, columns=["set", "round", "row", "against", *_difference_columns()]),
     )
 
 

@@ -46,6 +46,7 @@ RELIABILITY_PNG = "estimator-head-reliability.png"
 CAMERAS_CSV = "camera_ratios.csv"
 CALIBRATION_CSV = "head_calibration.csv"
 CHANNELS_CSV = "channels.csv"
+DIFFERENCES_CSV = "differences.csv"
 # (column, heading, format) of the Table 3 layout; the yardsticks of WITH_INTERVALS show their interval too.
 COLUMNS = (
     ("rmse_cm", "RMSE (cm)", "{:.3f}"),
@@ -246,6 +247,29 @@ def camera_table(cameras: pd.DataFrame, set_name: str) -> list[str]:
     return lines + [""]
 
 
+def difference_lines(differences: pd.DataFrame, set_name: str) -> list[str]:
+    """Each trained row against the motion-only row and the forest on the set's windows, paired run by run: the
+    difference of κ, AURG and partial ρ, and its bootstrap interval over runs (over several rounds: from the lowest
+    round's low to the highest round's high)."""
+    part = differences[differences.set == set_name]
+    if part.empty:
+        return []
+    lines = [
+        "Paired over runs (the same resampled runs for both rows): each row minus the compared row, with the "
+        f"interval of the difference ({DIFFERENCES_CSV}); an interval above 0 says the row is better on these runs:",
+        "",
+        "| row | minus | Δ κ | Δ AURG | Δ partial ρ given motion |",
+        "|---|---|---|---|---|",
+    ]
+    for (row, against), group in part.groupby(["row", "against"], sort=False):
+        cells = [
+            _cell(group[name], "{:+.2f}", group[f"{name}_low"], group[f"{name}_high"])
+            for name in ("kappa", "aurg", "partial_spearman")
+        ]
+        lines.append(f"| {row} | {against} | " + " | ".join(cells) + " |")
+    return lines + [""]
+
+
 def channel_lines(channels: pd.DataFrame, set_name: str) -> list[str]:
     """The geometry channels alone on the set (estimator/deepsee/channels.py): per round, each channel's window
     feature chosen on that round's training windows, its ρ and partial ρ given motion with their intervals."""
@@ -354,6 +378,7 @@ def write_report(
     evaluation.cameras.to_csv(out / CAMERAS_CSV, index=False)
     evaluation.calibration.to_csv(out / CALIBRATION_CSV, index=False)
     evaluation.channels.to_csv(out / CHANNELS_CSV, index=False)
+    evaluation.differences.to_csv(out / DIFFERENCES_CSV, index=False)
     lines = (
         ["# DeepSEE evaluation (Table 3 layout)", ""]
         + [f"- {n}" for n in notes]
@@ -389,7 +414,8 @@ def write_report(
     for set_name in dict.fromkeys(scores.set):
         lines += [f"## {set_name}", ""] + table(scores, set_name, evaluation.runs) + [""]
         lines += improvements(scores, set_name, config.targets) + target_lines(scores, set_name, config.targets)
-        lines += [""] + camera_table(evaluation.cameras, set_name) + channel_lines(evaluation.channels, set_name)
+        lines += [""] + camera_table(evaluation.cameras, set_name) + difference_lines(evaluation.differences, set_name)
+        lines += channel_lines(evaluation.channels, set_name)
     focus_row = DEEPSEE if DEEPSEE in set(predictions.row) else predictions.row.iloc[0]
     focus = predictions[(predictions.set == TEST_TRAJECTORIES) & (predictions["round"] == predictions["round"].min())]
     if not focus.empty:

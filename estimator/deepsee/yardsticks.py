@@ -28,7 +28,7 @@
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -199,35 +199,61 @@ class Bootstrap:
     seed: int
 
 
+def _run_draws(judged: Judged, settings: Bootstrap) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """The windows and bins (indices, repeats allowed) of ``settings.resamples`` sets of runs drawn with
+    replacement, seeded; nothing with fewer than 2 runs."""
+    runs, window_run = np.unique(judged.window_run, return_inverse=True)
+    if len(runs) < 2:
+        return
+    bin_run = np.searchsorted(runs, judged.bin_run)
+    windows_of = [np.flatnonzero(window_run == k) for k in range(len(runs))]
+    bins_of = [np.flatnonzero(bin_run == k) for k in range(len(runs))]
+    rng = np.random.default_rng(settings.seed)
+    for _ in range(settings.resamples):
+        draw = rng.integers(len(runs), size=len(runs))
+        yield np.concatenate([windows_of[k] for k in draw]), np.concatenate([bins_of[k] for k in draw])
+
+
 def bootstrap_over_runs(
     judged: Judged, statistic: Callable[[Judged], dict[str, float]], names: tuple[str, ...], settings: Bootstrap
 ) -> tuple[dict[str, tuple[float, float]], int]:
     """Percentile intervals of ``statistic``'s ``names`` over sets of runs drawn with replacement, and the
     effective n (the number of runs). With fewer than 2 runs (or no resamples) every interval is NaN."""
-    runs, window_run = np.unique(judged.window_run, return_inverse=True)
-    nan = {name: (float("nan"), float("nan")) for name in names}
-    if len(runs) < 2 or settings.resamples < 1:
-        return nan, len(runs)
-    bin_run = np.searchsorted(runs, judged.bin_run)
-    windows_of = [np.flatnonzero(window_run == k) for k in range(len(runs))]
-    bins_of = [np.flatnonzero(bin_run == k) for k in range(len(runs))]
-    rng = np.random.default_rng(settings.seed)
     values: dict[str, list[float]] = {name: [] for name in names}
-    for _ in range(settings.resamples):
-        draw = rng.integers(len(runs), size=len(runs))
-        result = statistic(
-            judged.take(np.concatenate([windows_of[k] for k in draw]), np.concatenate([bins_of[k] for k in draw]))
-        )
+    for windows, bins in _run_draws(judged, settings):
+        result = statistic(judged.take(windows, bins))
         for name in names:
             values[name].append(result[name])
-    tail = 100.0 * (1.0 - settings.confidence) / 2.0
-    intervals = {}
-    for name in names:
-        finite = np.asarray(values[name], float)
-        finite = finite[np.isfinite(finite)]
-        intervals[name] = (
-            (float(np.percentile(finite, tail)), float(np.percentile(finite, 100.0 - tail)))
-            if len(finite)
-            else (float("nan"), float("nan"))
-        )
-    return intervals, len(runs)
+    runs = len(np.unique(judged.window_run))
+    return {name: _percentile_interval(values[name], settings.confidence) for name in names}, runs
+
+
+def paired_differences(
+    judged_a: Judged,
+    judged_b: Judged,
+    statistic: Callable[[Judged], dict[str, float]],
+    names: tuple[str, ...],
+    settings: Bootstrap,
+) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
+    """``statistic``'s ``names`` of estimator a minus those of estimator b on the same windows and bins (the two
+    :class:`Judged` differ only in their estimates), and the percentile interval of each difference over sets of
+    runs drawn with replacement, the same draw for both: the interval of a paired comparison, which two intervals
+    side by side are not. NaN intervals with fewer than 2 runs."""
+    point_a, point_b = statistic(judged_a), statistic(judged_b)
+    values: dict[str, list[float]] = {name: [] for name in names}
+    for windows, bins in _run_draws(judged_a, settings):
+        a, b = statistic(judged_a.take(windows, bins)), statistic(judged_b.take(windows, bins))
+        for name in names:
+            values[name].append(a[name] - b[name])
+    points = {name: point_a[name] - point_b[name] for name in names}
+    return points, {name: _percentile_interval(values[name], settings.confidence) for name in names}
+
+
+def _percentile_interval(values: list[float], confidence: float) -> tuple[float, float]:
+    """The percentile interval of the finite ``values``; NaN without one."""
+    finite = np.asarray(values, float)
+    finite = finite[np.isfinite(finite)]
+    if not len(finite):
+        return float("nan"), float("nan")
+    tail = 100.0 * (1.0 - confidence) / 2.0
+    return float(np.percentile(finite, tail)), float(np.percentile(finite, 100.0 - tail))
