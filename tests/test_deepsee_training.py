@@ -284,3 +284,25 @@ def test_augmentation_reaches_every_training_stage(tmp_path, monkeypatch):
     assert views > 1 and cached.shape[:2] == (views, 48)
     assert not np.array_equal(cached[0], cached[1])  # each view another draw
     assert np.load(tmp_path / "run" / "state" / "cache_validation_rts.npy").shape[0] == 1  # as it is
+
+
+def test_the_forest_without_the_geometry_channels_takes_only_the_others(tiny_dataset, tmp_path):
+    from estimator.artefact.compatibility import rts_columns
+    from estimator.deepsee.predictors import load_predictor
+    from seesys.core import rts_schema
+
+    data = _data(tiny_dataset)
+    with Progress(disable=True) as progress:
+        path = train_row(tmp_path / "forest", row("random_forest_wo_geometry"), data, _context(progress))
+    predictor = load_predictor(
+        path, LabelTransform(tiny_config().label_transform.k), 64, torch.device("cpu"), load_window_config()
+    )
+    geometry = [c.name for c in rts_schema.CHANNELS if c.category in rts_schema.GEOMETRY_CATEGORIES]
+    assert [rts_schema.CHANNEL_NAMES[c] for c in rts_columns(predictor.record)] == [
+        name for name in rts_schema.CHANNEL_NAMES if name not in geometry
+    ]
+    # Its estimates do not move when the geometry channels do.
+    test = data["test"]
+    changed = test.rts.copy()
+    changed[..., [rts_schema.index_of(name) for name in geometry]] += 3.0
+    np.testing.assert_array_equal(predictor.estimates(test).metres, predictor.estimates(test.with_rts(changed)).metres)

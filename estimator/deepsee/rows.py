@@ -40,6 +40,15 @@ class Row:
 ROWS: tuple[Row, ...] = (
     Row(RANDOM_FOREST, "Random Forest", "Baseline", RANDOM_FOREST, ssl=False),
     Row(LSTM, "LSTM", "Baseline", LSTM, ssl=False),
+    # The forest without schema v4's geometry channels: what they add to the strongest baseline.
+    Row(
+        "random_forest_wo_geometry",
+        "Random Forest w/o Geometry",
+        "RTS Ablation Study",
+        RANDOM_FOREST,
+        Variant(drop_rts=rts_schema.GEOMETRY_CATEGORIES),
+        ssl=False,
+    ),
     Row("wo_psd", "DeepSEE-w/o-PSD", "Model Study", DEEPSEE, Variant(use_psd=False), ablation=True),
     Row("wo_ssl", "DeepSEE-w/o-SSL", "Model Study", DEEPSEE, ssl=False, ablation=True),
     Row("wo_ca", "DeepSEE-w/o-CA", "Model Study", DEEPSEE, Variant(fusion="concat"), ablation=True),

@@ -47,7 +47,7 @@ from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
 from estimator.deepsee.loop import run_stage, stage_seed
 from estimator.deepsee.model import DeepSEE, PsdEncoder, exceedance_probabilities
 from estimator.deepsee.ordinal import exceeded, head_thresholds, model_thresholds, training_loss, validation_loss
-from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row
+from estimator.deepsee.rows import LSTM, RANDOM_FOREST, Row, Variant
 from estimator.deepsee.run_folder import MODEL_PT, RunFolder
 from estimator.deepsee.ssl import PsdReconstruction, ts2vec_loss
 from seesys.core import rts_schema
@@ -401,7 +401,7 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext, 
         **ctx.provenance,
     }
     if row.kind == RANDOM_FOREST:
-        return _train_forest(run, train, ctx, training)
+        return _train_forest(run, train, ctx, training, row.variant)
     if row.kind == LSTM:
         model: nn.Module = LstmBaseline(ctx.config.lstm, train.input_shape().channels).to(ctx.device)
         supervised(run, "lstm", model, train, val, schedule.lstm, ctx)
@@ -435,17 +435,24 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext, 
     )
 
 
-def _train_forest(run: RunFolder, train: Windows, ctx: TrainContext, training: dict) -> Path:
+def _train_forest(run: RunFolder, train: Windows, ctx: TrainContext, training: dict, variant: Variant) -> Path:
+    """The forest on the channels the row keeps: those of ``variant.drop_rts``'s categories are left out of its
+    features, and its record names only the channels it takes (a prediction selects them by name)."""
     path = run.path / FOREST_PICKLE
     if not path.exists():
+        kept = [c.name for c in rts_schema.CHANNELS if c.category not in variant.drop_rts]
         forest = fit_random_forest(
-            train.rts,
+            train.rts[..., [rts_schema.index_of(name) for name in kept]],
             _targets(train, ctx.transform),
             ctx.config.random_forest,
             ctx.config.seed,
             jobs=max(1, torch.get_num_threads()),
         )
-        record = {"compatibility": compatibility(ctx.windows, ctx.transform), "forest": forest, "training": training}
+        record = {
+            "compatibility": compatibility(ctx.windows, ctx.transform, rts_channels=kept),
+            "forest": forest,
+            "training": training,
+        }
         temporary = path.with_name(path.name + ".tmp")
         temporary.write_bytes(pickle.dumps(record))
         temporary.replace(path)
