@@ -20,7 +20,8 @@ paired by ``slam_monitor.slam_features``) and, in RGB-D, the depth the camera me
 
 - **The pose covariance** H⁻¹, turned into the world's axes in ROS's order (:func:`pose_covariance_world`): the
   monitor logs it for every tracked frame (``pose_covariance.csv``, exported as ``PoseWithCovarianceStamped``), and
-  :func:`relative_translation_covariance` carries two frames' covariances to the label's relative translation.
+  :func:`seesys.core.pose_covariance.relative_translation_covariance` carries two frames' covariances to the label's
+  relative translation.
   It assumes the map points exact: what the pose fit alone contributes, not the map's error or drift.
 
 The monitor computes them on every tracked frame (:func:`frame_geometry`, one information matrix for the channels and
@@ -160,23 +161,6 @@ def pose_covariance_world(information: np.ndarray, rotation_wc: np.ndarray) -> n
     where H is singular."""
     covariance = _inverse(information)
     return _turned(covariance, rotation_wc) if covariance is not None else None
-
-
-def relative_translation_covariance(
-    covariance_i: np.ndarray, covariance_j: np.ndarray, position_i: np.ndarray, position_j: np.ndarray
-) -> np.ndarray:
-    """The 3×3 covariance (world axes) of the error of the translation from pose i to pose j — the label's pair —
-    from their 6×6 world-axes covariances (:func:`pose_covariance_world`), taken as independent.
-
-    With world-axes perturbations (c + δc, exp(δθ) R), the relative translation Rᵢᵀ(cⱼ − cᵢ) moves by
-    Rᵢᵀ(δcⱼ − δcᵢ + [cⱼ − cᵢ]× δθᵢ): the rotation error of the first pose swings the path travelled since. Its norm,
-    and so the trace returned here, does not depend on the axes it is written in."""
-    lever = np.asarray(position_j, np.float64) - np.asarray(position_i, np.float64)
-    x, y, z = lever
-    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    from_i = np.hstack([-np.eye(3), cross])
-    from_j = np.hstack([np.eye(3), np.zeros((3, 3))])
-    return from_i @ covariance_i @ from_i.T + from_j @ covariance_j @ from_j.T
 
 
 def residual_channels(distances_px: np.ndarray, pixel_sigma_px: float) -> tuple[float, float, float]:

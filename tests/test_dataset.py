@@ -516,7 +516,7 @@ def test_the_covariance_is_judged_against_the_label_on_each_test_set_with_a_scal
     from estimator.dataset.covariance import PAIR_SIGMA, build_frames, coverage_by_set, fitted_scale
     from estimator.dataset.splits import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, SplitRound, Splits
     from seesys.core import session_layout
-    from slam_monitor.observability import relative_translation_covariance
+    from seesys.core.pose_covariance import relative_translation_covariance
 
     root, _ = tiny
     delta = load_label_config().delta_frames

@@ -11,6 +11,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from testkit.sample import SAMPLE, sample_frames
 
+from seesys.core.pose_covariance import relative_translation_covariance
 from seesys.io.trajectory_files import read_tum
 from slam_monitor.observability import (
     NoiseModel,
@@ -19,7 +20,6 @@ from slam_monitor.observability import (
     pose_covariance_world,
     pose_information,
     pose_observability,
-    relative_translation_covariance,
     residual_channels,
     translation_observability,
 )

@@ -15,9 +15,9 @@ translation, m/frame, over the model window's ``rts_length`` frames).
 
 The predicted pose covariance the monitor logs (``slam_monitor.observability``) is judged as an uncertainty: each
 labelled frame gets the predicted σ of its pair's relative translation (``pair_sigma_m``, the square root of the
-trace of :func:`relative_translation_covariance` of the two frames' covariances), a channel like the others, and the
-coverage table gives the share of labels within 1σ and 2σ of it beside the share a Gaussian of that covariance
-would put there (computed per frame from its 3×3 covariance), and the median of label / σ.
+trace of :func:`seesys.core.pose_covariance.relative_translation_covariance` of the two frames' covariances), a
+channel like the others, and the coverage table gives the share of labels within 1σ and 2σ of it beside the share a
+Gaussian of that covariance would put there (computed per frame from its 3×3 covariance), and the median of label / σ.
 
 The report: per source and pooled, per channel, the frames it has a value on, its Spearman ρ with the label and its
 partial Spearman ρ given the motion statistic (how much of its ranking is not the motion's), and the motion

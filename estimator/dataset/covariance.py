@@ -2,7 +2,7 @@
 
 The label of frame j is the norm of the error of the translation from frame j − ``delta_frames`` to j
 (:mod:`seesys.core.labels`). Its predicted covariance is that of the pair, from the two frames' logged 6×6 world-axes
-covariances (``pose_covariance.csv`` of the device session, :func:`slam_monitor.observability.
+covariances (``pose_covariance.csv`` of the device session, :func:`seesys.core.pose_covariance.
 relative_translation_covariance`), and its σ the square root of the trace (the expected squared norm of a zero-mean
 error of that covariance). **Coverage** is the share of labels within 1σ and 2σ, beside the share a Gaussian of each
 frame's own covariance puts there (its norm within 1σ and 2σ, by Monte-Carlo in the covariance's axes).
@@ -10,7 +10,7 @@ frame's own covariance puts there (its norm within 1σ and 2σ, by Monte-Carlo i
 The bound leaves out the map's own error and ORB-SLAM3's pyramid levels, so it is expected to be too small. A single
 **scale** for σ is fitted on a round's training runs only: the quantile of label / σ at the Gaussian's mean 1σ share,
 so that on the training runs as many labels lie within the scaled 1σ as a Gaussian would put there. The test sets
-(test trajectories, held-out rooms, each held-out camera, as :mod:`estimator.deepsee.evaluate` names them) are judged
+(test trajectories, held-out rooms, each held-out camera: :func:`estimator.dataset.splits.set_indices`) are judged
 with the bound as computed and with the training runs' scale.
 """
 
@@ -27,8 +27,8 @@ from estimator.dataset.splits import Splits, set_indices
 from estimator.dataset.store import FRAMES_CSV, WITH_SAMPLES, DatasetError, list_runs, run_folder
 from seesys.core import session_layout
 from seesys.core.labels import LabelStatus
+from seesys.core.pose_covariance import relative_translation_covariance
 from seesys.io.trajectory_files import read_tum
-from slam_monitor.observability import relative_translation_covariance
 
 #: Draws per frame for the share of a Gaussian within 1σ and 2σ; a fixed seed keeps a report reproducible.
 GAUSSIAN_DRAWS = 4000
