@@ -37,7 +37,7 @@ from torch import nn
 
 from estimator.artefact.compatibility import check_normalisation
 from estimator.artefact.standardisation import InputStandardisation
-from estimator.artefact.transforms import LabelTransform
+from estimator.artefact.transforms import LabelTransform, rts_channel_mask
 from estimator.deepsee.augment import Augmenter
 from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
@@ -440,9 +440,10 @@ def _train_forest(run: RunFolder, train: Windows, ctx: TrainContext, training: d
     features, and its record names only the channels it takes (a prediction selects them by name)."""
     path = run.path / FOREST_PICKLE
     if not path.exists():
-        kept = [c.name for c in rts_schema.CHANNELS if c.category not in variant.drop_rts]
+        seen = rts_channel_mask(variant.drop_rts).astype(bool)
+        kept = [name for name, keep in zip(rts_schema.CHANNEL_NAMES, seen) if keep]
         forest = fit_random_forest(
-            train.rts[..., [rts_schema.index_of(name) for name in kept]],
+            train.rts[..., seen],
             _targets(train, ctx.transform),
             ctx.config.random_forest,
             ctx.config.seed,
