@@ -104,16 +104,21 @@ def reader_windows(reader: DatasetReader) -> Windows:
     return Windows(rts, reader, reader.index.error_m.to_numpy(np.float64), reader.index.reset_index(drop=True))
 
 
+def split_readers(
+    roots: list[Path], splits: Splits, round_index: int, parts: tuple[str, ...] = PARTS
+) -> dict[str, DatasetReader]:
+    """Readers of the usable samples of the given parts (train, validation, test) of one cross-validation round."""
+    if not 0 <= round_index < len(splits.rounds):
+        raise DataError(f"round {round_index} not in the splits ({len(splits.rounds)} rounds)")
+    split_round = splits.rounds[round_index]
+    return {part: DatasetReader(roots, runs=getattr(split_round, part), usable_only=True) for part in parts}
+
+
 def split_windows(
     roots: list[Path], splits: Splits, round_index: int, parts: tuple[str, ...] = PARTS
 ) -> dict[str, Windows]:
     """Usable windows of the given parts (train, validation, test) of one cross-validation round."""
-    if not 0 <= round_index < len(splits.rounds):
-        raise DataError(f"round {round_index} not in the splits ({len(splits.rounds)} rounds)")
-    split_round = splits.rounds[round_index]
-    return {
-        part: reader_windows(DatasetReader(roots, runs=getattr(split_round, part), usable_only=True)) for part in parts
-    }
+    return {part: reader_windows(reader) for part, reader in split_readers(roots, splits, round_index, parts).items()}
 
 
 def limit(windows: Windows, count: int, seed: int) -> Windows:

@@ -29,7 +29,7 @@ from estimator.dataset.splits import Splits, set_indices
 from estimator.dataset.store import DatasetReader
 from estimator.deepsee.channels import RawSet, channel_table, choose_features
 from estimator.deepsee.config import EstimatorConfig
-from estimator.deepsee.data import Windows, concat, reader_windows, session_windows, split_windows
+from estimator.deepsee.data import Windows, concat, reader_windows, session_windows, split_readers
 from estimator.deepsee.metrics import bootstrap_settings, equation2_head, judged, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import (
@@ -259,15 +259,18 @@ def _compare(
     def statistic(j: Judged) -> dict[str, float]:
         return yardsticks(j, pulses.max_pulses + 1, evaluation.large_error_m)
 
-    def as_judged(row: str) -> Judged:
-        return judged(data.meta, estimated[row], data.error_m, motion, pulses)
-
+    # Each row's windows and bins once, however many comparisons it is in.
+    rows = {
+        row: judged(data.meta, estimated[row], data.error_m, motion, pulses)
+        for row in (*trained, *COMPARED)
+        if row in estimated
+    }
     for row in trained:
         for against in COMPARED:
-            if row == against or against not in estimated:
+            if row == against or against not in rows:
                 continue
             points, intervals = paired_differences(
-                as_judged(row), as_judged(against), statistic, DIFFERENCES, bootstrap_settings(evaluation)
+                rows[row], rows[against], statistic, DIFFERENCES, bootstrap_settings(evaluation)
             )
             values = {}
             for name in DIFFERENCES:
@@ -276,19 +279,18 @@ def _compare(
             tables.differences.append({**key, "row": row, "against": against, **values})
 
 
-def raw_set(roots: list[Path], runs: list[str]) -> RawSet:
-    """The usable windows of dataset ``runs`` as the channel table reads them (raw RTS), in the order of
-    :func:`estimator.deepsee.data.split_windows`'s windows of the same runs."""
-    reader = DatasetReader(roots, runs=runs, usable_only=True)
+def raw_set(reader: DatasetReader) -> RawSet:
+    """A reader's usable windows as the channel table reads them (raw RTS), in the order of
+    :func:`estimator.deepsee.data.reader_windows`'s windows of the same reader."""
     return RawSet(
         reader.rts_windows(), reader.index.error_m.to_numpy(np.float64), reader.index.run.to_numpy().astype(str)
     )
 
 
-def _judge_channels(tables: _Tables, r: int, sets: dict[str, RawSet], train_runs: list[str], how: _Judging) -> None:
+def _judge_channels(tables: _Tables, r: int, sets: dict[str, RawSet], train: RawSet, how: _Judging) -> None:
     """The geometry channels alone on every dataset set of round ``r``, each by its window feature chosen on the
-    round's training runs."""
-    chosen = choose_features(raw_set(how.roots, train_runs))
+    round's training windows ``train``."""
+    chosen = choose_features(train)
     for name, data in sets.items():
         if len(data.error_m):
             table = channel_table(data, chosen, bootstrap_settings(how.config.evaluation))
@@ -333,16 +335,17 @@ def evaluate(
         trained = [(row.name, path) for row in ROWS if (path := model_file(folder / row.name)) is not None]
         if not trained:
             raise SeesysError(f"no trained model under {folder} (train the round with `seesys estimator train-table`)")
-        parts = split_windows(roots, splits, r, ("train", "test"))
+        readers = split_readers(roots, splits, r, ("train", "test"))
+        parts = {part: reader_windows(reader) for part, reader in readers.items()}
         environments, cameras = splits.heldout(r)
         index = set_indices(parts["test"].meta, environments, cameras)
         sets = {name: parts["test"].subset(rows) for name, rows in index.items()}
         dataset_sets = set(sets)
         sets.update(other)
         _judge_round(tables, r, sets, dataset_sets, parts["train"], trained, how)
-        test = raw_set(how.roots, splits.rounds[r].test)
+        test = raw_set(readers["test"])
         raw_sets = {name: test.subset(rows) for name, rows in index.items()}
-        _judge_channels(tables, r, raw_sets, splits.rounds[r].train, how)
+        _judge_channels(tables, r, raw_sets, raw_set(readers["train"]), how)
     return _evaluation(tables, runs)
 
 
@@ -368,7 +371,8 @@ def evaluate_lockbox(
             "these splits hold no lockbox runs (made before the lockbox, or the build has none of its "
             "room and camera): there is nothing to judge"
         )
-    data = reader_windows(DatasetReader(roots, runs=box.runs, usable_only=True))
+    reader = DatasetReader(roots, runs=box.runs, usable_only=True)
+    data = reader_windows(reader)
     index = {
         LOCKBOX: np.arange(len(data)),
         f"{LOCKBOX} room {box.environment}": np.flatnonzero((data.meta.environment == box.environment).to_numpy()),
@@ -376,11 +380,11 @@ def evaluate_lockbox(
     }
     index = {name: rows for name, rows in index.items() if len(rows)}
     sets = {name: data.subset(rows) for name, rows in index.items()}
-    train = split_windows(roots, splits, round_index, ("train",))["train"]
+    train_reader = split_readers(roots, splits, round_index, ("train",))["train"]
     tables = _Tables()
     how = _Judging([Path(r) for r in roots], config, pulses, windows, device)
-    _judge_round(tables, round_index, sets, set(sets), train, [(DEEPSEE, Path(model))], how)
-    raw = raw_set(how.roots, box.runs)
-    train_runs = splits.rounds[round_index].train
-    _judge_channels(tables, round_index, {name: raw.subset(rows) for name, rows in index.items()}, train_runs, how)
+    _judge_round(tables, round_index, sets, set(sets), reader_windows(train_reader), [(DEEPSEE, Path(model))], how)
+    raw = raw_set(reader)
+    raw_sets = {name: raw.subset(rows) for name, rows in index.items()}
+    _judge_channels(tables, round_index, raw_sets, raw_set(train_reader), how)
     return _evaluation(tables, Path(model).parent)
