@@ -203,7 +203,13 @@ def _candidates(args: argparse.Namespace) -> int:
 
 
 def _coverage(args: argparse.Namespace) -> int:
-    from estimator.dataset.covariance import build_frames, coverage_by_set, write_coverage_report
+    from estimator.dataset.covariance import (
+        build_frames,
+        coverage_by_set,
+        model_scaled_coverage,
+        read_predictions,
+        write_coverage_report,
+    )
     from estimator.dataset.splits import read_splits
     from seesys.io.core_settings import load_label_config
 
@@ -212,7 +218,14 @@ def _coverage(args: argparse.Namespace) -> int:
     frames = build_frames(args.roots, load_label_config().delta_frames)
     table = coverage_by_set(frames, splits, rounds)
     notes = [f"Data: {', '.join(str(r) for r in args.roots)}; splits {args.splits}; rounds {rounds}."]
-    path = write_coverage_report(table, args.out, notes)
+    model_scaled = None
+    if args.predictions:
+        import pandas as pd
+
+        predictions = pd.concat([read_predictions(p) for p in args.predictions], ignore_index=True)
+        model_scaled = model_scaled_coverage(frames, predictions)
+        notes.append(f"Estimates: {', '.join(str(p) for p in args.predictions)}.")
+    path = write_coverage_report(table, args.out, notes, model_scaled)
     print(path.read_text(), end="")
     print(f"wrote {path}")
     return 0
@@ -280,6 +293,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("roots", type=Path, nargs="+", help="dataset folders (built with keep_sessions)")
     p.add_argument("--splits", type=Path, required=True, help="splits JSON of these folders")
     p.add_argument("--rounds", type=_ints, help="comma-separated rounds (default: all)")
+    p.add_argument(
+        "--predictions",
+        type=Path,
+        action="append",
+        help="an evaluation's predictions.csv (repeatable): also the covariance scaled to each row's estimate",
+    )
     p.add_argument("--out", type=Path, required=True, help="folder for covariance_coverage.csv and .md")
     p.set_defaults(func=_coverage)
 

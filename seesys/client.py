@@ -57,8 +57,10 @@ class EstimateRecord:
     ``stream_session``: the device's stream session the estimated frame belongs to; ``translation_covariance``:
     the estimated frame's predicted translation covariance (3×3, m², the world's axes, float16's three significant
     digits; None when the device's monitor predicted none), the Cramér–Rao bound of its pose fit, which leaves out
-    the map's own error: on renders about two times too small in σ (docs/rts-features.md), to be inflated before an
-    application fuses it.
+    the map's own error: on renders two to four times too small in σ at the median (docs/rts-features.md), to be
+    inflated before an application fuses it. ``seesys session export-bag`` publishes it scaled to the estimate (the
+    label pair's σ made ``error_m``), which needs the pair's earlier frame's full covariance that the stream does
+    not carry (docs/device.md).
     """
 
     device_id: str

@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from seesys.io.core_settings import load_label_config
 from seesys.io.session_bag import export_session_bag, load_export_settings
 
 
 def _export_bag(args: argparse.Namespace) -> int:
-    counts = export_session_bag(args.session, args.out, load_export_settings())
+    counts = export_session_bag(args.session, args.out, load_export_settings(), load_label_config().delta_frames)
     print(f"{args.out}: " + ", ".join(f"{topic} {count}" for topic, count in counts.items()))
     return 0
 

@@ -513,7 +513,14 @@ def test_a_dataset_built_with_another_rts_schema_is_refused_by_name(tmp_path):
 
 @pytest.mark.system
 def test_the_covariance_is_judged_against_the_label_on_each_test_set_with_a_scale_fitted_on_training(tiny, tmp_path):
-    from estimator.dataset.covariance import PAIR_SIGMA, build_frames, coverage_by_set, fitted_scale
+    from estimator.dataset.covariance import (
+        PAIR_SIGMA,
+        build_frames,
+        coverage_by_set,
+        fitted_scale,
+        model_scaled_coverage,
+        read_predictions,
+    )
     from estimator.dataset.splits import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, SplitRound, Splits
     from seesys.core import session_layout
     from seesys.core.pose_covariance import relative_translation_covariance
@@ -548,6 +555,22 @@ def test_the_covariance_is_judged_against_the_label_on_each_test_set_with_a_scal
     ratio = heldout.label_m / heldout[PAIR_SIGMA]
     assert pooled.loc[HELDOUT_ENVIRONMENTS, "within_2sigma_scaled"] == pytest.approx(np.mean(ratio <= 2 * scale))
     assert pooled.loc[HELDOUT_ENVIRONMENTS, "within_1sigma"] == pytest.approx(np.mean(ratio <= 1))
+    # Scaled to a row's estimates: a label lies within 1σ where it is at most the estimate, within 2σ at most twice.
+    judged = heldout.reset_index(drop=True)
+    low = np.arange(len(judged)) % 4 == 0  # a quarter estimated at 0.6 of the label: outside 1σ, inside 2σ
+    estimate = np.where(low, judged.label_m * 0.6, judged.label_m * 1.5)
+    predictions = pd.DataFrame(
+        {"set": HELDOUT_ENVIRONMENTS, "row": "a model", "round": 0, "run": judged.run}
+        | {"frame_index": judged.frame_index, "true_m": judged.label_m, "estimate_m": estimate}
+    )
+    path = tmp_path / "predictions.csv"
+    predictions.to_csv(path, index=False)
+    model = model_scaled_coverage(frames, read_predictions(path)).set_index("camera_model").loc["all"]
+    assert model.windows == len(judged) and model.within_1sigma == pytest.approx(np.mean(~low))
+    assert model.within_2sigma == 1.0
+    predictions.drop(columns="estimate_m").to_csv(path, index=False)
+    with pytest.raises(SeesysError, match=r"predictions.csv has no column\(s\) estimate_m"):
+        read_predictions(path)
     # A build without its sessions cannot be judged, and says why.
     copy = tmp_path / "copy"
     shutil.copytree(root, copy, ignore=shutil.ignore_patterns("sequences"))

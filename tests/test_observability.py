@@ -11,7 +11,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from testkit.sample import SAMPLE, sample_frames
 
-from seesys.core.pose_covariance import relative_translation_covariance
+from seesys.core.pose_covariance import pair_covariance, relative_translation_covariance, scaled_to_error
 from seesys.io.trajectory_files import read_tum
 from slam_monitor.observability import (
     NoiseModel,
@@ -110,6 +110,25 @@ def test_the_relative_translation_covariance_matches_a_monte_carlo_of_two_pertur
     predicted = relative_translation_covariance(cov_i, cov_j, pose_i[1], pose_j[1])
     measured = np.mean(np.sum(np.array(errors) ** 2, axis=1))
     assert measured == pytest.approx(np.trace(predicted), rel=0.05)
+
+
+def test_a_covariance_scaled_to_an_estimate_keeps_its_shape_and_gives_its_pair_the_estimated_sigma():
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    covariances = {0: a @ a.T * 1e-6, 10: b @ b.T * 1e-6}
+    positions = {0: np.array([0.0, 0.0, 0.0]), 10: np.array([0.05, -0.02, 0.1])}
+    pair = pair_covariance(covariances, positions, 10, 10)
+    assert pair is not None and pair_covariance(covariances, positions, 10, 5) is None  # frame 5 has none
+    scaled = scaled_to_error(covariances[10], pair, 0.007)
+    assert scaled is not None
+    factor = scaled[0, 0] / covariances[10][0, 0]
+    assert scaled == pytest.approx(covariances[10] * factor)  # the shape is the geometry's
+    # both frames scaled alike: the label pair's σ is the estimate
+    both = {k: c * factor for k, c in covariances.items()}
+    assert np.sqrt(np.trace(pair_covariance(both, positions, 10, 10))) == pytest.approx(0.007)
+    for nothing in (0.0, float("nan"), -0.01):
+        assert scaled_to_error(covariances[10], pair, nothing) is None
+    assert scaled_to_error(covariances[10], np.zeros((3, 3)), 0.007) is None
 
 
 def test_a_far_one_sided_patch_is_ill_conditioned_and_a_spread_room_is_not():

@@ -11,6 +11,7 @@ from testkit.bags import write_sample_bag
 from testkit.sample import SAMPLE, run_seesys
 
 from seesys.core import session_layout
+from seesys.core.pose_covariance import relative_translation_covariance
 from seesys.io.core_settings import load_label_config
 from seesys.io.session_labels import label_session
 from seesys.io.trajectory_files import read_tum
@@ -177,6 +178,7 @@ def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
         "/seesys/pose": "geometry_msgs/msg/PoseStamped",
         "/seesys/path": "nav_msgs/msg/Path",
         "/seesys/pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
+        "/seesys/pose_with_scaled_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
         "/seesys/ground_truth": "geometry_msgs/msg/PoseStamped",
         "/seesys/tracking_state": "std_msgs/msg/String",
         "/seesys/pose_error": "std_msgs/msg/Float64",
@@ -194,6 +196,16 @@ def test_export_bag_writes_poses_states_and_estimates_as_a_ros2_bag(tmp_path):
     ninth = with_covariance[5][1]  # frame 9
     assert ninth.pose.pose.position.x == pytest.approx(0.09) and ninth.header.frame_id == "world"
     assert ninth.pose.covariance.reshape(6, 6) == pytest.approx(_covariance(9))
+    # Scaled to the estimate: only frame 15's label pair (5, 15) has both covariances and poses (frame 0 is not
+    # tracked, frame −5 does not exist); its covariance is frame 15's, scaled so that the pair's σ is the estimate.
+    delta = load_label_config().delta_frames
+    assert delta == 10
+    [(ns, scaled)] = read["/seesys/pose_with_scaled_covariance"]
+    assert ns == round(times[15] * 1e9) and scaled.pose.pose.position.x == pytest.approx(0.15)
+    at = {i: np.array([0.01 * i, 0.5, -0.02 * i]) for i in (5, 15)}
+    pair = relative_translation_covariance(_covariance(5), _covariance(15), at[5], at[15])
+    factor = 0.012**2 / np.trace(pair)
+    assert scaled.pose.covariance.reshape(6, 6) == pytest.approx(_covariance(15) * factor)
     assert [m.data for _, m in read["/seesys/tracking_state"]] == ["NOT_INITIALIZED"] * 3 + ["OK"] * 17
     assert len(read["/seesys/path"]) == 1 and len(read["/seesys/path"][0][1].poses) == 17
     assert [m.data for _, m in read["/seesys/pose_error"]] == pytest.approx([0.004, 0.008, 0.012])

@@ -39,12 +39,12 @@ from estimator.dataset.covariance import (
     PAIR_SIGMA,
     coverage_figures,
     pair_columns,
-    pair_covariance,
 )
 from estimator.deepsee.yardsticks import partial_spearman
 from seesys.core.errors import SeesysError
 from seesys.core.labels import LabelConfig, label_frames
 from seesys.core.motion import translation_spread
+from seesys.core.pose_covariance import pair_covariance
 from seesys.core.trajectory import Poses
 from slam_monitor.monitor import MonitorInput, input_slam_features
 from slam_monitor.monitor_config import MonitorConfig

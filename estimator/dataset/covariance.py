@@ -16,7 +16,6 @@ with the bound as computed and with the training runs' scale.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,8 @@ from estimator.dataset.splits import Splits, set_indices
 from estimator.dataset.store import FRAMES_CSV, WITH_SAMPLES, DatasetError, list_runs, run_folder
 from seesys.core import session_layout
 from seesys.core.labels import LabelStatus
-from seesys.core.pose_covariance import relative_translation_covariance
+from seesys.core.pose_covariance import pair_covariance
+from seesys.io.logfiles import read_csv_table
 from seesys.io.trajectory_files import read_tum
 
 #: Draws per frame for the share of a Gaussian within 1σ and 2σ; a fixed seed keeps a report reproducible.
@@ -35,17 +35,6 @@ GAUSSIAN_DRAWS = 4000
 GAUSSIAN_WITHIN = ("gaussian_within_1sigma", "gaussian_within_2sigma")
 PAIR_SIGMA = "pair_sigma_m"
 LABEL = "label_m"
-
-
-def pair_covariance(
-    covariances: Mapping[int, np.ndarray], positions: Mapping[int, np.ndarray], j: int, delta: int
-) -> np.ndarray | None:
-    """The 3×3 covariance of frame j's pair (j − ``delta``, j), from the frames' 6×6 covariances and positions
-    (by frame index); None unless both frames have both."""
-    i = j - delta
-    if any(k not in covariances or k not in positions for k in (i, j)):
-        return None
-    return relative_translation_covariance(covariances[i], covariances[j], positions[i], positions[j])
 
 
 def gaussian_within(pairs: list[np.ndarray | None]) -> np.ndarray:
@@ -162,25 +151,84 @@ def coverage_by_set(frames: pd.DataFrame, splits: Splits, rounds: list[int]) -> 
     return pd.DataFrame(rows)
 
 
+#: An evaluation's predictions.csv columns the model-scaled coverage reads.
+PREDICTION_COLUMNS = ("set", "row", "round", "run", "frame_index", "true_m", "estimate_m")
+
+
+def read_predictions(path: Path) -> pd.DataFrame:
+    """An evaluation's ``predictions.csv``; raises :class:`seesys.core.errors.SeesysError` for a file that is
+    missing, unreadable or without one of :data:`PREDICTION_COLUMNS`."""
+    return read_csv_table(path, PREDICTION_COLUMNS)
+
+
+def model_scaled_coverage(frames: pd.DataFrame, predictions: pd.DataFrame) -> pd.DataFrame:
+    """Per round, set and row of ``predictions`` (an evaluation's predictions.csv: each window's estimate) and per
+    camera model of the set, the coverage of the pose covariance scaled to the row's estimate
+    (:func:`seesys.core.pose_covariance.scaled_to_error`): the share of labels within its 1σ and 2σ, that is at most
+    the estimate and twice it, on the windows whose end frame's pair has a covariance; beside them the share a
+    Gaussian of each pair's covariance puts there (a scale does not change it) and the median label / estimate."""
+    paired = frames.dropna(subset=[PAIR_SIGMA])[["run", "frame_index", *GAUSSIAN_WITHIN, "camera_model"]]
+    joined = predictions.merge(paired, on=["run", "frame_index"], how="inner", validate="many_to_one")
+    joined = joined[np.isfinite(joined.estimate_m) & (joined.estimate_m > 0)]
+    rows = []
+    for (r, name, row), part in joined.groupby(["round", "set", "row"], sort=False):
+        for camera, group in [("all", part)] + [(str(c), g) for c, g in part.groupby("camera_model")]:
+            ratio = (group.true_m / group.estimate_m).to_numpy(float)
+            rows.append(
+                {
+                    "round": r,
+                    "set": name,
+                    "row": row,
+                    "camera_model": camera,
+                    "runs": group.run.nunique(),
+                    "windows": len(group),
+                    "within_1sigma": float(np.mean(ratio <= 1)),
+                    "within_2sigma": float(np.mean(ratio <= 2)),
+                    "gaussian_1sigma": float(group[GAUSSIAN_WITHIN[0]].mean()),
+                    "gaussian_2sigma": float(group[GAUSSIAN_WITHIN[1]].mean()),
+                    "median_label_over_estimate": float(np.median(ratio)),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
 COVERAGE_CSV = "covariance_coverage.csv"
 COVERAGE_MD = "covariance_coverage.md"
+MODEL_SCALED_CSV = "model_scaled_coverage.csv"
 
 
-def write_coverage_report(table: pd.DataFrame, out: Path, notes: list[str]) -> Path:
+def _shown(table: pd.DataFrame) -> str:
+    return table.assign(**{c: table[c].round(3) for c in table.columns if table[c].dtype.kind == "f"}).to_markdown(
+        index=False
+    )
+
+
+def write_coverage_report(
+    table: pd.DataFrame, out: Path, notes: list[str], model_scaled: pd.DataFrame | None = None
+) -> Path:
     """``covariance_coverage.csv`` and ``covariance_coverage.md`` (the table, each set pooled over its camera
-    models first) in ``out`` (created)."""
+    models first) in ``out`` (created); with ``model_scaled`` (:func:`model_scaled_coverage`) also
+    ``model_scaled_coverage.csv`` and its table in the report."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / COVERAGE_CSV, index=False)
-    shown = table.assign(**{c: table[c].round(3) for c in table.columns if table[c].dtype.kind == "f"})
-    path = out / COVERAGE_MD
-    path.write_text(
+    text = (
         "# The predicted pose covariance as an uncertainty of the label\n\n"
         + "".join(f"- {n}\n" for n in notes)
         + "- Per round and test set (and per camera model of it): the share of labels within 1σ and 2σ of the pair's "
         "predicted σ as the monitor computes it, the share a Gaussian of each frame's covariance puts there, the "
         "median label / σ, and the shares with σ times the scale fitted on the round's training runs (`scale`).\n\n"
-        + shown.to_markdown(index=False)
+        + _shown(table)
         + "\n"
     )
+    if model_scaled is not None:
+        model_scaled.to_csv(out / MODEL_SCALED_CSV, index=False)
+        text += (
+            "\n## Scaled to each row's estimate\n\n"
+            "The covariance scaled so that the pair's σ is the row's estimate of the window ending at the frame: the "
+            "share of labels within 1σ and 2σ (at most the estimate, twice it), a Gaussian's share, and the median "
+            "label / estimate.\n\n" + _shown(model_scaled) + "\n"
+        )
+    path = out / COVERAGE_MD
+    path.write_text(text)
     return path

@@ -58,6 +58,19 @@ def read_csv_log(path: Path, **read_csv_args: Any) -> pd.DataFrame:
     return pd.read_csv(io.StringIO(text), on_bad_lines="skip", **read_csv_args)
 
 
+def read_csv_table(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
+    """A CSV file as a table; raises :class:`SeesysError` for a file that is missing, unreadable or without one of
+    ``columns``."""
+    try:
+        table = pd.read_csv(path)
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
+        raise SeesysError(f"cannot read {path}: {e}") from None
+    missing = [c for c in columns if c not in table.columns]
+    if missing:
+        raise SeesysError(f"{path} has no column(s) {', '.join(missing)}")
+    return table
+
+
 class CsvLog:
     """An appending CSV file with a header, flushed after every row."""
 

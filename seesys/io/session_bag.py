@@ -9,6 +9,11 @@ frame ids and storage come from ``configs/export.toml``:
 - poses with their predicted covariance (``pose_covariance.csv``, when present):
   ``geometry_msgs/PoseWithCovarianceStamped`` for each tracked frame that has both, matched by time; the
   covariance is the monitor's (``slam_monitor.observability``), row-major 6×6 in ROS's order and the world's axes;
+- poses with their covariance scaled to the estimated error (``pose_covariance.csv`` and ``estimates.csv``):
+  ``geometry_msgs/PoseWithCovarianceStamped`` for each estimated frame whose label pair (the frame and the frame
+  ``delta_frames`` before it, labels.toml) both have a covariance and a pose: the monitor's covariance scaled so that
+  the pair's σ is the estimate (:func:`seesys.core.pose_covariance.scaled_to_error`), the shape of the pose fit's
+  geometry with the size of the error the model estimates;
 - ground truth (``groundtruth.tum``, when present): ``geometry_msgs/PoseStamped``;
 - tracking states (``frames.csv``): ``std_msgs/String`` with the state's name (``OK``, ``LOST``, ...) per frame;
   a String because ROS has no standard message for a SLAM tracking state, and a name reads the same in every tool;
@@ -26,9 +31,11 @@ import pandas as pd
 
 from seesys.core import session_layout
 from seesys.core.errors import SeesysError
+from seesys.core.pose_covariance import pair_covariance, scaled_to_error
 from seesys.core.session_layout import POSE_COVARIANCE_COLUMNS, covariance_matrices
 from seesys.core.trajectory import Poses
 from seesys.io.config import load_section
+from seesys.io.logfiles import read_csv_table
 from seesys.io.trajectory_files import read_tum
 
 NS_PER_S = 1_000_000_000
@@ -45,6 +52,7 @@ class ExportSettings:
     export_pose_topic: str
     export_path_topic: str
     export_pose_covariance_topic: str
+    export_scaled_pose_covariance_topic: str
     export_ground_truth_topic: str
     export_tracking_state_topic: str
     export_pose_error_topic: str
@@ -108,34 +116,59 @@ class _Messages:
         ]
 
 
-def _read_csv(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
-    try:
-        table = pd.read_csv(path)
-    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
-        raise SeesysError(f"cannot read {path}: {e}") from None
-    missing = [c for c in columns if c not in table.columns]
-    if missing:
-        raise SeesysError(f"{path} has no column(s) {', '.join(missing)}")
-    return table
-
-
 # Poses and covariance rows of one frame: the same frame time, written with different precisions.
 _SAME_FRAME_S = 1e-4
 
 
-def _covariance_poses(poses: Poses, table: pd.DataFrame) -> tuple[Poses, np.ndarray]:
-    """The poses that have a covariance row at their time (evo's time association), and those covariances."""
+@dataclass(frozen=True)
+class _CovariancePoses:
+    """The poses that have a covariance row at their time (evo's time association), those covariances and their
+    frames' indices."""
+
+    poses: Poses
+    covariances: np.ndarray
+    frame_index: np.ndarray
+
+    def scaled_to_estimates(self, estimates: pd.DataFrame, delta_frames: int) -> tuple[Poses, np.ndarray]:
+        """The poses of the estimated frames whose label pair has covariances and poses, with each one's
+        covariance scaled to its estimate (:func:`seesys.core.pose_covariance.scaled_to_error`)."""
+        by_frame = {int(f): k for k, f in enumerate(self.frame_index)}
+        covariances = {f: self.covariances[k] for f, k in by_frame.items()}
+        positions = {f: self.poses.positions[k] for f, k in by_frame.items()}
+        kept, scaled = [], []
+        for j, error_m in zip(estimates.frame_index.astype(int), estimates.error_m.astype(float)):
+            pair = pair_covariance(covariances, positions, j, delta_frames)
+            covariance = scaled_to_error(covariances[j], pair, error_m) if pair is not None else None
+            if covariance is not None:
+                kept.append(by_frame[j])
+                scaled.append(covariance)
+        return self.poses.take(np.asarray(kept, int)), np.asarray(scaled).reshape(-1, 6, 6)
+
+
+def _covariance_poses(poses: Poses, table: pd.DataFrame) -> _CovariancePoses:
     from evo.core import sync
 
     pose_index, row_index = sync.matching_time_indices(
         poses.timestamps, table.timestamp.to_numpy(float), max_diff=_SAME_FRAME_S
     )
     rows = table.loc[:, list(POSE_COVARIANCE_COLUMNS[2:])].to_numpy(float)[row_index]
-    return poses.take(np.asarray(pose_index, int)), covariance_matrices(rows)
+    return _CovariancePoses(
+        poses.take(np.asarray(pose_index, int)),
+        covariance_matrices(rows),
+        table.frame_index.to_numpy(int)[np.asarray(row_index, int)],
+    )
 
 
-def export_session_bag(session: Path, out: Path, settings: ExportSettings) -> dict[str, int]:
-    """Write ``session`` as a ROS 2 bag folder ``out``; returns the messages written per topic.
+def _pose_covariance_topic(build: _Messages, poses: Poses, covariances: np.ndarray) -> tuple[str, list]:
+    return (
+        "geometry_msgs/msg/PoseWithCovarianceStamped",
+        list(zip(map(_ns, poses.timestamps), build.poses_with_covariance(poses, covariances))),
+    )
+
+
+def export_session_bag(session: Path, out: Path, settings: ExportSettings, delta_frames: int) -> dict[str, int]:
+    """Write ``session`` as a ROS 2 bag folder ``out``; returns the messages written per topic. ``delta_frames``:
+    the label's span (labels.toml), the pair the estimate scales the covariance by.
 
     Fails with a :class:`SeesysError` when ``session`` is not a session folder (no ``frames.csv`` or
     ``trajectory.tum``), a file is malformed, or ``out`` exists already.
@@ -148,15 +181,17 @@ def export_session_bag(session: Path, out: Path, settings: ExportSettings) -> di
             raise SeesysError(f"{session} is not a session folder: no {name}")
     if out.exists():
         raise SeesysError(f"{out} exists already; a bag is written into a new folder")
-    frames = _read_csv(session / session_layout.FRAMES_CSV, ("timestamp", "state"))
+    frames = read_csv_table(session / session_layout.FRAMES_CSV, ("timestamp", "state"))
     poses = read_tum(session / session_layout.TRAJECTORY)
     truth_file = session / session_layout.GROUND_TRUTH
     truth = read_tum(truth_file) if truth_file.is_file() else None
     estimates_file = session / session_layout.ESTIMATES_CSV
-    estimates = _read_csv(estimates_file, ("timestamp", "error_m")) if estimates_file.is_file() else None
+    estimates = (
+        read_csv_table(estimates_file, ("frame_index", "timestamp", "error_m")) if estimates_file.is_file() else None
+    )
     covariance_file = session / session_layout.POSE_COVARIANCE_CSV
     covariances = (
-        _read_csv(covariance_file, session_layout.POSE_COVARIANCE_COLUMNS).sort_values("timestamp")
+        read_csv_table(covariance_file, session_layout.POSE_COVARIANCE_COLUMNS).sort_values("timestamp")
         if covariance_file.is_file()
         else None
     )
@@ -174,11 +209,14 @@ def export_session_bag(session: Path, out: Path, settings: ExportSettings) -> di
         )
         topics[settings.export_path_topic] = (path_type, [(_ns(poses.timestamps[-1]), path)])
     if covariances is not None:
-        with_covariance, matrices = _covariance_poses(poses, covariances)
-        topics[settings.export_pose_covariance_topic] = (
-            "geometry_msgs/msg/PoseWithCovarianceStamped",
-            list(zip(map(_ns, with_covariance.timestamps), build.poses_with_covariance(with_covariance, matrices))),
+        with_covariance = _covariance_poses(poses, covariances)
+        topics[settings.export_pose_covariance_topic] = _pose_covariance_topic(
+            build, with_covariance.poses, with_covariance.covariances
         )
+        if estimates is not None:
+            topics[settings.export_scaled_pose_covariance_topic] = _pose_covariance_topic(
+                build, *with_covariance.scaled_to_estimates(estimates, delta_frames)
+            )
     if truth is not None:
         topics[settings.export_ground_truth_topic] = (
             pose_type,
