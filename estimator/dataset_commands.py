@@ -118,7 +118,7 @@ def _splits(args: argparse.Namespace) -> int:
         config = replace_fields(config, heldout_cameras=tuple(args.heldout_cameras))
     if args.rounds is not None:
         config = replace_fields(config, rounds=args.rounds)
-    splits = write_splits(args.roots, config, args.out, dataset.lockbox)
+    splits = write_splits(args.roots, config, args.out, dataset.lockbox, args.final)
     # Made here, the splits record their build and the configured lockbox's runs.
     assert splits.lockbox is not None and splits.build is not None
     for k, r in enumerate(splits.rounds):
@@ -322,6 +322,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         " '' for none)",
     )
     p.add_argument("--rounds", type=int, help="cross-validation rounds (default: configs/dataset.toml)")
+    p.add_argument(
+        "--final",
+        action="store_true",
+        help="instead of rounds, one round for the model to ship: every run outside the lockbox trains but a "
+        "validation trajectory per motion group; no test set (only `seesys estimator lockbox` judges it)",
+    )
     p.set_defaults(func=_splits)
 
     p = sub.add_parser("sample", help="regenerate the embedded demo sample (data/sample) with the generator")

@@ -150,7 +150,7 @@ def _lockbox(args: argparse.Namespace) -> int:
     model = _default_model(args)
     splits = read_splits(args.splits, args.data)
     result = evaluate_lockbox(
-        args.data, splits, model, args.round, config, pulses, load_window_config(), _device(args.device, None)
+        args.data, splits, model, args.round, config, pulses, load_window_config(), _device(args.device, None), args.row
     )
     box = splits.lockbox
     where = f" ({box.environment}, {box.camera_model})" if box else ""
@@ -268,7 +268,45 @@ def _finetune(args: argparse.Namespace) -> int:
     return 0
 
 
+def _export_forest(args: argparse.Namespace) -> int:
+    from estimator.artefact.transforms import LabelTransform
+    from estimator.deepsee.config import load_estimator_config
+    from estimator.deepsee.export import training_cameras
+    from estimator.deepsee.forest_export import (
+        FOREST_PARITY_TOLERANCE,
+        OnnxModel,
+        export_forest_onnx,
+        forest_parity,
+        psd_shape_of,
+    )
+    from estimator.deepsee.predictors import read_forest
+    from seesys.io.core_settings import load_window_config
+
+    transform = LabelTransform(load_estimator_config().label_transform.k)
+    windows = load_window_config()
+    record = read_forest(args.model, windows, transform)
+    path = export_forest_onnx(
+        record,
+        args.out,
+        windows.rts_length,
+        psd_shape_of(record["compatibility"], windows.psd_samples),
+        training_cameras(record.get("training", {})),
+    )
+    difference = forest_parity(record["forest"], OnnxModel(path, transform, windows))
+    if difference > FOREST_PARITY_TOLERANCE:
+        raise SeesysError(
+            f"{path}: ONNX Runtime differs from scikit-learn by {difference:.2e} (> {FOREST_PARITY_TOLERANCE:g})"
+        )
+    print(
+        f"exported {args.model} -> {path} ({path.stat().st_size / 1e6:.1f} MB); parity with scikit-learn: max abs "
+        f"difference {difference:.1e} on the transformed scale"
+    )
+    return 0
+
+
 def _export(args: argparse.Namespace) -> int:
+    if args.model.suffix == ".pkl":
+        return _export_forest(args)
     from estimator.artefact.transforms import LabelTransform
     from estimator.deepsee.checkpoint import load_model, payload_standardisation
     from estimator.deepsee.config import load_estimator_config
@@ -378,6 +416,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--round", type=int, default=0, help="the round of the splits the model was trained on (default 0)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     p.add_argument("--out", type=Path, required=True, help="report folder")
+    p.add_argument("--row", default="deepsee", help="the model's row name in the report (default deepsee)")
     p.set_defaults(func=_lockbox)
 
     p = sub.add_parser("finetune", help="stage (d) on labelled session folders (real cameras with ground truth)")
@@ -419,8 +458,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
     p.set_defaults(func=_finetune_curve)
 
-    p = sub.add_parser("export", help="export a model to one ONNX file and check it against PyTorch")
-    p.add_argument("model", type=Path, help="model file (model.pt)")
+    p = sub.add_parser(
+        "export", help="export a model to one ONNX file and check it against PyTorch (or scikit-learn for a forest)"
+    )
+    p.add_argument("model", type=Path, help="model file: DeepSEE's model.pt, or the random forest's model.pkl")
     p.add_argument("--out", type=Path, required=True, help="ONNX file to write")
     p.set_defaults(func=_export)
 

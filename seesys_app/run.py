@@ -48,7 +48,7 @@ from advisory.config import AdvisoryConfig, load_advisory_config
 from advisory.output import AudioOutput, open_audio_output
 from advisory.process import stop_on_signals
 from advisory.supervisor import process_args
-from estimator.artefact.onnx_model import recorded_cameras
+from estimator.artefact.onnx_model import FOREST_KIND, recorded_training
 from estimator.service.config import load_service_config
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_CSV, EVENTS_CSV
@@ -258,16 +258,25 @@ class App:
         """Which cameras the local estimator's model was trained and fine-tuned on, and how to make it this
         camera's: the user should know when the advisory speaks from a model that never saw their camera."""
         path = self.o.model or resolve(load_service_config(self.config_dir).model)
-        cameras = recorded_cameras(path)
+        recorded = recorded_training(path)
+        cameras = recorded.cameras if recorded is not None else None
         seen = (
             f"was trained or fine-tuned on the cameras: {', '.join(cameras)}"
             if cameras
             else "records no cameras it was trained on"
         )
-        return (
-            f"{Path(path).name} {seen}; for another camera, fine-tune it on a few minutes of that camera's "
-            "sessions with ground truth: seesys estimator finetune --sessions SESSION... (docs/estimator.md)"
-        )
+        if recorded is not None and recorded.kind == FOREST_KIND:
+            # A forest is not fine-tuned: it is trained again, in seconds, with that camera's runs in its data.
+            adapt = (
+                "train it again with that camera's runs with ground truth in its data: seesys estimator train "
+                "--row random_forest, then seesys estimator export (docs/estimator.md)"
+            )
+        else:
+            adapt = (
+                "fine-tune it on a few minutes of that camera's sessions with ground truth: seesys estimator "
+                "finetune --sessions SESSION... (docs/estimator.md)"
+            )
+        return f"{Path(path).name} {seen}; for another camera, {adapt}"
 
     def event(self, part: str, event: str, detail: str = "") -> None:
         """Log an app event and show it, with the parts' state as it is now (a restart shows as done at once)."""

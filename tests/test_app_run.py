@@ -219,11 +219,9 @@ def test_the_app_says_at_start_the_camera_scale_error_and_the_cameras_its_model_
     assert manifest["config"]["camera"]["scale"]["depth_correction"] == CORRECTION  # the device applied it
     model = events(out).query("part == 'app' and event == 'model'").detail
     assert len(model) == 1, model
-    assert (
-        "deepsee.onnx was trained or fine-tuned on the cameras: d435, d435_unaligned, ideal, kinect_v1;"
-        in model.iloc[0]
-    )
-    assert "seesys estimator finetune --sessions" in model.iloc[0]
+    # The served forest names the cameras of its training data, and how a forest is made another camera's.
+    assert "forest.onnx was trained or fine-tuned on the cameras: d435, ideal, kinect_v1;" in model.iloc[0]
+    assert "seesys estimator train --row random_forest" in model.iloc[0]
 
 
 @pytest.mark.system
@@ -247,7 +245,7 @@ def test_the_view_shows_tracking_estimate_pulses_latency_drops_and_sparkline(run
         "skipped",
         "lost",
         "estimator",
-        "up, deepsee",
+        "up, forest",
         "last seconds",
     ):
         assert field in screen, f"{field!r} not on the screen:\n{screen}"

@@ -105,10 +105,14 @@ def test_settings_that_cannot_work_are_refused_by_name(tmp_path):
 @pytest.fixture(scope="module")
 def reduced_study(tmp_path_factory):
     """The default arms (none, motion, yoked, oracle, seesys), within subjects, 2 simulated participants, one object,
-    at most 2.5 s each: 10 sessions."""
-    study = tmp_path_factory.mktemp("simulated") / "study"
-    assert main(["study", "simulate", "--out", str(study), "--participants", "2", *SHORT]) == 0
-    return study
+    at most 2.5 s each: 10 sessions. Equation 2 from 2 mm at 1,000 pulses a metre: these short renders' error is
+    about 3 mm, which the served model reads, so that some windows warn (at the default 4 mm none would)."""
+    root = tmp_path_factory.mktemp("simulated")
+    configs = write_config_dir(root / "configs", {"alpha_m": 0.002, "pulses_per_metre": 1000.0})
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(CONFIG_DIR_ENV, str(configs))
+        assert main(["study", "simulate", "--out", str(root / "study"), "--participants", "2", *SHORT]) == 0
+    return root / "study"
 
 
 @pytest.mark.system
@@ -187,7 +191,7 @@ def test_a_yoked_session_waits_for_its_partner_and_plays_exactly_its_pulses_at_t
 def test_the_oracle_hears_the_labels_true_error_of_each_window_end_and_nothing_else(reduced_study):
     """Replaying Equation 2 on the label of each window-end frame (from the session's own trajectory and ground
     truth files), at the estimator's arrival times, through the same advice step gives the oracle's buffers."""
-    cfg = load_advisory_config()
+    cfg = load_advisory_config(reduced_study.parent / "configs")  # the study's Equation 2 (the fixture's)
     protocol = read_protocol(reduced_study)
     for person in protocol.participants:
         attempt = _attempt(reduced_study, protocol, person.id, "oracle")
@@ -262,7 +266,8 @@ def test_the_same_operator_moves_differently_after_a_warning_than_in_silence(tmp
     """The loop is closed: pulses the advisory played (all windows warn: alpha is set very low) change the
     participant's motion from the moment it reacts, and not before."""
     configs = write_config_dir(
-        tmp_path / "configs", {"alpha_m": 0.0002, "compliance": [1.0, 1.0], "pulses_from": "estimate"}
+        tmp_path / "configs",
+        {"alpha_m": 0.0002, "pulses_per_metre": 10000.0, "compliance": [1.0, 1.0], "pulses_from": "estimate"},
     )
     monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
     cfg = load_simulate_config(configs)

@@ -11,7 +11,15 @@ import pandas as pd
 import pytest
 
 from estimator.dataset.config import LockboxConfig, SplitConfig, load_dataset_config, lockbox_hash
-from estimator.dataset.splits import SplitError, build_fingerprint, check_no_leak, make_splits, read_splits, run_table
+from estimator.dataset.splits import (
+    SplitError,
+    build_fingerprint,
+    check_no_leak,
+    make_final_split,
+    make_splits,
+    read_splits,
+    run_table,
+)
 from estimator.dataset.store import COMPLETED, RunInfo, record_crashed_run
 from seesys.core.errors import ConfigError
 from seesys.io.config import config_dir
@@ -73,6 +81,24 @@ def test_the_lockbox_is_in_no_round():
     split_round.train.append(sorted(boxed)[0])
     with pytest.raises(SplitError, match=f"round 0: lockbox run {sorted(boxed)[0]} is in train"):
         check_no_leak(splits, runs)
+
+
+def test_the_final_split_trains_on_every_run_outside_the_lockbox_but_one_validation_trajectory_a_group():
+    runs = _runs()
+    lockbox = LockboxConfig("r5", "b", lockbox_hash("r5", "b"))
+    splits = make_final_split(runs, _config(), lockbox)
+    [final] = splits.rounds
+    boxed = set(splits.lockbox.runs)
+    assert final.test == [] and final.excluded == [] and boxed.isdisjoint(final.train + final.validation)
+    assert sorted(final.train + final.validation) == sorted(set(runs.run) - boxed)
+    trajectory = dict(zip(runs.run, runs.trajectory))
+    group = dict(zip(runs.trajectory, runs.motion_group))
+    assert sorted(group[t] for t in final.validation_trajectories) == ["aiming", "patrol", "rapid"]
+    assert {trajectory[r] for r in final.validation} == set(final.validation_trajectories)
+    assert not {trajectory[r] for r in final.train} & set(final.validation_trajectories)
+    assert make_final_split(runs, _config(), lockbox) == splits  # seeded
+    with pytest.raises(SplitError, match="motion group rapid has 1 trajectory; the final split needs 2"):
+        make_final_split(runs[(runs.motion_group != "rapid") | (runs.trajectory == "rapid_0")], _config())
 
 
 def test_the_lockbox_is_recorded_with_its_hash_and_refused_when_changed(tmp_path):

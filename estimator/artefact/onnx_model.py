@@ -15,6 +15,7 @@ library): :attr:`OnnxModel.provider` names the one that actually runs.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ from estimator.artefact.compatibility import (
     ModelMismatch,
     ModelSetup,
     check_compatible,
+    compatibility_hash,
     head_thresholds_of,
     rts_columns,
 )
@@ -38,6 +40,10 @@ COMPATIBILITY_KEY = "seesys_compatibility"
 HASH_KEY = "seesys_compatibility_hash"
 # The cameras the model was trained and fine-tuned on (JSON list of names): what the app tells its user.
 CAMERAS_KEY = "seesys_cameras"
+# Which model the graph is (DEEPSEE_KIND, FOREST_KIND): what can be done to adapt it to a camera differs.
+KIND_KEY = "seesys_model_kind"
+DEEPSEE_KIND = "deepsee"
+FOREST_KIND = "random_forest"
 #: The graph's output names: the transformed error, and the ordinal head's probabilities (a model with a head).
 Y = "y"
 PROBABILITIES = "probabilities"
@@ -62,9 +68,31 @@ def choose_providers(setting: str, available: list[str] | None = None) -> list[s
     return [CPU]
 
 
-def recorded_cameras(path: Path) -> list[str] | None:
-    """The cameras an exported model records it was trained and fine-tuned on, without loading it for inference;
-    None when it records none (exported before the cameras were recorded) or is not a readable ONNX file."""
+def export_metadata(record: dict, kind: str, cameras: list[str] | None) -> list[tuple[str, str]]:
+    """The metadata an exported model carries (:data:`COMPATIBILITY_KEY` and its hash, :data:`KIND_KEY`, and
+    :data:`CAMERAS_KEY` when ``cameras`` is given), as (key, value) pairs for the ONNX file's ``metadata_props``."""
+    entries = [
+        (COMPATIBILITY_KEY, json.dumps(record, sort_keys=True)),
+        (HASH_KEY, compatibility_hash(record)),
+        (KIND_KEY, kind),
+    ]
+    if cameras is not None:
+        entries.append((CAMERAS_KEY, json.dumps(list(cameras))))
+    return entries
+
+
+@dataclass(frozen=True)
+class RecordedTraining:
+    """What an exported model records of its training, read without loading it for inference: the kind of model
+    (:data:`DEEPSEE_KIND` or :data:`FOREST_KIND`; DeepSEE for a file exported before the kind was recorded) and the
+    cameras it was trained and fine-tuned on (None: it records none)."""
+
+    kind: str
+    cameras: list[str] | None
+
+
+def recorded_training(path: Path) -> RecordedTraining | None:
+    """:class:`RecordedTraining` of an exported model; None for a file that is not a readable ONNX model."""
     import onnx
     from google.protobuf.message import DecodeError
 
@@ -73,7 +101,16 @@ def recorded_cameras(path: Path) -> list[str] | None:
     except (OSError, ValueError, DecodeError):
         return None
     meta = {entry.key: entry.value for entry in proto.metadata_props}
-    return json.loads(meta[CAMERAS_KEY]) if CAMERAS_KEY in meta else None
+    return RecordedTraining(
+        meta.get(KIND_KEY, DEEPSEE_KIND), json.loads(meta[CAMERAS_KEY]) if CAMERAS_KEY in meta else None
+    )
+
+
+def recorded_cameras(path: Path) -> list[str] | None:
+    """The cameras an exported model records it was trained and fine-tuned on; None when it records none
+    (exported before the cameras were recorded) or is not a readable ONNX file."""
+    recorded = recorded_training(path)
+    return recorded.cameras if recorded is not None else None
 
 
 class OnnxModel:

@@ -258,6 +258,30 @@ def make_splits(runs: pd.DataFrame, config: SplitConfig, lockbox: LockboxConfig 
     return splits
 
 
+def make_final_split(runs: pd.DataFrame, config: SplitConfig, lockbox: LockboxConfig | None = None) -> Splits:
+    """One round for the model to ship: a validation trajectory of each motion group (seeded) for early stopping,
+    every other run outside the ``lockbox`` to train on, and no test set: such a model is judged only on the
+    lockbox (``seesys estimator lockbox``), its design having been chosen on the cross-validation rounds."""
+    build = build_fingerprint(runs)
+    box = lockbox_runs(runs, lockbox)
+    if box is not None:
+        runs = runs[~runs.run.isin(box.runs)].reset_index(drop=True)
+    rng = np.random.default_rng(config.seed)
+    validation = []
+    for group, names in runs.groupby("motion_group").trajectory:
+        names = sorted(set(names))
+        if len(names) < 2:
+            raise SplitError(f"motion group {group} has {len(names)} trajectory; the final split needs 2")
+        validation.append(names[int(rng.integers(len(names)))])
+    is_validation = runs.trajectory.isin(validation)
+    final = SplitRound(
+        sorted(validation), [], sorted(runs.run[~is_validation]), sorted(runs.run[is_validation]), [], [], [], []
+    )
+    splits = Splits([], [final], [], build, box)
+    check_no_leak(splits, runs)
+    return splits
+
+
 def check_no_leak(splits: Splits, runs: pd.DataFrame) -> None:
     """Raise :class:`SplitError` if a run of the splits is not in ``runs``, a run or a trajectory is in two parts of
     a round, a round's held-out environment or camera is in its training or validation, or a lockbox run is in a
@@ -311,8 +335,12 @@ def read_splits(path: Path, roots: list[Path]) -> Splits:
     return splits
 
 
-def write_splits(roots: list[Path], config: SplitConfig, out: Path, lockbox: LockboxConfig | None = None) -> Splits:
-    splits = make_splits(run_table(roots), config, lockbox)
+def write_splits(
+    roots: list[Path], config: SplitConfig, out: Path, lockbox: LockboxConfig | None = None, final: bool = False
+) -> Splits:
+    """The rounds of :func:`make_splits` (with ``final``, the one round of :func:`make_final_split`) written to
+    ``out``."""
+    splits = (make_final_split if final else make_splits)(run_table(roots), config, lockbox)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(splits.to_json())
     return splits

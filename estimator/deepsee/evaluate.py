@@ -361,10 +361,12 @@ def evaluate_lockbox(
     pulses: PulseSettings,
     windows: WindowConfig,
     device: torch.device,
+    row: str = DEEPSEE,
 ) -> Evaluation:
-    """``model`` (a shipped model, trained on round ``round_index`` of ``splits``) on the lockbox's runs: all of
-    them, those of its room and those through its camera, beside the reference rows fitted on that round's training
-    windows and the ceiling. Raises :class:`SeesysError` when the splits have no lockbox run."""
+    """``model`` (a shipped model, trained on round ``round_index`` of ``splits``; named ``row`` in the tables) on
+    the lockbox's runs: all of them, those of its room and those through its camera, beside the reference rows
+    fitted on that round's training windows and the ceiling. Raises :class:`SeesysError` when the splits have no
+    lockbox run."""
     box = splits.lockbox
     if box is None or not box.runs:
         raise SeesysError(
@@ -383,7 +385,7 @@ def evaluate_lockbox(
     train_reader = split_readers(roots, splits, round_index, ("train",))["train"]
     tables = _Tables()
     how = _Judging([Path(r) for r in roots], config, pulses, windows, device)
-    _judge_round(tables, round_index, sets, set(sets), reader_windows(train_reader), [(DEEPSEE, Path(model))], how)
+    _judge_round(tables, round_index, sets, set(sets), reader_windows(train_reader), [(row, Path(model))], how)
     raw = raw_set(reader)
     raw_sets = {name: raw.subset(rows) for name, rows in index.items()}
     _judge_channels(tables, round_index, raw_sets, raw_set(train_reader), how)

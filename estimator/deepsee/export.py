@@ -21,8 +21,8 @@ import onnx
 import torch
 from torch import nn
 
-from estimator.artefact.compatibility import compatibility, compatibility_hash
-from estimator.artefact.onnx_model import CAMERAS_KEY, COMPATIBILITY_KEY, HASH_KEY, PROBABILITIES, OnnxModel, Y
+from estimator.artefact.compatibility import compatibility
+from estimator.artefact.onnx_model import DEEPSEE_KIND, PROBABILITIES, OnnxModel, Y, export_metadata
 from estimator.artefact.standardisation import METADATA_KEY, InputStandardisation
 from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.config import ModelConfig, load_estimator_config
@@ -97,9 +97,7 @@ def export_onnx(
         if record is not None
         else compatibility(windows, transform, head_thresholds_m=getattr(model, "thresholds_m", ()))
     )
-    metadata = [(COMPATIBILITY_KEY, json.dumps(record, sort_keys=True)), (HASH_KEY, compatibility_hash(record))]
-    if cameras is not None:
-        metadata.append((CAMERAS_KEY, json.dumps(list(cameras))))
+    metadata = export_metadata(record, DEEPSEE_KIND, cameras)
     if standardisation is not None:
         metadata.append((METADATA_KEY, json.dumps(standardisation.as_record())))
     for key, value in metadata:

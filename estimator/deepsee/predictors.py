@@ -119,6 +119,22 @@ def _onnx_runner(model: OnnxModel, batch_size: int) -> Callable[[Windows], tuple
     return run
 
 
+def read_forest(path: Path, windows: WindowConfig, transform: LabelTransform) -> dict:
+    """A random forest's model file (``model.pkl``: ``forest``, ``compatibility``, ``training``), checked against
+    this installation; raises :class:`ModelMismatch` for a missing file, another kind of file or a forest made for
+    other inputs."""
+    try:
+        record = pickle.loads(Path(path).read_bytes())
+    except FileNotFoundError:
+        raise ModelMismatch(f"model file not found: {path}") from None
+    except (pickle.UnpicklingError, EOFError, AttributeError) as e:
+        raise ModelMismatch(f"{path} is not a random-forest model file: {e}") from None
+    if not isinstance(record, dict) or "forest" not in record or "compatibility" not in record:
+        raise ModelMismatch(f"{path} is not a random-forest model file: no forest and compatibility record")
+    check_compatible(record["compatibility"], str(path), windows, transform)
+    return record
+
+
 def load_predictor(
     path: Path,
     transform: LabelTransform,
@@ -144,13 +160,7 @@ def load_predictor(
     if path.suffix == ".pkl":
         from estimator.deepsee.baselines import window_statistics
 
-        try:
-            record = pickle.loads(path.read_bytes())
-        except FileNotFoundError:
-            raise ModelMismatch(f"model file not found: {path}") from None
-        except (pickle.UnpicklingError, EOFError, AttributeError) as e:
-            raise ModelMismatch(f"{path} is not a random-forest model file: {e}") from None
-        check_compatible(record["compatibility"], str(path), windows, transform)
+        record = read_forest(path, windows, transform)
         forest = record["forest"]
         columns = rts_columns(record["compatibility"], str(path))
         return Predictor(
