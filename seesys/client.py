@@ -40,7 +40,8 @@ import zmq
 from seesys.core import messages
 from seesys.core.equation2 import PulseSettings
 from seesys.core.messages import Estimate, MessageError
-from seesys.io.core_settings import load_pulse_settings
+from seesys.core.pose_covariance import scaled_to_error, translation_pair_covariance
+from seesys.io.core_settings import load_label_config, load_pulse_settings
 from seesys.io.network import load_network_config
 from seesys.io.transport import subscriber
 
@@ -58,9 +59,12 @@ class EstimateRecord:
     the estimated frame's predicted translation covariance (3×3, m², the world's axes, float16's three significant
     digits; None when the device's monitor predicted none), the Cramér–Rao bound of its pose fit, which leaves out
     the map's own error: on renders two to four times too small in σ at the median (docs/rts-features.md), to be
-    inflated before an application fuses it. ``seesys session export-bag`` publishes it scaled to the estimate (the
-    label pair's σ made ``error_m``), which needs the pair's earlier frame's full covariance that the stream does
-    not carry (docs/device.md).
+    inflated before an application fuses it; ``scaled_translation_covariance``: the same scaled so that the label
+    pair's σ is ``error_m`` (:func:`seesys.core.pose_covariance.scaled_to_error`: the shape from the pose fit, the
+    size from the estimate), the pair being this frame and the one the label's span (``delta_frames``) before it,
+    whose estimate this client received; None without both covariances. The stream carries the frames' translation
+    blocks only, so the pair here leaves out the first pose's rotation, which ``seesys session export-bag``'s
+    scaled covariance includes (docs/device.md).
     """
 
     device_id: str
@@ -73,6 +77,7 @@ class EstimateRecord:
     received: float
     stream_session: int = 0
     translation_covariance: np.ndarray | None = None
+    scaled_translation_covariance: np.ndarray | None = None
 
     @property
     def age_s(self) -> float:
@@ -102,6 +107,10 @@ class EstimateClient:
         self.device_id = device_id
         self.stream_session = stream_session
         self.pulses = pulses or load_pulse_settings(config_dir)
+        self.delta_frames = load_label_config(config_dir).delta_frames
+        # The translation covariances of the last estimates by (stream session, frame index): each record's label
+        # pair reaches delta_frames back.
+        self._covariances: dict[tuple[int, int], np.ndarray] = {}
         self.rejected = 0
         self.foreign = 0  # estimates of the device id from another stream session than ``stream_session``
         self._ctx = zmq.Context()
@@ -132,6 +141,20 @@ class EstimateClient:
             else:
                 return self._record(message)
 
+    def _scaled(self, estimate: Estimate) -> np.ndarray | None:
+        """The estimate's translation covariance scaled to its error, from the pair's earlier estimate's (kept)."""
+        covariance = estimate.translation_covariance
+        key = (estimate.stream_session, estimate.frame_index)
+        if covariance is None:
+            return None
+        self._covariances[key] = covariance
+        earlier = self._covariances.get((estimate.stream_session, estimate.frame_index - self.delta_frames))
+        for old in [k for k in self._covariances if k[0] != key[0] or k[1] <= key[1] - self.delta_frames]:
+            del self._covariances[old]  # another stream, or older than any later pair needs
+        if earlier is None:
+            return None
+        return scaled_to_error(covariance, translation_pair_covariance(earlier, covariance), estimate.error_m)
+
     def _record(self, estimate: Estimate) -> EstimateRecord:
         return EstimateRecord(
             estimate.device_id,
@@ -144,6 +167,7 @@ class EstimateClient:
             time.monotonic(),
             estimate.stream_session,
             estimate.translation_covariance,
+            self._scaled(estimate),
         )
 
     def __iter__(self) -> Iterator[EstimateRecord]:

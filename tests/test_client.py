@@ -52,6 +52,17 @@ def test_the_client_yields_typed_records_with_equation2_classes_and_skips_what_i
             assert (record.error_class, record.model_version, record.server_ms) == (2, "m1", 3.5)  # 250/m * 9 mm
             assert record.stream_session == 5 and client.foreign == 1
             assert 0 <= record.age_s < 60 and client.rejected == 1
+            assert record.scaled_translation_covariance is None  # no estimate of frame 7 − Δ
+            first = record.translation_covariance
+            # Frame 17's label pair starts at frame 7, whose estimate came: the covariance scaled to the estimate.
+            assert client.delta_frames == 10
+            later = np.diag([1e-6, 2e-6, 2e-6])
+            pub.send_multipart(messages.encode(Estimate(DEVICE, 17, 10.5, 0.006, "m1", 3.5, 5, (), later)))
+            record = client.receive(60)
+            stream_later = record.translation_covariance  # float16's resolution, as the stream carries it
+            pair = first + stream_later
+            np.testing.assert_allclose(record.scaled_translation_covariance, stream_later * 0.006**2 / np.trace(pair))
+            assert np.trace(record.scaled_translation_covariance) < 0.006**2  # the pair's σ is the estimate
             assert client.receive(0.05) is None
     finally:
         pub.close()

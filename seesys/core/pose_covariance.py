@@ -40,6 +40,13 @@ def pair_covariance(
     return relative_translation_covariance(covariances[i], covariances[j], positions[i], positions[j])
 
 
+def translation_pair_covariance(translation_i: np.ndarray, translation_j: np.ndarray) -> np.ndarray:
+    """The label pair's 3×3 covariance from the two frames' translation blocks alone (as the feature stream carries
+    them): :func:`relative_translation_covariance` without the first pose's rotation swinging the path travelled
+    since, which needs its rotation block."""
+    return np.asarray(translation_i, np.float64) + np.asarray(translation_j, np.float64)
+
+
 def scaled_to_error(covariance: np.ndarray, pair: np.ndarray, error_m: float) -> np.ndarray | None:
     """Frame j's 6×6 ``covariance`` scaled so that its pair's σ (√trace of ``pair``, the 3×3 covariance of the
     label's relative translation ending at j: :func:`pair_covariance`) is the estimated error ``error_m``: the shape

@@ -1,0 +1,39 @@
+"""How much the label pair's σ changes when it is taken from the two frames' translation blocks alone, as a client
+of the estimates has them (seesys.core.pose_covariance.translation_pair_covariance), instead of the full 6×6
+covariances with the first frame's rotation (relative_translation_covariance, as seesys session export-bag and
+seesys dataset coverage take it): the ratio of the two σ over every window-end pair of a build's kept sessions.
+
+    .venv/bin/python docs/v4-build/translation_pair.py BUILD
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from seesys.core import session_layout
+from seesys.core.pose_covariance import relative_translation_covariance, translation_pair_covariance
+from seesys.io.core_settings import load_label_config, load_window_config
+from seesys.io.trajectory_files import read_tum
+
+delta, stride = load_label_config().delta_frames, load_window_config().end_stride
+ratios = []
+for session in sorted((Path(sys.argv[1]) / "sessions").iterdir()):
+    logged = pd.read_csv(session / session_layout.POSE_COVARIANCE_CSV)
+    matrices = session_layout.covariance_matrices(logged[list(session_layout.POSE_COVARIANCE_COLUMNS[2:])])
+    covariance = dict(zip(logged.frame_index.astype(int), matrices))
+    trajectory = read_tum(session / session_layout.TRAJECTORY)
+    at = dict(zip(np.round(trajectory.timestamps, 6), trajectory.positions))
+    times = np.round(logged.timestamp.to_numpy(float), 6)
+    position = {int(i): at[t] for i, t in zip(logged.frame_index, times) if t in at}
+    for j in range(delta, int(logged.frame_index.max()) + 1, stride):
+        i = j - delta
+        if all(k in covariance and k in position for k in (i, j)):
+            full = relative_translation_covariance(covariance[i], covariance[j], position[i], position[j])
+            blocks = translation_pair_covariance(covariance[i][:3, :3], covariance[j][:3, :3])
+            ratios.append(np.sqrt(np.trace(blocks) / np.trace(full)))
+ratio = np.array(ratios)
+print(f"{len(ratio)} window-end pairs; σ from the translation blocks / σ of the full pair:")
+print("percentile 1, 5, 50, 95, 99: " + ", ".join(f"{v:.3f}" for v in np.percentile(ratio, [1, 5, 50, 95, 99])))
+print(f"within ±5 %: {np.mean(np.abs(ratio - 1) <= 0.05):.3f}; min {ratio.min():.3f}, max {ratio.max():.3f}")
