@@ -269,16 +269,10 @@ def _finetune(args: argparse.Namespace) -> int:
 
 
 def _export_forest(args: argparse.Namespace) -> int:
+    from estimator.artefact.onnx_model import OnnxModel, training_cameras
     from estimator.artefact.transforms import LabelTransform
     from estimator.deepsee.config import load_estimator_config
-    from estimator.deepsee.export import training_cameras
-    from estimator.deepsee.forest_export import (
-        FOREST_PARITY_TOLERANCE,
-        OnnxModel,
-        export_forest_onnx,
-        forest_parity,
-        psd_shape_of,
-    )
+    from estimator.deepsee.forest_export import FOREST_PARITY_TOLERANCE, export_forest_onnx, forest_parity, psd_shape_of
     from estimator.deepsee.predictors import read_forest
     from seesys.io.core_settings import load_window_config
 
@@ -307,10 +301,11 @@ def _export_forest(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     if args.model.suffix == ".pkl":
         return _export_forest(args)
+    from estimator.artefact.onnx_model import training_cameras
     from estimator.artefact.transforms import LabelTransform
     from estimator.deepsee.checkpoint import load_model, payload_standardisation
     from estimator.deepsee.config import load_estimator_config
-    from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity, training_cameras
+    from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, export_onnx, parity
     from estimator.deepsee.ordinal import model_thresholds
     from seesys.io.core_settings import load_window_config
 

@@ -14,14 +14,14 @@ from rich.progress import Progress
 from testkit.deepsee import tiny_config, tiny_config_dir, write_session
 
 from advisory.estimate_log import read_estimate_log
-from estimator.artefact.onnx_model import recorded_cameras
+from estimator.artefact.onnx_model import recorded_cameras, training_cameras
 from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.channels import judged_channels
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, payload_standardisation
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import DataError, concat, session_windows
 from estimator.deepsee.evaluate import OUT_OF_DOMAIN, session_set
-from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity, training_cameras
+from estimator.deepsee.export import PARITY_TOLERANCE, OnnxModel, parity
 from estimator.deepsee.finetune import finetune
 from estimator.deepsee.predictors import WindowEstimates, load_predictor
 from estimator.deepsee.report import (

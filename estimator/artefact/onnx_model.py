@@ -81,6 +81,14 @@ def export_metadata(record: dict, kind: str, cameras: list[str] | None) -> list[
     return entries
 
 
+def training_cameras(training: dict) -> list[str] | None:
+    """The cameras a checkpoint's training record says it was trained on (the dataset's camera models) and then
+    fine-tuned on (the sessions' sources), in that order; None when it records none (a model made before)."""
+    if "cameras" not in training and "finetuned_cameras" not in training:
+        return None
+    return list(dict.fromkeys(list(training.get("cameras", [])) + list(training.get("finetuned_cameras", []))))
+
+
 @dataclass(frozen=True)
 class RecordedTraining:
     """What an exported model records of its training, read without loading it for inference: the kind of model

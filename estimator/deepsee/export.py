@@ -72,8 +72,8 @@ def export_onnx(
 ) -> Path:
     """Write ``model`` (a DeepSEE) as one self-contained ONNX file with its compatibility record: ``record`` (a
     checkpoint's, which loading it has checked against this installation), or this installation's; and, when
-    given, the ``cameras`` it was trained and fine-tuned on (:func:`training_cameras`) and its input
-    ``standardisation`` (a checkpoint's)."""
+    given, the ``cameras`` it was trained and fine-tuned on (:func:`estimator.artefact.onnx_model.training_cameras`)
+    and its input ``standardisation`` (a checkpoint's)."""
     model = model.eval().cpu()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -105,14 +105,6 @@ def export_onnx(
         entry.key, entry.value = key, value
     onnx.save_model(proto, str(path), save_as_external_data=False)
     return path
-
-
-def training_cameras(training: dict) -> list[str] | None:
-    """The cameras a checkpoint's training record says it was trained on (the dataset's camera models) and then
-    fine-tuned on (the sessions' sources), in that order; None when it records none (a model made before)."""
-    if "cameras" not in training and "finetuned_cameras" not in training:
-        return None
-    return list(dict.fromkeys(list(training.get("cameras", [])) + list(training.get("finetuned_cameras", []))))
 
 
 def parity(model: nn.Module, onnx_model: OnnxModel, batches: tuple[int, ...] = (1, 7)) -> float:
