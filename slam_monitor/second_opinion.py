@@ -63,21 +63,30 @@ def _to_pose(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
     return pose
 
 
+def keypoint_depths(points_px: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
+    """The depth image's value at each keypoint (N, 2), rounded to the nearest pixel; NaN outside the image."""
+    points = np.asarray(points_px, np.float64).reshape(-1, 2)
+    columns, rows = np.round(points).astype(int).T
+    inside = (columns >= 0) & (columns < depth_m.shape[1]) & (rows >= 0) & (rows < depth_m.shape[0])
+    z = np.full(len(points), np.nan)
+    z[inside] = depth_m[rows[inside], columns[inside]]
+    return z
+
+
 def rgbd_motion(
     previous: np.ndarray,
     current: np.ndarray,
     previous_points_px: np.ndarray,
-    previous_depth_m: np.ndarray,
+    previous_points_depth_m: np.ndarray,
     camera_matrix: np.ndarray,
     cfg: FlowConfig,
 ) -> np.ndarray | None:
     """The camera's motion from the previous image to the current one, T_previous_current (4×4, metres), from the
-    flow of ``previous_points_px`` (N, 2: the previous image's keypoints); None where the flow cannot tell it."""
+    flow of ``previous_points_px`` (N, 2: the previous image's keypoints) whose depths are
+    ``previous_points_depth_m`` (N,: :func:`keypoint_depths` of the previous depth image); None where the flow
+    cannot tell it."""
     points = np.asarray(previous_points_px, np.float64).reshape(-1, 2)
-    columns, rows = np.round(points).astype(int).T
-    inside = (columns >= 0) & (columns < previous_depth_m.shape[1]) & (rows >= 0) & (rows < previous_depth_m.shape[0])
-    z = np.full(len(points), np.nan)
-    z[inside] = previous_depth_m[rows[inside], columns[inside]]
+    z = np.asarray(previous_points_depth_m, np.float64)
     usable = np.flatnonzero(np.isfinite(z) & (z > cfg.min_depth_m) & (z < cfg.max_depth_m))
     if len(usable) < _MIN_INLIERS:
         return None
@@ -112,11 +121,13 @@ def rgbd_motion(
 
 @dataclass(frozen=True)
 class _HopFrame:
+    """The last hop frame: what the next hop's flow starts from (its image, keypoints and their depths; not the
+    depth image, which a device allocates for every frame)."""
+
     index: int
     gray: np.ndarray
-    depth_m: np.ndarray
     keypoints_px: np.ndarray
-    pose_wc: np.ndarray
+    keypoint_depths_m: np.ndarray
 
 
 class SecondOpinion:
@@ -127,13 +138,20 @@ class SecondOpinion:
         self._cfg = cfg
         self._hops_per_span = cfg.span_frames // cfg.hop_frames
         self._hops: deque[np.ndarray] = deque(maxlen=self._hops_per_span)
-        self._hop_frames: deque[_HopFrame] = deque(maxlen=self._hops_per_span + 1)
+        # The span's hop frames' ORB-SLAM3 poses (index, T_wc), and the last hop frame's image: one image is kept.
+        self._poses: deque[tuple[int, np.ndarray]] = deque(maxlen=self._hops_per_span + 1)
+        self._last: _HopFrame | None = None
         self._value: float | None = None
 
     def _restart(self) -> None:
         self._hops.clear()
-        self._hop_frames.clear()
+        self._poses.clear()
+        self._last = None
         self._value = None
+
+    def _keep(self, index: int, gray: np.ndarray, depth_m: np.ndarray, keypoints_px: np.ndarray, pose_wc: np.ndarray):
+        self._poses.append((index, pose_wc))
+        self._last = _HopFrame(index, gray, keypoints_px, keypoint_depths(keypoints_px, depth_m))
 
     def update(
         self,
@@ -151,26 +169,27 @@ class SecondOpinion:
             return None
         if index % self._cfg.hop_frames:
             return self._value
-        previous = self._hop_frames[-1] if self._hop_frames else None
-        here = _HopFrame(index, gray, depth_m, keypoints_px, pose_wc)
+        previous = self._last
         if previous is None or previous.index != index - self._cfg.hop_frames:
             self._restart()
-            self._hop_frames.append(here)
+            self._keep(index, gray, depth_m, keypoints_px, pose_wc)
             return None
-        motion = rgbd_motion(previous.gray, gray, previous.keypoints_px, previous.depth_m, camera_matrix, self._cfg)
+        motion = rgbd_motion(
+            previous.gray, gray, previous.keypoints_px, previous.keypoint_depths_m, camera_matrix, self._cfg
+        )
         if motion is None:
             self._restart()
-            self._hop_frames.append(here)
+            self._keep(index, gray, depth_m, keypoints_px, pose_wc)
             return None
         self._hops.append(motion)
-        self._hop_frames.append(here)
+        self._keep(index, gray, depth_m, keypoints_px, pose_wc)
         if len(self._hops) < self._hops_per_span:
             self._value = None
             return None
         flow = np.eye(4)
         for step in self._hops:
             flow = flow @ step
-        slam = np.linalg.inv(self._hop_frames[0].pose_wc) @ pose_wc
+        slam = np.linalg.inv(self._poses[0][1]) @ pose_wc
         self._value = relative_translation_error(flow, slam)
         return self._value
 

@@ -23,7 +23,13 @@ from slam_monitor.observability import (
     residual_channels,
     translation_observability,
 )
-from slam_monitor.second_opinion import FlowConfig, SecondOpinion, relative_translation_error, rgbd_motion
+from slam_monitor.second_opinion import (
+    FlowConfig,
+    SecondOpinion,
+    keypoint_depths,
+    relative_translation_error,
+    rgbd_motion,
+)
 from slam_monitor.slam_features import project
 
 NOISE = NoiseModel(pixel_sigma_px=1.0, depth_sigma_at_1m_m=0.004, coverage_grid=4)
@@ -184,7 +190,9 @@ def test_the_flows_motion_on_the_samples_frames_agrees_with_the_rendered_ground_
         poses.append(pose)
     k = frames[0].intrinsics.matrix()
     keypoints = [_orb_keypoints(f.gray) for f in frames]
-    step = rgbd_motion(frames[0].gray, frames[5].gray, keypoints[0], frames[0].depth, k, FLOW)
+    step = rgbd_motion(
+        frames[0].gray, frames[5].gray, keypoints[0], keypoint_depths(keypoints[0], frames[0].depth), k, FLOW
+    )
     assert step is not None
     assert relative_translation_error(np.linalg.inv(poses[0]) @ poses[5], step) < 0.003
 
