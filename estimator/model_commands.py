@@ -337,12 +337,15 @@ def _estimate(args: argparse.Namespace) -> int:
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.estimate import estimate_session
     from estimator.deepsee.predictors import load_predictor
+    from estimator.service.config import load_service_config
     from seesys.io.core_settings import load_window_config
 
     config = load_estimator_config()
     windows = load_window_config()
+    # By default the model the service serves: a preview of what the advisory would say live.
+    model = args.model if args.model is not None else resources.resolve(load_service_config().model)
     predictor = load_predictor(
-        _default_model(args), LabelTransform(config.label_transform.k), config.evaluation.batch_size, windows=windows
+        model, LabelTransform(config.label_transform.k), config.evaluation.batch_size, windows=windows
     )
     table = estimate_session(predictor, args.session, windows, args.out)
     head = ", with the ordinal head's probabilities and class" if predictor.thresholds_m else ""
@@ -462,6 +465,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("estimate", help="per-frame estimates of a logged session (CSV for seesys advisory render)")
     p.add_argument("session", type=Path, help="session folder with rts.csv and psd/ (seesys monitor run)")
-    p.add_argument("--model", type=Path, help="model file, .pt or .onnx (default: the shipped model)")
+    p.add_argument(
+        "--model", type=Path, help="model file, .pt, .pkl or .onnx (default: the served model, configs/service.toml)"
+    )
     p.add_argument("--out", type=Path, required=True, help="CSV: frame_index, timestamp, error_m")
     p.set_defaults(func=_estimate)
