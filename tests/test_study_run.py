@@ -130,7 +130,15 @@ def kill_at_random(
         wait_for(lambda: frames_logged(attempt) >= 5, 300, "5 frames tracked", interval_s=0.05)
         time.sleep(rng.uniform(0.0, 1.5))
     else:
-        time.sleep(rng.uniform(0.3, 8.0))
+        # Start-up: at the drawn moment or when the device logs its first frame, whichever comes first (the whole
+        # session can be over within the drawn 8 s, and a runner killed after it completed leaves a finished run).
+        deadline = time.monotonic() + rng.uniform(0.3, 8.0)
+        wait_for(
+            lambda: time.monotonic() >= deadline or frames_logged(attempt) >= 1,
+            300,
+            "the drawn moment or the first frame",
+            interval_s=0.02,
+        )
     children = psutil.Process(proc.pid).children(recursive=True)
     killed_at = time.time()
     proc.send_signal(signal.SIGKILL)
