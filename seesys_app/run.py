@@ -260,12 +260,10 @@ class App:
         path = self.o.model or resolve(load_service_config(self.config_dir).model)
         recorded = recorded_training(path)
         cameras = recorded.cameras if recorded is not None else None
-        seen = (
-            f"was trained or fine-tuned on the cameras: {', '.join(cameras)}"
-            if cameras
-            else "records no cameras it was trained on"
-        )
-        if recorded is not None and recorded.kind == FOREST_KIND:
+        forest = recorded is not None and recorded.kind == FOREST_KIND
+        trained = "was trained" if forest else "was trained or fine-tuned"
+        seen = f"{trained} on the cameras: {', '.join(cameras)}" if cameras else "records no cameras it was trained on"
+        if forest:
             # A forest is not fine-tuned: it is trained again, in seconds, with that camera's runs in its data.
             adapt = (
                 "train it again with that camera's runs with ground truth in its data: seesys estimator train "

@@ -220,7 +220,7 @@ def test_the_app_says_at_start_the_camera_scale_error_and_the_cameras_its_model_
     model = events(out).query("part == 'app' and event == 'model'").detail
     assert len(model) == 1, model
     # The served forest names the cameras of its training data, and how a forest is made another camera's.
-    assert "forest.onnx was trained or fine-tuned on the cameras: d435, ideal, kinect_v1;" in model.iloc[0]
+    assert "forest.onnx was trained on the cameras: d435, ideal, kinect_v1;" in model.iloc[0]
     assert "seesys estimator train --row random_forest" in model.iloc[0]
 
 
