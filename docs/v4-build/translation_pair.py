@@ -10,23 +10,19 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from seesys.core import session_layout
 from seesys.core.pose_covariance import relative_translation_covariance, translation_pair_covariance
 from seesys.io.core_settings import load_label_config, load_window_config
+from seesys.io.rts_log import read_pose_covariance_log
 from seesys.io.trajectory_files import read_tum
 
 delta, stride = load_label_config().delta_frames, load_window_config().end_stride
 ratios = []
 for session in sorted((Path(sys.argv[1]) / "sessions").iterdir()):
-    logged = pd.read_csv(session / session_layout.POSE_COVARIANCE_CSV)
-    matrices = session_layout.covariance_matrices(logged[list(session_layout.POSE_COVARIANCE_COLUMNS[2:])])
-    covariance = dict(zip(logged.frame_index.astype(int), matrices))
-    trajectory = read_tum(session / session_layout.TRAJECTORY)
-    at = dict(zip(np.round(trajectory.timestamps, 6), trajectory.positions))
-    times = np.round(logged.timestamp.to_numpy(float), 6)
-    position = {int(i): at[t] for i, t in zip(logged.frame_index, times) if t in at}
+    logged = read_pose_covariance_log(session)
+    covariance = logged.by_frame()
+    position = logged.positions(read_tum(session / session_layout.TRAJECTORY))
     for j in range(delta, int(logged.frame_index.max()) + 1, stride):
         i = j - delta
         if all(k in covariance and k in position for k in (i, j)):

@@ -28,6 +28,7 @@ from seesys.core import session_layout
 from seesys.core.labels import LabelStatus
 from seesys.core.pose_covariance import pair_covariance
 from seesys.io.logfiles import read_csv_table
+from seesys.io.rts_log import read_pose_covariance_log
 from seesys.io.trajectory_files import read_tum
 
 #: Draws per frame for the share of a Gaussian within 1σ and 2σ; a fixed seed keeps a report reproducible.
@@ -86,20 +87,14 @@ def run_frames(root: Path, run: str, delta: int) -> pd.DataFrame:
     """Every labelled frame of a build's run with its pair's σ and Gaussian shares; raises :class:`DatasetError`
     when the run's device session (kept by ``keep_sessions``) or its covariance log is missing."""
     session = Path(root) / SESSIONS_DIR / run
-    path = session / session_layout.POSE_COVARIANCE_CSV
-    if not path.is_file():
+    logged = read_pose_covariance_log(session)
+    if logged is None:
         raise DatasetError(
-            f"{path} is missing: the covariance's coverage needs the build's device sessions with their "
-            "pose covariance (a build of RTS schema v4 with keep_sessions)"
+            f"{session / session_layout.POSE_COVARIANCE_CSV} is missing: the covariance's coverage needs the build's "
+            "device sessions with their pose covariance (a build of RTS schema v4 with keep_sessions)"
         )
-    logged = pd.read_csv(path)
-    matrices = session_layout.covariance_matrices(logged[list(session_layout.POSE_COVARIANCE_COLUMNS[2:])])
-    covariances = dict(zip(logged.frame_index.astype(int), matrices))
-    trajectory = read_tum(session / session_layout.TRAJECTORY)
-    at = dict(zip(np.round(trajectory.timestamps, 6), trajectory.positions))
-    positions = {
-        int(i): at[t] for i, t in zip(logged.frame_index, np.round(logged.timestamp.to_numpy(float), 6)) if t in at
-    }
+    covariances = logged.by_frame()
+    positions = logged.positions(read_tum(session / session_layout.TRAJECTORY))
     labels = pd.read_csv(run_folder(root, run) / FRAMES_CSV)
     labels = labels[labels.status == LabelStatus.LABELLED.value].reset_index(drop=True)
     pairs = [pair_covariance(covariances, positions, int(j), delta) for j in labels.frame_index]

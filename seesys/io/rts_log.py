@@ -34,6 +34,7 @@ from seesys.core.device_settings import DeviceSettings
 from seesys.core.errors import SeesysError
 from seesys.core.messages import FeatureFrame, MessageError, pack_psd, unpack_psd
 from seesys.core.tracking_state import TrackingState
+from seesys.core.trajectory import Poses
 
 RTS_CSV = "rts.csv"
 RTS_JSON = "rts.json"
@@ -219,14 +220,41 @@ def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]
         )
 
 
-def _translation_covariances(session: Path) -> dict[int, np.ndarray]:
-    """frame index → 3×3 translation covariance from the session's ``pose_covariance.csv`` (empty without one)."""
+@dataclass(frozen=True)
+class PoseCovarianceLog:
+    """A session's ``pose_covariance.csv``: each logged frame's index, time and 6×6 world-axes covariance."""
+
+    frame_index: np.ndarray
+    timestamps: np.ndarray
+    matrices: np.ndarray  # (N, 6, 6)
+
+    def by_frame(self) -> dict[int, np.ndarray]:
+        """frame index → 6×6 covariance."""
+        return {int(i): m for i, m in zip(self.frame_index, self.matrices)}
+
+    def positions(self, trajectory: Poses) -> dict[int, np.ndarray]:
+        """frame index → the camera position of ``trajectory`` (the session's ``trajectory.tum``) at the logged
+        frame's time (the two files write a frame's time to the microsecond), for the frames it holds."""
+        at = dict(zip(np.round(trajectory.timestamps, 6), trajectory.positions))
+        times = np.round(self.timestamps, 6)
+        return {int(i): at[t] for i, t in zip(self.frame_index, times) if t in at}
+
+
+def read_pose_covariance_log(session: Path) -> PoseCovarianceLog | None:
+    """The session's ``pose_covariance.csv``, None without one; raises :class:`MonitorLogError` for a malformed
+    file."""
     path = session / session_layout.POSE_COVARIANCE_CSV
     if not path.is_file():
-        return {}
+        return None
     try:
         table = pd.read_csv(path)
         matrices = session_layout.covariance_matrices(table[list(session_layout.POSE_COVARIANCE_COLUMNS[2:])])
+        return PoseCovarianceLog(table.frame_index.to_numpy(int), table.timestamp.to_numpy(float), matrices)
     except (OSError, KeyError, ValueError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
         raise MonitorLogError(f"{path}: {e}") from None
-    return {int(i): m[:3, :3] for i, m in zip(table.frame_index, matrices)}
+
+
+def _translation_covariances(session: Path) -> dict[int, np.ndarray]:
+    """frame index → 3×3 translation covariance from the session's ``pose_covariance.csv`` (empty without one)."""
+    log = read_pose_covariance_log(session)
+    return {} if log is None else {i: m[:3, :3] for i, m in log.by_frame().items()}
