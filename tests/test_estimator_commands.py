@@ -14,7 +14,7 @@ from rich.progress import Progress
 from testkit.deepsee import tiny_config, tiny_config_dir, write_session
 
 from advisory.estimate_log import read_estimate_log
-from estimator.artefact.onnx_model import recorded_cameras, training_cameras
+from estimator.artefact.onnx_model import recorded_training, training_cameras
 from estimator.artefact.transforms import LabelTransform
 from estimator.deepsee.channels import judged_channels
 from estimator.deepsee.checkpoint import ModelMismatch, load_model, payload_standardisation
@@ -362,7 +362,7 @@ def test_export_to_onnx_then_estimate_a_session_for_the_advisory(tiny_dataset, t
     assert parity(model, OnnxModel(onnx_path, TRANSFORM)) <= PARITY_TOLERANCE
     # The cameras of its training runs travel with it (what the app tells its user).
     cameras = payload["training"]["cameras"]
-    assert cameras and OnnxModel(onnx_path, TRANSFORM).cameras == recorded_cameras(onnx_path) == cameras
+    assert cameras and OnnxModel(onnx_path, TRANSFORM).cameras == recorded_training(onnx_path).cameras == cameras
     # So does its input standardisation (fitted on its training windows).
     standardisation = payload_standardisation(payload, "model.pt")
     assert standardisation.reference is not None and OnnxModel(onnx_path, TRANSFORM).standardisation == standardisation

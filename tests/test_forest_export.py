@@ -11,7 +11,7 @@ from sklearn.ensemble import RandomForestRegressor
 from testkit.sample import run_seesys
 
 from estimator.artefact.compatibility import ModelMismatch, compatibility
-from estimator.artefact.onnx_model import OnnxModel, recorded_cameras
+from estimator.artefact.onnx_model import FOREST_KIND, OnnxModel, RecordedTraining, recorded_training
 from estimator.artefact.transforms import LabelTransform, prepare_rts
 from estimator.deepsee.baselines import window_statistics
 from estimator.deepsee.config import load_estimator_config
@@ -54,7 +54,11 @@ def test_the_exported_forest_gives_scikit_learns_estimates_and_is_served_like_an
     model = OnnxModel(path, TRANSFORM, WINDOWS)
     assert (model.shape.rts_length, model.shape.channels) == (WINDOWS.rts_length, rts_schema.NUM_CHANNELS)
     assert (model.shape.psd_samples, model.shape.psd_height, model.shape.psd_width) == shape
-    assert model.record == record["compatibility"] and recorded_cameras(path) == ["ideal"] and not model.thresholds_m
+    assert (
+        model.record == record["compatibility"]
+        and recorded_training(path) == RecordedTraining(FOREST_KIND, ["ideal"])
+        and not model.thresholds_m
+    )
     assert forest_parity(record["forest"], model) < FOREST_PARITY_TOLERANCE
     # Through the service's model: raw rows with missing values, normalised as every model's are.
     served = ServedModel.load(path, WINDOWS)
@@ -86,4 +90,6 @@ def test_seesys_estimator_export_writes_a_forest_and_checks_it_against_scikit_le
     (tmp_path / "model.pkl").write_bytes(pickle.dumps(_record(trees=3)))
     result = run_seesys("estimator", "export", str(tmp_path / "model.pkl"), "--out", str(tmp_path / "forest.onnx"))
     assert result.returncode == 0, result.stderr
-    assert "parity with scikit-learn" in result.stdout and recorded_cameras(tmp_path / "forest.onnx") == ["ideal"]
+    assert "parity with scikit-learn" in result.stdout and recorded_training(
+        tmp_path / "forest.onnx"
+    ) == RecordedTraining(FOREST_KIND, ["ideal"])

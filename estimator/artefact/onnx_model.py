@@ -114,13 +114,6 @@ def recorded_training(path: Path) -> RecordedTraining | None:
     )
 
 
-def recorded_cameras(path: Path) -> list[str] | None:
-    """The cameras an exported model records it was trained and fine-tuned on; None when it records none
-    (exported before the cameras were recorded) or is not a readable ONNX file."""
-    recorded = recorded_training(path)
-    return recorded.cameras if recorded is not None else None
-
-
 class OnnxModel:
     """An ONNX Runtime session of an exported model on ``threads`` intra-op threads (1: the serving setting; a
     second thread helps little and, with anything else running, costs more than it gives) and the execution
