@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from estimator.deepsee.rows import ROW_NAMES, row
+from estimator.deepsee.rows import DEEPSEE, ROW_NAMES, row
 from estimator.jobs import add_ray_argument
 from seesys.core.errors import SeesysError
 from seesys.io import resources
@@ -337,13 +337,14 @@ def _estimate(args: argparse.Namespace) -> int:
     from estimator.deepsee.config import load_estimator_config
     from estimator.deepsee.estimate import estimate_session
     from estimator.deepsee.predictors import load_predictor
+    from estimator.service.broker import default_model
     from estimator.service.config import load_service_config
     from seesys.io.core_settings import load_window_config
 
     config = load_estimator_config()
     windows = load_window_config()
     # By default the model the service serves: a preview of what the advisory would say live.
-    model = args.model if args.model is not None else resources.resolve(load_service_config().model)
+    model = args.model if args.model is not None else default_model(load_service_config(), None)
     predictor = load_predictor(
         model, LabelTransform(config.label_transform.k), config.evaluation.batch_size, windows=windows
     )
@@ -414,7 +415,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--round", type=int, default=0, help="the round of the splits the model was trained on (default 0)")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     p.add_argument("--out", type=Path, required=True, help="report folder")
-    p.add_argument("--row", default="deepsee", help="the model's row name in the report (default deepsee)")
+    p.add_argument("--row", default=DEEPSEE, help=f"the model's row name in the report (default {DEEPSEE})")
     p.set_defaults(func=_lockbox)
 
     p = sub.add_parser("finetune", help="stage (d) on labelled session folders (real cameras with ground truth)")
