@@ -194,18 +194,19 @@ def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[st
     return {"back_to_back": back_to_back * 1000.0, "paced": paced * 1000.0}
 
 
-def decode_cpu_us(frames) -> tuple[float, float]:
-    """CPU µs to decode one of the session's feature messages with a PSD and one without, as the broker does for
-    every frame (its share of the ``ingest`` stage; the mean of a few passes)."""
+def decode_cpu_us(frames) -> tuple[float, float, float]:
+    """CPU µs to decode one of the session's feature messages with a PSD, one with its PSD read past (what the
+    broker does for a model that reads none) and one without, as the broker does for every frame (its share of the
+    ``ingest`` stage; the mean of a few passes)."""
     encoded = [(messages.encode(f), f.psd is not None) for f in frames]
     costs = []
-    for with_psd in (True, False):
+    for with_psd, inflate in ((True, True), (True, False), (False, True)):
         chosen = [parts for parts, has in encoded if has == with_psd] * 5
         start = time.process_time()
         for parts in chosen:
-            messages.decode(parts)
+            messages.decode(parts, psd=inflate)
         costs.append((time.process_time() - start) / max(1, len(chosen)) * 1e6)
-    return costs[0], costs[1]
+    return costs[0], costs[1], costs[2]
 
 
 def _p(values, q: float) -> float:
@@ -311,10 +312,11 @@ def main() -> None:
             period_s = windows.end_stride / RATE_HZ
             alone = model_alone(model, frames, args.model_runs, period_s)
             print_latency(alone, latency_run(folder, model, frames, args.latency_seconds), period_s)
-            with_psd, without = decode_cpu_us(frames)
+            with_psd, read_past, without = decode_cpu_us(frames)
             print(
                 f"decoding one feature message (the broker, every frame; CPU): {with_psd:.0f} µs with a PSD, "
-                f"{without:.0f} µs without"
+                f"{read_past:.0f} µs with its PSD read past (a model that reads none), {without:.0f} µs without; "
+                f"this model: {'reads' if ServedModel.load(model, windows).reads_psd else 'reads no'} PSD"
             )
         if not args.devices:
             print(f"load average after: {os.getloadavg()[0]:.2f}")

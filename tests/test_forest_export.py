@@ -3,6 +3,7 @@ the file carries the forest's record, and the service serves it like any exporte
 
 from __future__ import annotations
 
+import dataclasses
 import pickle
 
 import numpy as np
@@ -24,7 +25,7 @@ from estimator.deepsee.forest_export import (
 from estimator.deepsee.predictors import read_forest
 from estimator.service.model import ServedModel
 from seesys.core import rts_schema
-from seesys.core.windows import WindowSample
+from seesys.core.windows import NO_PSD, WindowSample
 from seesys.io.core_settings import load_window_config
 
 WINDOWS = load_window_config()
@@ -69,6 +70,11 @@ def test_the_exported_forest_gives_scikit_learns_estimates_and_is_served_like_an
     assert all(served.accepts(s) for s in samples)
     expected = TRANSFORM.inverse(record["forest"].predict(window_statistics(prepare_rts(raw))))
     np.testing.assert_allclose(served.estimate(samples), expected, rtol=1e-4)
+    # It reads no PSD: windows formed without any (the service's, for this model) give the same estimates.
+    assert not served.reads_psd
+    bare = [dataclasses.replace(s, psd=NO_PSD) for s in samples]
+    assert all(served.accepts(s) for s in bare)
+    np.testing.assert_array_equal(served.estimate(bare), served.estimate(samples))
 
 
 def test_a_forest_file_that_is_not_one_or_does_not_fit_its_record_is_refused(tmp_path):

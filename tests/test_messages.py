@@ -30,6 +30,32 @@ def test_feature_round_trip_with_and_without_psd():
             np.testing.assert_array_equal(out.psd, psd)
 
 
+def test_a_receiver_whose_model_reads_no_psd_reads_past_it_and_still_gets_the_settings():
+    from seesys.core.device_settings import DeviceSettings
+
+    psd = np.zeros((96, 128, 3), np.uint8)
+    psd[10:20, 30:40, 1] = 255
+    settings = DeviceSettings("rgbd", 30, 1000, 8, 2, 0.5, 1)
+    covariance = np.diag([4e-6, 2e-6, 9e-6])
+    sent = dataclasses.replace(feature(psd), settings=settings, translation_covariance=covariance)
+    full, skipped = decode(encode(sent)), decode(encode(sent), psd=False)
+    assert skipped.psd is None and skipped.psd_skipped and not full.psd_skipped
+    assert skipped.states_settings and skipped.settings == full.settings == settings
+    np.testing.assert_array_equal(skipped.translation_covariance, full.translation_covariance)
+    np.testing.assert_array_equal(skipped.rts, full.rts)
+    plain = decode(encode(feature()), psd=False)  # a frame without a PSD is as it was
+    assert plain.psd is None and not plain.psd_skipped and not plain.states_settings
+    # Read past, a PSD's framing is still checked: a header stating no layer, or codes cut short, are refused.
+    topic, body = encode(sent)
+    head = struct.Struct("<HHHBBHHH")
+    at = len(body) - len(messages.pack_stream_psd(psd))
+    h, w, _, *rest = head.unpack_from(body, at)
+    no_layers = body[:at] + head.pack(h, w, 0, *rest) + body[at + head.size :]
+    for bad, message in ((no_layers, "PSD header states 0 layers"), (body[:-3], "PSD")):
+        with pytest.raises(MessageError, match=message):
+            decode([topic, bad], psd=False)
+
+
 def test_estimate_round_trip_and_topic():
     msg = Estimate("dev-1", 7, 12.25, 0.0061, "deepsee-1", 3.5)
     topic, body = encode(msg)

@@ -17,7 +17,7 @@ from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
 
 
-def _frame(with_psd: bool, with_settings: bool) -> FeatureFrame:
+def _frame(with_psd: bool, with_settings: bool, psd_skipped: bool = False) -> FeatureFrame:
     rng = np.random.default_rng(1)
     psd = rng.integers(0, 255, (96, 128, 3), dtype=np.uint8) if with_psd else None
     settings = DeviceSettings("mono", 15, 1200, 16, 2, 0.75, 1) if with_settings else None
@@ -35,12 +35,16 @@ def _frame(with_psd: bool, with_settings: bool) -> FeatureFrame:
         stream_session=0xFEEDFACE12345678,
         settings=settings,
         translation_covariance=np.array([[4e-6, 1e-7, 0], [1e-7, 2e-6, -3e-7], [0, -3e-7, 9e-6]]) if with_psd else None,
+        psd_skipped=psd_skipped,
     )
 
 
-@pytest.mark.parametrize(("with_psd", "with_settings"), [(True, True), (False, True), (True, False)])
-def test_every_field_of_a_frame_reaches_the_worker_unchanged(with_psd, with_settings):
-    frame = _frame(with_psd, with_settings)
+@pytest.mark.parametrize(
+    ("with_psd", "with_settings", "psd_skipped"),
+    [(True, True, False), (False, True, False), (True, False, False), (False, True, True)],
+)
+def test_every_field_of_a_frame_reaches_the_worker_unchanged(with_psd, with_settings, psd_skipped):
+    frame = _frame(with_psd, with_settings, psd_skipped)
     other = dataclasses.replace(frame, device_id="dev-8", frame_index=12346)
     # one message of two frames, as a worker's socket receives it
     parts = [envelope.FRAME, envelope.pack_frame(1234.5, 0.25, frame), envelope.pack_frame(1234.75, 0.5, other)]
@@ -68,7 +72,8 @@ def test_an_estimates_times_come_back_with_it_and_the_broker_keeps_the_newest():
     assert p50["inference"] == 2.5
 
 
-def test_the_frames_of_a_round_go_to_their_worker_together_at_most_16_a_message_in_order(setup_factory):
+@pytest.mark.parametrize("reads_psd", [True, False])
+def test_the_frames_of_a_round_go_to_their_worker_together_at_most_16_a_message_in_order(setup_factory, reads_psd):
     """Real broker and worker sockets; the round is driven by hand (what ``_from_devices`` does with what it reads
     from the ingest socket), so that how many frames arrived together is not left to timing."""
     from estimator.service.broker import Broker
@@ -82,7 +87,8 @@ def test_the_frames_of_a_round_go_to_their_worker_together_at_most_16_a_message_
     worker.setsockopt(zmq.LINGER, 0)
     worker.connect(broker.endpoints["workers"])
     try:
-        worker.send_multipart([envelope.READY, envelope.pack_json({"name": "w", "pid": 1, "model_version": "m"})])
+        ready = {"name": "w", "pid": 1, "model_version": "m", "reads_psd": reads_psd}
+        worker.send_multipart([envelope.READY, envelope.pack_json(ready)])
         assert broker.wait_for_workers(1, 60)
         outbox: dict = {}
         for frame in device_frames("dev-r", 40):
@@ -94,8 +100,14 @@ def test_the_frames_of_a_round_go_to_their_worker_together_at_most_16_a_message_
             assert worker.poll(60_000), "the broker forwarded fewer than 40 frames"
             received.append(worker.recv_multipart())
         assert [len(parts) - 1 for parts in received] == [16, 16, 8]
-        indices = [frame.frame_index for parts in received for _, _, frame in envelope.unpack_frames(parts)]
-        assert indices == list(range(40))
+        forwarded = [frame for parts in received for _, _, frame in envelope.unpack_frames(parts)]
+        assert [frame.frame_index for frame in forwarded] == list(range(40))
+        # For a model that reads no PSD the broker reads past each one: the window ends come without, but say so.
+        ends = [frame for frame in forwarded if frame.states_settings]
+        assert [frame.frame_index for frame in ends] == [
+            f.frame_index for f in device_frames("dev-r", 40) if f.psd is not None
+        ]
+        assert all((frame.psd is not None) == reads_psd and frame.psd_skipped != reads_psd for frame in ends)
         assert broker.status()["devices"]["dev-r"]["frames"] == 40
     finally:
         worker.close()

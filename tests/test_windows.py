@@ -10,7 +10,7 @@ import pytest
 from seesys.core import rts_schema
 from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
-from seesys.core.windows import MISSING_PSD, MISSING_RTS, WindowAssembler, WindowConfig, assemble_windows
+from seesys.core.windows import MISSING_PSD, MISSING_RTS, NO_PSD, WindowAssembler, WindowConfig, assemble_windows
 from seesys.io.core_settings import load_window_config
 
 CFG = WindowConfig(rts_length=30, psd_samples=4, psd_stride=10, end_stride=10, max_missing_rts=3)
@@ -62,6 +62,26 @@ def test_too_many_missing_rows_or_a_missing_psd_gives_no_window():
     assert [s.frame_index for s in assemble_windows(frames, CFG)] == [30, 40, 50]
     frames = [frame(i) for i in range(0, 61) if i != 20]
     assert [s.frame_index for s in assemble_windows(frames, CFG)] == [60]
+
+
+def test_an_assembler_that_keeps_no_psd_forms_the_same_windows_without_them():
+    """For a model that reads no PSD: the same window ends and rows, whether the frames bring their PSDs or not
+    (a receiver that read past them), and a missing PSD refuses nothing."""
+
+    def windows(frames, psd):
+        assembler = WindowAssembler(CFG, psd=psd)
+        return [w for w in (assembler.add(f) for f in frames) if w is not None]
+
+    with_psd = windows((frame(i) for i in range(0, 61)), psd=True)
+    for frames in (
+        [frame(i) for i in range(0, 61)],
+        [dataclasses.replace(frame(i), psd=None) for i in range(0, 61)],
+    ):
+        without = windows(frames, psd=False)
+        assert [w.frame_index for w in without] == [w.frame_index for w in with_psd] == [30, 40, 50, 60]
+        assert all(w.psd is NO_PSD and np.array_equal(w.rts, v.rts) for w, v in zip(without, with_psd))
+    no_20 = [frame(i) for i in range(0, 61) if i != 20]
+    assert [w.frame_index for w in windows(no_20, psd=False)] == [30, 40, 50, 60]  # frame 20 held a row only
 
 
 def test_a_window_end_refused_once_its_history_arrived_is_named():

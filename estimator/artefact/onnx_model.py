@@ -159,6 +159,8 @@ class OnnxModel:
         self.record: dict = json.loads(meta[COMPATIBILITY_KEY])
         # None: a model exported before the cameras were recorded
         self.cameras: list[str] | None = json.loads(meta[CAMERAS_KEY]) if CAMERAS_KEY in meta else None
+        #: Which model the graph is (:data:`DEEPSEE_KIND` for a file exported before the kind was recorded).
+        self.kind: str = meta.get(KIND_KEY, DEEPSEE_KIND)
         check_compatible(self.record, str(path), windows or load_window_config(), transform, setup)
         #: The columns of this schema's RTS rows the model takes: select them before :meth:`__call__`.
         self.rts_columns: np.ndarray = rts_columns(self.record, str(path))
@@ -179,6 +181,12 @@ class OnnxModel:
                 f"{path} records {len(self.thresholds_m)} head threshold(s) but its graph gives "
                 f"{head_columns} head probabilities"
             )
+
+    @property
+    def reads_psd(self) -> bool:
+        """Whether the graph reads its PSD input: a forest declares one (every exported model takes the same two
+        inputs) but computes from the RTS window alone."""
+        return self.kind != FOREST_KIND
 
     def standardised(self, rts: np.ndarray) -> np.ndarray:
         """Normalised RTS windows of the model's columns as the model takes them (its input standardisation)."""

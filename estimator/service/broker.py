@@ -6,6 +6,8 @@ Sockets (endpoints in ``configs/service.toml`` and ``network.toml``):
   streams that bind their own PUB; it subscribes to everything, so that nothing sent to it goes uncounted, and every
   message is checked here: larger than ``max_message_bytes`` (*oversized*), of another protocol version
   (*wrong_version*) or anything :func:`seesys.core.messages.decode` refuses (*malformed*) is counted and dropped;
+  for a model that reads no PSD (the workers say so when ready) a frame's PSD is read past, its framing checked but
+  its codes not inflated, and the frame goes to its worker without it;
 - backend, ROUTER, bound at ``worker_endpoint``: workers connect (DEALER) and say READY. A device is given to the
   worker with the fewest devices when its first frame arrives and stays there, so that one worker holds its windows
   and its estimates leave in order. A frame that finds its worker's queue (``worker_queue``) full is dropped and
@@ -139,6 +141,9 @@ class Broker:
             )
         self.ctx = ctx or zmq.Context()
         self.model_version: str | None = None
+        # Whether the served model reads the PSD (its workers say so): if not, the broker reads past each frame's PSD
+        # without inflating it and forwards the frame without.
+        self.reads_psd = True
         self.devices: dict[str, DeviceState] = {}
         self.workers: dict[bytes, WorkerState] = {}
         self.refused_workers = 0
@@ -320,7 +325,7 @@ class Broker:
             self.rejected["wrong_version"] += 1
             return
         try:
-            frame = messages.decode(parts)
+            frame = messages.decode(parts, psd=self.reads_psd)
         except MessageError:
             self.rejected["malformed"] += 1
             return
@@ -409,6 +414,7 @@ class Broker:
                 self._backend.send_multipart([identity, envelope.STOP], zmq.NOBLOCK)
                 return
             self.model_version = version
+            self.reads_psd = bool(data["reads_psd"])
             worker = self.workers[identity] = WorkerState(
                 identity, data["name"], data["pid"], data.get("provider", "unknown"), time.monotonic()
             )

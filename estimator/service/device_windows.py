@@ -4,7 +4,9 @@ takes.
 Per device a :class:`~seesys.core.windows.WindowAssembler`, started afresh when the device restarts (a new stream
 session, or frame indices that do not increase: rows of its last session must not fill the new session's windows);
 frames ending a window whose device settings differ from the model's (or state none; the stream states them on those
-frames, with the PSD) and windows of another PSD shape are refused with the reason the service counts. The service
+frames, with the PSD) and windows of another PSD shape are refused with the reason the service counts; for a model
+that reads no PSD the windows are formed without PSDs (:class:`~seesys.core.windows.WindowAssembler` with ``psd``
+False). The service
 worker adds every frame it receives; the simulated study adds its device's frames in its loop; both then run the model
 on the windows this gives.
 """
@@ -71,7 +73,7 @@ class DeviceWindows:
         self._last_index[device] = frame.frame_index
         assembler = self._assemblers.get(device)
         if assembler is None:
-            assembler = self._assemblers[device] = WindowAssembler(self._windows)
+            assembler = self._assemblers[device] = WindowAssembler(self._windows, psd=self._model.reads_psd)
         sample = assembler.add(frame)
         if sample is None:
             return Added(refused=assembler.refused, restarted=restarted)

@@ -1,12 +1,13 @@
 """The broker ↔ worker messages (DEALER ↔ ROUTER), internal to the service.
 
 Broker → worker: ``[b"F", frame…]`` one or more feature frames, a part each, as the broker decoded and validated them
-(:func:`pack_frame`: the worker does not decode them again, and a PSD is inflated once, by the broker; a window end's
-frame is about 37 kB this way) and ``[b"Q"]`` stop. A frame starts with the f64 token, the broker's monotonic second at
-which it received the frame, which the worker only hands back, and the f64 age in ms, how long the frame had been at the
-broker when it was forwarded. Worker → broker: ``[b"R", json]`` ready (name, pid, model version), ``[b"S", json]``
-statistics (every heartbeat) and ``[b"E", (topic, body, meta)…]`` estimates, ``meta`` = f64 token of the window's last
-frame + i64 its frame index + u64 its stream session + the estimate's times in the service so far
+(:func:`pack_frame`: the worker does not decode them again, and a PSD is inflated once, by the broker, and only for a
+model that reads it; a window end's frame is about 37 kB with its PSD, 0.2 kB without) and ``[b"Q"]`` stop. A frame
+starts with the f64 token, the broker's monotonic second at which it received the frame, which the worker only hands
+back, and the f64 age in ms, how long the frame had been at the broker when it was forwarded. Worker → broker:
+``[b"R", json]`` ready (name, pid, model version, whether the model reads the PSD), ``[b"S", json]`` statistics
+(every heartbeat) and ``[b"E", (topic, body, meta)…]`` estimates, ``meta`` = f64 token of the window's last frame +
+i64 its frame index + u64 its stream session + the estimate's times in the service so far
 (:mod:`estimator.service.stages`).
 
 No clock is compared across processes: the worker measures a window's age on its own clock from the moment it
@@ -37,8 +38,9 @@ ESTIMATES = b"E"
 _META = struct.Struct("<dqQ")
 # token, age (ms), then the frame's stream session, frame index, timestamp, tracking state, frames skipped, RTS schema
 # version and fingerprint, and the lengths of what follows: device id (bytes), settings (bytes), RTS row (values),
-# PSD (H, W, L; 0 × 0 × 0 without one)
+# PSD (H, W, L; 0 × 0 × 0 without one), then the flags (_HAS_COVARIANCE, _PSD_SKIPPED)
 _FRAME_HEAD = struct.Struct("<ddQqdbIHIHBHHHHB")
+_HAS_COVARIANCE, _PSD_SKIPPED = 1, 2
 _COVARIANCE = struct.Struct("<6d")  # the translation covariance's upper triangle, m²
 # fps, ORB features, PSD patch, PSD expansion, near depth, camera normalisation; then the SLAM mode (utf-8)
 _SETTINGS = struct.Struct("<HHHHdH")
@@ -76,7 +78,7 @@ def pack_frame(token: float, age_ms: float, frame: FeatureFrame) -> bytes:
         len(settings),
         rts.size,
         *shape,
-        c is not None,
+        (_HAS_COVARIANCE if c is not None else 0) | (_PSD_SKIPPED if frame.psd_skipped else 0),
     )
     return b"".join([head, device, settings, rts.data, covariance, psd.data if psd is not None else b""])
 
@@ -105,7 +107,7 @@ def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
         h,
         w,
         layers,
-        has_covariance,
+        flags,
     ) = _FRAME_HEAD.unpack_from(data)
     at = _FRAME_HEAD.size
     device = data[at : at + device_bytes].decode()
@@ -115,7 +117,7 @@ def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
     rts = np.frombuffer(data, "<f4", rts_values, at)
     at += 4 * rts_values
     covariance = None
-    if has_covariance:
+    if flags & _HAS_COVARIANCE:
         covariance = symmetric_from_upper(np.array(_COVARIANCE.unpack_from(data, at)))
         at += _COVARIANCE.size
     psd = np.frombuffer(data, np.uint8, h * w * layers, at).reshape(h, w, layers) if h else None
@@ -135,6 +137,7 @@ def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
             session,
             settings,
             covariance,
+            bool(flags & _PSD_SKIPPED),
         ),
     )
 

@@ -10,7 +10,7 @@ well under a second plus the model's load."""
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +67,7 @@ class ServedModel:
     device_record: dict  # the device settings it was made for (record["device"])
     _model: OnnxModel
     _transform: LabelTransform
+    _zeros: dict[int, np.ndarray] = field(default_factory=dict)
 
     @classmethod
     def load(
@@ -94,8 +95,14 @@ class ServedModel:
             transform,
         )
 
+    @property
+    def reads_psd(self) -> bool:
+        """Whether the model reads the PSD: without, windows are formed without PSDs and the graph's PSD input is
+        fed zeros (:meth:`prepare`)."""
+        return self._model.reads_psd
+
     def accepts(self, sample: WindowSample) -> bool:
-        return sample.psd.shape == self.psd_shape
+        return not self.reads_psd or sample.psd.shape == self.psd_shape
 
     def settings_differences(self, settings: DeviceSettings | None) -> list[str]:
         """How a device's stated settings differ from the model's (empty: served)."""
@@ -119,9 +126,21 @@ class ServedModel:
         """``samples`` as the model takes them: stacked, the RTS normalised and standardised (the worker times
         this apart from :meth:`run`)."""
         rts, replaced = prepare_rts_counted(np.stack([s.rts for s in samples]), self._model.rts_columns)
-        # One window, the most common batch below capacity, is passed as a view: its PSDs (147 kB) are not copied.
-        psd = samples[0].psd[None] if len(samples) == 1 else np.stack([s.psd for s in samples])
+        if not self.reads_psd:
+            psd = self._unread_psd(len(samples))
+        elif len(samples) == 1:
+            # One window, the most common batch below capacity, is passed as a view: its PSDs (147 kB) are not copied.
+            psd = samples[0].psd[None]
+        else:
+            psd = np.stack([s.psd for s in samples])
         return ModelInputs(self._model.standardised(rts), psd, replaced)
+
+    def _unread_psd(self, batch: int) -> np.ndarray:
+        """Zeros for the PSD input a model declares and does not read, one array per batch size, made once."""
+        psd = self._zeros.get(batch)
+        if psd is None:
+            psd = self._zeros[batch] = np.zeros((batch, *self.psd_shape), np.uint8)
+        return psd
 
     def run(self, inputs: ModelInputs) -> BatchEstimates:
         """One ONNX Runtime run of prepared inputs, its outputs mapped back to metres."""

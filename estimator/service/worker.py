@@ -198,6 +198,7 @@ class Worker:
             "pid": os.getpid(),
             "model_version": self.model.version,
             "provider": self.model.provider,
+            "reads_psd": self.model.reads_psd,
         }
 
     def _send(self, parts: list[bytes]) -> None:

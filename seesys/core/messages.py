@@ -106,12 +106,15 @@ class FeatureFrame:
     # The device settings and the covariance travel with the PSD only (see :func:`encode`).
     settings: DeviceSettings | None = None  # None: the device states none (the service refuses its windows)
     translation_covariance: np.ndarray | None = None  # 3×3, m², world axes; None: the monitor predicted none
+    # The frame carried a PSD that its receiver read past without inflating (``decode(..., psd=False)``, for a
+    # model that reads none): ``psd`` is None, yet the frame states settings as any frame with a PSD does.
+    psd_skipped: bool = False
 
     @property
     def states_settings(self) -> bool:
         """Whether the stream states the device settings (and the covariance) on this frame: on a frame with a PSD,
         one that ends a model window (:func:`encode`). A receiver checks settings on these frames only."""
-        return self.psd is not None
+        return self.psd is not None or self.psd_skipped
 
 
 @dataclass(frozen=True)
@@ -343,8 +346,10 @@ class _Reader:
             raise MessageError(f"{len(self.body) - self.pos} unexpected trailing bytes")
 
 
-def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
-    """Parse and validate a ``[topic, body]`` message; raises :class:`MessageError` on any problem."""
+def decode(frames: list[bytes], psd: bool = True) -> FeatureFrame | Estimate:
+    """Parse and validate a ``[topic, body]`` message; raises :class:`MessageError` on any problem. With ``psd``
+    False a feature frame's PSD is read past, its header and lengths checked but its codes not inflated (a
+    receiver whose model reads no PSD: inflating one costs ~0.3 ms); the frame says so in ``psd_skipped``."""
     if len(frames) != 2:
         raise MessageError(f"expected 2 message parts (topic, body), got {len(frames)}")
     received_topic, body = bytes(frames[0]), bytes(frames[1])
@@ -368,7 +373,7 @@ def decode(frames: list[bytes]) -> FeatureFrame | Estimate:
     if received_topic != topic(expected_topic, device_id):
         raise MessageError(f"topic {received_topic!r} does not match the body (kind {kind}, device {device_id!r})")
     if kind == _KIND_FEATURE:
-        return _decode_feature(r, device_id, stream_session, frame_index, timestamp)
+        return _decode_feature(r, device_id, stream_session, frame_index, timestamp, psd)
     error_m, server_ms = r.unpack(_ESTIMATE, "estimate")
     model_version = r.text("model version")
     head = _read_head(r)
@@ -523,7 +528,8 @@ def _bits(flags: list[bool]) -> int:
     return sum(1 << i for i, flag in enumerate(flags) if flag)
 
 
-def _read_stream_psd(r: _Reader) -> np.ndarray:
+def _read_stream_psd_parts(r: _Reader) -> tuple[int, int, int, int, dict[int, int], list[bytes]]:
+    """A stream PSD's header, checked, its constant layers' values and its three code streams (not inflated)."""
     h, w, layers, nested, constant, *sizes = r.unpack(_STREAM_PSD_HEAD, "PSD header")
     if layers == 0 or layers > 8 or nested >> (layers - 1) or constant >> layers:
         raise MessageError(f"PSD header states {layers} layers, nesting {nested:#x} and constants {constant:#x}")
@@ -534,7 +540,11 @@ def _read_stream_psd(r: _Reader) -> np.ndarray:
             strict=True,
         )
     )
-    streams = [bytes(r.take(n, "PSD")) for n in sizes]
+    return h, w, layers, nested, constants, [bytes(r.take(n, "PSD")) for n in sizes]
+
+
+def _read_stream_psd(r: _Reader) -> np.ndarray:
+    h, w, layers, nested, constants, streams = _read_stream_psd_parts(r)
     cells = h * w
     masks = np.zeros((layers, cells), dtype=bool)
     mask_bits = np.unpackbits(np.frombuffer(_inflate(streams[0], (layers * cells + 7) // 8, "masks"), np.uint8))
@@ -587,7 +597,7 @@ def unpack_psd(data: bytes) -> np.ndarray:
 
 
 def _decode_feature(
-    r: _Reader, device_id: str, stream_session: int, frame_index: int, timestamp: float
+    r: _Reader, device_id: str, stream_session: int, frame_index: int, timestamp: float, inflate_psd: bool
 ) -> FeatureFrame:
     version, schema_fingerprint, skipped, state_value, n_channels = r.unpack(_FEATURE_HEAD, "feature header")
     try:
@@ -607,8 +617,10 @@ def _decode_feature(
     covariance = _read_covariance(r)
     (has_psd,) = r.take(1, "PSD flag")
     psd = None
-    if has_psd == 1:
+    if has_psd == 1 and inflate_psd:
         psd = _read_stream_psd(r)
+    elif has_psd == 1:
+        _read_stream_psd_parts(r)  # read past, checked
     elif has_psd != 0:
         raise MessageError(f"bad PSD flag {has_psd}")
     r.finish()
@@ -625,4 +637,5 @@ def _decode_feature(
         stream_session,
         settings,
         covariance,
+        psd_skipped=has_psd == 1 and not inflate_psd,
     )

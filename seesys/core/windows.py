@@ -13,8 +13,8 @@ streams PSDs (and so estimates) every ``end_stride`` frames, and the dataset bui
 frame (``end_stride = 1``), one sample per labelled frame.
 
 Rows and matrices are looked up by frame index, never "the latest of each": a window is only emitted when its
-end frame is tracked, every PSD sample is present, and at most ``max_missing_rts`` of the T rows are missing
-or untracked. (The authors pair the newest RTS window with the newest PSD window, unsynchronised.)
+end frame is tracked, every PSD sample is present (for a model that reads them), and at most ``max_missing_rts`` of
+the T rows are missing or untracked. (The authors pair the newest RTS window with the newest PSD window, unsynchronised.)
 ``max_missing_rts`` is the one rule for every model window: the service serves and the dataset trains on the
 same windows, and a model records the rule it was trained with. A window end whose whole history has arrived but
 that is refused all the same is named in :attr:`WindowAssembler.refused` (:data:`MISSING_RTS`,
@@ -36,6 +36,9 @@ from seesys.core.messages import FeatureFrame
 #: Why a window end whose history has arrived was refused: too many RTS rows missing or untracked; a PSD missing.
 MISSING_RTS = "missing_rts"
 MISSING_PSD = "missing_psd"
+#: The PSD of a window formed by an assembler that keeps none (a model that reads no PSD): no matrix at all.
+NO_PSD = np.empty((0, 0, 0, 0), dtype=np.uint8)
+NO_PSD.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -85,10 +88,14 @@ class WindowSample:
 
 
 class WindowAssembler:
-    """Collects one device's feature frames and emits a :class:`WindowSample` whenever one is complete."""
+    """Collects one device's feature frames and emits a :class:`WindowSample` whenever one is complete. With ``psd``
+    False it keeps no PSD and a window needs none (for a model that reads none): the window ends at the same frames,
+    its ``psd`` is :data:`NO_PSD`, and the frames may come without theirs (read past by
+    ``messages.decode(..., psd=False)``)."""
 
-    def __init__(self, config: WindowConfig):
+    def __init__(self, config: WindowConfig, psd: bool = True):
         self.config = config
+        self.keeps_psd = psd
         self._rows: dict[int, FeatureFrame] = {}
         self._psds: dict[int, np.ndarray] = {}
         self._first: int | None = None
@@ -104,7 +111,7 @@ class WindowAssembler:
         if self._first is None:
             self._first = index
         self._rows[index] = frame
-        if frame.psd is not None:
+        if frame.psd is not None and self.keeps_psd:
             self._psds[index] = frame.psd
         sample = self._window(frame) if self.config.is_psd_frame(index) else None
         self._forget_before(index - self.config.history)
@@ -117,11 +124,11 @@ class WindowAssembler:
 
     def _window(self, end: FeatureFrame) -> WindowSample | None:
         cfg = self.config
-        if not end.tracking_state.tracked or end.psd is None:
+        if not end.tracking_state.tracked or (self.keeps_psd and end.psd is None):
             return None
         psd_indices = cfg.psd_frame_indices(end.frame_index)
         history_arrived = end.frame_index - cfg.history >= (self._first or 0)
-        if any(int(i) not in self._psds for i in psd_indices):
+        if self.keeps_psd and any(int(i) not in self._psds for i in psd_indices):
             self.refused = MISSING_PSD if history_arrived else None
             return None
         rts_indices = cfg.rts_frame_indices(end.frame_index)
@@ -136,7 +143,7 @@ class WindowAssembler:
         if missing > cfg.max_missing_rts:
             self.refused = MISSING_RTS if history_arrived else None
             return None
-        psd = np.stack([self._psds[int(i)] for i in psd_indices])
+        psd = np.stack([self._psds[int(i)] for i in psd_indices]) if self.keeps_psd else NO_PSD
         return WindowSample(end.device_id, end.frame_index, end.timestamp, rts, rts_indices, psd, psd_indices, missing)
 
 
