@@ -445,7 +445,7 @@ def _deflate(data: bytes, strategy: int) -> bytes:
     return compressor.compress(data) + compressor.flush()
 
 
-def _inflate(data: bytes, most: int, what: str) -> bytes:
+def _inflate(data: bytes | memoryview, most: int, what: str) -> bytes:
     """What ``data`` inflates to, at most ``most`` bytes (bounded: a small message cannot inflate to GBs)."""
     inflate = zlib.decompressobj(-15)
     try:
@@ -459,7 +459,7 @@ def _inflate(data: bytes, most: int, what: str) -> bytes:
     return raw
 
 
-def _values(data: bytes, count: int, what: str) -> np.ndarray:
+def _values(data: bytes | memoryview, count: int, what: str) -> np.ndarray:
     raw = _inflate(data, count, what)
     if len(raw) != count:
         raise MessageError(f"PSD {what}: {len(raw)} for {count} marked cells")
@@ -528,8 +528,9 @@ def _bits(flags: list[bool]) -> int:
     return sum(1 << i for i, flag in enumerate(flags) if flag)
 
 
-def _read_stream_psd_parts(r: _Reader) -> tuple[int, int, int, int, dict[int, int], list[bytes]]:
-    """A stream PSD's header, checked, its constant layers' values and its three code streams (not inflated)."""
+def _read_stream_psd_parts(r: _Reader) -> tuple[int, int, int, int, dict[int, int], list[memoryview]]:
+    """A stream PSD's header, checked, its constant layers' values and its three code streams (views of the
+    message, not inflated)."""
     h, w, layers, nested, constant, *sizes = r.unpack(_STREAM_PSD_HEAD, "PSD header")
     if layers == 0 or layers > 8 or nested >> (layers - 1) or constant >> layers:
         raise MessageError(f"PSD header states {layers} layers, nesting {nested:#x} and constants {constant:#x}")
@@ -540,7 +541,7 @@ def _read_stream_psd_parts(r: _Reader) -> tuple[int, int, int, int, dict[int, in
             strict=True,
         )
     )
-    return h, w, layers, nested, constants, [bytes(r.take(n, "PSD")) for n in sizes]
+    return h, w, layers, nested, constants, [r.take(n, "PSD") for n in sizes]
 
 
 def _read_stream_psd(r: _Reader) -> np.ndarray:
