@@ -220,6 +220,11 @@ def read_feature_frames(session: Path, device_id: str) -> Iterator[FeatureFrame]
         )
 
 
+# The most a frame's time may differ between a session's logs and still be the same frame (they write it with
+# different precisions; frames are a camera period, tens of ms, apart).
+SAME_FRAME_S = 1e-4
+
+
 @dataclass(frozen=True)
 class PoseCovarianceLog:
     """A session's ``pose_covariance.csv``: each logged frame's index, time and 6×6 world-axes covariance."""
@@ -232,12 +237,21 @@ class PoseCovarianceLog:
         """frame index → 6×6 covariance."""
         return {int(i): m for i, m in zip(self.frame_index, self.matrices)}
 
+    def matched(self, trajectory: Poses) -> tuple[np.ndarray, np.ndarray]:
+        """The frames both this log and ``trajectory`` (the session's ``trajectory.tum``) hold: their indices into
+        ``trajectory`` and into this log. A frame is the same frame in both when its times differ by at most
+        :data:`SAME_FRAME_S` (evo's time association: the two files write a frame's time with different
+        precisions)."""
+        from evo.core import sync
+
+        pose_index, log_index = sync.matching_time_indices(trajectory.timestamps, self.timestamps, SAME_FRAME_S)
+        return np.asarray(pose_index, int), np.asarray(log_index, int)
+
     def positions(self, trajectory: Poses) -> dict[int, np.ndarray]:
-        """frame index → the camera position of ``trajectory`` (the session's ``trajectory.tum``) at the logged
-        frame's time (the two files write a frame's time to the microsecond), for the frames it holds."""
-        at = dict(zip(np.round(trajectory.timestamps, 6), trajectory.positions))
-        times = np.round(self.timestamps, 6)
-        return {int(i): at[t] for i, t in zip(self.frame_index, times) if t in at}
+        """frame index → the camera position of ``trajectory`` at the logged frame's time (:meth:`matched`), for
+        the frames it holds."""
+        pose_index, log_index = self.matched(trajectory)
+        return {int(self.frame_index[k]): trajectory.positions[p] for p, k in zip(pose_index, log_index)}
 
 
 def read_pose_covariance_log(session: Path) -> PoseCovarianceLog | None:

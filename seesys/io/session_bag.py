@@ -32,10 +32,10 @@ import pandas as pd
 from seesys.core import session_layout
 from seesys.core.errors import SeesysError
 from seesys.core.pose_covariance import pair_covariance, scaled_to_error
-from seesys.core.session_layout import POSE_COVARIANCE_COLUMNS, covariance_matrices
 from seesys.core.trajectory import Poses
 from seesys.io.config import load_section
 from seesys.io.logfiles import read_csv_table
+from seesys.io.rts_log import PoseCovarianceLog, read_pose_covariance_log
 from seesys.io.trajectory_files import read_tum
 
 NS_PER_S = 1_000_000_000
@@ -116,10 +116,6 @@ class _Messages:
         ]
 
 
-# Poses and covariance rows of one frame: the same frame time, written with different precisions.
-_SAME_FRAME_S = 1e-4
-
-
 @dataclass(frozen=True)
 class _CovariancePoses:
     """The poses that have a covariance row at their time (evo's time association), those covariances and their
@@ -145,18 +141,9 @@ class _CovariancePoses:
         return self.poses.take(np.asarray(kept, int)), np.asarray(scaled).reshape(-1, 6, 6)
 
 
-def _covariance_poses(poses: Poses, table: pd.DataFrame) -> _CovariancePoses:
-    from evo.core import sync
-
-    pose_index, row_index = sync.matching_time_indices(
-        poses.timestamps, table.timestamp.to_numpy(float), max_diff=_SAME_FRAME_S
-    )
-    rows = table.loc[:, list(POSE_COVARIANCE_COLUMNS[2:])].to_numpy(float)[row_index]
-    return _CovariancePoses(
-        poses.take(np.asarray(pose_index, int)),
-        covariance_matrices(rows),
-        table.frame_index.to_numpy(int)[np.asarray(row_index, int)],
-    )
+def _covariance_poses(poses: Poses, logged: PoseCovarianceLog) -> _CovariancePoses:
+    pose_index, log_index = logged.matched(poses)
+    return _CovariancePoses(poses.take(pose_index), logged.matrices[log_index], logged.frame_index[log_index])
 
 
 def _pose_covariance_topic(build: _Messages, poses: Poses, covariances: np.ndarray) -> tuple[str, list]:
@@ -189,12 +176,7 @@ def export_session_bag(session: Path, out: Path, settings: ExportSettings, delta
     estimates = (
         read_csv_table(estimates_file, ("frame_index", "timestamp", "error_m")) if estimates_file.is_file() else None
     )
-    covariance_file = session / session_layout.POSE_COVARIANCE_CSV
-    covariances = (
-        read_csv_table(covariance_file, session_layout.POSE_COVARIANCE_COLUMNS).sort_values("timestamp")
-        if covariance_file.is_file()
-        else None
-    )
+    covariances = read_pose_covariance_log(session)
 
     store = get_typestore(Stores.LATEST)
     build = _Messages(store, settings)
