@@ -32,9 +32,9 @@ import numpy as np
 import pandas as pd
 from scipy.stats import spearmanr
 
-from estimator.deepsee.baselines import fit_forest, window_statistics
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import session_windows
+from estimator.deepsee.forest import fit_forest, window_statistics
 from estimator.deepsee.metrics import pulse_classes
 from seesys.core import rts_schema
 from seesys.core.labels import LabelStatus

@@ -14,8 +14,8 @@ from testkit.sample import run_seesys
 from estimator.artefact.compatibility import ModelMismatch, compatibility
 from estimator.artefact.onnx_model import FOREST_KIND, OnnxModel, RecordedTraining, recorded_training
 from estimator.artefact.transforms import LabelTransform, prepare_rts
-from estimator.deepsee.baselines import window_statistics
 from estimator.deepsee.config import load_estimator_config
+from estimator.deepsee.forest import window_statistics
 from estimator.deepsee.forest_export import (
     FOREST_PARITY_TOLERANCE,
     export_forest_onnx,

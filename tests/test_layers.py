@@ -63,6 +63,7 @@ def test_the_contracts_hold_on_this_tree(tree: Path):
         ("estimator/service/model.py", "torch", "without PyTorch"),
         ("estimator/artefact/onnx_model.py", "torch", "without PyTorch"),
         ("seesys_app/run.py", "estimator.deepsee.model", "without PyTorch"),
+        ("estimator/deepsee/forest_export.py", "estimator.deepsee.baselines", "forest is trained, exported"),
     ],
 )
 @pytest.mark.system

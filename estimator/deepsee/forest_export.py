@@ -3,7 +3,7 @@ evaluation load like an exported DeepSEE (:class:`estimator.artefact.onnx_model.
 
 The graph takes what every served model takes, ``rts`` (B, T, C) float32 (normalised) and ``psd`` (B, K_L, H, W, 3)
 uint8, and returns ``y`` (B,), the transformed error. The forest reads the RTS window only: the graph computes its
-window statistics (:func:`estimator.deepsee.baselines.window_statistics`: mean, population standard deviation,
+window statistics (:func:`estimator.deepsee.forest.window_statistics`: mean, population standard deviation,
 minimum, maximum and last value of each channel, in that order) with ONNX operators, and the trees are scikit-learn's,
 converted by skl2onnx into ONNX-ML's ``TreeEnsembleRegressor``. The ``psd`` input is declared at the installation's
 PSD grid and left unread, so the service checks a device's windows against it as for any model. The forest's
@@ -23,7 +23,7 @@ from onnx import TensorProto, helper
 from sklearn.ensemble import RandomForestRegressor
 
 from estimator.artefact.onnx_model import FOREST_KIND, OnnxModel, Y, export_metadata
-from estimator.deepsee.baselines import window_statistics
+from estimator.deepsee.forest import window_statistics
 from seesys.core.psd import PsdGeometry
 
 #: ONNX's default and ML operator sets of the exported graph (ONNX Runtime 1.31 runs both).

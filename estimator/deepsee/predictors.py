@@ -158,7 +158,7 @@ def load_predictor(
             onnx.thresholds_m,
         )
     if path.suffix == ".pkl":
-        from estimator.deepsee.baselines import window_statistics
+        from estimator.deepsee.forest import window_statistics
 
         record = read_forest(path, windows, transform)
         forest = record["forest"]

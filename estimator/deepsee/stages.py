@@ -39,10 +39,11 @@ from estimator.artefact.compatibility import check_normalisation
 from estimator.artefact.standardisation import InputStandardisation
 from estimator.artefact.transforms import LabelTransform, rts_channel_mask
 from estimator.deepsee.augment import Augmenter
-from estimator.deepsee.baselines import LstmBaseline, fit_random_forest
+from estimator.deepsee.baselines import LstmBaseline
 from estimator.deepsee.checkpoint import compatibility, save_atomic, save_model
 from estimator.deepsee.config import AugmentationConfig, EstimatorConfig, Schedule, StageSchedule
 from estimator.deepsee.data import NORMALISATION_COLUMN, Windows, limit
+from estimator.deepsee.forest import fit_random_forest
 from estimator.deepsee.inference import batch_tensors, predict_outputs, uses_psd
 from estimator.deepsee.loop import run_stage, stage_seed
 from estimator.deepsee.model import DeepSEE, PsdEncoder, exceedance_probabilities
