@@ -200,8 +200,15 @@ def test_the_shipped_motion_thresholds_are_the_pilots_and_warn_as_often_as_seesy
 
     from testkit.sample import REPO
 
-    record = json.loads((REPO / "docs/simulated-study/pilot/motion-calibration.json").read_text())
+    record = json.loads((REPO / "docs/simulated-study/pilot-forest/motion-calibration.json").read_text())
     assert CFG.motion.thresholds_m_s == record["thresholds_m_s"]
+    # The pilot ran the served model: the motion arm pulses as often as SEESys does with the model it serves.
+    from estimator.service.config import load_service_config
+    from estimator.service.model import model_version
+    from seesys.io.resources import resolve
+
+    served = load_service_config().model
+    assert record["pilot_record"]["model_version"] == model_version(resolve(served))
     assert abs(record["motion_warning_share"] / record["seesys_warning_share"] - 1) <= 0.10
     assert record["pilot_record"]["settings"]["study"]["operator_seed"] != 1  # not the study's operators
     assert len(record["sessions"]) >= 5
