@@ -14,7 +14,8 @@ frame (``end_stride = 1``), one sample per labelled frame.
 
 Rows and matrices are looked up by frame index, never "the latest of each": a window is only emitted when its
 end frame is tracked, every PSD sample is present (for a model that reads them), and at most ``max_missing_rts`` of
-the T rows are missing or untracked. (The authors pair the newest RTS window with the newest PSD window, unsynchronised.)
+the T rows are missing or untracked. (The authors pair the newest RTS window with the newest PSD window,
+unsynchronised.)
 ``max_missing_rts`` is the one rule for every model window: the service serves and the dataset trains on the
 same windows, and a model records the rule it was trained with. A window end whose whole history has arrived but
 that is refused all the same is named in :attr:`WindowAssembler.refused` (:data:`MISSING_RTS`,
