@@ -9,9 +9,9 @@ from pathlib import Path
 from advisory.conditions import LIVE_CONDITIONS, Condition, pulse_rule
 from advisory.config import load_advisory_config
 from advisory.estimate_log import read_estimate_log
-from advisory.process import stop_on_signals
 from advisory.wav import WavWriter
 from seesys.io.network import load_network_config
+from seesys.io.processes import stop_on_signals
 
 _CONDITIONS = list(LIVE_CONDITIONS)
 
@@ -24,7 +24,8 @@ def _run(args: argparse.Namespace) -> int:
     from advisory.supervisor import supervise
 
     cfg = load_advisory_config()
-    supervise(cfg, Condition(args.condition), _out_dir(args, cfg), stop_on_signals())
+    with stop_on_signals() as stop:
+        supervise(cfg, Condition(args.condition), _out_dir(args, cfg), stop)
     return 0
 
 
@@ -33,7 +34,8 @@ def _generator(args: argparse.Namespace) -> int:
 
     cfg = load_advisory_config()
     generator = Generator(cfg, load_network_config(), Condition(args.condition), _out_dir(args, cfg))
-    generator.run(stop_on_signals())
+    with stop_on_signals() as stop:
+        generator.run(stop)
     return 0
 
 
@@ -42,7 +44,8 @@ def _player(args: argparse.Namespace) -> int:
 
     cfg = load_advisory_config()
     player = Player(cfg, _out_dir(args, cfg), Path(args.capture) if args.capture else None)
-    player.run(stop_on_signals())
+    with stop_on_signals() as stop:
+        player.run(stop)
     return 0
 
 

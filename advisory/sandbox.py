@@ -13,7 +13,6 @@ that is why the audio always runs in child processes here.
 
 from __future__ import annotations
 
-import functools
 import os
 import shutil
 import signal
@@ -23,7 +22,7 @@ from pathlib import Path
 
 from seesys.core.errors import SeesysError
 from seesys.io.config import CONFIG_DIR_ENV
-from seesys.io.processes import die_with_parent
+from seesys.io.processes import dying_with_parent
 
 JACK_HOST_API = "JACK Audio Connection Kit"
 _JACK_WAIT_S = 5
@@ -78,11 +77,10 @@ class JackDummy:
             # A JACK server left behind by a killed parent would hold one of the pool's names for good: the kernel
             # stops it with its parent (SIGTERM, so it clears its registry entry).
             self._proc = subprocess.Popen(
-                ["jackd", "-n", name, *self._args],
+                dying_with_parent(["jackd", "-n", name, *self._args], signal.SIGTERM),
                 env={**os.environ, **self.env()},
                 stdout=self._log,
                 stderr=subprocess.STDOUT,
-                preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM),
             )
             ready = self._jack_wait(name, "-w", "-t", str(_JACK_WAIT_S))
             if ready.returncode == 0 and self._proc.poll() is None:

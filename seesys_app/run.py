@@ -46,7 +46,6 @@ from advisory import config as advisory_config
 from advisory.conditions import Condition
 from advisory.config import AdvisoryConfig, load_advisory_config
 from advisory.output import AudioOutput, open_audio_output
-from advisory.process import stop_on_signals
 from advisory.supervisor import process_args
 from estimator.artefact.onnx_model import FOREST_KIND, recorded_training
 from estimator.service.config import load_service_config
@@ -58,6 +57,7 @@ from seesys.io.children import LOGS, CsvTail, RowCounter
 from seesys.io.config import CONFIG_DIR_ENV, ConfigSet
 from seesys.io.logfiles import CsvLog
 from seesys.io.network import load_network_config
+from seesys.io.processes import stop_on_signals
 from seesys.io.resources import resolve
 from seesys.io.session_files import utc_now
 from seesys.io.supervision import PartSpec, SupervisionPolicy, Supervisor
@@ -518,9 +518,12 @@ class App:
     def run(self) -> RunResult:
         """Run until the device ends, a signal stops it, or a part fails beyond restarting; then stop every child,
         write the summary and return it. SeesysError when the app cannot start."""
+        with stop_on_signals() as stop:
+            return self._run(stop)
+
+    def _run(self, stop: threading.Event) -> RunResult:
         self.events = CsvLog(self.folder / self.cfg.output.events, EVENT_COLUMNS)
         started = utc_now()
-        stop = stop_on_signals()
         status, error = "completed", None
         try:
             self.supervisor = Supervisor(self.folder, self._configure(), self._policy(), self.event)

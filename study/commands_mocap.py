@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ import numpy as np
 from seesys.core.camera_scale import ScaleCheckError, ScaleFit, describe, window_scales
 from seesys.core.trajectory import Poses
 from seesys.io.camera_check import load_scale_settings
+from seesys.io.processes import stop_on_signals
 from seesys.io.trajectory_files import read_tum, write_tum
 from study.config import MetricsConfig, load_study_config
 from study.metrics import format_metrics, read_frame_log, tracking_metrics
@@ -85,13 +85,12 @@ def mocap_log_command(args: argparse.Namespace) -> int:
     from study.mocap.logger import log_mocap
 
     cfg = load_study_config().mocap
-    stop = threading.Event()
     # SIGTERM (the study runner stopping a session) ends the loop cleanly, like Ctrl-C.
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        stats = log_mocap(cfg, args.out, stop, args.duration)
-    except KeyboardInterrupt:
-        return 130
+    with stop_on_signals(signal.SIGTERM) as stop:
+        try:
+            stats = log_mocap(cfg, args.out, stop, args.duration)
+        except KeyboardInterrupt:
+            return 130
     print(f"mocap: {stats.poses} poses of '{stats.body}' ({stats.missing} frames without it) in {args.out}")
     return 0
 

@@ -37,7 +37,6 @@ import json
 import math
 import os
 import queue
-import signal
 import threading
 import time
 from dataclasses import dataclass, replace
@@ -52,13 +51,13 @@ from advisory.conditions import Condition
 from advisory.config import load_advisory_config
 from advisory.estimate_log import read_estimate_log
 from advisory.output import AudioOutput, open_audio_output
-from advisory.process import stop_on_signals
 from seesys.core.errors import SeesysError
 from seesys.core.session_layout import ADVISORY_COLUMNS, ADVISORY_CSV
 from seesys.io.children import RowCounter, last_line
 from seesys.io.config import CONFIG_DIR_ENV, ConfigSet
 from seesys.io.logfiles import CsvLog, write_json_atomically
 from seesys.io.network import load_network_config
+from seesys.io.processes import stop_on_signals
 from seesys.io.session_files import utc_now
 from seesys.io.supervision import PartSpec, SupervisionPolicy, Supervisor
 from slam_monitor import monitor_config
@@ -330,13 +329,8 @@ class Session:
     def run(self) -> RunResult:
         # Ctrl-C and SIGTERM set `stop`, from here to the end: the device is interrupted and closes its files, then
         # the rest stops, and a second signal cannot cut that short.
-        handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-        stop = stop_on_signals()
-        try:
+        with stop_on_signals() as stop:
             return self._run(stop)
-        finally:
-            for sig, handler in handlers.items():
-                signal.signal(sig, handler)
 
     def _run(self, stop: threading.Event) -> RunResult:
         if self.o.restart:

@@ -119,6 +119,21 @@ def run_with_events(root: Path, env: dict, participant: str, attempt: Path, *ext
     assert "completed" in out
 
 
+def described(process: psutil.Process) -> str:
+    """A process's command line and what the kernel says of it: its state, the signals it blocks, ignores and
+    catches, and where it sleeps."""
+    try:
+        status = [
+            line
+            for line in Path(f"/proc/{process.pid}/status").read_text().splitlines()
+            if line.startswith(("State", "PPid", "Threads", "SigPnd", "ShdPnd", "SigBlk", "SigIgn", "SigCgt"))
+        ]
+        wchan = Path(f"/proc/{process.pid}/wchan").read_text()
+        return f"{process.pid} {process.cmdline()} {'; '.join(status)}; wchan {wchan}"
+    except (OSError, psutil.Error) as e:
+        return f"{process.pid}: {e}"
+
+
 def kill_at_random(
     root: Path, env: dict, participant: str, attempt: Path, rng: random.Random, during_tracking: bool
 ) -> float:
@@ -144,7 +159,7 @@ def kill_at_random(
     proc.send_signal(signal.SIGKILL)
     proc.communicate(timeout=60)
     _, alive = psutil.wait_procs(children, timeout=60)
-    assert not alive, f"children outlived the killed runner: {[p.pid for p in alive]}"
+    assert not alive, "children outlived the killed runner:\n" + "\n".join(map(described, alive))
     return killed_at
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import functools
 import os
 import signal
 import subprocess
@@ -20,7 +19,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from seesys.io.processes import die_with_parent
+from seesys.io.processes import dying_with_parent
 
 LOGS = "logs"
 
@@ -49,12 +48,11 @@ class Child:
             # A session of its own: the operator's Ctrl-C goes to the supervisor only (which stops the device
             # cleanly), and a child that does not stop can be killed with the processes it started.
             process = subprocess.Popen(
-                seesys_command(*args),
+                dying_with_parent(seesys_command(*args), signal.SIGTERM),
                 stdout=out,
                 stderr=subprocess.STDOUT if out else None,
                 stdin=subprocess.DEVNULL,
                 env=env or os.environ.copy(),
-                preexec_fn=functools.partial(die_with_parent, os.getpid(), signal.SIGTERM),
                 start_new_session=True,
             )
         return cls(name, process, path)

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import argparse
 import signal
-import threading
 import time
 from dataclasses import replace
 from pathlib import Path
 
 from seesys.io.arguments import positive_int
+from seesys.io.processes import stop_on_signals
 from seesys_app.simulate.config import CONDITIONS, DESIGNS
 
 
@@ -101,11 +101,9 @@ def simulate_session_command(args: argparse.Namespace) -> int:
 
     # SIGINT and SIGTERM end the session at its next frame with its files final. A flag, not KeyboardInterrupt: an
     # exception could land between a frame's rows and its count, or in the closing of the files.
-    stop = threading.Event()
-    for number in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(number, lambda *_: stop.set())
     cv2.setNumThreads(1)  # parallelism is across sessions: OpenCV's own threads would only contend with them
-    status = run_session(args.study, args.participant, args.condition, args.model, stop.is_set)
+    with stop_on_signals() as stop:
+        status = run_session(args.study, args.participant, args.condition, args.model, stop.is_set)
     return 130 if status == "interrupted" else 0
 
 
