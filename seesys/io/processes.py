@@ -78,7 +78,8 @@ def stop_on_signals(*signals: int) -> Iterator[threading.Event]:
         yield stop
     finally:
         for sig, handler in previous.items():
-            signal.signal(sig, handler)
+            # None: a handler installed outside Python, which cannot be put back; the default instead.
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
         os.close(write_end)
         reader.join()
         os.close(read_end)
