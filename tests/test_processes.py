@@ -12,11 +12,11 @@ import psutil
 from seesys.io.processes import dying_with_parent, stop_on_signals
 
 # A parent with busy threads (as a supervisor has: watchers, a status view) starts a sleeping child through the
-# launcher, prints the child's pid and waits to be killed.
+# launcher, prints the child's pid and waits, without end, to be killed.
 PARENT = """
 import subprocess, sys, threading, time
 from seesys.io.processes import dying_with_parent
-def busy():
+def busy():  # threads starting and ending all the time: load, not a wait for anything
     while True:
         threading.Thread(target=time.sleep, args=(0.001,)).start()
         time.sleep(0.001)
@@ -24,7 +24,7 @@ for _ in range(2):
     threading.Thread(target=busy, daemon=True).start()
 child = subprocess.Popen(dying_with_parent([sys.executable, "-c", "import signal; signal.pause()"]))
 print(child.pid, flush=True)
-time.sleep(600)
+threading.Event().wait()  # until killed
 """
 
 # Ends its loop on SIGTERM while it waits on the event and starts threads, the two places where a handler that set
