@@ -50,7 +50,13 @@ def sample_frames(count: int, with_depth: bool = True):
 
 
 def record_realsense(
-    path: Path, frames, stream: str = "color", fps: int = 30, depth_units: float = 0.001, push_period_s: float = 0.0
+    path: Path,
+    frames,
+    stream: str = "color",
+    fps: int = 30,
+    depth_units: float = 0.001,
+    push_period_s: float = 0.0,
+    without_depth: frozenset[int] = frozenset(),
 ) -> Path:
     """Record ``frames`` (gray + metric depth) as a RealSense D435-style recording (``.db3`` in SDK 2.59).
 
@@ -58,6 +64,7 @@ def record_realsense(
     streams of one sensor with extrinsics between them), depth is registered to the image with identity
     extrinsics, and pixels are pushed with hardware-clock timestamps ``n / fps``. Real-time playback follows
     the wall clock of the recording, so ``push_period_s`` spaces the pushes (against deadlines) when it matters.
+    Frames numbered in ``without_depth`` are recorded with their image only, as when a camera drops a depth frame.
     """
     import cv2
     import pyrealsense2 as rs
@@ -100,7 +107,8 @@ def record_realsense(
         time.sleep(max(0.0, start + n * push_period_s - time.perf_counter()))
         image = cv2.cvtColor(frame.gray, cv2.COLOR_GRAY2RGB) if stream == "color" else frame.gray
         depth = np.round(frame.depth / depth_units).astype(np.uint16)
-        for sensor, profile, pixels in ((image_sensor, image_profile, image), (depth_sensor, depth_profile, depth)):
+        streams = [(image_sensor, image_profile, image), (depth_sensor, depth_profile, depth)]
+        for sensor, profile, pixels in streams[: 1 if n in without_depth else 2]:
             pixels = np.ascontiguousarray(pixels)
             bpp = pixels.itemsize * (pixels.shape[2] if pixels.ndim == 3 else 1)
             video_frame = rs.software_video_frame()
