@@ -2,11 +2,11 @@
 
 A live camera is read through ``rs.pipeline``, configured from ``configs/camera.toml``. A recording is read from
 the playback device's own sensors, frame by frame, because the pipeline loses framesets when it plays a file
-(it keeps only the latest one while the reader is busy, and it plays frames before playback can be paused);
-image and depth are then paired by timestamp, as the pipeline's matcher does. Both give the same framesets to
-the same conversion: the image stream is colour (converted to gray) or the left infrared imager; depth, when
-asked for, is aligned to it with ``rs.align`` and scaled to metres with the frame's own depth units. Intrinsics
-are read from the stream profile, i.e. from the device's calibration.
+(it plays the first frames before playback can be paused, and in real time it lost frames in the middle of
+recordings whose reader kept up); image and depth are then paired by timestamp, as the pipeline's matcher does.
+Both give the same framesets to the same conversion: the image stream is colour (converted to gray) or the left
+infrared imager; depth, when asked for, is aligned to it with ``rs.align`` and scaled to metres with the frame's
+own depth units. Intrinsics are read from the stream profile, i.e. from the device's calibration.
 """
 
 from __future__ import annotations
