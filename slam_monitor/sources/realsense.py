@@ -27,7 +27,7 @@ from slam_monitor.sources.base import DepthLimits, FrameSource, SourceError, che
 from slam_monitor.sources.settings import RealSenseSettings, RecordingSettings
 
 MS_PER_S = 1000.0
-# Frames are awaited in slices of this many ms, so that the end of a recording is noticed promptly.
+# Frames are awaited in slices of this many ms, so that the end of a recording or a signal is noticed promptly.
 WAIT_SLICE_MS = 100
 # Frames a recording's sensors may hand over before the reader takes them: as-fast-as-possible playback waits
 # for the reader beyond this; real-time playback drops the oldest, as a camera would.
@@ -116,10 +116,16 @@ class RealSenseCamera(RealSenseSource):
 
     def _framesets(self) -> Iterator:
         last_number = -1
+        waited = 0
         while True:
-            ok, frameset = self._pipeline.try_wait_for_frames(self._timeout_ms)
+            # Waited for in slices, so that a signal handler runs while the camera is silent.
+            ok, frameset = self._pipeline.try_wait_for_frames(WAIT_SLICE_MS)
             if not ok:
-                raise SourceError(f"the RealSense camera delivered no frame for {self._timeout_ms} ms (unplugged?)")
+                waited += WAIT_SLICE_MS
+                if waited >= self._timeout_ms:
+                    raise SourceError(f"the RealSense camera delivered no frame for {self._timeout_ms} ms (unplugged?)")
+                continue
+            waited = 0
             image = self._image_frame(frameset)
             # The pipeline re-sends the latest frame of each stream in every frameset: keep new images only, and
             # in RGB-D mode only once their depth has come.
