@@ -58,9 +58,10 @@ def _intrinsics(profile) -> Intrinsics:
     return Intrinsics(intr.width, intr.height, intr.fx, intr.fy, intr.ppx, intr.ppy, coeffs)  # type: ignore[arg-type]
 
 
-def _stream_kind(image_stream: str):
+def _image_stream(image_stream: str):
+    """The SDK's stream and stream index for ``"color"`` or ``"infrared"`` (the left imager, index 1; -1: any)."""
     rs = _rs()
-    return rs.stream.color if image_stream == "color" else rs.stream.infrared
+    return (rs.stream.color, -1) if image_stream == "color" else (rs.stream.infrared, 1)
 
 
 class RealSenseSource(FrameSource):
@@ -105,8 +106,7 @@ class RealSenseCamera(RealSenseSource):
     """A live camera through a started ``rs.pipeline``."""
 
     def __init__(self, pipeline, profile, image_stream: str, with_depth: bool, timeout_ms: int, **kwargs):
-        index = 1 if image_stream == "infrared" else -1
-        super().__init__(profile.get_stream(_stream_kind(image_stream), index), with_depth, **kwargs)
+        super().__init__(profile.get_stream(*_image_stream(image_stream)), with_depth, **kwargs)
         self._pipeline = pipeline
         self._timeout_ms = timeout_ms
 
@@ -151,7 +151,6 @@ class RealSenseRecording(RealSenseSource):
 
     def __init__(self, device, image_profile, depth_profile, real_time: bool, timeout_ms: int, **kwargs):
         super().__init__(image_profile, depth_profile is not None, **kwargs)
-        self._device = device
         self._playback = device.as_playback()
         self._playback.set_real_time(real_time)
         self._real_time = real_time
@@ -285,10 +284,8 @@ def open_realsense_camera(
     config = rs.config()
     if serial:
         config.enable_device(serial)
-    index = 1 if settings.stream == "infrared" else -1
     config.enable_stream(
-        _stream_kind(settings.stream),
-        index,
+        *_image_stream(settings.stream),
         settings.width,
         settings.height,
         _image_format(rs, settings.stream),
@@ -339,8 +336,7 @@ def open_realsense_recording(
         raise SourceError(f"cannot play RealSense recording {path}: {e}") from None
     fallback = "infrared" if preferred_stream == "color" else "color"
     for image_stream in (preferred_stream, fallback):
-        index = 1 if image_stream == "infrared" else -1
-        image_profile = _recorded_profile(device, _stream_kind(image_stream), index)
+        image_profile = _recorded_profile(device, *_image_stream(image_stream))
         if image_profile is not None:
             break
     else:
