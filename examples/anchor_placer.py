@@ -43,7 +43,7 @@ class AnchorPlacer:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--device", required=True, help="the device id (monitor.toml device_id of the device, or its --device-id)")
+    parser.add_argument("--device", required=True, help="the device id (its --device-id, or device_id of monitor.toml)")
     parser.add_argument("--anchors", type=int, default=3, help="anchors to place before exiting")
     parser.add_argument("--defer-class", type=int, default=2, help="defer while Equation 2's class is at least this")
     parser.add_argument("--max-age-s", type=float, default=0.5, help="defer on an estimate older than this")
