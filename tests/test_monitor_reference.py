@@ -47,25 +47,39 @@ def test_image_channels_match_the_whole_frame_reference():
         assert entropy == pytest.approx(entropy_bits(gray), rel=1e-6)  # from a float32 histogram
 
 
-def test_local_map_matches_the_frame_by_frame_reference():
+def largest_map(inputs, max_points: int) -> int:
+    """The most points the reference map holds at once on these inputs."""
     lm = CONFIG.local_map
-    local_map, reference = (
-        LocalMap(lm.voxel, lm.max_age_frames, lm.max_points),
-        ReferenceLocalMap(lm.voxel, lm.max_age_frames, lm.max_points),
-    )
-    compared, largest = 0, 0
-    for item in tracked_inputs():
-        local_map.update(item.map_points, item.frame.index)
+    reference, largest = ReferenceLocalMap(lm.voxel, lm.max_age_frames, max_points), 0
+    for item in inputs:
         reference.update(item.map_points, item.frame.index)
-        assert same_rows(local_map.lost_points(), reference.lost_points())
-        if CONFIG.windows.is_psd_frame(item.frame.index):  # the map is read where the PSD reads it
-            assert same_rows(
-                np.column_stack([local_map.points, local_map.last_seen]),
-                np.column_stack([reference.points, reference.last_seen]),
-            )
-            compared += 1
         largest = max(largest, len(reference.points))
-    assert largest == lm.max_points and compared > 20  # the size bound was in play
+    return largest
+
+
+def test_local_map_matches_the_frame_by_frame_reference():
+    lm, inputs = CONFIG.local_map, tracked_inputs()
+    # ORB-SLAM3's map differs from run to run (less of it on a busy machine: 4,892 points at most once, against the
+    # configured bound of 5,000), so the size bound is also held to the reference at half the largest map these
+    # inputs make, where it is in play on every run.
+    in_play = largest_map(inputs, np.iinfo(np.int64).max) // 2
+    for max_points in (lm.max_points, in_play):
+        local_map = LocalMap(lm.voxel, lm.max_age_frames, max_points)
+        reference = ReferenceLocalMap(lm.voxel, lm.max_age_frames, max_points)
+        compared, largest = 0, 0
+        for item in inputs:
+            local_map.update(item.map_points, item.frame.index)
+            reference.update(item.map_points, item.frame.index)
+            assert same_rows(local_map.lost_points(), reference.lost_points())
+            if CONFIG.windows.is_psd_frame(item.frame.index):  # the map is read where the PSD reads it
+                assert same_rows(
+                    np.column_stack([local_map.points, local_map.last_seen]),
+                    np.column_stack([reference.points, reference.last_seen]),
+                )
+                compared += 1
+            largest = max(largest, len(reference.points))
+        assert compared > 20 and largest <= max_points
+    assert largest == in_play  # the size bound was in play
 
 
 @pytest.mark.system
