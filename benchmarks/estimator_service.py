@@ -6,7 +6,9 @@ one intra-op thread, as a worker runs it) on the session's windows, back to back
 rate; then one simulated device against a fresh service with one worker for ``--latency-seconds``, its latency at
 the device beside the model's, and where each millisecond goes: the service's stage breakdown
 (:mod:`estimator.service.stages`, p50 and p99 of each stage from ``seesys estimator status``) and the transit
-(device → broker and broker → device: the device's latency less the server's).
+(device → broker and broker → device: the device's latency less the server's). Beside them, the floor of any path
+through a broker and a worker process: a bare ZeroMQ round trip between two processes (DEALER ⇄ ROUTER over ipc, a
+200-byte message, paced as one device's windows), of which the path makes two (device ⇄ broker, broker ⇄ worker).
 
 Then the throughput rows. Each simulated device replays a logged session's feature stream (``rts.csv`` +
 ``psd/``) at 30 Hz on its own connection to ``seesys estimator serve`` (a subprocess with a private configuration:
@@ -35,6 +37,7 @@ Usage: ``.venv/bin/python benchmarks/estimator_service.py [--devices 1,16,40,64,
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import platform
 import subprocess
@@ -45,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 import psutil
+import zmq
 
 from estimator.service.config import load_service_config
 from estimator.service.model import ServedModel
@@ -194,6 +198,47 @@ def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[st
     return {"back_to_back": back_to_back * 1000.0, "paced": paced * 1000.0}
 
 
+def _echo(endpoint: str) -> None:
+    """The far end of :func:`round_trip_ms`: sends every message back until an empty one."""
+    with zmq.Context() as context, context.socket(zmq.ROUTER) as router:
+        router.bind(endpoint)
+        while True:
+            peer, body = router.recv_multipart()
+            router.send_multipart([peer, body])
+            if not body:
+                return
+
+
+def round_trip_ms(folder: Path, runs: int, period_s: float) -> np.ndarray:
+    """Milliseconds per bare round trip between this process and another (DEALER ⇄ ROUTER over ipc, 200 bytes),
+    one every ``period_s``: the least any crossing to another process and back costs at one device's pace."""
+    endpoint = f"ipc://{folder.resolve()}/echo"
+    echo = multiprocessing.get_context("spawn").Process(target=_echo, args=(endpoint,))
+    echo.start()
+    message, times = b"\0" * 200, np.empty(runs)
+    try:
+        with zmq.Context() as context, context.socket(zmq.DEALER) as dealer:
+            dealer.connect(endpoint)
+            for _ in range(WARMUP):
+                dealer.send(message)
+                dealer.recv()
+            due = time.perf_counter()
+            for k in range(runs):
+                due += period_s
+                time.sleep(max(0.0, due - time.perf_counter()))
+                start = time.perf_counter()
+                dealer.send(message)
+                dealer.recv()
+                times[k] = time.perf_counter() - start
+            dealer.send(b"")
+            dealer.recv()
+    finally:
+        echo.join(10)
+        if echo.is_alive():
+            echo.kill()
+    return times * 1000.0
+
+
 def decode_cpu_us(frames) -> tuple[float, float, float]:
     """CPU µs to decode one of the session's feature messages with a PSD, one with its PSD read past (what the
     broker does for a model that reads none) and one without, as the broker does for every frame (its share of the
@@ -213,8 +258,9 @@ def _p(values, q: float) -> float:
     return float(np.percentile(values, q)) if len(values) else float("nan")
 
 
-def print_latency(model: dict[str, np.ndarray], row: dict, period_s: float) -> None:
-    """The one-device table: model alone and service path side by side, the path's excess, and the breakdown."""
+def print_latency(model: dict[str, np.ndarray], row: dict, period_s: float, round_trip: np.ndarray) -> None:
+    """The one-device table: model alone and service path side by side, the path's excess, the floor of two
+    round trips between processes, and the breakdown."""
     device = np.asarray(row["latencies"], dtype=float)
     print(
         "\none device, window's last frame sent → estimate received, against the model alone (ONNX Runtime, "
@@ -233,6 +279,11 @@ def print_latency(model: dict[str, np.ndarray], row: dict, period_s: float) -> N
             f"{'service path − ' + name.removeprefix('model alone, '):<46}"
             f"{_p(device, 50) - _p(values, 50):>+8.2f}{_p(device, 99) - _p(values, 99):>+8.2f}"
         )
+    print(
+        f"{'bare round trip between two processes':<46}{_p(round_trip, 50):>8.2f}{_p(round_trip, 99):>8.2f}"
+        f"{len(round_trip):>6}"
+    )
+    print(f"{'two of them (the path makes two)':<46}{2 * _p(round_trip, 50):>8.2f}{2 * _p(round_trip, 99):>8.2f}")
     stages_ms = row["status"]["stages_ms"]
     if not stages_ms:
         print("no stage times (no estimate reached the broker)")
@@ -311,7 +362,9 @@ def main() -> None:
         if args.latency_seconds > 0:
             period_s = windows.end_stride / RATE_HZ
             alone = model_alone(model, frames, args.model_runs, period_s)
-            print_latency(alone, latency_run(folder, model, frames, args.latency_seconds), period_s)
+            round_trip = round_trip_ms(folder, max(20, int(args.model_runs * 0.2)), period_s)
+            one_device = latency_run(folder, model, frames, args.latency_seconds)
+            print_latency(alone, one_device, period_s, round_trip)
             with_psd, read_past, without = decode_cpu_us(frames)
             print(
                 f"decoding one feature message (the broker, every frame; CPU): {with_psd:.0f} µs with a PSD, "
