@@ -44,6 +44,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -172,6 +173,20 @@ def run_row(
     }
 
 
+def paced_runs(runs: int) -> int:
+    """How many paced runs go with ``runs`` back-to-back ones (a fifth, at least 20)."""
+    return max(20, int(runs * 0.2))
+
+
+def paced(count: int, period_s: float) -> Iterator[int]:
+    """``count`` turns, one every ``period_s``, as a device's windows come: sleeps until each is due."""
+    due = time.perf_counter()
+    for k in range(count):
+        due += period_s
+        time.sleep(max(0.0, due - time.perf_counter()))
+        yield k
+
+
 def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[str, np.ndarray]:
     """Seconds per ONNX Runtime run of the served model at batch 1 on the session's windows (inputs prepared
     beforehand, as the ``inference`` stage times it), back to back and one every ``period_s`` (one device's
@@ -186,16 +201,12 @@ def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[st
         start = time.perf_counter()
         model.run(inputs[k % len(inputs)])
         back_to_back[k] = time.perf_counter() - start
-    paced_runs = max(20, int(runs * 0.2))
-    paced = np.empty(paced_runs)
-    due = time.perf_counter()
-    for k in range(paced_runs):
-        due += period_s
-        time.sleep(max(0.0, due - time.perf_counter()))  # pacing, as a device's windows are
+    once_per_period = np.empty(paced_runs(runs))
+    for k in paced(len(once_per_period), period_s):
         start = time.perf_counter()
         model.run(inputs[k % len(inputs)])
-        paced[k] = time.perf_counter() - start
-    return {"back_to_back": back_to_back * 1000.0, "paced": paced * 1000.0}
+        once_per_period[k] = time.perf_counter() - start
+    return {"back_to_back": back_to_back * 1000.0, "paced": once_per_period * 1000.0}
 
 
 def _echo(endpoint: str) -> None:
@@ -222,10 +233,7 @@ def round_trip_ms(folder: Path, runs: int, period_s: float) -> np.ndarray:
             for _ in range(WARMUP):
                 dealer.send(message)
                 dealer.recv()
-            due = time.perf_counter()
-            for k in range(runs):
-                due += period_s
-                time.sleep(max(0.0, due - time.perf_counter()))
+            for k in paced(runs, period_s):
                 start = time.perf_counter()
                 dealer.send(message)
                 dealer.recv()
@@ -362,7 +370,7 @@ def main() -> None:
         if args.latency_seconds > 0:
             period_s = windows.end_stride / RATE_HZ
             alone = model_alone(model, frames, args.model_runs, period_s)
-            round_trip = round_trip_ms(folder, max(20, int(args.model_runs * 0.2)), period_s)
+            round_trip = round_trip_ms(folder, paced_runs(args.model_runs), period_s)
             one_device = latency_run(folder, model, frames, args.latency_seconds)
             print_latency(alone, one_device, period_s, round_trip)
             with_psd, read_past, without = decode_cpu_us(frames)
