@@ -121,5 +121,13 @@ def test_pairing_matches_brute_force_nearest_keypoints():
         # One information matrix for both: the channel's σ is the covariance's (a rotation keeps the trace).
         assert np.sqrt(np.trace(covariance[:3, :3])) == pytest.approx(seen.translation_sigma_m, rel=1e-6)
         assert 0 < seen.image_coverage <= 1 and seen.residual_median_px <= features.match_gate_px
+        # The percentiles and the coverage as np.percentile and np.unique give them, to the last bit.
+        median, p90 = np.percentile(got.paired_distances_px, [50, 90])
+        assert (seen.residual_median_px, seen.residual_p90_px) == (median, p90)
+        p10, p50, p90 = np.percentile(got.paired_points_c[:, 2], [10, 50, 90])
+        assert seen.depth_spread == (p90 - p10) / p50
+        grid, kp = OBSERVABILITY_NOISE.coverage_grid, got.paired_keypoints_px
+        cells = np.unique((kp[:, 1] * grid // intr.height) * grid + kp[:, 0] * grid // intr.width)
+        assert seen.image_coverage == len(cells) / grid**2
         outliers_seen += outliers
     assert outliers_seen > 0

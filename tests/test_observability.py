@@ -170,6 +170,17 @@ def test_coverage_and_depth_spread_read_as_they_say():
     )
 
 
+def test_the_residual_percentiles_and_depth_spread_are_numpys_to_the_last_bit():
+    rng = np.random.default_rng(11)
+    for n in [1, 2, 3, 4, 5, 9, 10, 11, 99, 100, 101, *rng.integers(3, 2000, 200)]:
+        for values in (rng.lognormal(0.0, 1.0, n), rng.integers(1, 5, n).astype(float), rng.uniform(0.3, 8.0, n)):
+            median, p90 = np.percentile(values, [50, 90])
+            assert residual_channels(values, 1.0)[:2] == (median, p90)
+            if n >= 3:
+                p10, p50, p90 = np.percentile(values, [10, 50, 90])
+                assert depth_spread(values) == (p90 - p10) / p50
+
+
 def _orb_keypoints(gray: np.ndarray) -> np.ndarray:
     """ORB keypoints of an image, as ORB-SLAM3 hands the monitor its own (N, 2 pixels)."""
     return np.array([k.pt for k in cv2.ORB_create(1000).detect(gray, None)])
