@@ -3,13 +3,14 @@ monitor, and with the monitor streaming to a listening subscriber.
 
 Each run is a fresh worker process (``run_device_session``, paced at the camera rate as on a device). A sampler
 thread reads the worker's CPU % (of one core; 200 % = two cores busy) and resident memory with psutil while it
-tracks; per-frame tracking latency is ``track_ms`` of ``frames.csv``; the monitor's own time per frame (wall and
-thread CPU time) and the stream's bandwidth come from ``monitor_stats.json``. On a machine whose cores are busy
-with other work, CPU % and latency differences between runs are dominated by that other work; the monitor
-thread's CPU time per frame is the figure that stays put. Configurations alternate run by run so that slow drifts in
-machine load hit all of them alike. Each configuration's range over the runs of its median tracking latency and
-median memory is printed too: the monitor's effect is within the run-to-run noise where its range meets SLAM
-alone's.
+tracks (the paper's measure, RSS, and its anonymous part, RSS less the file-backed pages: a library's code that the
+monitor's first calls page in counts in RSS, though it is shared and the kernel may drop it at any time); per-frame
+tracking latency is ``track_ms`` of ``frames.csv``; the monitor's own time per frame (wall and thread CPU time) and
+the stream's bandwidth come from ``monitor_stats.json``. On a machine whose cores are busy with other work, CPU %
+and latency differences between runs are dominated by that other work; the monitor thread's CPU time per frame is
+the figure that stays put. Configurations alternate run by run so that slow drifts in machine load hit all of them
+alike. Each configuration's range over the runs of its median tracking latency and median memory is printed too: the
+monitor's effect is within the run-to-run noise where its range meets SLAM alone's.
 
 In RGB-D mode it also times the depth-quality channels alone (``slam_monitor.depth_features``, schema v3) on every
 frame of the source, in this process, fed the source's ground-truth motion as the tracked motion (a source without
@@ -64,6 +65,9 @@ SAMPLE_PERIOD_S = 0.1
 class Measurements:
     cpu_percent: list[float] = field(default_factory=list)
     memory_mb: list[float] = field(default_factory=list)
+    # Resident memory less its file-backed pages (psutil's rss − shared on Linux): what the process allocated, without
+    # the library code it paged in (the monitor's first calls into OpenCV, scipy and BLAS page in megabytes of it).
+    anonymous_mb: list[float] = field(default_factory=list)
     track_ms: list[float] = field(default_factory=list)
     monitor: list[dict] = field(default_factory=list)
     camera_hz: float = float("nan")
@@ -71,6 +75,7 @@ class Measurements:
     # Per run: the median tracking latency and median memory, for the run-to-run spread.
     run_latency_ms: list[float] = field(default_factory=list)
     run_memory_mb: list[float] = field(default_factory=list)
+    run_anonymous_mb: list[float] = field(default_factory=list)
 
 
 def _worker(options: SessionOptions) -> None:
@@ -91,7 +96,9 @@ def _sample(pid: int, session_dir: Path, into: Measurements, done: threading.Eve
         process.cpu_percent(None)
         while not done.wait(SAMPLE_PERIOD_S):
             into.cpu_percent.append(process.cpu_percent(None))
-            into.memory_mb.append(process.memory_info().rss / 2**20)
+            memory = process.memory_info()
+            into.memory_mb.append(memory.rss / 2**20)
+            into.anonymous_mb.append((memory.rss - memory.shared) / 2**20)
     except psutil.NoSuchProcess:
         pass
 
@@ -133,6 +140,7 @@ def run_once(name: str, source: str, mode: SlamMode, max_frames: int | None, int
         into.track_ms += frames["track_ms"].tolist()
         into.run_latency_ms.append(float(frames["track_ms"].median()))
         into.run_memory_mb.append(statistics.median(into.memory_mb[memory_before:]))
+        into.run_anonymous_mb.append(statistics.median(into.anonymous_mb[memory_before:]))
         into.camera_hz = 1.0 / float(np.median(np.diff(frames["timestamp"])))
         if settings is not None:
             into.monitor.append(json.loads((out / MONITOR_STATS_JSON).read_text()))
@@ -152,6 +160,7 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
         "Median CPU usage (%)": lambda m: statistics.median(m.cpu_percent),
         "Average memory usage (MB)": lambda m: statistics.fmean(m.memory_mb),
         "Median memory usage (MB)": lambda m: statistics.median(m.memory_mb),
+        "Median anonymous memory (MB)": lambda m: statistics.median(m.anonymous_mb),
         "Average tracking latency (ms)": lambda m: statistics.fmean(m.track_ms),
         "Median tracking latency (ms)": lambda m: statistics.median(m.track_ms),
     }
@@ -170,6 +179,7 @@ def report(results: dict[str, Measurements], console: Console) -> dict:
     for label, attribute in (
         ("median tracking latency (ms)", "run_latency_ms"),
         ("median memory (MB)", "run_memory_mb"),
+        ("median anonymous memory (MB)", "run_anonymous_mb"),
     ):
         spread = {name: getattr(m, attribute) for name, m in results.items()}
         figures[f"runs: {label}"] = spread
