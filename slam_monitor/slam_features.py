@@ -143,8 +143,8 @@ def slam_features(
     inliers = np.zeros(len(kp), dtype=bool)
     within = matched.distance <= match_gate_px
     inliers[matched.keypoint[within]] = True
-    # The keypoints a lost point lands on, each counted once: a mark per keypoint (np.unique sorts, several times
-    # the cost).
+    # The keypoints a lost point lands on, each counted once: a mark per keypoint (np.unique sorts, three times the
+    # cost).
     reached = np.zeros(len(kp), dtype=bool)
     reached[nearest.keypoint[n:][nearest.distance[n:] <= match_gate_px]] = True
     outliers = int(np.count_nonzero(reached & ~inliers))
