@@ -12,7 +12,15 @@ model window (every ``end_stride``-th, as on a device), and the second opinion's
 pose covariance and every log) and the stream message's encoding, without the socket send. Last, the feature
 stream's size: wire bytes per message with and without a PSD, and kbit/s at 30 Hz.
 
+With ``--flow-variants`` it also times the second opinion (``flow_disagreement``, the costliest channel) with other
+settings of ``[second_opinion]`` in monitor.toml, one changed at a time, against the configured ones on the same
+frames: its cost per frame, the share of frames with a value, and how far its values move (the absolute difference,
+and Spearman's ρ with the configured values, on the frames where both have one). A setting that saves time changes
+the channel's values, on which a model was trained: this says by how much, beside how far they move between two
+ORB-SLAM3 trials of the same source with the configured settings (the source is tracked a second time).
+
     .venv/bin/python benchmarks/monitor_channels.py [--source tum:data/sample] [--mode rgbd] [--repeats 5]
+        [--flow-variants]
 """
 
 from __future__ import annotations
@@ -29,9 +37,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.stats import spearmanr
 
 from seesys.core import messages
 from seesys.core.camera_normalisation import CameraNormalisation
+from seesys.core.units import MM_PER_M
 from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_device_settings
 from slam_monitor.depth_features import (
@@ -54,7 +64,7 @@ from slam_monitor.monitor_config import MonitorConfig, load_monitor_config, reso
 from slam_monitor.observability import frame_geometry
 from slam_monitor.orbslam_settings import SlamMode
 from slam_monitor.replay import record_inputs
-from slam_monitor.second_opinion import SecondOpinion
+from slam_monitor.second_opinion import FlowConfig, SecondOpinion
 from slam_monitor.slam_features import (
     RelativeMotion,
     SlamFeatures,
@@ -189,16 +199,71 @@ def _depth_only(step: Callable[[np.ndarray], object]) -> Callable[[Prepared], ob
 FRAME, PSD, HOP = "frame", "psd", "hop"
 
 
-def _second_opinion_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], None]:
+def _second_opinion_pass(flow: FlowConfig) -> Callable[[Sequence[Prepared]], None]:
     def run(frames: Sequence[Prepared]) -> None:
-        opinion = SecondOpinion(config.second_opinion)
-        for p in frames:
-            frame = p.item.frame
-            opinion.update(
-                frame.index, frame.gray, frame.depth, p.item.keypoints, frame.intrinsics.matrix(), p.item.pose_wc
-            )
+        flow_values(flow, frames)
 
     return run
+
+
+# Other settings of the second opinion, one changed at a time (--flow-variants).
+FLOW_VARIANTS = {
+    "window_px 11": {"window_px": 11},
+    "window_px 9": {"window_px": 9},
+    "pyramid_levels 2": {"pyramid_levels": 2},
+    "max_points 100": {"max_points": 100},
+    "max_points 75": {"max_points": 75},
+}
+
+
+def flow_values(flow: FlowConfig, frames: Sequence[Prepared]) -> np.ndarray:
+    """The second opinion's value (m; NaN: none) on every frame, as the monitor computes it."""
+    opinion = SecondOpinion(flow)
+    values = []
+    for p in frames:
+        frame = p.item.frame
+        value = opinion.update(
+            frame.index,
+            frame.gray,
+            frame.depth,
+            p.item.keypoints,
+            frame.intrinsics.matrix(),
+            None if p.item.map_changed else p.item.pose_wc,
+        )
+        values.append(np.nan if value is None else value)
+    return np.array(values)
+
+
+def flow_variants(
+    config: MonitorConfig, frames: Sequence[Prepared], second_trial: Sequence[Prepared], repeats: int
+) -> list[dict[str, object]]:
+    """Per setting (the configured one first): thread CPU ms per frame, share of frames with a value, and the
+    values' median and p90 absolute difference (mm) and Spearman ρ against the configured setting's; last, the
+    configured setting on ``second_trial`` (the same source tracked again by ORB-SLAM3): how far the values move
+    between two SLAM trials of the same frames, the noise a model of this channel already sees."""
+    configured = config.second_opinion
+    reference = flow_values(configured, frames)
+    rows = []
+    settings = {label: (replace_fields(configured, **change), frames) for label, change in FLOW_VARIANTS.items()}
+    for label, (flow, trial) in {
+        "configured": (configured, frames),
+        **settings,
+        "configured, a second ORB-SLAM3 trial": (configured, second_trial),
+    }.items():
+        values = flow_values(flow, trial)
+        both = np.isfinite(reference) & np.isfinite(values)
+        difference_mm = np.abs(values[both] - reference[both]) * MM_PER_M
+        rows.append(
+            {
+                "setting": label,
+                "ms_per_frame": thread_ms_per_call(_second_opinion_pass(flow), trial, repeats),
+                "with_value": float(np.isfinite(values).mean()),
+                "difference_median_mm": float(np.median(difference_mm)) if both.any() else float("nan"),
+                "difference_p90_mm": float(np.percentile(difference_mm, 90)) if both.any() else float("nan"),
+                "spearman": float(spearmanr(values[both], reference[both])[0]) if both.sum() > 2 else float("nan"),
+            }
+        )
+    return rows
 
 
 def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> dict[str, tuple[Callable, str]]:
@@ -255,7 +320,7 @@ def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> 
             ),
             FRAME,
         ),
-        "flow_disagreement (second opinion; per hop frame)": (_second_opinion_pass(config), HOP),
+        "flow_disagreement (second opinion; per hop frame)": (_second_opinion_pass(config.second_opinion), HOP),
         "PSD matrix": (_each(lambda p: extractor._psd(p.item, p.slam, p.normalisation, p.reference_gray)), PSD),
         "FeatureFrame encoding (stream)": (_each(lambda p: messages.encode(encoded[p.item.frame.index])), FRAME),
     }
@@ -277,6 +342,9 @@ def main() -> None:
     parser.add_argument("--mode", choices=[m.value for m in SlamMode], default=SlamMode.RGBD.value)
     parser.add_argument("--repeats", type=int, default=5, help="passes over the frames per row (median reported)")
     parser.add_argument("--json", type=Path, help="also write the figures to this file")
+    parser.add_argument(
+        "--flow-variants", action="store_true", help="also time the second opinion with other settings (see above)"
+    )
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error(f"--repeats must be at least 1, got {args.repeats}")
@@ -324,8 +392,21 @@ def main() -> None:
         f"a PSD {stream['psd_stream_code_bytes']:.0f} B in the stream's code, "
         f"{stream['psd_log_code_bytes']:.0f} B in the log's"
     )
+    figures: dict[str, object] = {"channels": rows, "stream": stream}
+    if args.flow_variants:
+        second_trial = prepare(record_inputs(args.source, SlamMode(args.mode)), config)
+        variants = flow_variants(config, frames, second_trial, args.repeats)
+        print("the second opinion (flow_disagreement) with other settings, one changed at a time:")
+        print("| setting | thread CPU ms per frame | frames with a value | abs. difference median / p90 (mm) | ρ |")
+        print("|---|---|---|---|---|")
+        for row in variants:
+            print(
+                f"| {row['setting']} | {row['ms_per_frame']:.3f} | {row['with_value']:.2f} | "
+                f"{row['difference_median_mm']:.2f} / {row['difference_p90_mm']:.2f} | {row['spearman']:.3f} |"
+            )
+        figures["flow_variants"] = variants
     if args.json:
-        args.json.write_text(json.dumps({"channels": rows, "stream": stream}, indent=2) + "\n")
+        args.json.write_text(json.dumps(figures, indent=2) + "\n")
 
 
 def stream_size(frames: Iterable[messages.FeatureFrame]) -> dict[str, float]:
