@@ -237,10 +237,10 @@ def flow_values(flow: FlowConfig, frames: Sequence[Prepared]) -> np.ndarray:
 def flow_variants(
     config: MonitorConfig, frames: Sequence[Prepared], second_trial: Sequence[Prepared], repeats: int
 ) -> list[dict[str, object]]:
-    """Per setting (the configured one first): thread CPU ms per frame, share of frames with a value, and the
-    values' median and p90 absolute difference (mm) and Spearman ρ against the configured setting's; last, the
-    configured setting on ``second_trial`` (the same source tracked again by ORB-SLAM3): how far the values move
-    between two SLAM trials of the same frames, the noise a model of this channel already sees."""
+    """Per setting (the configured one first): thread CPU ms per frame, share of frames with a value, the values'
+    median (mm), and their median and p90 absolute difference (mm) and Spearman ρ against the configured setting's;
+    last, the configured setting on ``second_trial`` (the same source tracked again by ORB-SLAM3): how far the values
+    move between two SLAM trials of the same frames, the noise a model of this channel already sees."""
     configured = config.second_opinion
     reference = flow_values(configured, frames)
     rows = []
@@ -258,6 +258,7 @@ def flow_variants(
                 "setting": label,
                 "ms_per_frame": thread_ms_per_call(_second_opinion_pass(flow), trial, repeats),
                 "with_value": float(np.isfinite(values).mean()),
+                "median_mm": float(np.nanmedian(values) * MM_PER_M) if np.isfinite(values).any() else float("nan"),
                 "difference_median_mm": float(np.median(difference_mm)) if both.any() else float("nan"),
                 "difference_p90_mm": float(np.percentile(difference_mm, 90)) if both.any() else float("nan"),
                 "spearman": float(spearmanr(values[both], reference[both])[0]) if both.sum() > 2 else float("nan"),
@@ -397,11 +398,14 @@ def main() -> None:
         second_trial = prepare(record_inputs(args.source, SlamMode(args.mode)), config)
         variants = flow_variants(config, frames, second_trial, args.repeats)
         print("the second opinion (flow_disagreement) with other settings, one changed at a time:")
-        print("| setting | thread CPU ms per frame | frames with a value | abs. difference median / p90 (mm) | ρ |")
-        print("|---|---|---|---|---|")
+        print(
+            "| setting | thread CPU ms per frame | frames with a value | median value (mm) "
+            "| abs. difference median / p90 (mm) | ρ |"
+        )
+        print("|---|---|---|---|---|---|")
         for row in variants:
             print(
-                f"| {row['setting']} | {row['ms_per_frame']:.3f} | {row['with_value']:.2f} | "
+                f"| {row['setting']} | {row['ms_per_frame']:.3f} | {row['with_value']:.2f} | {row['median_mm']:.2f} | "
                 f"{row['difference_median_mm']:.2f} / {row['difference_p90_mm']:.2f} | {row['spearman']:.3f} |"
             )
         figures["flow_variants"] = variants
