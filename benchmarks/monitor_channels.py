@@ -9,8 +9,11 @@ inflated by waiting for a core on a loaded machine). Rows marked "per PSD frame"
 model window (every ``end_stride``-th, as on a device), and the second opinion's work is on its hop frames (every
 ``hop_frames``-th); their "per frame" figure is amortised over all frames.
 "monitor thread, whole" is the monitor thread's own work per frame: its step (``MonitorStep``: features, PSD, the
-pose covariance and every log) and the stream message's encoding, without the socket send. Last, the feature
-stream's size: wire bytes per message with and without a PSD, and kbit/s at 30 Hz.
+pose covariance and every log) and the stream message's encoding, without the socket send; back to back, then paced
+as on a device: one frame every 33 ms, the thread asleep in between. Paced, the same work costs more CPU time per
+frame than back to back, with no other work on the machine (the caches and the core are colder at every frame);
+beside ORB-SLAM3 (``benchmarks/monitor_overhead.py``) the monitor is paced so. Last, the feature stream's size: wire
+bytes per message with and without a PSD, and kbit/s at 30 Hz.
 
 With ``--flow-variants`` it also times the second opinion (``flow_disagreement``, the costliest channel) with other
 settings of ``[second_opinion]`` in monitor.toml, one changed at a time, against the configured ones on the same
@@ -163,7 +166,11 @@ def _registration_pass(config: MonitorConfig) -> Callable[[Sequence[Prepared]], 
     return run
 
 
-def _whole_monitor(config: MonitorConfig, with_logs: bool) -> Callable[[Sequence[Prepared]], None]:
+def _whole_monitor(
+    config: MonitorConfig, with_logs: bool, period_s: float = 0.0
+) -> Callable[[Sequence[Prepared]], None]:
+    """The whole monitor over the frames; with ``period_s``, the device's step one frame every ``period_s`` seconds,
+    the thread asleep in between (as on a device paced by its camera)."""
     settings = load_device_settings(SlamMode.RGBD.value, 30.0)
 
     def run(frames: Sequence[Prepared]) -> None:
@@ -175,8 +182,12 @@ def _whole_monitor(config: MonitorConfig, with_logs: bool) -> Callable[[Sequence
         # the device's own step: features, PSD, covariance and every log, then the stream message's encoding
         with tempfile.TemporaryDirectory() as tmp:
             step = MonitorStep(config, Path(tmp), None, 1, settings)
+            due = time.monotonic()
             for p in frames:
                 messages.encode(step.step(p.item))
+                if period_s:
+                    due += period_s
+                    time.sleep(max(due - time.monotonic(), 0.0))
             step.close_logs()
 
     return run
@@ -265,6 +276,9 @@ def flow_variants(
             }
         )
     return rows
+
+
+PACED_ROW = "monitor thread, whole, paced: one frame every 33 ms, asleep in between"
 
 
 def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> dict[str, tuple[Callable, str]]:
@@ -367,11 +381,12 @@ def main() -> None:
         per_frame = thread_ms_per_call(run, subset, args.repeats) * len(subset) / len(frames)
         per_call = per_frame * len(frames) / {FRAME: len(frames), PSD: len(psd_frames), HOP: hops}[cadence]
         rows[label] = {"per_call_ms": per_call, "per_frame_ms": per_frame}
-    for label, with_logs in (
-        ("monitor features, whole (FeatureExtractor.extract)", False),
-        ("monitor thread, whole (features, PSD, encoding, logs)", True),
+    for label, with_logs, period_s in (
+        ("monitor features, whole (FeatureExtractor.extract)", False, 0.0),
+        ("monitor thread, whole (features, PSD, encoding, logs)", True, 0.0),
+        (PACED_ROW, True, 1.0 / 30.0),
     ):
-        per_frame = thread_ms_per_call(_whole_monitor(config, with_logs), frames, args.repeats)
+        per_frame = thread_ms_per_call(_whole_monitor(config, with_logs, period_s), frames, args.repeats)
         rows[label] = {"per_call_ms": per_frame, "per_frame_ms": per_frame}
     tracked = sum(p.motion is not None for p in frames)
     print(
@@ -385,7 +400,11 @@ def main() -> None:
         per_call = f"{row['per_call_ms']:.3f}" if label in sparse else ""
         print(f"| {label} | {row['per_frame_ms']:.3f} | {per_call} |")
     whole = rows["monitor thread, whole (features, PSD, encoding, logs)"]["per_frame_ms"]
-    print(f"monitor thread: {whole:.2f} ms per frame = {whole * 30 / 10:.1f} % of a core at 30 Hz")
+    paced = rows[PACED_ROW]["per_frame_ms"]
+    print(
+        f"monitor thread: {whole:.2f} ms per frame = {whole * 30 / 10:.1f} % of a core at 30 Hz back to back; "
+        f"{paced:.2f} ms = {paced * 30 / 10:.1f} % paced at 30 Hz, asleep between frames"
+    )
     stream = stream_size(encoded.values())
     print(
         f"stream (device id {device.device_id!r}): {stream['plain_bytes']:.0f} B per frame without a PSD, "
