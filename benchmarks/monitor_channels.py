@@ -11,7 +11,7 @@ model window (every ``end_stride``-th, as on a device), and the second opinion's
 "monitor thread, whole" is the monitor thread's own work per frame: its step (``MonitorStep``: features, PSD, the
 pose covariance and every log) and the stream message's encoding, without the socket send; back to back, then paced
 as on a device: one frame every 33 ms, the thread asleep in between. Paced, the same work costs more CPU time per
-frame than back to back, with no other work on the machine (the caches and the core are colder at every frame);
+frame than back to back, with no other work on the machine (most likely colder caches and a core woken from idle);
 beside ORB-SLAM3 (``benchmarks/monitor_overhead.py``) the monitor is paced so. Last, the feature stream's size: wire
 bytes per message with and without a PSD, and kbit/s at 30 Hz.
 
