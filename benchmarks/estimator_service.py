@@ -44,12 +44,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import psutil
 import zmq
+from pacing import paced
 
 from estimator.service.config import load_service_config
 from estimator.service.model import ServedModel
@@ -176,15 +176,6 @@ def run_row(
 def paced_runs(runs: int) -> int:
     """How many paced runs go with ``runs`` back-to-back ones (a fifth, at least 20)."""
     return max(20, int(runs * 0.2))
-
-
-def paced(count: int, period_s: float) -> Iterator[int]:
-    """``count`` turns, one every ``period_s``, as a device's windows come: sleeps until each is due."""
-    due = time.perf_counter()
-    for k in range(count):
-        due += period_s
-        time.sleep(max(0.0, due - time.perf_counter()))
-        yield k
 
 
 def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[str, np.ndarray]:

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from pacing import paced
 from scipy.stats import spearmanr
 
 from seesys.core import messages
@@ -182,12 +183,9 @@ def _whole_monitor(
         # the device's own step: features, PSD, covariance and every log, then the stream message's encoding
         with tempfile.TemporaryDirectory() as tmp:
             step = MonitorStep(config, Path(tmp), None, 1, settings)
-            due = time.monotonic()
-            for p in frames:
-                messages.encode(step.step(p.item))
-                if period_s:
-                    due += period_s
-                    time.sleep(max(due - time.monotonic(), 0.0))
+            # A period of 0 (back to back): every turn is due at once.
+            for k in paced(len(frames), period_s):
+                messages.encode(step.step(frames[k].item))
             step.close_logs()
 
     return run
@@ -253,15 +251,17 @@ def flow_variants(
     last, the configured setting on ``second_trial`` (the same source tracked again by ORB-SLAM3): how far the values
     move between two SLAM trials of the same frames, the noise a model of this channel already sees."""
     configured = config.second_opinion
-    reference = flow_values(configured, frames)
-    rows = []
     settings = {label: (replace_fields(configured, **change), frames) for label, change in FLOW_VARIANTS.items()}
-    for label, (flow, trial) in {
+    runs = {
         "configured": (configured, frames),
         **settings,
         "configured, a second ORB-SLAM3 trial": (configured, second_trial),
-    }.items():
-        values = flow_values(flow, trial)
+    }
+    values_of = {label: flow_values(flow, trial) for label, (flow, trial) in runs.items()}
+    reference = values_of["configured"]
+    rows = []
+    for label, (flow, trial) in runs.items():
+        values = values_of[label]
         both = np.isfinite(reference) & np.isfinite(values)
         difference_mm = np.abs(values[both] - reference[both]) * MM_PER_M
         rows.append(
