@@ -2,7 +2,9 @@
 
 For each room of BUILD (and then each camera model), the random forest of `seesys estimator train --row
 random_forest` (the same features, label transform and settings, configs/estimator.toml) and the motion row are
-fitted on the build's other rooms (cameras) and judged on this one's runs, beside the served model and the ceiling
+fitted on the build's other rooms (cameras) and judged on this one's runs, beside the same forest fitted to what the
+motion row does not explain (log error − log of the motion row's estimate, estimating the motion row's estimate
+times exp of its prediction: the construction of docs/v4-build/motion-residual/), the served model and the ceiling
 (the mean error of the other trials of the same render, as `seesys estimator evaluate` computes it), on the windows
 where the ceiling has a value, with bootstrap intervals over runs and the paired differences from the motion row.
 
@@ -26,7 +28,8 @@ from estimator.deepsee.references import MOTION_ISOTONIC, ceiling_estimates, fit
 from estimator.deepsee.yardsticks import bootstrap_over_runs, paired_differences, yardsticks
 from seesys.io.core_settings import load_pulse_settings
 
-FOREST, SERVED, CEILING = "forest_trained_here", "served_model", "ceiling"
+FOREST, RESIDUAL, SERVED, CEILING = "forest_trained_here", "residual_forest_here", "served_model", "ceiling"
+FLOOR_M = 1e-4  # the motion row's estimate below which the ratio is not taken (0.1 mm)
 NAMES = ("kappa", "aurg", "partial_spearman")
 
 
@@ -57,13 +60,24 @@ def main() -> None:
             forest = fit_random_forest(
                 train.rts, transform.forward(train.error_m), config.random_forest, config.seed, jobs=2
             )
+            motion_fit = fit_references(train, pulses).motion_fit
+            train_motion = np.maximum(motion_fit.predict(motion_statistic(train.rts)), FLOOR_M)
+            residual = fit_random_forest(
+                train.rts,
+                np.log(np.maximum(train.error_m, FLOOR_M / 10)) - np.log(train_motion),
+                config.random_forest,
+                config.seed,
+                jobs=2,
+            )
+            motion = motion_statistic(test.rts)
             estimates = {
-                MOTION_ISOTONIC: fit_references(train, pulses).estimates(test)[MOTION_ISOTONIC],
+                MOTION_ISOTONIC: motion_fit.predict(motion),
                 FOREST: transform.inverse(forest.predict(window_statistics(test.rts))),
+                RESIDUAL: np.maximum(motion_fit.predict(motion), FLOOR_M)
+                * np.exp(residual.predict(window_statistics(test.rts))),
                 SERVED: served[test_index],
                 CEILING: ceiling[test_index],
             }
-            motion = motion_statistic(test.rts)
             rows = {name: judged(test.meta, e, test.error_m, motion, pulses) for name, e in estimates.items()}
             print(
                 f"\nheld-out {kind} {value}: trained on {train.meta.run.nunique()} runs, judged on "
@@ -76,7 +90,7 @@ def main() -> None:
                 cells = [f"{point[n]:6.3f} [{interval[n][0]:6.3f}, {interval[n][1]:6.3f}]" for n in NAMES]
                 print(f"  {name:20s} {' '.join(cells)} {point['median_ratio']:12.3f}")
             print("  minus the motion row, paired over runs:")
-            for name in (FOREST, SERVED, CEILING):
+            for name in (FOREST, RESIDUAL, SERVED, CEILING):
                 point, interval = paired_differences(rows[name], rows[MOTION_ISOTONIC], score, NAMES[:2], settings)
                 print(
                     f"  {name:20s} Δκ {point['kappa']:+.3f} [{interval['kappa'][0]:+.3f}, {interval['kappa'][1]:+.3f}]"
