@@ -18,10 +18,13 @@ p99 and largest 10-frame error), which show how far the trials' tails part.
 κ, AURG, Spearman ρ and partial ρ given motion, with bootstrap intervals over runs, and each row's paired difference
 from the motion row (the same resampled runs for both), as `seesys estimator evaluate` computes them.
 
-    .venv/bin/python docs/expected-error/expected_error.py BUILD [MODEL]
+    .venv/bin/python docs/expected-error/expected_error.py BUILD --scores scores.csv [--model MODEL]
+
+``--scores`` also writes every figure printed (set, row, yardstick, its interval, and each row's paired difference
+from the motion row) to a CSV file.
 """
 
-import sys
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -34,18 +37,73 @@ from estimator.deepsee.data import reader_windows
 from estimator.deepsee.metrics import bootstrap_settings, judged
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import MOTION_ISOTONIC, fit_references, motion_statistic, other_trials
-from estimator.deepsee.yardsticks import bootstrap_over_runs, paired_differences, yardsticks
+from estimator.deepsee.yardsticks import Bootstrap, Judged, bootstrap_over_runs, paired_differences, yardsticks
 from seesys.core.labels import LabelStatus
 from seesys.io.core_settings import load_pulse_settings
 
 NAMES = ("kappa", "aurg", "partial_spearman")
+DIFFERENCES = ("kappa", "aurg")
 SERVED = "served_model"
 
 
-def other_trial_labels(build: Path) -> tuple[pd.Series, dict[str, list[str]], pd.DataFrame]:
-    """Labelled frames (run, frame_index → error_m), each run's other trials in cyclic order after it, and each
-    run's rendered sequence, room and camera model (a table indexed by run)."""
+def judge_rows(
+    rows: dict[str, Judged], settings: Bootstrap, classes: int, large_error_m: float, where: dict[str, str]
+) -> list[dict[str, object]]:
+    """Print each row's yardsticks, with their intervals over runs, and each other row's paired difference from the
+    motion row's; return them as records (``where`` says the set) for the scores file."""
+
+    def score(j: Judged) -> dict[str, float]:
+        return yardsticks(j, classes, large_error_m)
+
+    records: list[dict[str, object]] = []
+    print(f"  {'row':20s} {'κ':>22s} {'AURG':>22s} {'partial ρ':>22s} {'ρ':>6s} agreement median ratio")
+    for name, j in rows.items():
+        point = score(j)
+        interval, runs = bootstrap_over_runs(j, score, NAMES, settings)
+        cells = [f"{point[n]:6.3f} [{interval[n][0]:6.3f}, {interval[n][1]:6.3f}]" for n in NAMES]
+        print(
+            f"  {name:20s} {' '.join(cells)} {point['spearman']:6.3f} {point['agreement']:9.3f}"
+            f" {point['median_ratio']:12.3f}"
+        )
+        record: dict[str, object] = {**where, "row": name, "compared_with": "", "runs": runs, "windows": len(j.truth_m)}
+        record.update(point)
+        for n in NAMES:
+            record[f"{n}_low"], record[f"{n}_high"] = interval[n]
+        records.append(record)
+    print("  minus the motion row, paired over runs:")
+    for name, j in rows.items():
+        if name == MOTION_ISOTONIC:
+            continue
+        point, interval = paired_differences(j, rows[MOTION_ISOTONIC], score, DIFFERENCES, settings)
+        print(
+            f"  {name:20s} Δκ {point['kappa']:+.3f} [{interval['kappa'][0]:+.3f}, {interval['kappa'][1]:+.3f}]"
+            f"  ΔAURG {point['aurg']:+.3f} [{interval['aurg'][0]:+.3f}, {interval['aurg'][1]:+.3f}]"
+        )
+        record = {**where, "row": name, "compared_with": MOTION_ISOTONIC, "runs": len(set(j.window_run))}
+        for n in DIFFERENCES:
+            record[n], (record[f"{n}_low"], record[f"{n}_high"]) = point[n], interval[n]
+        records.append(record)
+    return records
+
+
+def arguments(description: str) -> argparse.Namespace:
+    """BUILD, --scores and --model, the same for every script of this folder."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("build", type=Path, help="a dataset build whose renders were tracked three or more times")
+    parser.add_argument("--scores", type=Path, required=True, help="CSV file for every figure printed")
+    parser.add_argument("--model", type=Path, default=Path("data/models/forest.onnx"), help="the served model")
+    return parser.parse_args()
+
+
+def run_table(build: Path) -> pd.DataFrame:
+    """Each run with samples: its rendered sequence, room and camera model (indexed by run)."""
     infos = [info for info in list_runs(build) if info.status in WITH_SAMPLES]
+    what = [(i.sequence, i.environment, i.camera_model) for i in infos]
+    return pd.DataFrame(what, index=[i.run for i in infos], columns=["sequence", "room", "camera"])
+
+
+def other_trial_labels(build: Path) -> tuple[pd.Series, dict[str, list[str]]]:
+    """Labelled frames (run, frame_index → error_m) and each run's other trials in cyclic order after it."""
     cyclic = {}
     for run, others in other_trials([build]).items():
         runs = sorted([run, *others])
@@ -53,8 +111,7 @@ def other_trial_labels(build: Path) -> tuple[pd.Series, dict[str, list[str]], pd
         cyclic[run] = runs[i + 1 :] + runs[:i]
     labels = DatasetReader([build]).frame_labels()
     labels = labels[labels.status == LabelStatus.LABELLED.value].set_index(["run", "frame_index"]).error_m
-    what = [(i.sequence, i.environment, i.camera_model) for i in infos]
-    return labels, cyclic, pd.DataFrame(what, index=[i.run for i in infos], columns=["sequence", "room", "camera"])
+    return labels, cyclic
 
 
 def print_trial_tails(labels: pd.Series, what: pd.DataFrame) -> None:
@@ -69,11 +126,12 @@ def print_trial_tails(labels: pd.Series, what: pd.DataFrame) -> None:
 
 
 def main() -> None:
-    build = Path(sys.argv[1])
-    model = Path(sys.argv[2]) if len(sys.argv) > 2 else Path("data/models/forest.onnx")
+    args = arguments("The mean error of other SLAM trials of the same render against the motion row")
+    build, model = args.build, args.model
     config, pulses = load_estimator_config(), load_pulse_settings()
     settings = bootstrap_settings(config.evaluation)
-    labels, cyclic, what = other_trial_labels(build)
+    labels, cyclic = other_trial_labels(build)
+    what = run_table(build)
     trials = 1 + min(len(others) for others in cyclic.values())
     if trials < 3:
         raise SystemExit(f"{build}: every sequence needs 3 or more trials, the fewest here is {trials}")
@@ -110,41 +168,21 @@ def main() -> None:
         f"rooms {', '.join(sorted(set(window_room)))}; served model {model}"
     )
 
-    def score(j):
-        return yardsticks(j, pulses.max_pulses + 1, config.evaluation.large_error_m)
-
     sets = {"all runs": np.ones(len(kept), bool)}
     for kind in ("room", "camera"):
         of_window = kept.run.map(what[kind]).to_numpy()
         sets.update({f"{kind} {v}": of_window == v for v in sorted(set(of_window))})
+    kept_estimates = {name: values[index] for name, values in estimates.items()}
+    records = []
     for label, mask in sets.items():
         chosen = np.flatnonzero(mask)
         part = {
-            name: judged(kept.iloc[chosen], estimates[name][index][chosen], truth[chosen], motion[chosen], pulses)
-            for name in estimates
+            name: judged(kept.iloc[chosen], values[chosen], truth[chosen], motion[chosen], pulses)
+            for name, values in kept_estimates.items()
         }
         print(f"\n{label} ({kept.run.iloc[chosen].nunique()} runs, {len(chosen)} windows)")
-        print(f"  {'row':18s} {'κ':>22s} {'AURG':>22s} {'ρ':>6s} {'partial ρ':>22s} agreement median ratio")
-        for name, j in part.items():
-            point = score(j)
-            interval, _ = bootstrap_over_runs(j, score, NAMES, settings)
-            cells = [
-                f"{point[n]:6.3f} [{interval[n][0]:6.3f}, {interval[n][1]:6.3f}]"
-                for n in ("kappa", "aurg", "partial_spearman")
-            ]
-            print(
-                f"  {name:18s} {cells[0]} {cells[1]} {point['spearman']:6.3f} {cells[2]} {point['agreement']:9.3f}"
-                f" {point['median_ratio']:12.3f}"
-            )
-        print("  minus the motion row, paired over runs:")
-        for name, j in part.items():
-            if name == MOTION_ISOTONIC:
-                continue
-            point, interval = paired_differences(j, part[MOTION_ISOTONIC], score, ("kappa", "aurg"), settings)
-            print(
-                f"  {name:18s} Δκ {point['kappa']:+.3f} [{interval['kappa'][0]:+.3f}, {interval['kappa'][1]:+.3f}]"
-                f"  ΔAURG {point['aurg']:+.3f} [{interval['aurg'][0]:+.3f}, {interval['aurg'][1]:+.3f}]"
-            )
+        records += judge_rows(part, settings, pulses.max_pulses + 1, config.evaluation.large_error_m, {"set": label})
+    pd.DataFrame(records).to_csv(args.scores, index=False)
 
 
 if __name__ == "__main__":
