@@ -317,7 +317,7 @@ def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> 
             FRAME,
         ),
         "depth_registration": (_registration_pass(config), FRAME),
-        "translation_sigma ... residual_over_gate, and the pose covariance (one information matrix)": (
+        "translation_sigma ... residual_over_gate, residual_shear, and the pose covariance (one information matrix)": (
             _each(
                 lambda p: (
                     frame_geometry(

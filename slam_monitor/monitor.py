@@ -277,6 +277,7 @@ def _geometry_channels(seen: PoseObservability, normalisation: CameraNormalisati
         "residual_median": seen.residual_median_px / normalisation.pixel_ratio,
         "residual_p90": seen.residual_p90_px / normalisation.pixel_ratio,
         "residual_over_gate": seen.residual_over_gate,
+        "residual_shear": seen.residual_shear_px / normalisation.pixel_ratio,
     }
 
 

@@ -17,6 +17,14 @@ paired by ``slam_monitor.slam_features``) and, in RGB-D, the depth the camera me
 - **Residuals** after the pose: the distances of each matched point's projection to its keypoint (px): median, 90th
   percentile, and the share whose squared distance in units of σ exceeds the χ² gate of two degrees of freedom at 95 %
   (5.991: ORB-SLAM3's own gate for a monocular observation).
+- **The residuals' shear** (px): the residual vectors (projection − keypoint) fitted by an affine function of the
+  keypoint's position, x and y over the image height; of the fit's 2×2 gradient, the part that no in-plane rotation
+  or change of scale makes, √(((g_xx − g_yy)/2)² + ((g_xy + g_yx)/2)²), in pixels across the image height. A pose
+  error moves the projections as a rotation about the optical axis, a scale (forward motion) and a shift do near the
+  image centre, and the pose fit takes those up; what it cannot take up is a distortion of the image itself. A
+  rolling shutter reads the rows at different times, so a camera turning sideways during the readout shears the
+  image (x shifted in proportion to the row) and one tilting stretches it: a shear of k px over the height, half of
+  it taken up as a rotation, leaves k/2. On a global-shutter camera it is the noise of the fit.
 
 - **The pose covariance** H⁻¹, turned into the world's axes in ROS's order (:func:`pose_covariance_world`): the
   monitor logs it for every tracked frame (``pose_covariance.csv``, exported as ``PoseWithCovarianceStamped``), and
@@ -51,6 +59,8 @@ from slam_monitor.slam_features import SlamFeatures
 CHI2_GATE_2DOF = 5.991
 # Fewer points than this leave the 6-DoF pose unobservable: no channel values.
 _MIN_POINTS = 3
+# Fewer paired points than this leave the residuals' affine fit (three coefficients per axis) to noise: no shear.
+MIN_SHEAR_POINTS = 12
 
 
 @dataclass(frozen=True)
@@ -74,11 +84,12 @@ class PoseObservability:
     residual_median_px: float
     residual_p90_px: float
     residual_over_gate: float
+    residual_shear_px: float
 
     @classmethod
     def unknown(cls) -> PoseObservability:
         nan = float("nan")
-        return cls(nan, nan, nan, nan, nan, nan, nan, nan)
+        return cls(nan, nan, nan, nan, nan, nan, nan, nan, nan)
 
 
 def pose_information(
@@ -198,11 +209,31 @@ def residual_channels(distances_px: np.ndarray, pixel_sigma_px: float) -> tuple[
     return float(median), float(p90), float(np.mean((d / pixel_sigma_px) ** 2 > CHI2_GATE_2DOF))
 
 
+def residual_shear(keypoints_px: np.ndarray, residuals_px: np.ndarray, width: int, height: int) -> float:
+    """The residuals' shear (module docstring), in pixels across the image height: the residual vectors
+    (projection − keypoint, N×2) fitted by least squares as a + G·((u − W/2)/H, (v − H/2)/H). NaN with fewer than
+    :data:`MIN_SHEAR_POINTS` points or keypoints that do not span the image in both axes (a singular fit)."""
+    kp = np.asarray(keypoints_px, np.float64).reshape(-1, 2)
+    if len(kp) < MIN_SHEAR_POINTS:
+        return float("nan")
+    design = np.ones((len(kp), 3))
+    design[:, 1] = (kp[:, 0] - width / 2) / height
+    design[:, 2] = (kp[:, 1] - height / 2) / height
+    # The 3×3 normal equations: lstsq's SVD costs several times as much on a frame's few hundred points.
+    try:
+        coefficients = np.linalg.solve(design.T @ design, design.T @ np.asarray(residuals_px, np.float64))
+    except np.linalg.LinAlgError:
+        return float("nan")
+    (gxx, gyx), (gxy, gyy) = coefficients[1], coefficients[2]  # row: ∂/∂u, ∂/∂v; column: residual x, y
+    return float(np.hypot((gxx - gyy) / 2, (gxy + gyx) / 2))
+
+
 def _observability(
     covariance: np.ndarray | None,
     points_c: np.ndarray,
     keypoints_px: np.ndarray,
     distances_px: np.ndarray,
+    residuals_px: np.ndarray,
     width: int,
     height: int,
     noise: NoiseModel,
@@ -219,13 +250,14 @@ def _observability(
         median,
         p90,
         over,
+        residual_shear(keypoints_px, residuals_px, width, height),
     )
 
 
 def pose_observability(
     points_c: np.ndarray,
     keypoints_px: np.ndarray,
-    distances_px: np.ndarray,
+    residuals_px: np.ndarray,
     camera_matrix: np.ndarray,
     width: int,
     height: int,
@@ -233,12 +265,14 @@ def pose_observability(
     depth_measured: bool,
 ) -> PoseObservability:
     """Every channel of one frame: ``points_c`` the matched inlier points in the camera (in front of it),
-    ``keypoints_px`` the keypoints they matched and ``distances_px`` how far each projects from its keypoint."""
+    ``keypoints_px`` the keypoints they matched and ``residuals_px`` each point's projection less its keypoint."""
     p = np.asarray(points_c, np.float64).reshape(-1, 3)
     if len(p) < _MIN_POINTS:
         return PoseObservability.unknown()
+    residuals = np.asarray(residuals_px, np.float64).reshape(-1, 2)
+    distances = np.hypot(residuals[:, 0], residuals[:, 1])
     information = pose_information(p, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured)
-    return _observability(_inverse(information), p, keypoints_px, distances_px, width, height, noise)
+    return _observability(_inverse(information), p, keypoints_px, distances, residuals, width, height, noise)
 
 
 def frame_geometry(
@@ -259,6 +293,15 @@ def frame_geometry(
         return PoseObservability.unknown(), None
     # One inverse for both: the channels read H⁻¹ in the camera's axes, the log and the stream in the world's.
     inverse = _inverse(pose_information(points, camera_matrix[0, 0], camera_matrix[1, 1], noise, depth_measured))
-    seen = _observability(inverse, points, slam.paired_keypoints_px, slam.paired_distances_px, width, height, noise)
+    seen = _observability(
+        inverse,
+        points,
+        slam.paired_keypoints_px,
+        slam.paired_distances_px,
+        slam.paired_residuals_px,
+        width,
+        height,
+        noise,
+    )
     covariance = _turned(inverse, rotation_wc) if inverse is not None else None
     return seen, covariance if covariance is not None and np.isfinite(covariance).all() else None

@@ -96,11 +96,12 @@ class SlamFeatures:
     reprojection_error_px: float
     inlier_keypoints: np.ndarray
     # The pairing itself, for the observability channels (slam_monitor.observability): the matched points in front of
-    # the camera that pair with a keypoint within the gate, in the camera (metres), that keypoint (pixels), and how
-    # far the point projects from it (pixels).
+    # the camera that pair with a keypoint within the gate, in the camera (metres), that keypoint (pixels), how
+    # far the point projects from it (pixels), and the projection less the keypoint (pixels, N×2).
     paired_points_c: np.ndarray
     paired_keypoints_px: np.ndarray
     paired_distances_px: np.ndarray
+    paired_residuals_px: np.ndarray
 
 
 def slam_features(
@@ -148,6 +149,7 @@ def slam_features(
     reached = np.zeros(len(kp), dtype=bool)
     reached[nearest.keypoint[n:][nearest.distance[n:] <= match_gate_px]] = True
     outliers = int(np.count_nonzero(reached & ~inliers))
+    paired_keypoints = kp[matched.keypoint[within]] if tree is not None else np.zeros((0, 2))
 
     return SlamFeatures(
         matched_inliers=int(matched_inliers),
@@ -159,6 +161,7 @@ def slam_features(
         reprojection_error_px=float(matched.distance.mean()) if len(depth) and tree is not None else float("nan"),
         inlier_keypoints=inliers,
         paired_points_c=points_c[in_front][:n][within],
-        paired_keypoints_px=kp[matched.keypoint[within]] if tree is not None else np.zeros((0, 2)),
+        paired_keypoints_px=paired_keypoints,
         paired_distances_px=matched.distance[within],
+        paired_residuals_px=uv[:n][within] - paired_keypoints,
     )

@@ -114,6 +114,9 @@ def test_pairing_matches_brute_force_nearest_keypoints():
         within = distance <= features.match_gate_px
         assert same_rows(got.paired_points_c, matched_c[within])
         np.testing.assert_allclose(np.sort(got.paired_distances_px), np.sort(distance[within]), rtol=1e-12)
+        residuals = project(got.paired_points_c, intr.matrix()) - got.paired_keypoints_px
+        np.testing.assert_allclose(got.paired_residuals_px, residuals, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(np.hypot(*got.paired_residuals_px.T), got.paired_distances_px, rtol=1e-12)
         seen, covariance = frame_geometry(
             got, intr.matrix(), intr.width, intr.height, True, OBSERVABILITY_NOISE, item.pose_wc[:3, :3]
         )
@@ -129,5 +132,9 @@ def test_pairing_matches_brute_force_nearest_keypoints():
         grid, kp = OBSERVABILITY_NOISE.coverage_grid, got.paired_keypoints_px
         cells = np.unique((kp[:, 1] * grid // intr.height) * grid + kp[:, 0] * grid // intr.width)
         assert seen.image_coverage == len(cells) / grid**2
+        # The shear from numpy's least squares (SVD) on the same design: the normal equations give it to rounding.
+        design = np.column_stack([np.ones(len(kp)), (kp[:, 0] - intr.width / 2), (kp[:, 1] - intr.height / 2)])
+        (gxx, gyx), (gxy, gyy) = np.linalg.lstsq(design / [1, intr.height, intr.height], residuals, rcond=None)[0][1:]
+        assert seen.residual_shear_px == pytest.approx(np.hypot((gxx - gyy) / 2, (gxy + gyx) / 2), rel=1e-6)
         outliers_seen += outliers
     assert outliers_seen > 0

@@ -1,6 +1,7 @@
 """The observability, residual and second-opinion computations against cases with a known answer: the predicted σ
 of a point set matches a Monte-Carlo of the pose fit, a planar or one-sided point set is ill-conditioned, a perturbed
-pose raises the residuals, and the flow's motion on the sample's frames agrees with the renderer's ground truth."""
+pose raises the residuals, a rolling shutter's shear is read and a pose error is not, and the flow's motion on the
+sample's frames agrees with the renderer's ground truth."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from slam_monitor.observability import (
     pose_information,
     pose_observability,
     residual_channels,
+    residual_shear,
     translation_observability,
 )
 from slam_monitor.second_opinion import (
@@ -153,11 +155,46 @@ def test_a_perturbed_pose_raises_the_residual_channels():
     points = _points(rng)
     keypoints = project(points, K) + rng.normal(0, 0.5, (len(points), 2))
     right = np.linalg.norm(project(points, K) - keypoints, axis=1)
-    wrong = np.linalg.norm(project(_moved(points, np.array([0.01, 0, 0, 0, 0.004, 0])), K) - keypoints, axis=1)
+    wrong_residuals = project(_moved(points, np.array([0.01, 0, 0, 0, 0.004, 0])), K) - keypoints
+    wrong = np.linalg.norm(wrong_residuals, axis=1)
     good, bad = residual_channels(right, 1.0), residual_channels(wrong, 1.0)
     assert bad[0] > 2 * good[0] and bad[1] > 2 * good[1] and bad[2] > good[2] + 0.3
-    channels = pose_observability(points, keypoints, wrong, K, 640, 480, NOISE, depth_measured=True)
+    channels = pose_observability(points, keypoints, wrong_residuals, K, 640, 480, NOISE, depth_measured=True)
     assert channels.residual_median_px == pytest.approx(bad[0]) and channels.translation_sigma_m > 0
+
+
+def _rolling_shutter_keypoints(points, yaw_rate, pitch_rate, readout_s, rng, noise_px=0.5):
+    """Where a rolling-shutter camera turning at (yaw, pitch) rad/s sees ``points``: row v is read
+    readout·(v/H − 1/2) after the middle row, when the camera has turned by rate × that time."""
+    uv = project(points, K)
+    offset = readout_s * (uv[:, 1] / 480 - 0.5)
+    turned = np.column_stack([uv[:, 0] - K[0, 0] * yaw_rate * offset, uv[:, 1] - K[1, 1] * pitch_rate * offset])
+    return turned + rng.normal(0, noise_px, uv.shape)
+
+
+def test_the_residual_shear_reads_a_rolling_shutter_and_not_a_pose_error():
+    rng = np.random.default_rng(13)
+    points = _points(rng, n=300)
+    exact = project(points, K)
+    # A camera turning sideways at 1 rad/s through a 20 ms readout: x moves by f·ω·T = 10.5 px from the first row
+    # to the last; the pose fit would take up the rotation half, and the channel reads the other half.
+    keypoints = _rolling_shutter_keypoints(points, 1.0, 0.0, 0.020, rng)
+    shift_over_height = K[0, 0] * 1.0 * 0.020
+    assert residual_shear(keypoints, exact - keypoints, 640, 480) == pytest.approx(shift_over_height / 2, rel=0.1)
+    # Tilting: the image stretched vertically by the same amount; the fit takes up the scale half.
+    keypoints = _rolling_shutter_keypoints(points, 0.0, 1.0, 0.020, rng)
+    assert residual_shear(keypoints, exact - keypoints, 640, 480) == pytest.approx(shift_over_height / 2, rel=0.1)
+    # A global shutter with the pose 1 cm and 0.5° wrong (residuals of several pixels): no shear beyond the noise,
+    # as for the exact pose.
+    keypoints = exact + rng.normal(0, 0.5, exact.shape)
+    moved = project(_moved(points, np.array([0.01, 0.0, 0.0, 0.0, 0.0, 0.009])), K)
+    assert np.median(np.linalg.norm(moved - keypoints, axis=1)) > 2.0
+    assert residual_shear(keypoints, moved - keypoints, 640, 480) < 0.1 * shift_over_height / 2
+    assert residual_shear(keypoints, exact - keypoints, 640, 480) < 0.1 * shift_over_height / 2
+    # Too few points, or all on one row: no value.
+    assert np.isnan(residual_shear(keypoints[:11], (exact - keypoints)[:11], 640, 480))
+    one_row = np.column_stack([np.linspace(10, 600, 50), np.full(50, 240.0)])
+    assert np.isnan(residual_shear(one_row, np.zeros((50, 2)), 640, 480))
 
 
 def test_coverage_and_depth_spread_read_as_they_say():
@@ -166,7 +203,7 @@ def test_coverage_and_depth_spread_read_as_they_say():
     assert coverage(grid, 640, 480, 4) == 1.0
     assert depth_spread(np.full(20, 2.0)) == 0.0 and depth_spread(np.linspace(1, 3, 21)) == pytest.approx(0.8)
     assert np.isnan(
-        pose_observability(np.ones((2, 3)), np.ones((2, 2)), np.ones(2), K, 640, 480, NOISE, False).image_coverage
+        pose_observability(np.ones((2, 3)), np.ones((2, 2)), np.ones((2, 2)), K, 640, 480, NOISE, False).image_coverage
     )
 
 

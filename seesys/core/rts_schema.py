@@ -25,8 +25,10 @@ Conventions (the authors' code differs; see docs/rts-features.md):
 - Depths are z in the current camera frame. In monocular mode all lengths are in map units (arbitrary scale).
 - Version 4 adds what the geometry of the tracked points says about the pose's precision (observability and
   residual channels, from the frame's matched inliers: slam_monitor/observability.py) and a second opinion on the
-  motion (slam_monitor/second_opinion.py). A model of an earlier version takes its own channels from a v4 row by name
-  (:func:`columns_of`).
+  motion (slam_monitor/second_opinion.py). A model of an earlier version takes its own channels from a newer row by
+  name (:func:`columns_of`).
+- Version 5 adds the residuals' shear (``residual_shear``, last): the part of the residual field no camera pose makes,
+  which a rolling shutter's readout leaves (the D435-class camera's whole error excess, docs/camera-effects/).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import numpy as np
 
 from seesys.core.errors import SeesysError
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 
 @dataclass(frozen=True)
@@ -274,6 +276,16 @@ CHANNELS: tuple[Channel, ...] = (
         "log1p",
         3.0,
     ),
+    Channel(
+        "residual_shear",
+        "residual",
+        "px",
+        "the part of the matched points' residual field (projection - keypoint, fitted as an affine function of the "
+        "keypoint's position) that no in-plane rotation or scale explains, across the image height, in the "
+        "reference camera's pixels: a rolling shutter's shear, which no camera pose makes",
+        "log1p",
+        1.0,
+    ),
 )
 
 
@@ -284,7 +296,7 @@ def fingerprint(channels: tuple[Channel, ...]) -> int:
 
 
 #: The fingerprint of each released schema version.
-_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F, 3: 0x8490F111, 4: 0x4722F1F7}
+_FINGERPRINTS = {1: 0x272A99E0, 2: 0xC231583F, 3: 0x8490F111, 4: 0x4722F1F7, 5: 0x0FD608E0}
 FINGERPRINT = fingerprint(CHANNELS)
 if _FINGERPRINTS.get(SCHEMA_VERSION) != FINGERPRINT:
     raise RuntimeError(
@@ -311,8 +323,8 @@ CHANNEL_NAMES: tuple[str, ...] = tuple(c.name for c in CHANNELS)
 #: The channel categories, in schema order: the paper's sensor_input, tracking and mapping, then depth,
 #: observability, residual and second_opinion.
 CATEGORIES: tuple[str, ...] = tuple(dict.fromkeys(c.category for c in CHANNELS))
-#: The categories schema v4 added, from the geometry of what ORB-SLAM3 tracked rather than from the image or the
-#: motion: what the ``wo_geometry`` ablation removes and the channel table judges alone.
+#: The categories schema v4 added (and v5 added to), from the geometry of what ORB-SLAM3 tracked rather than from the
+#: image or the motion: what the ``wo_geometry`` ablation removes and the channel table judges alone.
 GEOMETRY_CATEGORIES: tuple[str, ...] = ("observability", "residual", "second_opinion")
 NUM_CHANNELS = len(CHANNELS)
 _INDEX = {name: i for i, name in enumerate(CHANNEL_NAMES)}
