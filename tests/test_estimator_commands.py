@@ -507,9 +507,12 @@ def test_cli_trains_a_row_into_a_run_folder_and_resumes(tiny_dataset, tmp_path, 
     assert main(args[:-2] + ["--schedule", "full"]) == 2
     assert "holds a run with a different schedule" in capsys.readouterr().err
     metrics = pd.read_csv(tmp_path / "run" / "metrics.csv")
-    assert set(metrics.stage) == {"lstm"} and list(metrics.epoch) == list(
-        range(tiny_config().schedules.reduced.lstm.epochs + 1)
-    )
+    schedule = tiny_config().schedules.reduced.lstm
+    # Every epoch once (the resumed calls trained none again): all of them, or up to the early stop, which comes
+    # only after `patience` epochs in a row that did not improve.
+    assert set(metrics.stage) == {"lstm"} and list(metrics.epoch) == list(range(len(metrics)))
+    assert schedule.patience < len(metrics) <= schedule.epochs + 1
+    assert len(metrics) == schedule.epochs + 1 or not metrics.best.iloc[-schedule.patience :].any()
 
 
 class _ConstantPredictor:
