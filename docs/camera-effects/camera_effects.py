@@ -30,6 +30,7 @@ from estimator.dataset.store import DatasetReader
 from estimator.deepsee.data import reader_windows
 from estimator.deepsee.references import motion_statistic
 from seesys.core.rts_schema import index_of
+from seesys.core.units import MM_PER_M
 from seesys.io.config import ConfigSet
 
 BASE = "d435"
@@ -88,7 +89,7 @@ def table(out: Path) -> pd.DataFrame:
         runs = windows.meta.run.to_numpy()
         for run in sorted(set(runs)):
             mine = runs == run
-            error_mm = windows.error_m[mine] * 1000
+            error_mm = windows.error_m[mine] * MM_PER_M
             row = {
                 "build": folder.name,
                 "run": run,
@@ -122,7 +123,7 @@ def main() -> None:
         build(args.out, sequences, args.seed, args.trials)  # type: ignore[arg-type]
         return
     frame = table(args.out)
-    frame.to_csv(args.csv, index=False, float_format="%.6g")
+    frame.to_csv(args.csv, index=False)
     with pd.option_context("display.width", 250, "display.max_columns", 20):
         print(frame.drop(columns="run").round(4).to_string(index=False))
 
