@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "expected-error"))
-from expected_error import DIFFERENCES, judge_rows, run_table
+from expected_error import DIFFERENCES, held_out_sets, judge_rows, run_table
 
 from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.store import DatasetReader
@@ -76,48 +76,40 @@ def main() -> None:
         return yardsticks(j, pulses.max_pulses + 1, config.evaluation.large_error_m)
 
     records, channel_rows = [], []
-    for kind in ("room", "camera"):
-        of_window = windows.meta.run.map(what[kind]).to_numpy()
-        for value in sorted(set(of_window)):
-            train_index = np.flatnonzero(of_window != value)
-            test_index = np.flatnonzero((of_window == value) & np.isfinite(ceiling))
-            train, test = windows.subset(train_index), windows.subset(test_index)
-            target = transform.forward(train.error_m)
-            full = fit_random_forest(train.rts, target, config.random_forest, config.seed, jobs=2)
-            reduced = fit_random_forest(train.rts[..., without], target, config.random_forest, config.seed, jobs=2)
-            motion = motion_statistic(test.rts)
-            estimates = {
-                MOTION_ISOTONIC: fit_references(train, pulses).motion_fit.predict(motion),
-                WITH: transform.inverse(full.predict(window_statistics(test.rts))),
-                WITHOUT: transform.inverse(reduced.predict(window_statistics(test.rts[..., without]))),
-                SERVED: served[test_index],
-                CEILING: ceiling[test_index],
-            }
-            rows = {name: judged(test.meta, e, test.error_m, motion, pulses) for name, e in estimates.items()}
-            where = {"set": f"held-out {kind} {value}"}
+    for set_name, train_index, test_index in held_out_sets(windows, what, ceiling):
+        train, test = windows.subset(train_index), windows.subset(test_index)
+        target = transform.forward(train.error_m)
+        full = fit_random_forest(train.rts, target, config.random_forest, config.seed, jobs=2)
+        reduced = fit_random_forest(train.rts[..., without], target, config.random_forest, config.seed, jobs=2)
+        motion = motion_statistic(test.rts)
+        estimates = {
+            MOTION_ISOTONIC: fit_references(train, pulses).motion_fit.predict(motion),
+            WITH: transform.inverse(full.predict(window_statistics(test.rts))),
+            WITHOUT: transform.inverse(reduced.predict(window_statistics(test.rts[..., without]))),
+            SERVED: served[test_index],
+            CEILING: ceiling[test_index],
+        }
+        rows = {name: judged(test.meta, e, test.error_m, motion, pulses) for name, e in estimates.items()}
+        where = {"set": set_name}
+        records += judge_rows(rows, settings, pulses.max_pulses + 1, config.evaluation.large_error_m, where)
+        point, interval = paired_differences(rows[WITH], rows[WITHOUT], score, DIFFERENCES, settings)
+        print(
+            f"  with − without the shear: Δκ {point['kappa']:+.3f} "
+            f"[{interval['kappa'][0]:+.3f}, {interval['kappa'][1]:+.3f}]  ΔAURG {point['aurg']:+.3f} "
+            f"[{interval['aurg'][0]:+.3f}, {interval['aurg'][1]:+.3f}]"
+        )
+        record: dict[str, object] = {**where, "row": WITH, "compared_with": WITHOUT}
+        for n in DIFFERENCES:
+            record[n], (record[f"{n}_low"], record[f"{n}_high"]) = point[n], interval[n]
+        records.append(record)
+        table = channel_table(raw.subset(test_index), choose_features(raw.subset(train_index)), settings)
+        chosen = table[table.chosen & table.channel.isin(PRINTED_CHANNELS)]
+        for _, c in chosen.iterrows():
             print(
-                f"\nheld-out {kind} {value}: trained on {train.meta.run.nunique()} runs, judged on "
-                f"{test.meta.run.nunique()} runs, {len(test)} windows"
+                f"  channel {c.channel:18s} ({c.feature:5s}) ρ {c.spearman:+.3f}  partial ρ given motion "
+                f"{c.partial_spearman:+.3f} [{c.partial_spearman_low:+.3f}, {c.partial_spearman_high:+.3f}]"
             )
-            records += judge_rows(rows, settings, pulses.max_pulses + 1, config.evaluation.large_error_m, where)
-            point, interval = paired_differences(rows[WITH], rows[WITHOUT], score, DIFFERENCES, settings)
-            print(
-                f"  with − without the shear: Δκ {point['kappa']:+.3f} "
-                f"[{interval['kappa'][0]:+.3f}, {interval['kappa'][1]:+.3f}]  ΔAURG {point['aurg']:+.3f} "
-                f"[{interval['aurg'][0]:+.3f}, {interval['aurg'][1]:+.3f}]"
-            )
-            record: dict[str, object] = {**where, "row": WITH, "compared_with": WITHOUT}
-            for n in DIFFERENCES:
-                record[n], (record[f"{n}_low"], record[f"{n}_high"]) = point[n], interval[n]
-            records.append(record)
-            table = channel_table(raw.subset(test_index), choose_features(raw.subset(train_index)), settings)
-            chosen = table[table.chosen & table.channel.isin(PRINTED_CHANNELS)]
-            for _, c in chosen.iterrows():
-                print(
-                    f"  channel {c.channel:18s} ({c.feature:5s}) ρ {c.spearman:+.3f}  partial ρ given motion "
-                    f"{c.partial_spearman:+.3f} [{c.partial_spearman_low:+.3f}, {c.partial_spearman_high:+.3f}]"
-                )
-            channel_rows.append(table.assign(set=where["set"]))
+        channel_rows.append(table.assign(set=where["set"]))
     pd.DataFrame(records).to_csv(args.scores, index=False)
     pd.concat(channel_rows).to_csv(args.channels, index=False)
 

@@ -25,6 +25,7 @@ from the motion row) to a CSV file.
 """
 
 import argparse
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,7 @@ import pandas as pd
 from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.store import WITH_SAMPLES, DatasetReader, list_runs
 from estimator.deepsee.config import load_estimator_config
-from estimator.deepsee.data import reader_windows
+from estimator.deepsee.data import Windows, reader_windows
 from estimator.deepsee.metrics import bootstrap_settings, judged
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import MOTION_ISOTONIC, fit_references, motion_statistic, other_trials
@@ -100,6 +101,26 @@ def run_table(build: Path) -> pd.DataFrame:
     infos = [info for info in list_runs(build) if info.status in WITH_SAMPLES]
     what = [(i.sequence, i.environment, i.camera_model) for i in infos]
     return pd.DataFrame(what, index=[i.run for i in infos], columns=["sequence", "room", "camera"])
+
+
+def held_out_sets(
+    windows: Windows, what: pd.DataFrame, ceiling: np.ndarray
+) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+    """Each room of ``windows``, then each camera model (``what``: :func:`run_table`): the set's name ("held-out room
+    lab"), the indices of the other rooms' (cameras') windows to train on, and of this one's windows where ``ceiling``
+    has a value to judge on; prints the set's sizes."""
+    runs = windows.meta.run
+    for kind in ("room", "camera"):
+        of_window = runs.map(what[kind]).to_numpy()
+        for value in sorted(set(of_window)):
+            train = np.flatnonzero(of_window != value)
+            test = np.flatnonzero((of_window == value) & np.isfinite(ceiling))
+            name = f"held-out {kind} {value}"
+            print(
+                f"\n{name}: trained on {runs.iloc[train].nunique()} runs, judged on {runs.iloc[test].nunique()} runs, "
+                f"{len(test)} windows"
+            )
+            yield name, train, test
 
 
 def other_trial_labels(build: Path) -> tuple[pd.Series, dict[str, list[str]]]:

@@ -13,7 +13,7 @@ where the ceiling has a value, with bootstrap intervals over runs and the paired
 
 import numpy as np
 import pandas as pd
-from expected_error import arguments, judge_rows, run_table
+from expected_error import arguments, held_out_sets, judge_rows, run_table
 
 from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.store import DatasetReader
@@ -42,40 +42,31 @@ def main() -> None:
     print(f"{build}: {len(what)} runs, {len(windows)} windows; served model {model}")
 
     records = []
-    for kind in ("room", "camera"):
-        of_window = windows.meta.run.map(what[kind]).to_numpy()
-        for value in sorted(set(of_window)):
-            train = windows.subset(np.flatnonzero(of_window != value))
-            test_index = np.flatnonzero((of_window == value) & np.isfinite(ceiling))
-            test = windows.subset(test_index)
-            forest = fit_random_forest(
-                train.rts, transform.forward(train.error_m), config.random_forest, config.seed, jobs=2
-            )
-            motion_fit = fit_references(train, pulses).motion_fit
-            train_motion = np.maximum(motion_fit.predict(motion_statistic(train.rts)), FLOOR_M)
-            residual = fit_random_forest(
-                train.rts,
-                np.log(np.maximum(train.error_m, FLOOR_M / 10)) - np.log(train_motion),
-                config.random_forest,
-                config.seed,
-                jobs=2,
-            )
-            motion = motion_statistic(test.rts)
-            estimates = {
-                MOTION_ISOTONIC: motion_fit.predict(motion),
-                FOREST: transform.inverse(forest.predict(window_statistics(test.rts))),
-                RESIDUAL: np.maximum(motion_fit.predict(motion), FLOOR_M)
-                * np.exp(residual.predict(window_statistics(test.rts))),
-                SERVED: served[test_index],
-                CEILING: ceiling[test_index],
-            }
-            rows = {name: judged(test.meta, e, test.error_m, motion, pulses) for name, e in estimates.items()}
-            print(
-                f"\nheld-out {kind} {value}: trained on {train.meta.run.nunique()} runs, judged on "
-                f"{test.meta.run.nunique()} runs, {len(test)} windows"
-            )
-            where = {"set": f"held-out {kind} {value}"}
-            records += judge_rows(rows, settings, pulses.max_pulses + 1, config.evaluation.large_error_m, where)
+    for set_name, train_index, test_index in held_out_sets(windows, what, ceiling):
+        train, test = windows.subset(train_index), windows.subset(test_index)
+        target = transform.forward(train.error_m)
+        forest = fit_random_forest(train.rts, target, config.random_forest, config.seed, jobs=2)
+        motion_fit = fit_references(train, pulses).motion_fit
+        train_motion = np.maximum(motion_fit.predict(motion_statistic(train.rts)), FLOOR_M)
+        residual = fit_random_forest(
+            train.rts,
+            np.log(np.maximum(train.error_m, FLOOR_M / 10)) - np.log(train_motion),
+            config.random_forest,
+            config.seed,
+            jobs=2,
+        )
+        motion = motion_statistic(test.rts)
+        estimates = {
+            MOTION_ISOTONIC: motion_fit.predict(motion),
+            FOREST: transform.inverse(forest.predict(window_statistics(test.rts))),
+            RESIDUAL: np.maximum(motion_fit.predict(motion), FLOOR_M)
+            * np.exp(residual.predict(window_statistics(test.rts))),
+            SERVED: served[test_index],
+            CEILING: ceiling[test_index],
+        }
+        rows = {name: judged(test.meta, e, test.error_m, motion, pulses) for name, e in estimates.items()}
+        where = {"set": set_name}
+        records += judge_rows(rows, settings, pulses.max_pulses + 1, config.evaluation.large_error_m, where)
     pd.DataFrame(records).to_csv(args.scores, index=False)
 
 
