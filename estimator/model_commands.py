@@ -150,14 +150,24 @@ def _lockbox(args: argparse.Namespace) -> int:
     model = _default_model(args)
     splits = read_splits(args.splits, args.data)
     result = evaluate_lockbox(
-        args.data, splits, model, args.round, config, pulses, load_window_config(), _device(args.device, None), args.row
+        args.data,
+        splits,
+        model,
+        args.round,
+        config,
+        pulses,
+        load_window_config(),
+        _device(args.device, None),
+        args.row,
+        args.fresh,
     )
     box = splits.lockbox
     where = f" ({box.environment}, {box.camera_model})" if box else ""
+    fresh = f" A fresh lockbox: the runs of {', '.join(str(p) for p in args.fresh)} only." if args.fresh else ""
     notes = [
         f"The lockbox{where} judged for {model}, "
         f"trained on round {args.round} of {args.splits}; the reference rows are fitted on that round's "
-        f"training data. Data: {', '.join(str(p) for p in args.data)}."
+        f"training data. Data: {', '.join(str(p) for p in args.data)}.{fresh}"
     ]
     path = write_report(result, config, pulses, args.out, notes)
     print(path.read_text())
@@ -416,6 +426,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     p.add_argument("--out", type=Path, required=True, help="report folder")
     p.add_argument("--row", default=DEEPSEE, help=f"the model's row name in the report (default {DEEPSEE})")
+    p.add_argument(
+        "--fresh",
+        type=Path,
+        nargs="+",
+        help="dataset folders of new renders of the lockbox's room and camera: judged instead of the splits' own "
+        "lockbox runs (when those have been judged once already)",
+    )
     p.set_defaults(func=_lockbox)
 
     p = sub.add_parser("finetune", help="stage (d) on labelled session folders (real cameras with ground truth)")

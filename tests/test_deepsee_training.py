@@ -22,6 +22,7 @@ from estimator.deepsee.model import DeepSEE
 from estimator.deepsee.rows import Variant, row
 from estimator.deepsee.run_folder import CONFIG_JSON, LOSS_PNG, METRICS_CSV, MODEL_PT, RunFolder
 from estimator.deepsee.stages import train_row
+from seesys.core import rts_schema
 from seesys.io.core_settings import load_window_config
 
 pytestmark = pytest.mark.usefixtures("single_thread")
@@ -287,23 +288,30 @@ def test_augmentation_reaches_every_training_stage(tmp_path, monkeypatch):
     assert np.load(tmp_path / "run" / "state" / "cache_validation_rts.npy").shape[0] == 1  # as it is
 
 
-def test_the_forest_without_the_geometry_channels_takes_only_the_others(tiny_dataset, tmp_path):
+@pytest.mark.parametrize(
+    ("row_name", "dropped"),
+    [
+        ("random_forest_wo_geometry", lambda c: c.category in rts_schema.GEOMETRY_CATEGORIES),
+        ("random_forest_wo_shear", lambda c: c.name == "residual_shear"),
+    ],
+)
+def test_a_forest_ablation_takes_only_the_channels_it_keeps(tiny_dataset, tmp_path, row_name, dropped):
     from estimator.artefact.compatibility import rts_columns
     from estimator.deepsee.predictors import load_predictor
-    from seesys.core import rts_schema
 
     data = _data(tiny_dataset)
     with Progress(disable=True) as progress:
-        path = train_row(tmp_path / "forest", row("random_forest_wo_geometry"), data, _context(progress))
+        path = train_row(tmp_path / "forest", row(row_name), data, _context(progress))
     predictor = load_predictor(
         path, LabelTransform(tiny_config().label_transform.k), 64, torch.device("cpu"), load_window_config()
     )
-    geometry = [c.name for c in rts_schema.CHANNELS if c.category in rts_schema.GEOMETRY_CATEGORIES]
+    hidden = [c.name for c in rts_schema.CHANNELS if dropped(c)]
+    assert hidden and len(hidden) < rts_schema.NUM_CHANNELS
     assert [rts_schema.CHANNEL_NAMES[c] for c in rts_columns(predictor.record)] == [
-        name for name in rts_schema.CHANNEL_NAMES if name not in geometry
+        name for name in rts_schema.CHANNEL_NAMES if name not in hidden
     ]
-    # Its estimates do not move when the geometry channels do.
+    # Its estimates do not move when the hidden channels do.
     test = data["test"]
     changed = test.rts.copy()
-    changed[..., [rts_schema.index_of(name) for name in geometry]] += 3.0
+    changed[..., [rts_schema.index_of(name) for name in hidden]] += 3.0
     np.testing.assert_array_equal(predictor.estimates(test).metres, predictor.estimates(test.with_rts(changed)).metres)

@@ -157,7 +157,7 @@ def test_the_lockbox_is_judged_for_a_shipped_model_only_through_its_own_command(
     from estimator.dataset.build import label_run
     from estimator.dataset.config import load_dataset_config
     from estimator.dataset.splits import Lockbox, Splits
-    from estimator.dataset.store import COMPLETED, RunInfo, write_run
+    from estimator.dataset.store import COMPLETED, RUNS_DIR, RunInfo, write_run
     from seesys.core import camera_normalisation
     from seesys.io.core_settings import load_label_config
     from slam_monitor.orbslam_settings import SlamMode
@@ -190,35 +190,39 @@ def test_the_lockbox_is_judged_for_a_shipped_model_only_through_its_own_command(
     )
     tiny = Splits.from_json(tiny_dataset.splits.read_text())
     splits = tmp_path / "splits.json"
-    splits.write_text(
-        dataclasses.replace(
-            tiny, lockbox=Lockbox(lockbox.environment, lockbox.camera_model, lockbox.sha256, [name])
-        ).to_json()
-    )
+    box = Lockbox(lockbox.environment, lockbox.camera_model, lockbox.sha256, [name])
+    splits.write_text(dataclasses.replace(tiny, lockbox=box).to_json())
+
+    def judge(data: Path, split_file: Path, out: Path, *fresh: Path) -> int:
+        arguments = ["estimator", "lockbox", "--data", str(data), "--splits", str(split_file)]
+        arguments += ["--model", str(_model(trained_runs)), "--out", str(out)]
+        return main(arguments + (["--fresh", *map(str, fresh)] if fresh else []))
+
     out = tmp_path / "lockbox"
-    assert (
-        main(
-            [
-                "estimator",
-                "lockbox",
-                "--data",
-                str(root),
-                "--splits",
-                str(splits),
-                "--model",
-                str(_model(trained_runs)),
-                "--out",
-                str(out),
-            ]
-        )
-        == 0
-    )
+    assert judge(root, splits, out) == 0
     scores = pd.read_csv(out / "scores.csv")
     assert set(scores.set) == {"lockbox", f"lockbox room {lockbox.environment}"}  # no run through its camera
     assert set(scores.row) == {"deepsee", "constant", "always_top", "motion_isotonic"}
     assert (scores.windows == len(arrays.samples[arrays.samples.usable.astype(bool)])).all()
     channels = pd.read_csv(out / CHANNELS_CSV)
     assert set(channels.set) == set(scores.set) and channels.chosen.any()
+    # The same run as a fresh lockbox (new renders in their own folder, beside a build whose lockbox holds none):
+    # judged alone, as before.
+    fresh = tmp_path / "fresh"
+    shutil.copytree(root, fresh, ignore=shutil.ignore_patterns(RUNS_DIR))
+    shutil.copytree(root / RUNS_DIR / name, fresh / RUNS_DIR / name)
+    empty = tmp_path / "empty-box-splits.json"
+    empty.write_text(dataclasses.replace(tiny, lockbox=dataclasses.replace(box, runs=[])).to_json())
+    assert judge(tiny_dataset.root, empty, tmp_path / "fresh-lockbox", fresh) == 0
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "fresh-lockbox" / "scores.csv"), scores)
+    capsys.readouterr()
+    # A fresh run that the splits already hold, or one of another room and camera, is refused in one line.
+    assert judge(root, splits, tmp_path / "stale", fresh) != 0
+    error = capsys.readouterr().err.strip()
+    assert f"fresh run {name} is a run of the splits already" in error and len(error.splitlines()) == 1
+    assert judge(tiny_dataset.root, empty, tmp_path / "other", fresh, tiny_dataset.root) != 0
+    error = capsys.readouterr().err.strip()
+    assert "is neither in the lockbox's room" in error and len(error.splitlines()) == 1
     # The splits of the rounds hold none: nothing to judge, said in one line.
     capsys.readouterr()
     assert (

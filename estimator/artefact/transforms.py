@@ -42,15 +42,25 @@ class LabelTransform:
         return {"name": "log1p_scaled", "k": self.k}
 
 
-def rts_channel_mask(drop_categories: tuple[str, ...] = (), channels: tuple[str, ...] | None = None) -> np.ndarray:
+def rts_channel_mask(
+    drop_categories: tuple[str, ...] = (),
+    channels: tuple[str, ...] | None = None,
+    drop_channels: tuple[str, ...] = (),
+) -> np.ndarray:
     """(C,) float32 over ``channels`` (names; default every channel of the schema, in its order): 1 for the RTS
-    channels the model sees, 0 for those of the dropped categories."""
+    channels the model sees, 0 for those of the dropped categories and for the dropped channels themselves. Raises
+    ValueError naming an unknown category or channel."""
     unknown = sorted(set(drop_categories) - set(rts_schema.CATEGORIES))
     if unknown:
         raise ValueError(f"unknown RTS categories {unknown}; categories are {', '.join(rts_schema.CATEGORIES)}")
+    unknown = sorted(set(drop_channels) - set(rts_schema.CHANNEL_NAMES))
+    if unknown:
+        raise ValueError(f"unknown RTS channels {unknown}; channels are {', '.join(rts_schema.CHANNEL_NAMES)}")
     category = {c.name: c.category for c in rts_schema.CHANNELS}
     names = rts_schema.CHANNEL_NAMES if channels is None else channels
-    return np.array([0.0 if category[name] in drop_categories else 1.0 for name in names], np.float32)
+    return np.array(
+        [0.0 if category[name] in drop_categories or name in drop_channels else 1.0 for name in names], np.float32
+    )
 
 
 def psd_layer_mask(drop_layers: tuple[str, ...] = ()) -> np.ndarray:

@@ -25,7 +25,7 @@ import pandas as pd
 import torch
 
 from estimator.artefact.transforms import LabelTransform
-from estimator.dataset.splits import Splits, set_indices
+from estimator.dataset.splits import PARTS, Lockbox, Splits, run_table, set_indices
 from estimator.dataset.store import DatasetReader
 from estimator.deepsee.channels import RawSet, channel_table, choose_features
 from estimator.deepsee.config import EstimatorConfig
@@ -352,6 +352,27 @@ def evaluate(
 LOCKBOX = "lockbox"
 
 
+def _fresh_lockbox(splits: Splits, fresh: list[Path]) -> Lockbox:
+    """The lockbox of ``splits`` holding the runs of the ``fresh`` folders instead of its own. Raises
+    :class:`SeesysError` when the splits define no lockbox, or a fresh run is of another room and camera (it would
+    not be a lockbox run) or is already a run of the splits (it is not new)."""
+    box = splits.lockbox
+    if box is None:
+        raise SeesysError("these splits define no lockbox (made before the lockbox): a fresh one cannot be judged")
+    runs = run_table(fresh)
+    outside = runs.run[(runs.environment != box.environment) & (runs.camera_model != box.camera_model)]
+    if len(outside):
+        raise SeesysError(
+            f"fresh run {outside.iloc[0]} is neither in the lockbox's room {box.environment} nor through its camera "
+            f"{box.camera_model}: it is not a lockbox run"
+        )
+    known = set(box.runs).union(*(getattr(r, part) for r in splits.rounds for part in (*PARTS, "excluded")))
+    seen = sorted(known.intersection(runs.run))
+    if seen:
+        raise SeesysError(f"fresh run {seen[0]} is a run of the splits already: a fresh lockbox holds new renders only")
+    return Lockbox(box.environment, box.camera_model, box.sha256, sorted(runs.run))
+
+
 def evaluate_lockbox(
     roots: list[Path],
     splits: Splits,
@@ -362,18 +383,25 @@ def evaluate_lockbox(
     windows: WindowConfig,
     device: torch.device,
     row: str = DEEPSEE,
+    fresh: list[Path] | None = None,
 ) -> Evaluation:
     """``model`` (a shipped model, trained on round ``round_index`` of ``splits``; named ``row`` in the tables) on
     the lockbox's runs: all of them, those of its room and those through its camera, beside the reference rows
-    fitted on that round's training windows and the ceiling. Raises :class:`SeesysError` when the splits have no
-    lockbox run."""
+    fitted on that round's training windows and the ceiling.
+
+    With ``fresh`` (dataset folders of new renders), the lockbox judged is their runs instead of the splits' own:
+    a fresh lockbox, for when the build's lockbox runs have been judged once already. Raises :class:`SeesysError`
+    when there is no lockbox run to judge, and when a fresh run is outside the lockbox's room and camera or is a
+    run of the splits."""
     box = splits.lockbox
+    if fresh:
+        box = _fresh_lockbox(splits, fresh)
     if box is None or not box.runs:
         raise SeesysError(
             "these splits hold no lockbox runs (made before the lockbox, or the build has none of its "
             "room and camera): there is nothing to judge"
         )
-    reader = DatasetReader(roots, runs=box.runs, usable_only=True)
+    reader = DatasetReader(list(fresh) if fresh else roots, runs=box.runs, usable_only=True)
     data = reader_windows(reader)
     index = {
         LOCKBOX: np.arange(len(data)),
@@ -384,7 +412,7 @@ def evaluate_lockbox(
     sets = {name: data.subset(rows) for name, rows in index.items()}
     train_reader = split_readers(roots, splits, round_index, ("train",))["train"]
     tables = _Tables()
-    how = _Judging([Path(r) for r in roots], config, pulses, windows, device)
+    how = _Judging([Path(r) for r in [*roots, *(fresh or [])]], config, pulses, windows, device)
     _judge_round(tables, round_index, sets, set(sets), reader_windows(train_reader), [(row, Path(model))], how)
     raw = raw_set(reader)
     raw_sets = {name: raw.subset(rows) for name, rows in index.items()}

@@ -268,7 +268,8 @@ class DeepSEE(nn.Module):
         self.thresholds_m = tuple(float(t) for t in thresholds_m)
         dim = config.dim
         # Over the channels the model takes: a model of an earlier schema takes fewer than the schema has now.
-        self.register_buffer("rts_mask", torch.from_numpy(rts_channel_mask(variant.drop_rts, rts_channels)))
+        rts_mask = rts_channel_mask(variant.drop_rts, rts_channels, variant.drop_channels)
+        self.register_buffer("rts_mask", torch.from_numpy(rts_mask))
         self.register_buffer("psd_mask", torch.from_numpy(psd_layer_mask(variant.drop_psd) / 255.0).float())
         self.rts_encoder = RtsEncoder(dim, config.rts, shape.channels)
         self.psd_encoder = PsdEncoder(dim, config.psd, shape) if variant.use_psd else None

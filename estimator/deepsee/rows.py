@@ -19,6 +19,7 @@ class Variant:
     use_psd: bool = True
     fusion: str = "cross_attention"  # or "concat": fully connected fusion of the pooled encodings (w/o CA)
     drop_rts: tuple[str, ...] = ()  # RTS channel categories set to zero
+    drop_channels: tuple[str, ...] = ()  # single RTS channels set to zero (one channel's own ablation)
     drop_psd: tuple[str, ...] = ()  # PSD layers set to zero
 
     def __post_init__(self) -> None:
@@ -47,6 +48,15 @@ ROWS: tuple[Row, ...] = (
         "RTS Ablation Study",
         RANDOM_FOREST,
         Variant(drop_rts=rts_schema.GEOMETRY_CATEGORIES),
+        ssl=False,
+    ),
+    # The forest without schema v5's residual shear: the forest of schema v4's channels, trained on the same windows.
+    Row(
+        "random_forest_wo_shear",
+        "Random Forest w/o Shear",
+        "RTS Ablation Study",
+        RANDOM_FOREST,
+        Variant(drop_channels=("residual_shear",)),
         ssl=False,
     ),
     Row("wo_psd", "DeepSEE-w/o-PSD", "Model Study", DEEPSEE, Variant(use_psd=False), ablation=True),

@@ -437,11 +437,12 @@ def train_row(out: Path, row: Row, data: dict[str, Windows], ctx: TrainContext, 
 
 
 def _train_forest(run: RunFolder, train: Windows, ctx: TrainContext, training: dict, variant: Variant) -> Path:
-    """The forest on the channels the row keeps: those of ``variant.drop_rts``'s categories are left out of its
-    features, and its record names only the channels it takes (a prediction selects them by name)."""
+    """The forest on the channels the row keeps: those of ``variant.drop_rts``'s categories and the channels of
+    ``variant.drop_channels`` are left out of its features, and its record names only the channels it takes (a
+    prediction selects them by name)."""
     path = run.path / FOREST_PICKLE
     if not path.exists():
-        seen = rts_channel_mask(variant.drop_rts).astype(bool)
+        seen = rts_channel_mask(variant.drop_rts, drop_channels=variant.drop_channels).astype(bool)
         kept = [name for name, keep in zip(rts_schema.CHANNEL_NAMES, seen) if keep]
         forest = fit_random_forest(
             train.rts[..., seen],
