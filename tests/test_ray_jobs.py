@@ -4,12 +4,12 @@ run's does, a task reads the driver's settings, dependencies, one-line errors, r
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 
 import pytest
 import torch
+from testkit.ports import refused_port
 from testkit.sample import REPO, run_seesys
 
 from estimator.dataset.splits import Splits
@@ -157,17 +157,11 @@ def test_table_jobs_reserve_a_gpu_on_cuda_and_ablations_wait_for_deepsee():
             LocalExecutor().run([jobs[job_name(0, "lstm")]], RecordingProgress())
 
 
-def _closed_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.system
 def test_an_unreachable_or_malformed_address_is_a_one_line_error(tmp_path):
     out = tmp_path / "dataset"
-    port = _closed_port()
-    result = run_seesys("dataset", "build", "--out", str(out), "--envs", "lab", "--ray", f"127.0.0.1:{port}")
+    with refused_port() as port:
+        result = run_seesys("dataset", "build", "--out", str(out), "--envs", "lab", "--ray", f"127.0.0.1:{port}")
     assert result.returncode == 2, result.stderr
     assert result.stderr.strip().splitlines() == [
         f"seesys: error: cannot reach the Ray cluster at 127.0.0.1:{port}: "

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -16,6 +15,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from testkit.mocap import MARKER_CAMERA, OFFSET_S, camera_in_vicon, write_simulated_session
+from testkit.ports import refused_port
 
 from seesys.core.errors import SeesysError
 from seesys.core.trajectory import Poses
@@ -138,9 +138,7 @@ def test_live_logging_with_the_mock_backend_stamps_on_receipt(tmp_path):
 
 
 def test_an_unreachable_server_is_an_error_not_a_hang():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]  # bound but not listening: connections are refused
+    with refused_port() as port:
         cfg = dataclasses.replace(load_study_config().mocap, backend="vicon", hostname="127.0.0.1", port=port)
         with pytest.raises(MocapUnavailable, match=f"127.0.0.1:{port}"):
             connect(cfg)

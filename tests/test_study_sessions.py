@@ -7,7 +7,6 @@ import io
 import json
 import os
 import shutil
-import socket
 import tempfile
 import time
 from pathlib import Path
@@ -16,6 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from rich.console import Console
+from testkit.ports import refused_port
 from testkit.sample import SAMPLE
 
 from seesys.core.errors import SeesysError
@@ -228,24 +228,22 @@ def no_sound_card(monkeypatch):
     if not JackDummy.available():
         pytest.skip("jackd is not installed (apt package jackd2)")
     root = Path(tempfile.mkdtemp(prefix="snc", dir="/tmp"))  # ipc paths are at most 107 bytes
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        closed_port = s.getsockname()[1]
-    configs = write_config_dir(
-        root / "configs",
-        {
-            "endpoint": f"ipc://{root}/handoff",
-            "estimates_endpoint": f"ipc://{root}/estimates",
-            "features_endpoint": f"ipc://{root}/features",
-            "output_device": "no-such-sound-card",
-            "backend": "vicon",
-            "hostname": "127.0.0.1",
-            "port": closed_port,
-            "connect_timeout_s": 2.0,
-        },
-    )
-    monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
-    yield root
+    with refused_port() as closed_port:
+        configs = write_config_dir(
+            root / "configs",
+            {
+                "endpoint": f"ipc://{root}/handoff",
+                "estimates_endpoint": f"ipc://{root}/estimates",
+                "features_endpoint": f"ipc://{root}/features",
+                "output_device": "no-such-sound-card",
+                "backend": "vicon",
+                "hostname": "127.0.0.1",
+                "port": closed_port,
+                "connect_timeout_s": 2.0,
+            },
+        )
+        monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
+        yield root
     shutil.rmtree(root, ignore_errors=True)
 
 
