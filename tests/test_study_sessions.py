@@ -223,24 +223,21 @@ def no_sound_card(monkeypatch):
     """Configs with private ipc endpoints, an output device no machine has and the mocap at a closed port: an
     audible condition must fall back to a JACK dummy server, and the mocap logger fails while starting."""
     from advisory.sandbox import JackDummy
-    from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+    from estimator.service.sandbox import private_configs
+    from seesys.io.config import CONFIG_DIR_ENV
 
     if not JackDummy.available():
         pytest.skip("jackd is not installed (apt package jackd2)")
     root = Path(tempfile.mkdtemp(prefix="snc", dir="/tmp"))  # ipc paths are at most 107 bytes
     with refused_port() as closed_port:
-        configs = write_config_dir(
-            root / "configs",
-            {
-                "endpoint": f"ipc://{root}/handoff",
-                "estimates_endpoint": f"ipc://{root}/estimates",
-                "features_endpoint": f"ipc://{root}/features",
-                "output_device": "no-such-sound-card",
-                "backend": "vicon",
-                "hostname": "127.0.0.1",
-                "port": closed_port,
-                "connect_timeout_s": 2.0,
-            },
+        configs, _ = private_configs(
+            root,
+            endpoint=f"ipc://{root}/handoff",
+            output_device="no-such-sound-card",
+            backend="vicon",
+            hostname="127.0.0.1",
+            port=closed_port,
+            connect_timeout_s=2.0,
         )
         monkeypatch.setenv(CONFIG_DIR_ENV, str(configs))
         yield root

@@ -27,7 +27,8 @@ from testkit.polling import wait_for
 from testkit.sample import REPO, stretched_sample
 
 from advisory.sandbox import JackDummy
-from seesys.io.config import CONFIG_DIR_ENV, write_config_dir
+from estimator.service.sandbox import private_configs
+from seesys.io.config import CONFIG_DIR_ENV
 from study.config import load_study_config
 from study.protocol import make_protocol, write_protocol
 from study.sessions import participant_metrics, read_events, read_run
@@ -42,15 +43,7 @@ def study():
     if not JackDummy.available():
         pytest.skip("jackd is not installed (apt package jackd2)")
     root = Path(tempfile.mkdtemp(prefix="sstop", dir="/tmp"))  # ipc paths are at most 107 bytes
-    configs = write_config_dir(
-        root / "configs",
-        {
-            "endpoint": f"ipc://{root}/handoff",
-            "estimates_endpoint": f"ipc://{root}/estimates",
-            "features_endpoint": f"ipc://{root}/features",
-            "output_device": "no-such-sound-card",
-        },
-    )
+    configs, _ = private_configs(root, endpoint=f"ipc://{root}/handoff", output_device="no-such-sound-card")
     source = stretched_sample(root / "source", STRETCH)
     times = [float(line.split()[0]) for line in (source / "rgb.txt").read_text().splitlines() if line[:1] != "#"]
     pd.DataFrame({"frame_index": range(len(times)), "timestamp": times, "error_m": 0.006}).to_csv(
