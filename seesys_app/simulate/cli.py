@@ -113,7 +113,7 @@ def register(study_commands: argparse._SubParsersAction) -> None:
         "simulate",
         help="a closed-loop simulated study: simulated operators through SLAM, model and advisory",
         description="Simulated operators scan objects in a rendered room; every frame goes through ORB-SLAM3, the "
-        "RTS monitor, the shipped DeepSEE model and the advisory, and the pulses change how the "
+        "RTS monitor, the served model (configs/service.toml) and the advisory, and the pulses change how the "
         "operator moves. Writes a study folder that `seesys analyze` reads; run it again to resume. "
         "Defaults: configs/simulate.toml.",
     )
