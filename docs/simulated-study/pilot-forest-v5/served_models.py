@@ -1,0 +1,103 @@
+"""Models read offline on a pilot's seesys sessions, beside the constant and the motion row: how each reads the
+study's task, whose error no build was made of.
+
+Each session of PILOT's `seesys` condition (its frames, monitor logs and ground truth: a simulated study keeps
+them) is labelled as the study labels it (the 10-frame error, `seesys.io.session_labels`), and every window the
+device logged is estimated offline by each MODEL (`seesys estimator estimate` reproduces the live estimates of the
+model the pilot ran). The constant and the motion rows are fitted on the training runs of BUILD's final split
+(`seesys dataset splits --final`), as for the lockbox. Each row is judged on all sessions pooled (intervals over
+sessions) and on each session alone; each model is compared with the motion row, paired over sessions.
+
+    .venv/bin/python docs/simulated-study/pilot-forest-v5/served_models.py PILOT BUILD FINAL_SPLITS \
+        --model NAME=MODEL [--model NAME=MODEL ...] --out served_models.csv --differences differences.csv
+"""
+
+import argparse
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from estimator.artefact.transforms import LabelTransform
+from estimator.dataset.splits import read_splits
+from estimator.deepsee.config import load_estimator_config
+from estimator.deepsee.data import concat, reader_windows, session_windows, split_readers
+from estimator.deepsee.evaluate import DIFFERENCES
+from estimator.deepsee.metrics import bootstrap_settings, judged, score
+from estimator.deepsee.predictors import load_predictor
+from estimator.deepsee.references import MOTION_ISOTONIC, fit_references, motion_statistic
+from estimator.deepsee.yardsticks import paired_differences, yardsticks
+from seesys.io.core_settings import load_pulse_settings, load_window_config
+
+ALL = "all sessions"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("pilot", type=Path)
+    parser.add_argument("build", type=Path)
+    parser.add_argument("final_splits", type=Path)
+    parser.add_argument("--model", action="append", required=True, metavar="NAME=MODEL")
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--differences", type=Path, required=True)
+    args = parser.parse_args()
+
+    config, pulses, window_config = load_estimator_config(), load_pulse_settings(), load_window_config()
+    settings = bootstrap_settings(config.evaluation)
+    transform = LabelTransform(config.label_transform.k)
+    sessions = sorted(args.pilot.glob("participants/*/task-seesys/attempt-*"))
+    each = {s.parts[-3]: session_windows(s, window_config, labelled=True) for s in sessions}
+    for participant, windows in each.items():
+        windows.meta["run"] = participant  # every attempt folder is called attempt-N: the participant names it
+    data = concat(list(each.values()))
+    train = reader_windows(
+        split_readers([args.build], read_splits(args.final_splits, [args.build]), 0, ("train",))["train"]
+    )
+    print(f"{len(each)} sessions, {len(data)} labelled windows; {len(train)} training windows of the final split")
+
+    estimates = fit_references(train, pulses).estimates(data)
+    for entry in args.model:
+        name, _, path = entry.partition("=")
+        estimates[name] = load_predictor(Path(path), transform, config.evaluation.batch_size).metres(data)
+
+    motion = motion_statistic(data.rts)
+    alpha = pulses.equation2.alpha_m
+    records = []
+    for row, estimate in estimates.items():
+        for name in (ALL, *each):
+            rows = np.ones(len(data), bool) if name == ALL else (data.meta.run == name).to_numpy()
+            scores = score(
+                data.meta[rows], estimate[rows], data.error_m[rows], config.evaluation, pulses, motion=motion[rows]
+            )
+            # The level the windows are read at beside their truth's: the median and the share at or above alpha.
+            level = {
+                "true_median_m": float(np.median(data.error_m[rows])),
+                "estimate_median_m": float(np.median(estimate[rows])),
+                "true_share_alpha": float(np.mean(data.error_m[rows] >= alpha)),
+                "estimate_share_alpha": float(np.mean(estimate[rows] >= alpha)),
+            }
+            records.append({"set": name, "row": row, **level, **asdict(scores)})
+    pd.DataFrame(records).to_csv(args.out, index=False)
+
+    def statistic(j):
+        return yardsticks(j, pulses.max_pulses + 1, config.evaluation.large_error_m)
+
+    against = judged(data.meta, estimates[MOTION_ISOTONIC], data.error_m, motion, pulses)
+    differences = []
+    for row, estimate in estimates.items():
+        if row == MOTION_ISOTONIC:
+            continue
+        points, intervals = paired_differences(
+            judged(data.meta, estimate, data.error_m, motion, pulses), against, statistic, DIFFERENCES, settings
+        )
+        values = {"set": ALL, "row": row, "against": MOTION_ISOTONIC}
+        for name in DIFFERENCES:
+            values[name], (values[f"{name}_low"], values[f"{name}_high"]) = points[name], intervals[name]
+        differences.append(values)
+    pd.DataFrame(differences).to_csv(args.differences, index=False)
+    print(f"{args.out}, {args.differences}")
+
+
+if __name__ == "__main__":
+    main()
