@@ -6,10 +6,12 @@ them) is labelled as the study labels it (the 10-frame error, `seesys.io.session
 device logged is estimated offline by each MODEL (`seesys estimator estimate` reproduces the live estimates of the
 model the pilot ran). The constant and the motion rows are fitted on the training runs of BUILD's final split
 (`seesys dataset splits --final`), as for the lockbox. Each row is judged on all sessions pooled (intervals over
-sessions) and on each session alone; each model is compared with the motion row, paired over sessions.
+sessions) and on each session alone; each row is compared with the motion row (and with each --against row), paired
+over sessions.
 
     .venv/bin/python docs/simulated-study/pilot-forest-v5/served_models.py PILOT BUILD FINAL_SPLITS \
-        --model NAME=MODEL [--model NAME=MODEL ...] --out served_models.csv --differences differences.csv
+        --model NAME=MODEL [--model NAME=MODEL ...] [--against NAME] --out served_models.csv \
+        --differences differences.csv
 """
 
 import argparse
@@ -41,6 +43,7 @@ def main() -> None:
     parser.add_argument("--model", action="append", required=True, metavar="NAME=MODEL")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--differences", type=Path, required=True)
+    parser.add_argument("--against", action="append", default=[], metavar="NAME", help="also compare with this row")
     args = parser.parse_args()
 
     config, pulses, window_config = load_estimator_config(), load_pulse_settings(), load_window_config()
@@ -83,18 +86,17 @@ def main() -> None:
     def statistic(j):
         return yardsticks(j, pulses.max_pulses + 1, config.evaluation.large_error_m)
 
-    against = judged(data.meta, estimates[MOTION_ISOTONIC], data.error_m, motion, pulses)
+    rows = {row: judged(data.meta, estimate, data.error_m, motion, pulses) for row, estimate in estimates.items()}
     differences = []
-    for row, estimate in estimates.items():
-        if row == MOTION_ISOTONIC:
-            continue
-        points, intervals = paired_differences(
-            judged(data.meta, estimate, data.error_m, motion, pulses), against, statistic, DIFFERENCES, settings
-        )
-        values = {"set": ALL, "row": row, "against": MOTION_ISOTONIC}
-        for name in DIFFERENCES:
-            values[name], (values[f"{name}_low"], values[f"{name}_high"]) = points[name], intervals[name]
-        differences.append(values)
+    for against in (MOTION_ISOTONIC, *args.against):
+        for row in rows:
+            if row == against:
+                continue
+            points, intervals = paired_differences(rows[row], rows[against], statistic, DIFFERENCES, settings)
+            values = {"set": ALL, "row": row, "against": against}
+            for name in DIFFERENCES:
+                values[name], (values[f"{name}_low"], values[f"{name}_high"]) = points[name], intervals[name]
+            differences.append(values)
     pd.DataFrame(differences).to_csv(args.differences, index=False)
     print(f"{args.out}, {args.differences}")
 
