@@ -69,16 +69,16 @@ def main() -> None:
     records = []
     for row, estimate in estimates.items():
         for name in (ALL, *each):
-            rows = np.ones(len(data), bool) if name == ALL else (data.meta.run == name).to_numpy()
+            mask = np.ones(len(data), bool) if name == ALL else (data.meta.run == name).to_numpy()
             scores = score(
-                data.meta[rows], estimate[rows], data.error_m[rows], config.evaluation, pulses, motion=motion[rows]
+                data.meta[mask], estimate[mask], data.error_m[mask], config.evaluation, pulses, motion=motion[mask]
             )
             # The level the windows are read at beside their truth's: the median and the share at or above alpha.
             level = {
-                "true_median_m": float(np.median(data.error_m[rows])),
-                "estimate_median_m": float(np.median(estimate[rows])),
-                "true_share_alpha": float(np.mean(data.error_m[rows] >= alpha)),
-                "estimate_share_alpha": float(np.mean(estimate[rows] >= alpha)),
+                "true_median_m": float(np.median(data.error_m[mask])),
+                "estimate_median_m": float(np.median(estimate[mask])),
+                "true_share_alpha": float(np.mean(data.error_m[mask] >= alpha)),
+                "estimate_share_alpha": float(np.mean(estimate[mask] >= alpha)),
             }
             records.append({"set": name, "row": row, **level, **asdict(scores)})
     pd.DataFrame(records).to_csv(args.out, index=False)
@@ -86,13 +86,15 @@ def main() -> None:
     def statistic(j):
         return yardsticks(j, pulses.max_pulses + 1, config.evaluation.large_error_m)
 
-    rows = {row: judged(data.meta, estimate, data.error_m, motion, pulses) for row, estimate in estimates.items()}
+    windows_of = {row: judged(data.meta, estimate, data.error_m, motion, pulses) for row, estimate in estimates.items()}
     differences = []
     for against in (MOTION_ISOTONIC, *args.against):
-        for row in rows:
+        for row in windows_of:
             if row == against:
                 continue
-            points, intervals = paired_differences(rows[row], rows[against], statistic, DIFFERENCES, settings)
+            points, intervals = paired_differences(
+                windows_of[row], windows_of[against], statistic, DIFFERENCES, settings
+            )
             values = {"set": ALL, "row": row, "against": against}
             for name in DIFFERENCES:
                 values[name], (values[f"{name}_low"], values[f"{name}_high"]) = points[name], intervals[name]
