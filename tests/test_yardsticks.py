@@ -53,6 +53,21 @@ def test_quadratic_kappa_by_hand():
     assert np.isnan(quadratic_kappa(np.zeros(3, int), np.zeros(3, int), 4))
 
 
+def test_quadratic_kappa_is_scikit_learns():
+    from sklearn.metrics import cohen_kappa_score
+
+    rng = np.random.default_rng(2)
+    for n in (2, 5, 60, 1000):
+        for _ in range(30):
+            truth = rng.integers(0, 5, size=n)
+            estimate = np.clip(truth + rng.integers(-2, 3, size=n), 0, 6)  # classes 5 and 6 are outside the 5 asked
+            inside = estimate < 5
+            if len(set(truth[inside]) | set(estimate[inside])) < 2:
+                continue  # 0 / 0: NaN here, scikit-learn's warning
+            reference = cohen_kappa_score(truth, estimate, labels=list(range(5)), weights="quadratic")
+            assert quadratic_kappa(truth, estimate, 5) == pytest.approx(reference, abs=1e-12)
+
+
 def test_sparsification_by_hand():
     truth = np.arange(1.0, 101.0)
     # A perfect order (any increasing function of the truth): AUSE 0; it removes the largest errors first.
@@ -80,6 +95,33 @@ def test_partial_spearman_removes_what_the_motion_explains():
     sees_the_rest = truth - motion
     assert partial_spearman(copies_motion, truth, motion) < 0.15  # what it knows is the motion
     assert partial_spearman(sees_the_rest, truth, motion) > 0.5
+
+
+def test_partial_spearman_is_pingouins_where_the_rank_correlations_are_invertible_and_defined_where_not():
+    import pingouin  # the reference: the same partial correlation from its inverse correlation matrix
+
+    rng = np.random.default_rng(1)
+    compared = 0
+    for n in (6, 40, 500):
+        for _ in range(20):
+            motion = rng.normal(size=n)
+            truth = motion + rng.normal(size=n)
+            estimate = np.round(truth + rng.normal(size=n), 1)  # with ties
+            table = pd.DataFrame({"e": estimate, "t": truth, "m": motion})
+            if np.linalg.det(table.rank().corr().to_numpy()) < 1e-6:
+                continue  # singular: pingouin's pseudo-inverse is no reference there (below)
+            reference = pingouin.partial_corr(table, x="e", y="t", covar="m", method="spearman")["r"].iloc[0]
+            assert partial_spearman(estimate, truth, motion) == pytest.approx(reference, abs=1e-12)
+            compared += 1
+    assert compared >= 50
+    truth, motion = rng.normal(size=100), rng.normal(size=100)
+    assert partial_spearman(truth, truth, motion) == 1.0  # a perfect estimate
+    assert partial_spearman(-truth, truth, motion) == -1.0
+    assert np.isnan(partial_spearman(np.exp(motion), truth, motion))  # ranked as the motion: nothing left
+    # Ranks 1..4 of the estimate, truth and motion with correlations -0.8, 0 and 0.6: a singular matrix whose partial
+    # correlation is (-0.8 - 0 * 0.6) / sqrt(1 * (1 - 0.36)) = -1 exactly.
+    estimate, truth, motion = np.array([1.0, 2, 3, 4]), np.array([4.0, 2, 3, 1]), np.array([3.0, 1, 4, 2])
+    assert partial_spearman(estimate, truth, motion) == pytest.approx(-1.0)
 
 
 def test_calibration_by_hand():

@@ -1,10 +1,12 @@
 """Yardsticks of estimate quality that do not reward the base rate, beside the Table 3 figures of
 :mod:`estimator.deepsee.metrics`. Pure: arrays in, numbers out.
 
-- **Quadratic-weighted Cohen's κ** of the Equation 2 classes of the 1/3 s bins (the advisory's unit), with
-  scikit-learn's ``cohen_kappa_score(weights="quadratic")`` over every class 0 … Equation 2's maximum: 1 when every
-  bin's class is right, 0 for any constant class (its agreement with the truth is what chance gives), below 0 when
-  worse than chance. Raw agreement rewards the most frequent class; κ does not.
+- **Quadratic-weighted Cohen's κ** of the Equation 2 classes of the 1/3 s bins (the advisory's unit), over every
+  class 0 … Equation 2's maximum: 1 when every bin's class is right, 0 for any constant class (its agreement with
+  the truth is what chance gives), below 0 when worse than chance. Raw agreement rewards the most frequent class; κ
+  does not. The value of scikit-learn's ``cohen_kappa_score(weights="quadratic")`` (the tests hold the two equal),
+  from a confusion matrix counted with ``np.bincount``: scikit-learn's checks of its arguments cost 3 ms a call in
+  the bootstrap's thousands.
 - **Sparsification** (per window): remove windows in order of decreasing estimate and follow the mean *true* error
   of the windows kept; the oracle removes them in order of decreasing truth, a random order keeps the mean where it
   started. Both curves are divided by the mean true error of all windows (so they start at 1) and sampled at the
@@ -14,8 +16,11 @@
   with equal estimates are removed together: each counts at the mean truth of its tie, so a constant estimate's
   curve is exactly flat.
 - **Partial Spearman ρ** of the estimate with the truth given the window's motion statistic
-  (:func:`estimator.deepsee.references.motion_statistic`), with pingouin's ``partial_corr(method="spearman")``:
-  how much of the ranking is not the motion's.
+  (:func:`estimator.deepsee.references.motion_statistic`): how much of the ranking is not the motion's. The
+  first-order partial correlation of scipy's ``spearmanr`` matrix, the value of pingouin's
+  ``partial_corr(method="spearman")`` (the tests hold the two equal) without its table building, which cost 7 ms a
+  call in the bootstrap's thousands; where that matrix is singular, the defined values (below), not a
+  pseudo-inverse's.
 - **Head calibration**: per threshold t_k of an ordinal head, the Brier score (scikit-learn's
   ``brier_score_loss``) of P(error ≥ t_k) against 1[truth ≥ t_k] per window, the reliability diagram
   (``calibration_curve``, :data:`RELIABILITY_BINS` equal-width bins of the probability) and its expected calibration
@@ -27,15 +32,13 @@
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 from scipy.stats import spearmanr
 from sklearn.calibration import calibration_curve
-from sklearn.metrics import brier_score_loss, cohen_kappa_score
+from sklearn.metrics import brier_score_loss
 
 #: Removed fractions at which a sparsification curve is sampled: 0, 1/S, …, (S − 1)/S.
 SPARSIFICATION_STEPS = 100
@@ -44,12 +47,18 @@ RELIABILITY_BINS = 10
 
 
 def quadratic_kappa(true_class: np.ndarray, estimate_class: np.ndarray, classes: int) -> float:
-    """Quadratic-weighted κ of two class sequences over the classes 0 … ``classes`` − 1; NaN when there is nothing
-    to judge or the truth and the estimate are one and the same constant (κ is 0 / 0 there)."""
+    """Quadratic-weighted κ of two class sequences over the classes 0 … ``classes`` − 1 (pairs with a class outside
+    them are left out, as scikit-learn leaves out labels not asked for); NaN when there is nothing to judge or the
+    truth and the estimate are one and the same constant (κ is 0 / 0 there)."""
     true_class, estimate_class = np.asarray(true_class, int), np.asarray(estimate_class, int)
+    inside = (true_class >= 0) & (true_class < classes) & (estimate_class >= 0) & (estimate_class < classes)
+    true_class, estimate_class = true_class[inside], estimate_class[inside]
     if len(true_class) == 0 or (len(set(true_class)) == 1 and set(true_class) == set(estimate_class)):
         return float("nan")
-    return float(cohen_kappa_score(true_class, estimate_class, labels=list(range(classes)), weights="quadratic"))
+    confusion = np.bincount(true_class * classes + estimate_class, minlength=classes * classes).reshape(classes, -1)
+    expected = np.outer(confusion.sum(axis=1), confusion.sum(axis=0)) / len(true_class)
+    weights = np.subtract.outer(np.arange(classes), np.arange(classes)) ** 2
+    return float(1.0 - np.sum(weights * confusion) / np.sum(weights * expected))
 
 
 def _kept_means(order_key: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -85,19 +94,26 @@ def spearman(estimate: np.ndarray, truth: np.ndarray) -> float:
 
 def partial_spearman(estimate: np.ndarray, truth: np.ndarray, motion: np.ndarray) -> float:
     """Spearman ρ of ``estimate`` with ``truth`` given ``motion``; NaN for fewer than 4 windows, a constant
-    variable or a motion statistic that is not finite everywhere."""
+    variable, a motion statistic that is not finite everywhere, or an estimate or a truth ranked exactly as the
+    motion (nothing is left of it once the motion is removed)."""
     if len(truth) < 4 or not np.isfinite(motion).all() or min(np.ptp(estimate), np.ptp(truth), np.ptp(motion)) == 0:
         return float("nan")
-    # pingouin imports matplotlib's pyplot and more (about 2 s): only the scoring that asks for it pays for it.
-    import pingouin
-
-    table = pd.DataFrame({"estimate": estimate, "truth": truth, "motion": motion})
-    with warnings.catch_warnings():
-        # An estimate equal to the truth (the ceiling's best case, a perfect model) makes the covariance singular:
-        # pingouin warns and still gives the right value, 1.
-        warnings.simplefilter("ignore")
-        result = pingouin.partial_corr(table, x="estimate", y="truth", covar="motion", method="spearman")
-    return float(result["r"].iloc[0])
+    rho = spearmanr(np.column_stack([estimate, truth, motion])).statistic
+    with_truth, estimate_motion, truth_motion = rho[0, 1], rho[0, 2], rho[1, 2]
+    if max(abs(estimate_motion), abs(truth_motion)) > 1.0 - 1e-12:
+        return float("nan")
+    if abs(with_truth) > 1.0 - 1e-12:
+        # Ranked as the truth (the ceiling's best case): what is left of both after the motion is the same.
+        return float(np.sign(with_truth))
+    # The first-order partial correlation, which pingouin computes from the inverse of the same matrix.
+    return float(
+        np.clip(
+            (with_truth - estimate_motion * truth_motion)
+            / np.sqrt((1.0 - estimate_motion**2) * (1.0 - truth_motion**2)),
+            -1.0,
+            1.0,
+        )
+    )
 
 
 def median_ratio(estimate: np.ndarray, truth: np.ndarray) -> float:
