@@ -92,7 +92,7 @@ def start_app(
 
 @pytest.mark.system
 def test_a_killed_estimator_plays_the_no_information_cue_and_the_run_ends_degraded(root):
-    app, out, config_dir = start_app(root, 4, restart_delay_s=3600.0, cue_every_s=1.0)
+    app, out, config_dir = start_app(root, 3, restart_delay_s=3600.0, cue_every_s=1.0)
     wait_for(lambda: len(_rows(out / "estimates.csv")) >= 1 or app.poll() is not None, 300, "an estimate")
     started = _rows(out / "app_events.csv").query("part == 'estimator' and event == 'started'")
     os.kill(int(started.detail.iloc[0].split()[1]), signal.SIGKILL)
