@@ -42,7 +42,14 @@ from estimator.deepsee.references import (
 from estimator.deepsee.rows import DEEPSEE, RANDOM_FOREST, ROWS
 from estimator.deepsee.run_folder import MODEL_PT
 from estimator.deepsee.stages import FOREST_PICKLE
-from estimator.deepsee.yardsticks import Judged, calibration, median_ratio, paired_differences, yardsticks
+from estimator.deepsee.yardsticks import (
+    Bootstrap,
+    Judged,
+    calibration,
+    median_ratio,
+    paired_differences,
+    yardsticks,
+)
 from seesys.core.equation2 import PulseSettings
 from seesys.core.errors import SeesysError
 from seesys.core.exceedance import class_boundaries_m
@@ -241,6 +248,24 @@ def _difference_columns() -> list[str]:
     return [f"{name}{suffix}" for name in DIFFERENCES for suffix in ("", "_low", "_high")]
 
 
+def paired_difference_values(
+    a: Judged, b: Judged, classes: int, large_error_m: float, settings: Bootstrap
+) -> dict[str, float]:
+    """:data:`DIFFERENCES` of row ``a`` minus row ``b`` on the same windows and bins, each with its interval over
+    runs (``<name>_low``, ``<name>_high``; :func:`estimator.deepsee.yardsticks.paired_differences`): one row of the
+    differences table."""
+
+    def statistic(j: Judged) -> dict[str, float]:
+        return yardsticks(j, classes, large_error_m)
+
+    points, intervals = paired_differences(a, b, statistic, DIFFERENCES, settings)
+    values = {}
+    for name in DIFFERENCES:
+        values[name] = points[name]
+        values[f"{name}_low"], values[f"{name}_high"] = intervals[name]
+    return values
+
+
 def _compare(
     tables: _Tables,
     key: dict,
@@ -251,14 +276,10 @@ def _compare(
     how: _Judging,
 ) -> None:
     """Each trained row minus each row of :data:`COMPARED` on the same windows, with the interval of the difference
-    over runs (:func:`estimator.deepsee.yardsticks.paired_differences`)."""
+    over runs (:func:`paired_difference_values`)."""
     if not len(data):
         return
     evaluation, pulses = how.config.evaluation, how.pulses
-
-    def statistic(j: Judged) -> dict[str, float]:
-        return yardsticks(j, pulses.max_pulses + 1, evaluation.large_error_m)
-
     # Each row's windows and bins once, however many comparisons it is in.
     rows = {
         row: judged(data.meta, estimated[row], data.error_m, motion, pulses)
@@ -269,13 +290,13 @@ def _compare(
         for against in COMPARED:
             if row == against or against not in rows:
                 continue
-            points, intervals = paired_differences(
-                rows[row], rows[against], statistic, DIFFERENCES, bootstrap_settings(evaluation)
+            values = paired_difference_values(
+                rows[row],
+                rows[against],
+                pulses.max_pulses + 1,
+                evaluation.large_error_m,
+                bootstrap_settings(evaluation),
             )
-            values = {}
-            for name in DIFFERENCES:
-                values[name] = points[name]
-                values[f"{name}_low"], values[f"{name}_high"] = intervals[name]
             tables.differences.append({**key, "row": row, "against": against, **values})
 
 

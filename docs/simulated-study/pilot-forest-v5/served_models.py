@@ -25,11 +25,10 @@ from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.splits import read_splits
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import concat, reader_windows, session_windows, split_readers
-from estimator.deepsee.evaluate import DIFFERENCES
+from estimator.deepsee.evaluate import paired_difference_values
 from estimator.deepsee.metrics import bootstrap_settings, judged, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import MOTION_ISOTONIC, fit_references, motion_statistic
-from estimator.deepsee.yardsticks import paired_differences, yardsticks
 from seesys.io.core_settings import load_pulse_settings, load_window_config
 
 ALL = "all sessions"
@@ -83,22 +82,16 @@ def main() -> None:
             records.append({"set": name, "row": row, **level, **asdict(scores)})
     pd.DataFrame(records).to_csv(args.out, index=False)
 
-    def statistic(j):
-        return yardsticks(j, pulses.max_pulses + 1, config.evaluation.large_error_m)
-
     windows_of = {row: judged(data.meta, estimate, data.error_m, motion, pulses) for row, estimate in estimates.items()}
     differences = []
     for against in (MOTION_ISOTONIC, *args.against):
         for row in windows_of:
             if row == against:
                 continue
-            points, intervals = paired_differences(
-                windows_of[row], windows_of[against], statistic, DIFFERENCES, settings
+            values = paired_difference_values(
+                windows_of[row], windows_of[against], pulses.max_pulses + 1, config.evaluation.large_error_m, settings
             )
-            values = {"set": ALL, "row": row, "against": against}
-            for name in DIFFERENCES:
-                values[name], (values[f"{name}_low"], values[f"{name}_high"]) = points[name], intervals[name]
-            differences.append(values)
+            differences.append({"set": ALL, "row": row, "against": against, **values})
     pd.DataFrame(differences).to_csv(args.differences, index=False)
     print(f"{args.out}, {args.differences}")
 
