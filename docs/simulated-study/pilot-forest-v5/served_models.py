@@ -24,7 +24,7 @@ import pandas as pd
 from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.splits import read_splits
 from estimator.deepsee.config import load_estimator_config
-from estimator.deepsee.data import concat, reader_windows, session_windows, split_readers
+from estimator.deepsee.data import concat, session_windows, split_windows
 from estimator.deepsee.evaluate import paired_difference_values
 from estimator.deepsee.metrics import bootstrap_settings, judged, score
 from estimator.deepsee.predictors import load_predictor
@@ -53,9 +53,7 @@ def main() -> None:
     for participant, windows in each.items():
         windows.meta["run"] = participant  # every attempt folder is called attempt-N: the participant names it
     data = concat(list(each.values()))
-    train = reader_windows(
-        split_readers([args.build], read_splits(args.final_splits, [args.build]), 0, ("train",))["train"]
-    )
+    train = split_windows([args.build], read_splits(args.final_splits, [args.build]), 0, ("train",))["train"]
     print(f"{len(each)} sessions, {len(data)} labelled windows; {len(train)} training windows of the final split")
 
     estimates = fit_references(train, pulses).estimates(data)

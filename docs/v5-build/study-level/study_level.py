@@ -24,7 +24,7 @@ import pandas as pd
 from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.splits import read_splits
 from estimator.deepsee.config import load_estimator_config
-from estimator.deepsee.data import concat, reader_windows, session_windows, split_readers
+from estimator.deepsee.data import concat, session_windows, split_windows
 from estimator.deepsee.predictors import load_predictor
 from seesys.core.rts_schema import CHANNEL_NAMES
 from seesys.io.core_settings import load_window_config
@@ -72,9 +72,7 @@ def main() -> None:
     transform = LabelTransform(config.label_transform.k)
     sessions = sorted(args.pilot.glob("participants/*/task-seesys/attempt-*"))
     pilot = concat([session_windows(s, window_config, labelled=True) for s in sessions])
-    train = reader_windows(
-        split_readers([args.build], read_splits(args.final_splits, [args.build]), 0, ("train",))["train"]
-    )
+    train = split_windows([args.build], read_splits(args.final_splits, [args.build]), 0, ("train",))["train"]
     runs = {r.name: json.loads((r / "run.json").read_text()) for r in (args.build / "runs").iterdir()}
     camera = train.meta.run.map(lambda run: runs[run]["camera_model"]).to_numpy()
     low, high = np.percentile(pilot.error_m, [10, 90])
