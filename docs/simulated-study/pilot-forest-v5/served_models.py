@@ -30,6 +30,7 @@ from estimator.deepsee.metrics import bootstrap_settings, judged, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import MOTION_ISOTONIC, fit_references, motion_statistic
 from seesys.io.core_settings import load_pulse_settings, load_window_config
+from study.sessions import done_attempts
 
 ALL = "all sessions"
 
@@ -48,7 +49,7 @@ def main() -> None:
     config, pulses, window_config = load_estimator_config(), load_pulse_settings(), load_window_config()
     settings = bootstrap_settings(config.evaluation)
     transform = LabelTransform(config.label_transform.k)
-    sessions = sorted(args.pilot.glob("participants/*/task-seesys/attempt-*"))
+    sessions = [a for phase in sorted(args.pilot.glob("participants/*/task-seesys")) for a in done_attempts(phase)]
     each = {s.parts[-3]: session_windows(s, window_config, labelled=True) for s in sessions}
     for participant, windows in each.items():
         windows.meta["run"] = participant  # every attempt folder is called attempt-N: the participant names it

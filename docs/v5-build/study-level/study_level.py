@@ -28,6 +28,7 @@ from estimator.deepsee.data import concat, session_windows, split_windows
 from estimator.deepsee.predictors import load_predictor
 from seesys.core.rts_schema import CHANNEL_NAMES
 from seesys.io.core_settings import load_window_config
+from study.sessions import done_attempts
 
 KEYS = ["camera_model", "environment", "motion_group"]
 V4_LABELS = Path(__file__).resolve().parents[2] / "v4-build" / "dataset" / "label_summary.csv"
@@ -70,7 +71,7 @@ def main() -> None:
 
     config, window_config = load_estimator_config(), load_window_config()
     transform = LabelTransform(config.label_transform.k)
-    sessions = sorted(args.pilot.glob("participants/*/task-seesys/attempt-*"))
+    sessions = [a for phase in sorted(args.pilot.glob("participants/*/task-seesys")) for a in done_attempts(phase)]
     pilot = concat([session_windows(s, window_config, labelled=True) for s in sessions])
     train = split_windows([args.build], read_splits(args.final_splits, [args.build]), 0, ("train",))["train"]
     runs = {r.name: json.loads((r / "run.json").read_text()) for r in (args.build / "runs").iterdir()}
