@@ -15,7 +15,6 @@ Writes three tables:
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ import pandas as pd
 
 from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.splits import read_splits
+from estimator.dataset.store import SAMPLES_CSV, read_run_info
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import concat, session_windows, split_windows
 from estimator.deepsee.predictors import load_predictor
@@ -38,10 +38,12 @@ def label_levels(build: Path) -> pd.DataFrame:
     """The median labelled error (mm) of each camera, room and motion of ``build`` beside the v4 build's."""
     records = []
     for run in sorted((build / "runs").iterdir()):
-        meta = json.loads((run / "run.json").read_text())
-        samples = pd.read_csv(run / "samples.csv")
+        info = read_run_info(run)
+        if info is None:  # not finished: no labels
+            continue
+        samples = pd.read_csv(run / SAMPLES_CSV)
         errors = samples.error_m[samples.status == "labelled"].to_numpy() * 1000.0
-        records.append({**{k: meta[k] for k in KEYS}, "errors": errors})
+        records.append({**{k: getattr(info, k) for k in KEYS}, "errors": errors})
     runs = pd.DataFrame(records)
     rows = [
         {**dict(zip(KEYS, key)), "median_mm": float(np.median(np.concatenate(group.errors.tolist())))}
@@ -74,8 +76,7 @@ def main() -> None:
     sessions = [a for phase in sorted(args.pilot.glob("participants/*/task-seesys")) for a in done_attempts(phase)]
     pilot = concat([session_windows(s, window_config, labelled=True) for s in sessions])
     train = split_windows([args.build], read_splits(args.final_splits, [args.build]), 0, ("train",))["train"]
-    runs = {r.name: json.loads((r / "run.json").read_text()) for r in (args.build / "runs").iterdir()}
-    camera = train.meta.run.map(lambda run: runs[run]["camera_model"]).to_numpy()
+    camera = train.meta.camera_model.to_numpy()
     low, high = np.percentile(pilot.error_m, [10, 90])
     reference = train.subset(np.flatnonzero((camera == "ideal") & (train.error_m >= low) & (train.error_m <= high)))
     truth = float(np.median(pilot.error_m))
