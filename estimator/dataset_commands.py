@@ -244,7 +244,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--motions",
         type=_names,
-        help="comma-separated: patrol, aiming, rapid, real:<name>, real, all (default: configs/dataset.toml)",
+        help="comma-separated: patrol, aiming, rapid, scan, real:<name>, real, all (default: configs/dataset.toml)",
     )
     p.add_argument("--seeds", type=_ints, help="comma-separated batch seeds (default: configs/dataset.toml)")
     p.add_argument(

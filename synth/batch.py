@@ -21,10 +21,12 @@ import numpy as np
 
 from synth.config import SynthConfig
 from synth.sequence import REAL_PREFIX, SequenceSpec, camera_record, preset_record, render_sequence
-from synth.trajectories import MOTION_GROUPS
+from synth.trajectories import SCAN_GROUP, TABLE2_GROUPS
 
 ALL = "all"
 REAL = "real"
+# The stream that deals the scan group's cameras (CameraDraw.cameras).
+_SCAN_DEAL = 0x5CA7
 
 
 def expand_environments(names: list[str], config: SynthConfig) -> list[str]:
@@ -35,11 +37,12 @@ def expand_environments(names: list[str], config: SynthConfig) -> list[str]:
 
 
 def expand_motions(names: list[str], config: SynthConfig) -> list[str]:
-    """``all`` → the three groups and every real trajectory; ``real`` → every real trajectory."""
+    """``all`` → the three Table 2 groups, every real trajectory and the scan group (added last, so that the
+    motions that came before keep their places: their seeds and cameras); ``real`` → every real trajectory."""
     out: list[str] = []
     for name in names:
         if name == ALL:
-            out += list(MOTION_GROUPS) + [REAL_PREFIX + r.name for r in config.real_trajectories]
+            out += list(TABLE2_GROUPS) + [REAL_PREFIX + r.name for r in config.real_trajectories] + [SCAN_GROUP]
         elif name == REAL:
             out += [REAL_PREFIX + r.name for r in config.real_trajectories]
         else:
@@ -49,8 +52,8 @@ def expand_motions(names: list[str], config: SynthConfig) -> list[str]:
 
 def sequence_seed(batch_seed: int, environment: str, motion: str, config: SynthConfig) -> int:
     """The render seed of one sequence of a batch: from the batch seed and the environment's and motion's places
-    in the config (preset order; the groups, then the real trajectories), never their places in the request, so
-    that a folder name stands for the same frames in every batch that renders it."""
+    in the config (preset order; the Table 2 groups, the real trajectories, then the scan group), never their
+    places in the request, so that a folder name stands for the same frames in every batch that renders it."""
     environments = expand_environments([ALL], config)
     motions = expand_motions([ALL], config)
     return batch_seed * 1000 + environments.index(environment) * 37 + motions.index(motion)
@@ -108,17 +111,24 @@ class CameraDraw:
         The motions of one environment (every configured motion, in config order, whatever a batch asks for, so
         that a sequence's camera does not depend on the request) draw their models weighted and without
         replacement, starting again once every model is drawn: an environment is seen through as many cameras as
-        it has motions, while there are models enough."""
+        it has motions, while there are models enough. The scan group, added after the others, is dealt its
+        models round the environments instead (preset order, the models in the order of one weighted draw without
+        replacement for the batch seed), so that every model scans in some rooms and adding it changed no earlier
+        camera."""
         for name in self.models:
             config.camera_model(name)  # refuse an unknown model by name
-        motions = expand_motions([ALL], config)
+        motions = [m for m in expand_motions([ALL], config) if m != SCAN_GROUP]
         rng = np.random.default_rng([batch_seed, expand_environments([ALL], config).index(environment)])
         p = np.asarray(self.weights) / sum(self.weights)
         drawn: list[str] = []
         while len(drawn) < len(motions):
             count = min(len(self.models), len(motions) - len(drawn))
             drawn += [self.models[i] for i in rng.choice(len(self.models), size=count, replace=False, p=p)]
-        return dict(zip(motions, drawn))
+        dealt = np.random.default_rng([batch_seed, _SCAN_DEAL]).choice(
+            len(self.models), size=len(self.models), replace=False, p=p
+        )
+        place = expand_environments([ALL], config).index(environment)
+        return dict(zip(motions, drawn)) | {SCAN_GROUP: self.models[dealt[place % len(self.models)]]}
 
 
 def plan_batch(

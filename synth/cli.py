@@ -83,7 +83,7 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
 
     p = sub.add_parser("render", help="render one sequence (TUM RGB-D folder) in a procedural environment")
     p.add_argument("--env", required=True, help="environment preset (configs/synth.toml)")
-    p.add_argument("--motion", required=True, help="patrol | aiming | rapid | real:<trajectory name>")
+    p.add_argument("--motion", required=True, help="patrol | aiming | rapid | scan | real:<trajectory name>")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, required=True)
     _add_render_options(p)
@@ -95,7 +95,7 @@ def register(subparsers: argparse._SubParsersAction) -> dict[str, argparse._SubP
     p.add_argument(
         "--motions",
         default="patrol,aiming,rapid",
-        help="comma-separated motions: patrol, aiming, rapid, real:<name>, real (every real one), all",
+        help="comma-separated motions: patrol, aiming, rapid, scan, real:<name>, real (every real one), all",
     )
     p.add_argument("--seeds", default="0", help="comma-separated batch seeds")
     _add_render_options(p)

@@ -77,6 +77,30 @@ class MotionConfig:
     patrol: MotionGroupConfig
     aiming: MotionGroupConfig
     rapid: MotionGroupConfig
+    scan: MotionGroupConfig
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    """The ``scan`` group's task (``[scan]``): boxes against the walls, each walked to and swept round at close
+    range; ranges are drawn per sequence."""
+
+    objects: tuple[int, int]
+    object_size_m: tuple[float, float]
+    object_height_m: tuple[float, float]
+    wall_gap_m: float
+    distance_m: tuple[float, float]
+    arc_deg: tuple[float, float]
+    sweep_dps: tuple[float, float]
+    look_around_deg: tuple[float, float]
+    walk_accel_mps2: float
+    path_clearance_m: float
+    back_off_m: float
+    min_spacing_m: float
+
+    def __post_init__(self) -> None:
+        if self.objects[0] < 2 or self.objects[1] < self.objects[0]:
+            raise ConfigError(f"synth.toml [scan]: objects must be a range from 2 up, got {list(self.objects)}")
 
 
 @dataclass(frozen=True)
@@ -243,6 +267,7 @@ class SynthConfig:
     sensor: SensorConfig
     trajectory: TrajectoryConfig
     motion: MotionConfig
+    scan: ScanConfig
     real_trajectories: list[RealTrajectory]
     camera_models: list[CameraModel]
     presets: list[EnvironmentPreset]

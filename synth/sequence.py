@@ -34,7 +34,7 @@ from seesys.core.errors import SeesysError
 from seesys.core.trajectory import tum_line
 from synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
 from synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
-from synth.environments import Scene, build_scene
+from synth.environments import Scene, build_scene, with_boxes
 from synth.lenses import model_camera, told_lens, true_lens
 from synth.real_camera import (
     auto_exposure_response,
@@ -47,13 +47,16 @@ from synth.renderer import RayGrid, render
 from synth.structured_light import as_measured, without_unlit
 from synth.trajectories import (
     MOTION_GROUPS,
+    SCAN_GROUP,
     Trajectory,
     TrajectoryError,
     generate_motion,
+    generate_scan,
     load_euroc,
     load_tum,
     place_real,
 )
+from synth.wall_objects import OBJECT_CLEARANCE_M, corner_points, place_wall_objects
 
 REAL_PREFIX = "real:"
 
@@ -126,6 +129,24 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
         trajectory = place_real(faster, lo, hi, config.trajectory, rng)
         group, name = real.group, real.name
         duration = min(duration, trajectory.duration - margin)
+    elif spec.motion == SCAN_GROUP:
+        # Boxes against the walls, scanned at close range: clutter is cleared from the path and the boxes' places
+        # only (the other groups keep box_clearance_m from every box), then the boxes are added.
+        task = config.scan
+        objects = place_wall_objects(
+            scene.room,
+            int(rng.integers(task.objects[0], task.objects[1] + 1)),
+            task.object_size_m,
+            task.object_height_m,
+            task.wall_gap_m,
+            rng,
+            task.min_spacing_m,
+        )
+        trajectory = generate_scan(objects, config.motion.scan, task, lo, hi, duration + margin, rng)
+        scene = scene.without_boxes_near(trajectory.positions, task.path_clearance_m)
+        scene = scene.without_boxes_near(corner_points(objects), OBJECT_CLEARANCE_M)
+        scene = with_boxes(scene, [o.box for o in objects], rng)
+        group, name = spec.motion, f"{spec.motion}_{spec.seed}"
     elif spec.motion in MOTION_GROUPS:
         motion = getattr(config.motion, spec.motion)
         trajectory = generate_motion(spec.motion, motion, lo, hi, config.trajectory, duration + margin, rng)
@@ -136,7 +157,8 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
             f"{REAL_PREFIX}<name> ({', '.join(r.name for r in config.real_trajectories)})"
         )
 
-    scene = scene.without_boxes_near(trajectory.positions, config.trajectory.box_clearance_m)
+    if spec.motion != SCAN_GROUP:
+        scene = scene.without_boxes_near(trajectory.positions, config.trajectory.box_clearance_m)
     count = int(np.floor(duration * camera.fps)) if spec.frames is None else spec.frames
     if count < 1:
         raise SeesysError(f"sequence too short: {duration:.2f} s gives no frame")

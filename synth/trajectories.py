@@ -17,9 +17,14 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from seesys.core.trajectory import Poses, TrajectoryError
 from seesys.io.trajectory_files import read_euroc_groundtruth, read_tum
-from synth.config import MotionGroupConfig, TrajectoryConfig
+from synth.config import MotionGroupConfig, ScanConfig, TrajectoryConfig
+from synth.wall_objects import WallObject
 
-MOTION_GROUPS = ("patrol", "aiming", "rapid")
+#: The paper's Table 2 groups, generated inside a room.
+TABLE2_GROUPS = ("patrol", "aiming", "rapid")
+#: Scanning boxes against the walls at close range (:func:`generate_scan`), as the simulated study's task does.
+SCAN_GROUP = "scan"
+MOTION_GROUPS = (*TABLE2_GROUPS, SCAN_GROUP)
 # Sampling rate of generated motion before it is interpolated to frame and exposure times.
 GENERATED_RATE_HZ = 240.0
 
@@ -49,6 +54,10 @@ class Trajectory:
         t0 = self.times[0] + start
         keep = (self.times >= t0) & (self.times <= t0 + duration)
         return Trajectory(self.times[keep] - t0, self.positions[keep], self.rotations[np.flatnonzero(keep)])
+
+    def clipped(self, lo: np.ndarray, hi: np.ndarray) -> Trajectory:
+        """The same path with its positions clipped into the box ``lo``..``hi``."""
+        return Trajectory(self.times, np.clip(self.positions, lo, hi), self.rotations)
 
 
 def from_poses(poses: Poses) -> Trajectory:
@@ -156,8 +165,11 @@ def generate_motion(
     All groups add hand shake (shake_deg, shake_m at shake_hz) and rare sudden turns (jerk_rate_hz, jerk_deg).
     ``speed_scale`` speeds the whole motion up; it is drawn per sequence in its configured range.
     """
-    if group not in MOTION_GROUPS:
-        raise TrajectoryError(f"unknown motion group {group!r} (expected one of {', '.join(MOTION_GROUPS)})")
+    if group not in TABLE2_GROUPS:
+        raise TrajectoryError(
+            f"unknown motion group {group!r} (expected one of {', '.join(TABLE2_GROUPS)}; "
+            f"{SCAN_GROUP} is made by generate_scan)"
+        )
     speed = rng.uniform(*motion.speed_scale)
     t = np.arange(0.0, duration + 1.0 / GENERATED_RATE_HZ, 1.0 / GENERATED_RATE_HZ)
     s = t * speed  # motion time: the same paths, run faster
@@ -179,7 +191,20 @@ def generate_motion(
             yaw = yaw + amplitude * envelope * smooth_noise(rng, t, motion.wave_hz, 2)
             pitch = pitch + 0.5 * amplitude * envelope * smooth_noise(rng, t, motion.wave_hz, 2)
 
-    # Hand shake (in real time, like the waving): shake_m and shake_deg are the RMS of the 3-D offset and angle.
+    return _in_hand(rng, t, s, positions, yaw, pitch, motion).clipped(inner_lo, inner_hi)
+
+
+def _in_hand(
+    rng: np.random.Generator,
+    t: np.ndarray,
+    s: np.ndarray,
+    positions: np.ndarray,
+    yaw: np.ndarray,
+    pitch: np.ndarray,
+    motion: MotionGroupConfig,
+) -> Trajectory:
+    """A path held in a hand: the group's rare sudden turns, hand shake (in real time, like the waving; shake_m and
+    shake_deg are the RMS of the 3-D offset and angle) and a slow roll (in motion time ``s``)."""
     per_axis = 1.0 / np.sqrt(3.0)
     bumps = jerk_offsets(rng, t, motion.jerk_rate_hz, np.radians(motion.jerk_deg))
     yaw, pitch = yaw + bumps[0], pitch + bumps[1]
@@ -193,8 +218,121 @@ def generate_motion(
         per_axis * np.radians(motion.shake_deg) * np.column_stack([smooth_noise(rng, t, shake_hz) for _ in range(3)])
     )
     shake[:, 2] += roll
-    rotations = look_rotation(forward) * Rotation.from_rotvec(shake)
-    return Trajectory(t, np.clip(positions, inner_lo, inner_hi), rotations)
+    return Trajectory(t, positions, look_rotation(forward) * Rotation.from_rotvec(shake))
+
+
+# The device is held this far (m) above an object's aim point while scanning it.
+SCAN_HEIGHT_ABOVE_AIM_M = 0.15
+# The camera keeps this far (m) from the walls: a sweep round an object near a corner swings towards the other wall.
+SCAN_WALL_MARGIN_M = 0.15
+
+
+def _wrap(angle: np.ndarray | float) -> np.ndarray | float:
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _look_at(positions: np.ndarray, aim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    d = aim - positions
+    return np.arctan2(d[:, 1], d[:, 0]), np.arctan2(d[:, 2], np.linalg.norm(d[:, :2], axis=1))
+
+
+def generate_scan(
+    objects: list[WallObject],
+    motion: MotionGroupConfig,
+    scan: ScanConfig,
+    room_lo: np.ndarray,
+    room_hi: np.ndarray,
+    duration: float,
+    rng: np.random.Generator,
+) -> Trajectory:
+    """Handheld scanning of ``objects`` in turn, round and round until ``duration``: from ``scan.back_off_m``
+    inwards of the first object's viewpoint, walk to each object's viewpoint at ``scan.distance_m`` (backing off
+    from the last one towards the room's centre, across and up to the next, at the walking speed with
+    ``scan.walk_accel_mps2``, the device held a little above the object's top), turning the device towards the
+    object (a minimum-jerk turn at the group's yaw rate), then sweep round it from straight in front out to +arc
+    and across to −arc at the sweep rate, looking at its top; look-around, hand shake and sudden turns on top.
+    Distance, arc, rates and look-around are drawn once per sequence, and the rates scale with the group's
+    ``speed_scale``; positions keep :data:`SCAN_WALL_MARGIN_M` from the walls."""
+    if len(objects) < 2:
+        raise TrajectoryError(f"a scan needs at least 2 objects, got {len(objects)}")
+    speed = rng.uniform(*motion.speed_scale)
+    walk = rng.uniform(*motion.walk_speed_mps) * speed
+    turn = np.radians(rng.uniform(*motion.yaw_rate_dps)) * speed
+    distance = rng.uniform(*scan.distance_m)
+    arc = np.radians(rng.uniform(*scan.arc_deg))
+    sweep = np.radians(rng.uniform(*scan.sweep_dps)) * speed
+    look = np.radians(rng.uniform(*scan.look_around_deg))
+    dt = 1.0 / GENERATED_RATE_HZ
+
+    centre = 0.5 * (room_lo[:2] + room_hi[:2])
+
+    def backed_off(obj: WallObject) -> np.ndarray:
+        """``back_off_m`` from the object's viewpoint towards the room's centre: away from both walls of a corner,
+        past the boxes that stand along them."""
+        stand = obj.viewpoint(distance)
+        inwards = (centre - stand) / max(float(np.linalg.norm(centre - stand)), 1e-9)
+        return np.append(stand + scan.back_off_m * inwards, obj.aim[2] + SCAN_HEIGHT_ABOVE_AIM_M)
+
+    position = backed_off(objects[0])
+    yaw, pitch = (float(v[0]) for v in _look_at(position[None, :], objects[0].aim))
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    elapsed, k = 0.0, 0
+    while elapsed < duration + dt:
+        obj = objects[k % len(objects)]
+        stand = np.append(obj.viewpoint(distance), obj.aim[2] + SCAN_HEIGHT_ABOVE_AIM_M)
+        # The walk: back off from the last object into the room, across to this one's backed-off point and up to
+        # it (the boxes stand within wall_gap + size of the walls, so the way between those points is clear),
+        # turning towards it on the way.
+        corners = [position] + ([backed_off(objects[(k - 1) % len(objects)])] if k else []) + [backed_off(obj), stand]
+        legs = np.cumsum([0.0] + [float(np.linalg.norm(b - a)) for a, b in zip(corners[:-1], corners[1:])])
+        target_yaw = float(_look_at(position[None, :], obj.aim)[0][0])
+        turn_s = max(0.3, 1.875 * abs(float(_wrap(target_yaw - yaw))) / turn)
+        walked = _walked(np.arange(0.0, max(turn_s, 120.0), dt), legs[-1], walk, scan.walk_accel_mps2)
+        tau = np.arange(0.0, max(turn_s, dt * (np.searchsorted(walked, legs[-1] - 1e-9) + 1)), dt)
+        walked = _walked(tau, legs[-1], walk, scan.walk_accel_mps2)
+        path = np.column_stack([np.interp(walked, legs, np.asarray(corners)[:, i]) for i in range(3)])
+        aim_yaw, aim_pitch = _look_at(path, obj.aim)
+        blend = min_jerk(tau / turn_s)
+        parts.append((path, yaw + blend * _wrap(aim_yaw - yaw), pitch + blend * (aim_pitch - pitch)))
+        # The sweep: 0 → +arc → −arc round the object's centre line.
+        tau = np.arange(0.0, 3 * arc / sweep, dt)
+        swept = sweep * tau
+        angle = np.where(swept < arc, swept, 2 * arc - swept)
+        c, sn = np.cos(angle), np.sin(angle)
+        facing = obj.facing
+        offsets = distance * np.column_stack([c * facing[0] - sn * facing[1], sn * facing[0] + c * facing[1]])
+        path = np.column_stack([obj.aim[0] + offsets[:, 0], obj.aim[1] + offsets[:, 1], np.full(len(tau), stand[2])])
+        sweep_yaw, sweep_pitch = _look_at(path, obj.aim)
+        parts.append((path, sweep_yaw, sweep_pitch))
+        position = path[-1]
+        yaw, pitch = float(sweep_yaw[-1]), float(sweep_pitch[-1])
+        elapsed += (len(parts[-2][0]) + len(tau)) * dt
+        k += 1
+
+    positions = np.vstack([p for p, _, _ in parts])
+    yaws = np.unwrap(np.concatenate([y for _, y, _ in parts]))  # the parts' angles are each within ±π
+    pitches = np.concatenate([q for _, _, q in parts])
+    t = np.arange(len(positions)) * dt
+    keep = t <= duration + dt
+    t, positions, yaws, pitches = t[keep], positions[keep], yaws[keep], pitches[keep]
+    yaws = yaws + look * smooth_noise(rng, t, (0.2, 0.6), 3)
+    pitches = pitches + look * smooth_noise(rng, t, (0.2, 0.6), 3)
+    hand = _in_hand(rng, t, t * speed, positions, yaws, pitches, motion)
+    return hand.clipped(room_lo + SCAN_WALL_MARGIN_M, room_hi - SCAN_WALL_MARGIN_M)
+
+
+def _walked(tau: np.ndarray, length: float, speed: float, accel: float) -> np.ndarray:
+    """Distance walked at times ``tau`` towards a point ``length`` away: accelerating at ``accel`` up to ``speed``,
+    braking at ``accel`` so as to stop there (a triangle when the way is too short to reach ``speed``)."""
+    peak = min(speed, np.sqrt(length * accel))
+    ramp = peak / accel
+    cruise = max(length / peak - ramp, 0.0) if peak > 0 else 0.0
+    total = 2 * ramp + cruise
+    t = np.clip(tau, 0.0, total)
+    up = 0.5 * accel * np.minimum(t, ramp) ** 2
+    flat = peak * np.clip(t - ramp, 0.0, cruise)
+    down = np.clip(t - ramp - cruise, 0.0, ramp)
+    return np.minimum(up + flat + peak * down - 0.5 * accel * down**2, length)
 
 
 def _walking(

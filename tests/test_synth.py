@@ -22,7 +22,17 @@ from synth.real_camera import auto_exposure_response, depth_noise, rolling_shutt
 from synth.renderer import RayGrid, render
 from synth.sequence import SequenceSpec, plan_sequence, render_sequence
 from synth.textures import make_tile
-from synth.trajectories import MOTION_GROUPS, generate_motion, load_euroc, load_tum, place_real
+from synth.trajectories import (
+    SCAN_WALL_MARGIN_M,
+    TABLE2_GROUPS,
+    TrajectoryError,
+    generate_motion,
+    generate_scan,
+    load_euroc,
+    load_tum,
+    place_real,
+)
+from synth.wall_objects import place_wall_objects
 
 
 @pytest.fixture(scope="module")
@@ -78,9 +88,9 @@ def test_depth_is_exact_z_of_the_wall_ahead(config):
 def test_generated_motion_groups_stay_in_the_room_and_differ_in_speed(config):
     scene = build_scene(config.preset("living_room"), 0, config.sensor)
     lo, hi = scene.room_bounds()
-    speeds = {group: [] for group in MOTION_GROUPS}
+    speeds = {group: [] for group in TABLE2_GROUPS}
     for seed in range(3):
-        for group in MOTION_GROUPS:
+        for group in TABLE2_GROUPS:
             traj = generate_motion(
                 group, getattr(config.motion, group), lo, hi, config.trajectory, 20.0, np.random.default_rng(seed)
             )
@@ -95,6 +105,56 @@ def test_generated_motion_groups_stay_in_the_room_and_differ_in_speed(config):
     assert mean["aiming"][1] < mean["patrol"][1]
     # Handheld range (docs/synthetic-data.md): 25-60 deg/s for the bulk, faster for rapid motion.
     assert 20 < mean["patrol"][0] < 60 and 20 < mean["aiming"][0] < 60 and mean["rapid"][0] < 100
+
+
+def test_the_scan_group_sweeps_each_box_at_close_range_looking_at_it(config):
+    """While sweeping, the camera stands within the configured distance of a box's centre line (give or take the
+    hand's shake) and looks at its top (within the look-around, shake and sudden turns); it visits box after box."""
+    scan = config.scan
+    for env, seed in (("office", 0), ("studio", 1), ("hall", 2), ("storage", 3), ("corridor", 4)):
+        scene = build_scene(config.preset(env), seed, config.sensor)
+        lo, hi = scene.room_bounds()
+        rng = np.random.default_rng(seed)
+        objects = place_wall_objects(
+            scene.room, 10, scan.object_size_m, scan.object_height_m, scan.wall_gap_m, rng, scan.min_spacing_m
+        )
+        assert len(objects) >= 4
+        traj = generate_scan(objects, config.motion.scan, scan, lo, hi, 40.0, rng)
+        assert traj.duration >= 40.0
+        inside = (traj.positions >= lo + SCAN_WALL_MARGIN_M - 1e-9) & (traj.positions <= hi - SCAN_WALL_MARGIN_M + 1e-9)
+        assert inside.all()
+        axis = traj.rotations.apply([0.0, 0.0, 1.0])  # the optical axis, z of R_world_camera
+        seconds = []
+        for obj in objects:
+            horizontal = np.linalg.norm(traj.positions[:, :2] - obj.aim[:2], axis=1)
+            inside_box = np.all((traj.positions > obj.box.lo - 0.05) & (traj.positions < obj.box.hi + 0.05), axis=1)
+            assert not inside_box.any()  # the camera never passes through a box
+            to_aim = obj.aim - traj.positions
+            off = np.degrees(np.arccos(np.clip(np.sum(axis * to_aim, axis=1) / np.linalg.norm(to_aim, axis=1), -1, 1)))
+            scanning = (horizontal < scan.distance_m[1] + 0.05) & (off < 15.0)
+            seconds.append(scanning.sum() * (traj.times[1] - traj.times[0]))
+        # Box after box, in order: each box scanned is viewed from the scan range, looking at it, for a second or more.
+        scanned = [s >= 1.0 for s in seconds]
+        assert sum(scanned) >= 3 and scanned[: sum(scanned)] == [True] * sum(scanned), seconds
+    with pytest.raises(TrajectoryError, match="at least 2 objects"):
+        generate_scan(objects[:1], config.motion.scan, scan, lo, hi, 5.0, rng)
+
+
+def test_a_scan_sequence_has_its_boxes_and_no_clutter_on_its_path(config):
+    plan = plan_sequence(SequenceSpec("lab", "scan", 3, 900, 64, 48), config)  # planned, not rendered
+    assert plan.motion_group == "scan" and plan.trajectory_name == "scan_3"
+    bare = build_scene(config.preset("lab"), 3, config.sensor)
+    is_added = [not any(np.array_equal(b.lo, c.lo) for c in bare.boxes) for b in plan.scene.boxes]
+    added = [b for b, new in zip(plan.scene.boxes, is_added) if new]
+    assert config.scan.objects[0] <= len(added) <= config.scan.objects[1]
+    positions = plan.trajectory.positions
+    for box, new in zip(plan.scene.boxes, is_added):  # every box but the scanned ones keeps the path clearance
+        nearest = np.min(np.linalg.norm(np.clip(positions, box.lo, box.hi) - positions, axis=1))
+        assert nearest > (0.15 if new else config.scan.path_clearance_m)
+    # Close views: boxes come within the scan distance of the camera, as no other group's boxes do.
+    centres = np.array([(b.lo[:2] + b.hi[:2]) / 2 for b in added])
+    gaps = np.linalg.norm(plan.trajectory.positions[:, None, :2] - centres[None], axis=2).min(axis=0)
+    assert (gaps < config.scan.distance_m[1] + 0.05).sum() >= 3
 
 
 def test_real_trajectories_are_placed_inside_the_smallest_room(config):

@@ -16,12 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from synth.config import EnvironmentPreset, SensorConfig
-from synth.environments import RICH_TILES, Box, Scene, build_scene, with_boxes
+from synth.environments import RICH_TILES, Scene, build_scene, with_boxes
+from synth.wall_objects import OBJECT_CLEARANCE_M, corner_points, place_wall_objects
 
-# Clearance (m) kept between the operator's path (walks and sweeps) and clutter boxes, and between objects and
-# clutter boxes.
+# Clearance (m) kept between the operator's path (walks and sweeps) and clutter boxes.
 PATH_CLEARANCE_M = 0.3
-OBJECT_CLEARANCE_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -76,18 +75,6 @@ class ScanTask:
         return obj.aim[:2] + distance_m * obj.facing
 
 
-def _wall_point(angle: float, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The point of the room's walls (half extents ``half``) in direction ``angle`` from the centre, and the wall's
-    inward normal."""
-    direction = np.array([np.cos(angle), np.sin(angle)])
-    scale = np.min(half / np.maximum(np.abs(direction), 1e-9))
-    point = direction * scale
-    axis = int(np.argmax(np.abs(point) / half))
-    normal = np.zeros(2)
-    normal[axis] = -np.sign(point[axis])
-    return point, normal
-
-
 def _light_at(scene: Scene, point: np.ndarray) -> float:
     r = np.linalg.norm(scene.lights - point, axis=1)
     return float(np.sum(1.0 / (1.0 + (r / scene.falloff_m) ** 2)))
@@ -111,27 +98,16 @@ def build_scan_task(
     operators use) is removed."""
     scene = build_scene(preset, task.layout_seed, sensor)
     rng = np.random.default_rng([task.layout_seed, 0x5CA7])
-    half = scene.room[:2] / 2
-    first = rng.uniform(0, 2 * np.pi)
-    direction = rng.choice([-1.0, 1.0])
-    placed: list[tuple[np.ndarray, np.ndarray, Box]] = []
-    for k in range(task.objects):
-        angle = first + direction * 2 * np.pi * (k + rng.uniform(-0.2, 0.2)) / task.objects
-        wall, normal = _wall_point(angle, half)
-        size = rng.uniform(*task.object_size_m)
-        height = rng.uniform(*task.object_height_m)
-        centre = wall + normal * (task.wall_gap_m + size / 2)
-        # Away from the corners' other wall too.
-        centre = np.clip(centre, -half + task.wall_gap_m + size / 2, half - task.wall_gap_m - size / 2)
-        lo = np.array([centre[0] - size / 2, centre[1] - size / 2, 0.0])
-        box = Box(lo, lo + np.array([size, size, height]))
-        placed.append((np.array([centre[0], centre[1], height - 0.05]), normal, box))
+    placed = place_wall_objects(
+        scene.room, task.objects, task.object_size_m, task.object_height_m, task.wall_gap_m, rng
+    )
 
     # Clear the way: the straight walks between viewpoints and the sweeps round the objects (at the device's
     # height), and the objects' own places.
-    viewpoints = [aim[:2] + scan_distance_m * normal for aim, normal, _ in placed]
+    viewpoints = [o.viewpoint(scan_distance_m) for o in placed]
     path = [np.linspace(a, b, 20) for a, b in zip(viewpoints[:-1], viewpoints[1:])]
-    for aim, normal, _ in placed:
+    for o in placed:
+        aim, normal = o.aim, o.facing
         angles = np.radians(np.linspace(-scan_arc_deg, scan_arc_deg, 9))
         rotated = np.column_stack(
             [
@@ -142,22 +118,14 @@ def build_scan_task(
         path.append(aim[:2] + scan_distance_m * rotated)
     path_xy = np.vstack(path)
     scene = scene.without_boxes_near(np.column_stack([path_xy, np.full(len(path_xy), 1.2)]), PATH_CLEARANCE_M)
-    corners = np.array(
-        [
-            [x, y, z]
-            for _, _, b in placed
-            for x in (b.lo[0], b.hi[0])
-            for y in (b.lo[1], b.hi[1])
-            for z in (0.0, b.hi[2])
-        ]
-    )
-    scene = scene.without_boxes_near(corners, OBJECT_CLEARANCE_M)
+    scene = scene.without_boxes_near(corner_points(placed), OBJECT_CLEARANCE_M)
     clutter = list(scene.boxes)
-    scene = with_boxes(scene, [b for _, _, b in placed], rng)
+    scene = with_boxes(scene, [o.box for o in placed], rng)
 
-    lights = np.array([_light_at(scene, aim) for aim, _, _ in placed])
+    lights = np.array([_light_at(scene, o.aim) for o in placed])
     objects = []
-    for k, ((aim, normal, _), light) in enumerate(zip(placed, lights), start=1):
+    for k, (o, light) in enumerate(zip(placed, lights), start=1):
+        aim, normal = o.aim, o.facing
         regions = []
         if _bare_wall_behind(scene, aim, normal):
             regions.append("bare wall")
