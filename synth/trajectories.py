@@ -287,8 +287,10 @@ def generate_scan(
         legs = np.cumsum([0.0] + [float(np.linalg.norm(b - a)) for a, b in zip(corners[:-1], corners[1:])])
         target_yaw = float(_look_at(position[None, :], obj.aim)[0][0])
         turn_s = max(0.3, 1.875 * abs(float(_wrap(target_yaw - yaw))) / turn)
-        walked = _walked(np.arange(0.0, max(turn_s, 120.0), dt), legs[-1], walk, scan.walk_accel_mps2)
-        tau = np.arange(0.0, max(turn_s, dt * (np.searchsorted(walked, legs[-1] - 1e-9) + 1)), dt)
+        # Sampled until the first sample that has arrived (or the turn's end, if later).
+        on_grid = np.arange(0.0, _walk_seconds(legs[-1], walk, scan.walk_accel_mps2) + 2 * dt, dt)
+        arrived = np.searchsorted(_walked(on_grid, legs[-1], walk, scan.walk_accel_mps2), legs[-1] - 1e-9)
+        tau = np.arange(0.0, max(turn_s, dt * (arrived + 1)), dt)
         walked = _walked(tau, legs[-1], walk, scan.walk_accel_mps2)
         path = np.column_stack([np.interp(walked, legs, np.asarray(corners)[:, i]) for i in range(3)])
         aim_yaw, aim_pitch = _look_at(path, obj.aim)
@@ -321,14 +323,25 @@ def generate_scan(
     return hand.clipped(room_lo + SCAN_WALL_MARGIN_M, room_hi - SCAN_WALL_MARGIN_M)
 
 
-def _walked(tau: np.ndarray, length: float, speed: float, accel: float) -> np.ndarray:
-    """Distance walked at times ``tau`` towards a point ``length`` away: accelerating at ``accel`` up to ``speed``,
-    braking at ``accel`` so as to stop there (a triangle when the way is too short to reach ``speed``)."""
+def _walk_profile(length: float, speed: float, accel: float) -> tuple[float, float, float]:
+    """The peak speed, the seconds of speeding up (and of braking) and the seconds at the peak of a walk of
+    ``length``: accelerating at ``accel`` up to ``speed``, braking at ``accel`` so as to stop at its end (a
+    triangle when the way is too short to reach ``speed``)."""
     peak = min(speed, np.sqrt(length * accel))
     ramp = peak / accel
     cruise = max(length / peak - ramp, 0.0) if peak > 0 else 0.0
-    total = 2 * ramp + cruise
-    t = np.clip(tau, 0.0, total)
+    return peak, ramp, cruise
+
+
+def _walk_seconds(length: float, speed: float, accel: float) -> float:
+    _, ramp, cruise = _walk_profile(length, speed, accel)
+    return 2 * ramp + cruise
+
+
+def _walked(tau: np.ndarray, length: float, speed: float, accel: float) -> np.ndarray:
+    """Distance walked at times ``tau`` on a walk of ``length`` (:func:`_walk_profile`)."""
+    peak, ramp, cruise = _walk_profile(length, speed, accel)
+    t = np.clip(tau, 0.0, 2 * ramp + cruise)
     up = 0.5 * accel * np.minimum(t, ramp) ** 2
     flat = peak * np.clip(t - ramp, 0.0, cruise)
     down = np.clip(t - ramp - cruise, 0.0, ramp)
