@@ -118,7 +118,8 @@ class CameraDraw:
         for name in self.models:
             config.camera_model(name)  # refuse an unknown model by name
         motions = [m for m in expand_motions([ALL], config) if m != SCAN_GROUP]
-        rng = np.random.default_rng([batch_seed, expand_environments([ALL], config).index(environment)])
+        place = expand_environments([ALL], config).index(environment)
+        rng = np.random.default_rng([batch_seed, place])
         p = np.asarray(self.weights) / sum(self.weights)
         drawn: list[str] = []
         while len(drawn) < len(motions):
@@ -127,7 +128,6 @@ class CameraDraw:
         dealt = np.random.default_rng([batch_seed, _SCAN_DEAL]).choice(
             len(self.models), size=len(self.models), replace=False, p=p
         )
-        place = expand_environments([ALL], config).index(environment)
         return dict(zip(motions, drawn)) | {SCAN_GROUP: self.models[dealt[place % len(self.models)]]}
 
 

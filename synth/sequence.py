@@ -34,7 +34,7 @@ from seesys.core.errors import SeesysError
 from seesys.core.trajectory import tum_line
 from synth.camera_effects import LensDistortion, Photometry, image_motion, motion_blur
 from synth.config import CameraConfig, CameraModel, EnvironmentPreset, SynthConfig
-from synth.environments import Scene, build_scene, with_boxes
+from synth.environments import Scene, build_scene
 from synth.lenses import model_camera, told_lens, true_lens
 from synth.real_camera import (
     auto_exposure_response,
@@ -56,7 +56,7 @@ from synth.trajectories import (
     load_tum,
     place_real,
 )
-from synth.wall_objects import OBJECT_CLEARANCE_M, corner_points, place_wall_objects
+from synth.wall_objects import place_wall_objects, with_wall_objects
 
 REAL_PREFIX = "real:"
 
@@ -143,9 +143,7 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
             task.min_spacing_m,
         )
         trajectory = generate_scan(objects, config.motion.scan, task, lo, hi, duration + margin, rng)
-        scene = scene.without_boxes_near(trajectory.positions, task.path_clearance_m)
-        scene = scene.without_boxes_near(corner_points(objects), OBJECT_CLEARANCE_M)
-        scene = with_boxes(scene, [o.box for o in objects], rng)
+        scene = with_wall_objects(scene.without_boxes_near(trajectory.positions, task.path_clearance_m), objects, rng)
         group, name = spec.motion, f"{spec.motion}_{spec.seed}"
     elif spec.motion in MOTION_GROUPS:
         motion = getattr(config.motion, spec.motion)

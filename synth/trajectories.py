@@ -299,11 +299,9 @@ def generate_scan(
         # The sweep: 0 → +arc → −arc round the object's centre line.
         tau = np.arange(0.0, 3 * arc / sweep, dt)
         swept = sweep * tau
-        angle = np.where(swept < arc, swept, 2 * arc - swept)
-        c, sn = np.cos(angle), np.sin(angle)
-        facing = obj.facing
-        offsets = distance * np.column_stack([c * facing[0] - sn * facing[1], sn * facing[0] + c * facing[1]])
-        path = np.column_stack([obj.aim[0] + offsets[:, 0], obj.aim[1] + offsets[:, 1], np.full(len(tau), stand[2])])
+        path = np.column_stack(
+            [obj.around(distance, np.where(swept < arc, swept, 2 * arc - swept)), np.full(len(tau), stand[2])]
+        )
         sweep_yaw, sweep_pitch = _look_at(path, obj.aim)
         parts.append((path, sweep_yaw, sweep_pitch))
         position = path[-1]

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from synth.environments import Box
+from synth.environments import Box, Scene, with_boxes
 
 # Clutter boxes this close (m) to an object's corners are removed: the object stands where they stood.
 OBJECT_CLEARANCE_M = 0.05
@@ -28,6 +28,13 @@ class WallObject:
     def viewpoint(self, distance_m: float) -> np.ndarray:
         """Where to stand (x, y) to scan the object from ``distance_m`` (from the box's centre line)."""
         return self.aim[:2] + distance_m * self.facing
+
+    def around(self, distance_m: float, angles: np.ndarray) -> np.ndarray:
+        """The places (N×2, x, y) ``distance_m`` from the box's centre line at ``angles`` (radians, N) from its
+        viewpoint, turning anticlockwise: where a sweep round the object passes."""
+        c, s = np.cos(angles), np.sin(angles)
+        f = self.facing
+        return self.aim[:2] + distance_m * np.column_stack([c * f[0] - s * f[1], s * f[0] + c * f[1]])
 
 
 def wall_point(angle: float, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -75,10 +82,10 @@ def place_wall_objects(
     return placed
 
 
-def corner_points(objects: list[WallObject]) -> np.ndarray:
-    """The eight corners of every object's box (N·8 × 3): clutter within :data:`OBJECT_CLEARANCE_M` of them is in
-    the object's place."""
-    return np.array(
+def with_wall_objects(scene: Scene, objects: list[WallObject], rng: np.random.Generator) -> Scene:
+    """``scene`` with ``objects`` added (after its own boxes, as textured clutter drawn from ``rng``), less the
+    clutter boxes within :data:`OBJECT_CLEARANCE_M` of their corners: an object stands where they stood."""
+    corners = np.array(
         [
             [x, y, z]
             for b in (o.box for o in objects)
@@ -87,3 +94,4 @@ def corner_points(objects: list[WallObject]) -> np.ndarray:
             for z in (0.0, b.hi[2])
         ]
     )
+    return with_boxes(scene.without_boxes_near(corners, OBJECT_CLEARANCE_M), [o.box for o in objects], rng)

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from synth.config import EnvironmentPreset, SensorConfig
-from synth.environments import RICH_TILES, Scene, build_scene, with_boxes
-from synth.wall_objects import OBJECT_CLEARANCE_M, corner_points, place_wall_objects
+from synth.environments import RICH_TILES, Scene, build_scene
+from synth.wall_objects import place_wall_objects, with_wall_objects
 
 # Clearance (m) kept between the operator's path (walks and sweeps) and clutter boxes.
 PATH_CLEARANCE_M = 0.3
@@ -106,21 +106,12 @@ def build_scan_task(
     # height), and the objects' own places.
     viewpoints = [o.viewpoint(scan_distance_m) for o in placed]
     path = [np.linspace(a, b, 20) for a, b in zip(viewpoints[:-1], viewpoints[1:])]
-    for o in placed:
-        aim, normal = o.aim, o.facing
-        angles = np.radians(np.linspace(-scan_arc_deg, scan_arc_deg, 9))
-        rotated = np.column_stack(
-            [
-                np.cos(angles) * normal[0] - np.sin(angles) * normal[1],
-                np.sin(angles) * normal[0] + np.cos(angles) * normal[1],
-            ]
-        )
-        path.append(aim[:2] + scan_distance_m * rotated)
+    angles = np.radians(np.linspace(-scan_arc_deg, scan_arc_deg, 9))
+    path += [o.around(scan_distance_m, angles) for o in placed]
     path_xy = np.vstack(path)
     scene = scene.without_boxes_near(np.column_stack([path_xy, np.full(len(path_xy), 1.2)]), PATH_CLEARANCE_M)
-    scene = scene.without_boxes_near(corner_points(placed), OBJECT_CLEARANCE_M)
-    clutter = list(scene.boxes)
-    scene = with_boxes(scene, [o.box for o in placed], rng)
+    scene = with_wall_objects(scene, placed, rng)
+    clutter = scene.boxes[: len(scene.boxes) - len(placed)]  # the objects come after the room's own boxes
 
     lights = np.array([_light_at(scene, o.aim) for o in placed])
     objects = []

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from estimator.dataset.store import RUNS_DIR, read_run_info
+from estimator.dataset.store import RUNS_DIR, SAMPLES_CSV, read_run_info
 
 ALPHA_M = 0.004
 
@@ -26,7 +26,7 @@ def main() -> None:
         info = read_run_info(folder)
         if info is None:
             continue
-        samples = pd.read_csv(folder / "samples.csv")
+        samples = pd.read_csv(folder / SAMPLES_CSV)
         usable = samples[samples.usable & (samples.status == "labelled")]
         keys = {"motion_group": info.motion_group, "camera_model": info.camera_model}
         runs.append(keys | {"tracked": info.frames_tracked / info.frames})
