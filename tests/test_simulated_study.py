@@ -34,7 +34,7 @@ from seesys_app.simulate.config import load_simulate_config
 from seesys_app.simulate.operator import Goal, SimulatedOperator, draw_traits
 from seesys_app.simulate.scan_task import build_scan_task
 from seesys_app.simulate.session import OPERATOR_JSON, Participant, simulate_session
-from seesys_app.simulate.study import Job, pending_jobs, run_study
+from seesys_app.simulate.study import Job, pending_jobs, prepare_study, run_study
 from seesys_app.simulate.yoking import partner_of
 from study.protocol import read_protocol
 from study.sessions import RUN_JSON, attempt_folders
@@ -100,6 +100,23 @@ def test_settings_that_cannot_work_are_refused_by_name(tmp_path):
     folder = write_config_dir(tmp_path / "d", {"simulate.design": "crossover"})
     with pytest.raises(ConfigError, match="crossover"):
         load_simulate_config(folder)
+
+
+def test_the_sessions_a_yoked_one_waits_for_are_queued_first_so_partners_never_run_last_alone(tmp_path):
+    cfg = load_simulate_config()
+    cfg = dataclasses.replace(cfg, study=dataclasses.replace(cfg.study, participants_per_condition=3))
+    protocol = prepare_study(tmp_path / "study", cfg, default_model(load_service_config(), None))
+    jobs, total = pending_jobs(tmp_path / "study", protocol)
+    assert total == len(jobs) == 15
+    assert [(job.participant.id, job.participant.condition) for job in jobs[:3]] == [
+        ("P01", "seesys"),
+        ("P02", "seesys"),
+        ("P03", "seesys"),
+    ]
+    assert [job.participant.id for job in jobs[3:]] == sorted(job.participant.id for job in jobs[3:])
+    queued = [job.folder for job in jobs]
+    assert all(queued.index(job.after) < queued.index(job.folder) for job in jobs if job.after is not None)
+    assert sum(job.after is not None for job in jobs) == 3
 
 
 @pytest.fixture(scope="module")

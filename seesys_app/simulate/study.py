@@ -147,8 +147,10 @@ def prepare_study(study: Path, cfg: SimulateConfig, model: Path) -> Protocol:
 
 
 def pending_jobs(study: Path, protocol: Protocol) -> tuple[list[Job], int]:
-    """The sessions not done yet, in participant order, and how many sessions the study has. A ``yoked`` session
-    waits for the ``seesys`` session it replays (:mod:`seesys_app.simulate.yoking`)."""
+    """The sessions not done yet and how many sessions the study has. A ``yoked`` session waits for the ``seesys``
+    session it replays (:mod:`seesys_app.simulate.yoking`), so the sessions some other one waits for come first,
+    then the rest, each part in participant order: otherwise the last partners of a study run one at a time, with
+    processes free and nothing they may start."""
     jobs, total = [], 0
     for number, person in enumerate(protocol.participants, start=1):
         for condition in person.conditions:
@@ -157,7 +159,8 @@ def pending_jobs(study: Path, protocol: Protocol) -> tuple[list[Job], int]:
             if phase_status(folder) != DONE:
                 after = partner_folder(study, protocol, PHASE, person.id) if condition == Condition.YOKED else None
                 jobs.append(Job(Participant(person.id, number, condition), folder, after))
-    return jobs, total
+    waited_for = {job.after for job in jobs}
+    return sorted(jobs, key=lambda job: job.folder not in waited_for), total
 
 
 def recorded_settings(study: Path) -> SimulateConfig:
