@@ -2,7 +2,7 @@
 
 Reads the render phases of ``build_log.jsonl`` (render frames/s) and the ``run.json`` of every completed run
 (seconds per frame of SLAM + monitor at camera pace, labelling and windowing, start-up included) of a dataset
-folder, and projects the default build (configs/dataset.toml: every preset × 3 motion groups × the configured
+folder, and projects the default build (configs/dataset.toml: every preset × the configured motion groups ×
 duration × trials × modes):
 
     .venv/bin/python benchmarks/dataset_build_time.py DATASET_DIR [--frames 900] [--trials 2] [--modes 1]
