@@ -11,7 +11,10 @@ over sessions.
 
     .venv/bin/python docs/simulated-study/pilot-forest-v5/served_models.py PILOT BUILD FINAL_SPLITS \
         --model NAME=MODEL [--model NAME=MODEL ...] [--against NAME] --out served_models.csv \
-        --differences differences.csv
+        --differences differences.csv [--predictions predictions.csv]
+
+``--predictions`` writes every window's truth and each row's estimate in the layout of evaluate's
+``predictions.csv`` (set "all sessions", round 0, the participant as the run).
 """
 
 import argparse
@@ -44,6 +47,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--differences", type=Path, required=True)
     parser.add_argument("--against", action="append", default=[], metavar="NAME", help="also compare with this row")
+    parser.add_argument("--predictions", type=Path, help="also write each window's truth and estimates here")
     args = parser.parse_args()
 
     config, pulses, window_config = load_estimator_config(), load_pulse_settings(), load_window_config()
@@ -62,6 +66,13 @@ def main() -> None:
         name, _, path = entry.partition("=")
         estimates[name] = load_predictor(Path(path), transform, config.evaluation.batch_size).metres(data)
 
+    if args.predictions:
+        windows = data.meta[["run", "frame_index", "timestamp"]].assign(true_m=data.error_m)
+        pd.concat(
+            [windows.assign(set=ALL, row=row, round=0, estimate_m=estimate) for row, estimate in estimates.items()]
+        )[["set", "row", "round", "run", "frame_index", "timestamp", "true_m", "estimate_m"]].to_csv(
+            args.predictions, index=False
+        )
     motion = motion_statistic(data.rts)
     alpha = pulses.equation2.alpha_m
     records = []
