@@ -54,7 +54,7 @@ def _operator(cfg, number: int, seed: int) -> SimulatedOperator:
     )
     traits = draw_traits(np.random.default_rng([1, number]), cfg.operator, cfg.response)
     traits = dataclasses.replace(traits, compliance=1.0)
-    goals = [Goal(o.aim, task.viewpoint(o.number, traits.scan_distance_m)) for o in task.objects]
+    goals = [Goal(o.aim, o.viewpoint(traits.scan_distance_m)) for o in task.objects]
     start = np.append(goals[0].stand + task.objects[0].facing, goals[0].aim[2] + 0.15)
     return SimulatedOperator(
         traits,

@@ -17,7 +17,7 @@ import numpy as np
 
 from synth.config import EnvironmentPreset, SensorConfig
 from synth.environments import RICH_TILES, Scene, build_scene
-from synth.wall_objects import place_wall_objects, with_wall_objects
+from synth.wall_objects import WallObject, place_wall_objects, with_wall_objects
 
 # Clearance (m) kept between the operator's path (walks and sweeps) and clutter boxes.
 PATH_CLEARANCE_M = 0.3
@@ -44,13 +44,11 @@ class TaskConfig:
 
 
 @dataclass(frozen=True)
-class TaskObject:
-    """One object to scan: the point the operator aims at (its top, world frame), the horizontal unit vector from
-    it into the room (where the operator stands), and what makes its place hard."""
+class TaskObject(WallObject):
+    """One object to scan (a box against a wall: where the operator aims and stands, :class:`WallObject`), its place
+    in the scanning order, and what makes its place hard."""
 
     number: int  # 1, 2, ... in scanning order
-    aim: np.ndarray
-    facing: np.ndarray
     regions: tuple[str, ...]  # of "bare wall", "dark", "clutter"; empty: a textured, lit, open place
     light_share: float  # light reaching it / the best lit object's
 
@@ -68,11 +66,6 @@ class TaskObject:
 class ScanTask:
     scene: Scene
     objects: tuple[TaskObject, ...]
-
-    def viewpoint(self, number: int, distance_m: float) -> np.ndarray:
-        """Where the operator stands (x, y) to scan object ``number`` from ``distance_m``."""
-        obj = self.objects[number - 1]
-        return obj.aim[:2] + distance_m * obj.facing
 
 
 def _light_at(scene: Scene, point: np.ndarray) -> float:
@@ -126,5 +119,5 @@ def build_scan_task(
         near = sum(1 for b in clutter if np.linalg.norm((b.lo[:2] + b.hi[:2]) / 2 - aim[:2]) < task.clutter_radius_m)
         if near >= task.clutter_boxes:
             regions.append("clutter")
-        objects.append(TaskObject(k, aim, normal, tuple(regions), share))
+        objects.append(TaskObject(o.aim, o.facing, o.box, k, tuple(regions), share))
     return ScanTask(scene, tuple(objects))

@@ -124,7 +124,7 @@ def simulate_session(
     )
     seed = cfg.study.operator_seed * 100_003 + participant.number
     traits = draw_traits(np.random.default_rng([cfg.study.operator_seed, participant.number]), ranges, response)
-    goals = [Goal(o.aim, task.viewpoint(o.number, traits.scan_distance_m)) for o in task.objects]
+    goals = [Goal(o.aim, o.viewpoint(traits.scan_distance_m)) for o in task.objects]
     first = task.objects[0]
     start = np.append(goals[0].stand + first.facing * task_cfg.start_offset_m, first.aim[2] + 0.15)
     operator = SimulatedOperator(
