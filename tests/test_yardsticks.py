@@ -24,6 +24,7 @@ from estimator.deepsee.yardsticks import (
     Judged,
     bootstrap_over_runs,
     calibration,
+    capped_aurg,
     paired_differences,
     partial_spearman,
     quadratic_kappa,
@@ -85,6 +86,24 @@ def test_sparsification_by_hand():
     truth = np.array([1.0, 2.0, 3.0, 6.0])
     ause, aurg = sparsification(np.array([1.0, 2.0, 6.0, 3.0]), truth)
     assert ause == pytest.approx(1 / 12) and aurg == pytest.approx(1 - 8.5 / 12)
+
+
+def test_aurg_to_the_top_class_is_not_decided_by_one_map_jump():
+    """99 windows of 1-11 mm and one of 4 m (a map jump). A row that finds only the jump wins AURG, since the jump
+    holds most of the summed error; a row that ranks the 99 right but the jump last loses it. Capped at the top
+    class (12 mm) the jump counts as 12 mm, and the row that ranks what the advisory tells apart wins."""
+    truth = np.append(np.linspace(0.001, 0.011, 99), 4.0)
+    finds_the_jump = np.append(np.zeros(99), 1.0)
+    ranks_the_rest = np.append(np.linspace(0.001, 0.011, 99), 0.0)
+    assert sparsification(finds_the_jump, truth)[1] > 0.8 > 0.0 > sparsification(ranks_the_rest, truth)[1]
+    assert capped_aurg(ranks_the_rest, truth, 0.012) > 0.2 > 0.02 > capped_aurg(finds_the_jump, truth, 0.012)
+    assert capped_aurg(ranks_the_rest, truth, 0.012) == sparsification(ranks_the_rest, np.minimum(truth, 0.012))[1]
+    empty = np.zeros(0)
+    judged = Judged(
+        np.zeros(100), truth, ranks_the_rest, truth, empty, empty, empty, empty.astype(int), empty.astype(int)
+    )
+    figures = yardsticks(judged, 4, 0.012)
+    assert figures["aurg_capped"] == capped_aurg(ranks_the_rest, truth, 0.012) and figures["aurg"] < 0.0
 
 
 def test_partial_spearman_removes_what_the_motion_explains():

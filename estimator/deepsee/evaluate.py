@@ -241,7 +241,7 @@ def _judge_round(
 #: The rows every trained row is compared with, run by run: the motion alone and the forest.
 COMPARED = (MOTION_ISOTONIC, RANDOM_FOREST)
 #: The yardsticks of a paired comparison.
-DIFFERENCES = ("kappa", "aurg", "spearman", "partial_spearman")
+DIFFERENCES = ("kappa", "aurg", "aurg_capped", "spearman", "partial_spearman")
 
 
 def _difference_columns() -> list[str]:

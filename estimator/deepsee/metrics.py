@@ -63,6 +63,7 @@ class Scores:
     kappa: float = float("nan")
     ause: float = float("nan")
     aurg: float = float("nan")
+    aurg_capped: float = float("nan")  # the truth capped at the top class boundary (large_error_m)
     partial_spearman: float = float("nan")  # given the window's motion statistic
     head_kappa: float = float("nan")
     head_brier: float = float("nan")  # mean over the head's thresholds
@@ -74,6 +75,8 @@ class Scores:
     kappa_high: float = float("nan")
     aurg_low: float = float("nan")
     aurg_high: float = float("nan")
+    aurg_capped_low: float = float("nan")
+    aurg_capped_high: float = float("nan")
     spearman_low: float = float("nan")
     spearman_high: float = float("nan")
     partial_spearman_low: float = float("nan")
@@ -230,6 +233,7 @@ def score(
         kappa=point["kappa"],
         ause=point["ause"],
         aurg=point["aurg"],
+        aurg_capped=point["aurg_capped"],
         partial_spearman=point["partial_spearman"],
         head_kappa=head[2],
         head_brier=calibrated[0],

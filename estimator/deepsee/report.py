@@ -56,6 +56,7 @@ COLUMNS = (
     ("partial_spearman", "partial ρ given motion", "{:.2f}"),
     ("kappa", "κ (quadratic)", "{:.2f}"),
     ("aurg", "AURG", "{:.2f}"),
+    ("aurg_capped", "AURG to 12 mm", "{:.2f}"),
     ("ause", "AUSE", "{:.2f}"),
     ("agreement", "advisory agreement", "{:.2f}"),
     ("recall_large", "recall ≥ 12 mm", "{:.2f}"),
@@ -258,13 +259,13 @@ def difference_lines(differences: pd.DataFrame, set_name: str) -> list[str]:
         "Paired over runs (the same resampled runs for both rows): each row minus the compared row, with the "
         f"interval of the difference ({DIFFERENCES_CSV}); an interval above 0 says the row is better on these runs:",
         "",
-        "| row | minus | Δ κ | Δ AURG | Δ partial ρ given motion |",
-        "|---|---|---|---|---|",
+        "| row | minus | Δ κ | Δ AURG | Δ AURG to 12 mm | Δ partial ρ given motion |",
+        "|---|---|---|---|---|---|",
     ]
     for (row, against), group in part.groupby(["row", "against"], sort=False):
         cells = [
             _cell(group[name], "{:+.2f}", group[f"{name}_low"], group[f"{name}_high"])
-            for name in ("kappa", "aurg", "partial_spearman")
+            for name in ("kappa", "aurg", "aurg_capped", "partial_spearman")
         ]
         lines.append(f"| {row} | {against} | " + " | ".join(cells) + " |")
     return lines + [""]
@@ -398,7 +399,9 @@ def write_report(
             "when all are "
             "right). AURG and AUSE: the sparsification curve (windows removed largest estimate first, the mean true "
             "error of those kept, divided by the mean of all), its mean gain over a random order (AURG; 0 for a "
-            "constant) and its mean gap to the order of the truth (AUSE; 0 for a perfect order). Partial ρ given "
+            "constant) and its mean gap to the order of the truth (AUSE; 0 for a perfect order). AURG to 12 mm: the "
+            "same AURG with every true error from the top class boundary on counted at it, so that a few metre-scale "
+            "windows (map jumps, which the motion row finds by construction) do not decide it. Partial ρ given "
             "motion: Spearman ρ of estimate and truth given the window's motion statistic (the standard deviation of "
             "its relative translation).",
             f"- Brackets: {100 * config.evaluation.confidence:g} % bootstrap interval over runs "

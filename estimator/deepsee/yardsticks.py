@@ -15,6 +15,12 @@
   gap between the random curve (1) and the estimate's (0 for a constant, above 0 when the order helps). Windows
   with equal estimates are removed together: each counts at the mean truth of its tie, so a constant estimate's
   curve is exactly flat.
+- **AURG to the top class** (``aurg_capped``): the same AURG with every true error from the advisory's top class
+  boundary (Equation 2's β, ``large_error_m``) on counted at that boundary. Where a few windows are metres off (a
+  SLAM trial tracking across a jump of its map), they hold most of a set's summed error and AURG mostly says which
+  row removes them first; the motion statistic finds them by construction, since the jump is in the estimated
+  trajectory. For the advisory every error from β on is the same class, so this one says how a row ranks the
+  errors the advisory tells apart.
 - **Partial Spearman ρ** of the estimate with the truth given the window's motion statistic
   (:func:`estimator.deepsee.references.motion_statistic`): how much of the ranking is not the motion's. The
   first-order partial correlation of scipy's ``spearmanr`` matrix, the value of pingouin's
@@ -83,6 +89,12 @@ def sparsification(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, floa
     by_estimate = _kept_means(estimate, truth) / scale
     oracle = _kept_means(truth, truth) / scale
     return float(np.mean(by_estimate - oracle)), float(np.mean(1.0 - by_estimate))
+
+
+def capped_aurg(estimate: np.ndarray, truth: np.ndarray, cap_m: float) -> float:
+    """AURG of ``estimate`` against ``truth`` with every truth above ``cap_m`` counted as ``cap_m`` (module
+    docstring); NaN as :func:`sparsification`."""
+    return sparsification(estimate, np.minimum(np.asarray(truth, float), cap_m))[1]
 
 
 def spearman(estimate: np.ndarray, truth: np.ndarray) -> float:
@@ -184,12 +196,21 @@ class Judged:
 
 
 #: The yardsticks of :func:`yardsticks` that get a bootstrap interval (``<name>_low``, ``<name>_high``).
-WITH_INTERVALS = ("agreement", "kappa", "aurg", "spearman", "partial_spearman", "median_ratio", "recall_large")
+WITH_INTERVALS = (
+    "agreement",
+    "kappa",
+    "aurg",
+    "aurg_capped",
+    "spearman",
+    "partial_spearman",
+    "median_ratio",
+    "recall_large",
+)
 
 
 def yardsticks(judged: Judged, classes: int, large_error_m: float) -> dict[str, float]:
     """Agreement, κ and recall of ≥ ``large_error_m`` bins (bins); Spearman ρ, partial ρ given motion, AUSE,
-    AURG and median ratio (windows)."""
+    AURG, AURG with the truth capped at ``large_error_m`` and median ratio (windows)."""
     large = judged.bin_truth_m >= large_error_m
     ause, aurg = sparsification(judged.estimate_m, judged.truth_m)
     return {
@@ -202,6 +223,7 @@ def yardsticks(judged: Judged, classes: int, large_error_m: float) -> dict[str, 
         "partial_spearman": partial_spearman(judged.estimate_m, judged.truth_m, judged.motion),
         "ause": ause,
         "aurg": aurg,
+        "aurg_capped": capped_aurg(judged.estimate_m, judged.truth_m, large_error_m),
         "median_ratio": median_ratio(judged.estimate_m, judged.truth_m),
     }
 

@@ -1,12 +1,13 @@
 """How each row of an evaluation ranks the windows' errors on the advisory's scale, beside AURG as evaluate reports it.
 
-AURG follows the mean true error of the windows kept as the largest estimates are removed, so a handful of
-metre-scale windows (ORB-SLAM3 reporting tracking across a jump of its map) can hold most of a set's summed error,
-and whichever row removes those first gains most of the AURG. A map jump is in the estimated trajectory, so the
-window's relative motion, the motion row's input, shows it. Equation 2 gives every error from β on the same class,
-so for the advisory a window's error counts up to β: here the same sparsification (estimator.deepsee.yardsticks) is
-run with the truth clipped at β, each row paired with the motion row on the same windows, with the evaluation's
-bootstrap over runs (configs/estimator.toml). Diagnostic only: it chooses nothing.
+AURG follows the mean true error of the windows kept as the largest estimates are removed, so a handful of metre-scale
+windows (ORB-SLAM3 reporting tracking across a jump of its map) can hold most of a set's summed error, and whichever row
+removes those first gains most of the AURG. A map jump is in the estimated trajectory, so the window's relative motion,
+the motion row's input, shows it. Equation 2 gives every error from β on the same class, so for the advisory a window's
+error counts up to β: here AURG to the top class (the truth capped at β, ``capped_aurg`` of
+estimator.deepsee.yardsticks, which evaluate reports as ``aurg_capped``) beside AURG, each row paired with the motion
+row on the same windows, with the evaluation's bootstrap over runs (configs/estimator.toml). Diagnostic only: it chooses
+nothing.
 
     python docs/v5-build/scan-group/advisory_scale_ranking.py PREDICTIONS --out advisory_scale_ranking.csv
 
@@ -17,6 +18,7 @@ true_m, estimate_m).
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,24 +26,29 @@ import pandas as pd
 
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.metrics import bootstrap_settings
-from estimator.deepsee.yardsticks import Judged, paired_differences, sparsification
+from estimator.deepsee.yardsticks import Judged, capped_aurg, paired_differences, sparsification
 from seesys.io.core_settings import load_pulse_settings
 
 AGAINST = "motion_isotonic"
 SKIPPED = ("constant", "always_top")  # a constant's AURG is 0 on any scale
 METRE_SCALE_M = 0.1  # a window at or above it is reported as part of the tail
+SCALES = ("aurg", "aurg_clipped_at_beta")
 
 
-def _judged(windows: pd.DataFrame, estimate: str, beta_m: float | None) -> Judged:
-    """The windows as the yardsticks read them (no bins: only the sparsification is computed); the truth clipped at
-    ``beta_m`` where given."""
-    truth = windows.true_m.to_numpy() if beta_m is None else np.minimum(windows.true_m.to_numpy(), beta_m)
-    empty = np.zeros(0)
+def _judged(windows: pd.DataFrame, estimate: str) -> Judged:
+    """The windows as the yardsticks read them (no bins: only the sparsification is computed)."""
+    truth, empty = windows.true_m.to_numpy(), np.zeros(0)
     return Judged(windows.run.to_numpy(), truth, windows[estimate].to_numpy(), truth, empty, empty, empty, empty, empty)
 
 
-def _aurg(judged: Judged) -> dict[str, float]:
-    return {"aurg": sparsification(judged.estimate_m, judged.truth_m)[1]}
+def _ranking(beta_m: float) -> Callable[[Judged], dict[str, float]]:
+    def statistic(judged: Judged) -> dict[str, float]:
+        return {
+            "aurg": sparsification(judged.estimate_m, judged.truth_m)[1],
+            "aurg_clipped_at_beta": capped_aurg(judged.estimate_m, judged.truth_m, beta_m),
+        }
+
+    return statistic
 
 
 def main() -> None:
@@ -49,7 +56,7 @@ def main() -> None:
     parser.add_argument("predictions", type=Path)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
-    beta_m = load_pulse_settings().equation2.beta_m
+    statistic = _ranking(load_pulse_settings().equation2.beta_m)
     settings = bootstrap_settings(load_estimator_config().evaluation)
     predictions = pd.read_csv(args.predictions)
     rows = []
@@ -69,16 +76,16 @@ def main() -> None:
                 "windows_at_or_above_0.1m": int(tail.sum()),
                 "their_share_of_the_summed_error": float(paired.true_m[tail].sum() / paired.true_m.sum()),
             }
-            for scale, clip in (("aurg", None), ("aurg_clipped_at_beta", beta_m)):
-                own, other = _judged(paired, "estimate_m", clip), _judged(paired, "estimate_m_motion", clip)
-                oracle = _judged(paired.assign(estimate_m=own.truth_m), "estimate_m", clip)
-                points, intervals = paired_differences(own, other, _aurg, ("aurg",), settings)
+            own, other = _judged(paired, "estimate_m"), _judged(paired, "estimate_m_motion")
+            oracle = statistic(_judged(paired.assign(estimate_m=paired.true_m), "estimate_m"))
+            points, intervals = paired_differences(own, other, statistic, SCALES, settings)
+            for scale in SCALES:
                 result |= {
-                    scale: _aurg(own)["aurg"],
-                    f"{scale}_oracle": _aurg(oracle)["aurg"],
-                    f"{scale}_minus_motion": points["aurg"],
-                    f"{scale}_minus_motion_low": intervals["aurg"][0],
-                    f"{scale}_minus_motion_high": intervals["aurg"][1],
+                    scale: statistic(own)[scale],
+                    f"{scale}_oracle": oracle[scale],
+                    f"{scale}_minus_motion": points[scale],
+                    f"{scale}_minus_motion_low": intervals[scale][0],
+                    f"{scale}_minus_motion_high": intervals[scale][1],
                 }
             rows.append(result)
     pd.DataFrame(rows).to_csv(args.out, index=False)
