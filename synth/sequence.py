@@ -127,11 +127,12 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
         recorded = full.window(start, length)
         faster = Trajectory(recorded.times / speed, recorded.positions, recorded.rotations)
         trajectory = place_real(faster, lo, hi, config.trajectory, rng)
+        scene = scene.without_boxes_near(trajectory.positions, config.trajectory.box_clearance_m)
         group, name = real.group, real.name
         duration = min(duration, trajectory.duration - margin)
     elif spec.motion == SCAN_GROUP:
         # Boxes against the walls, scanned at close range: clutter is cleared from the path and the boxes' places
-        # only (the other groups keep box_clearance_m from every box), then the boxes are added.
+        # only (the other motions keep box_clearance_m from every box), then the boxes are added.
         task = config.scan
         objects = place_wall_objects(
             scene.room,
@@ -148,6 +149,7 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
     elif spec.motion in MOTION_GROUPS:
         motion = getattr(config.motion, spec.motion)
         trajectory = generate_motion(spec.motion, motion, lo, hi, config.trajectory, duration + margin, rng)
+        scene = scene.without_boxes_near(trajectory.positions, config.trajectory.box_clearance_m)
         group, name = spec.motion, f"{spec.motion}_{spec.seed}"
     else:
         raise SeesysError(
@@ -155,8 +157,6 @@ def plan_sequence(spec: SequenceSpec, config: SynthConfig) -> SequencePlan:
             f"{REAL_PREFIX}<name> ({', '.join(r.name for r in config.real_trajectories)})"
         )
 
-    if spec.motion != SCAN_GROUP:
-        scene = scene.without_boxes_near(trajectory.positions, config.trajectory.box_clearance_m)
     count = int(np.floor(duration * camera.fps)) if spec.frames is None else spec.frames
     if count < 1:
         raise SeesysError(f"sequence too short: {duration:.2f} s gives no frame")
