@@ -37,9 +37,10 @@ venv: $(STAMP)
 setup: apt venv
 
 # The whole app on the embedded sample (150 frames at camera rate): ORB-SLAM3 + RTS monitor, the estimator
-# service with the shipped DeepSEE model, the advisory in the seesys condition. The audio goes to the default output
-# device (or, with no sound card, only to the WAV); the session folder gets every part's logs, the WAV of what
-# was played, summary.json and plot.png (estimated vs true error, the pulses, Equation 2's thresholds).
+# service with the served model (configs/service.toml: the random forest), the advisory in the seesys condition.
+# The audio goes to the default output device (or, with no sound card, only to the WAV); the session folder gets
+# every part's logs, the WAV of what was played, summary.json and plot.png (estimated vs true error, the pulses,
+# Equation 2's thresholds).
 demo: setup
 	rm -rf $(DEMO_OUT)
 	$(BIN)/seesys run --source tum:data/sample --local --condition seesys --out $(DEMO_OUT)
