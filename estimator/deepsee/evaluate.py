@@ -113,6 +113,21 @@ class _Tables:
     differences: list = field(default_factory=list)
 
 
+def prediction_table(key: dict, data: Windows, estimate_m: np.ndarray) -> pd.DataFrame:
+    """One row per window of ``data``: ``key`` (set, row, round), the window's run, frame and time, its true error
+    and ``estimate_m``: the rows of ``predictions.csv``."""
+    return pd.DataFrame(
+        {
+            **key,
+            "run": data.meta.run.to_numpy(),
+            "frame_index": data.meta.frame_index.to_numpy(),
+            "timestamp": data.meta.timestamp.to_numpy(),
+            "true_m": data.error_m,
+            "estimate_m": estimate_m,
+        }
+    )
+
+
 def judge(
     tables: _Tables,
     key: dict,
@@ -127,18 +142,7 @@ def judge(
     tables.scores.append(
         {**key, **asdict(score(data.meta, estimate_m, data.error_m, config.evaluation, pulses, probabilities, motion))}
     )
-    tables.predictions.append(
-        pd.DataFrame(
-            {
-                **key,
-                "run": data.meta.run.to_numpy(),
-                "frame_index": data.meta.frame_index.to_numpy(),
-                "timestamp": data.meta.timestamp.to_numpy(),
-                "true_m": data.error_m,
-                "estimate_m": estimate_m,
-            }
-        )
-    )
+    tables.predictions.append(prediction_table(key, data, estimate_m))
     if "camera_model" in data.meta and len(data):
         for camera, rows in data.meta.groupby("camera_model").groups.items():
             rows = np.asarray(rows)

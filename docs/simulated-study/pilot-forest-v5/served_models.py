@@ -28,7 +28,7 @@ from estimator.artefact.transforms import LabelTransform
 from estimator.dataset.splits import read_splits
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import concat, session_windows, split_windows
-from estimator.deepsee.evaluate import paired_difference_values
+from estimator.deepsee.evaluate import paired_difference_values, prediction_table
 from estimator.deepsee.metrics import bootstrap_settings, judged, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import MOTION_ISOTONIC, fit_references, motion_statistic
@@ -67,12 +67,8 @@ def main() -> None:
         estimates[name] = load_predictor(Path(path), transform, config.evaluation.batch_size).metres(data)
 
     if args.predictions:
-        windows = data.meta[["run", "frame_index", "timestamp"]].assign(true_m=data.error_m)
-        pd.concat(
-            [windows.assign(set=ALL, row=row, round=0, estimate_m=estimate) for row, estimate in estimates.items()]
-        )[["set", "row", "round", "run", "frame_index", "timestamp", "true_m", "estimate_m"]].to_csv(
-            args.predictions, index=False
-        )
+        tables = [prediction_table({"set": ALL, "row": row, "round": 0}, data, e) for row, e in estimates.items()]
+        pd.concat(tables).to_csv(args.predictions, index=False)
     motion = motion_statistic(data.rts)
     alpha = pulses.equation2.alpha_m
     records = []
