@@ -27,12 +27,11 @@ import pandas as pd
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.metrics import bootstrap_settings
 from estimator.deepsee.yardsticks import Judged, capped_aurg, paired_differences, sparsification
-from seesys.io.core_settings import load_pulse_settings
 
 AGAINST = "motion_isotonic"
 SKIPPED = ("constant", "always_top")  # a constant's AURG is 0 on any scale
 METRE_SCALE_M = 0.1  # a window at or above it is reported as part of the tail
-SCALES = ("aurg", "aurg_clipped_at_beta")
+SCALES = ("aurg", "aurg_capped")
 
 
 def _judged(windows: pd.DataFrame, estimate: str) -> Judged:
@@ -41,11 +40,11 @@ def _judged(windows: pd.DataFrame, estimate: str) -> Judged:
     return Judged(windows.run.to_numpy(), truth, windows[estimate].to_numpy(), truth, empty, empty, empty, empty, empty)
 
 
-def _ranking(beta_m: float) -> Callable[[Judged], dict[str, float]]:
+def _ranking(cap_m: float) -> Callable[[Judged], dict[str, float]]:
     def statistic(judged: Judged) -> dict[str, float]:
         return {
             "aurg": sparsification(judged.estimate_m, judged.truth_m)[1],
-            "aurg_clipped_at_beta": capped_aurg(judged.estimate_m, judged.truth_m, beta_m),
+            "aurg_capped": capped_aurg(judged.estimate_m, judged.truth_m, cap_m),
         }
 
     return statistic
@@ -56,8 +55,9 @@ def main() -> None:
     parser.add_argument("predictions", type=Path)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
-    statistic = _ranking(load_pulse_settings().equation2.beta_m)
-    settings = bootstrap_settings(load_estimator_config().evaluation)
+    evaluation = load_estimator_config().evaluation
+    statistic = _ranking(evaluation.large_error_m)  # the cap of evaluate's aurg_capped: Equation 2's beta
+    settings = bootstrap_settings(evaluation)
     predictions = pd.read_csv(args.predictions)
     rows = []
     for (name, round_), judged_set in predictions.groupby(["set", "round"], sort=False):
@@ -77,11 +77,12 @@ def main() -> None:
                 "their_share_of_the_summed_error": float(paired.true_m[tail].sum() / paired.true_m.sum()),
             }
             own, other = _judged(paired, "estimate_m"), _judged(paired, "estimate_m_motion")
+            figures = statistic(own)
             oracle = statistic(_judged(paired.assign(estimate_m=paired.true_m), "estimate_m"))
             points, intervals = paired_differences(own, other, statistic, SCALES, settings)
             for scale in SCALES:
                 result |= {
-                    scale: statistic(own)[scale],
+                    scale: figures[scale],
                     f"{scale}_oracle": oracle[scale],
                     f"{scale}_minus_motion": points[scale],
                     f"{scale}_minus_motion_low": intervals[scale][0],
