@@ -79,22 +79,29 @@ def _kept_means(order_key: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.cumsum(averaged)[kept - 1] / kept
 
 
+def _relative_kept_means(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray | None:
+    """:func:`_kept_means` of ``estimate`` over the mean truth; None without windows or with a zero mean truth."""
+    if len(truth) == 0 or not truth.mean() > 0:
+        return None
+    return _kept_means(estimate, truth) / truth.mean()
+
+
 def sparsification(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """(AUSE, AURG) of ``estimate`` against ``truth`` (module docstring); NaN without windows or with a zero mean
     truth."""
     estimate, truth = np.asarray(estimate, float), np.asarray(truth, float)
-    if len(truth) == 0 or not truth.mean() > 0:
+    by_estimate = _relative_kept_means(estimate, truth)
+    if by_estimate is None:
         return float("nan"), float("nan")
-    scale = truth.mean()
-    by_estimate = _kept_means(estimate, truth) / scale
-    oracle = _kept_means(truth, truth) / scale
+    oracle = _kept_means(truth, truth) / truth.mean()
     return float(np.mean(by_estimate - oracle)), float(np.mean(1.0 - by_estimate))
 
 
 def capped_aurg(estimate: np.ndarray, truth: np.ndarray, cap_m: float) -> float:
     """AURG of ``estimate`` against ``truth`` with every truth above ``cap_m`` counted as ``cap_m`` (module
-    docstring); NaN as :func:`sparsification`."""
-    return sparsification(estimate, np.minimum(np.asarray(truth, float), cap_m))[1]
+    docstring); NaN as :func:`sparsification`. The AURG alone: no oracle curve."""
+    by_estimate = _relative_kept_means(np.asarray(estimate, float), np.minimum(np.asarray(truth, float), cap_m))
+    return float("nan") if by_estimate is None else float(np.mean(1.0 - by_estimate))
 
 
 def spearman(estimate: np.ndarray, truth: np.ndarray) -> float:
