@@ -8,7 +8,11 @@ the device beside the model's, and where each millisecond goes: the service's st
 (:mod:`estimator.service.stages`, p50 and p99 of each stage from ``seesys estimator status``) and the transit
 (device → broker and broker → device: the device's latency less the server's). Beside them, the floor of any path
 through a broker and a worker process: a bare ZeroMQ round trip between two processes (DEALER ⇄ ROUTER over ipc, a
-200-byte message, paced as one device's windows), of which the path makes two (device ⇄ broker, broker ⇄ worker).
+200-byte message, paced as one device's windows), of which the path makes two (device ⇄ broker, broker ⇄ worker);
+and the floor of a path with one crossing: one process that does in its loop what the broker and the worker do on
+the path (decode the frame, add it to its device's window, prepare and run the model, encode the estimate and publish
+it; the service's code for each), with no broker, no worker, no checks or counters, timed the same way at the device
+(the least a service of any layout could reach on this machine with these stages).
 
 Then the throughput rows. Each simulated device replays a logged session's feature stream (``rts.csv`` +
 ``psd/``) at 30 Hz on its own connection to ``seesys estimator serve`` (a subprocess with a private configuration:
@@ -37,6 +41,7 @@ Usage: ``.venv/bin/python benchmarks/estimator_service.py [--devices 1,16,40,64,
 from __future__ import annotations
 
 import argparse
+import gc
 import multiprocessing
 import os
 import platform
@@ -44,6 +49,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from multiprocessing.synchronize import Event
 from pathlib import Path
 
 import numpy as np
@@ -52,12 +58,14 @@ import zmq
 from pacing import paced
 
 from estimator.service.config import load_service_config
+from estimator.service.device_windows import DeviceWindows
 from estimator.service.model import ServedModel
 from estimator.service.sandbox import private_configs, start_service, wait_ready
 from estimator.service.simulate import DeviceFleet
 from estimator.service.stages import STAGES
 from estimator.service.status import query_status
 from seesys.core import messages
+from seesys.core.messages import Estimate, FeatureFrame
 from seesys.core.windows import assemble_windows
 from seesys.io.core_settings import load_window_config
 from seesys.io.resources import resolve
@@ -238,6 +246,64 @@ def round_trip_ms(folder: Path, runs: int, period_s: float) -> np.ndarray:
     return times * 1000.0
 
 
+def _one_process_service(ingest: str, estimates: str, model_path: Path, ready: Event) -> None:
+    """The far end of :func:`one_process_ms`: each frame decoded, added to its window and, where one ends, the model
+    run and the estimate published, in this one loop (ended by the parent's terminate)."""
+    windows, config = load_window_config(), load_service_config()
+    model = ServedModel.load(model_path, windows, threads=1, providers=config.providers)
+    device_windows = DeviceWindows(model, windows)
+    context = zmq.Context()
+    ingest_socket, estimates_socket = context.socket(zmq.SUB), context.socket(zmq.PUB)
+    ingest_socket.subscribe(b"")
+    ingest_socket.bind(ingest)
+    estimates_socket.bind(estimates)
+    gc.freeze()  # as the broker and the worker do
+    ready.set()
+    while True:
+        frame = messages.decode(ingest_socket.recv_multipart(), psd=model.reads_psd)
+        if not isinstance(frame, FeatureFrame):
+            continue
+        window = device_windows.add(frame).window
+        if window is None:
+            continue
+        result = model.run(model.prepare([window]))
+        estimate = Estimate(
+            window.device_id,
+            window.frame_index,
+            window.timestamp,
+            float(result.errors_m[0]),
+            model.version,
+            0.0,
+            frame.stream_session,
+            result.head(0),
+            frame.translation_covariance,
+        )
+        estimates_socket.send_multipart(messages.encode(estimate))
+
+
+def one_process_ms(folder: Path, model: Path, frames, seconds: float) -> np.ndarray:
+    """One simulated device's latencies (ms) against :func:`_one_process_service`: the floor of a path with one
+    crossing between processes and the service's stages on it."""
+    spawn = multiprocessing.get_context("spawn")
+    ingest, estimates = f"ipc://{folder.resolve()}/floor-in", f"ipc://{folder.resolve()}/floor-out"
+    ready = spawn.Event()
+    server = spawn.Process(target=_one_process_service, args=(ingest, estimates, model, ready))
+    server.start()
+    try:
+        if not ready.wait(START_TIMEOUT_S):
+            raise RuntimeError("the one-process service did not load its model")
+        fleet = DeviceFleet(ingest, estimates, ["floor-0"])
+        time.sleep(1.0)  # connections and subscriptions settle
+        try:
+            result = fleet.replay(frames, seconds, RATE_HZ, load_window_config())
+        finally:
+            fleet.close()
+    finally:
+        server.terminate()
+        server.join(10)
+    return np.asarray(result.latency_ms, dtype=float)
+
+
 def decode_cpu_us(frames) -> tuple[float, float, float]:
     """CPU µs to decode one of the session's feature messages with a PSD, one with its PSD read past (what the
     broker does for a model that reads none) and one without, as the broker does for every frame (its share of the
@@ -257,9 +323,11 @@ def _p(values, q: float) -> float:
     return float(np.percentile(values, q)) if len(values) else float("nan")
 
 
-def print_latency(model: dict[str, np.ndarray], row: dict, period_s: float, round_trip: np.ndarray) -> None:
+def print_latency(
+    model: dict[str, np.ndarray], row: dict, period_s: float, round_trip: np.ndarray, one_process: np.ndarray
+) -> None:
     """The one-device table: model alone and service path side by side, the path's excess, the floor of two
-    round trips between processes, and the breakdown."""
+    round trips between processes and that of one process, and the breakdown."""
     device = np.asarray(row["latencies"], dtype=float)
     print(
         "\none device, window's last frame sent → estimate received, against the model alone (ONNX Runtime, "
@@ -283,6 +351,14 @@ def print_latency(model: dict[str, np.ndarray], row: dict, period_s: float, roun
         f"{len(round_trip):>6}"
     )
     print(f"{'two of them (the path makes two)':<46}{2 * _p(round_trip, 50):>8.2f}{2 * _p(round_trip, 99):>8.2f}")
+    print(
+        f"{'one process, the same stages, no broker':<46}{_p(one_process, 50):>8.2f}{_p(one_process, 99):>8.2f}"
+        f"{len(one_process):>6}"
+    )
+    print(
+        f"{'one process − one run every ' + f'{period_s * 1000:.0f} ms':<46}"
+        f"{_p(one_process, 50) - _p(model['paced'], 50):>+8.2f}{_p(one_process, 99) - _p(model['paced'], 99):>+8.2f}"
+    )
     stages_ms = row["status"]["stages_ms"]
     if not stages_ms:
         print("no stage times (no estimate reached the broker)")
@@ -363,7 +439,8 @@ def main() -> None:
             alone = model_alone(model, frames, args.model_runs, period_s)
             round_trip = round_trip_ms(folder, paced_runs(args.model_runs), period_s)
             one_device = latency_run(folder, model, frames, args.latency_seconds)
-            print_latency(alone, one_device, period_s, round_trip)
+            one_process = one_process_ms(folder, model, frames, args.latency_seconds)
+            print_latency(alone, one_device, period_s, round_trip, one_process)
             with_psd, read_past, without = decode_cpu_us(frames)
             print(
                 f"decoding one feature message (the broker, every frame; CPU): {with_psd:.0f} µs with a PSD, "
