@@ -14,7 +14,7 @@ from testkit.service import ServiceProcess, ServiceSetup
 
 from estimator.artefact.onnx_model import CPU, CUDA, choose_providers
 from estimator.service.status import format_status
-from estimator.service.worker import batch_size
+from estimator.service.worker_core import batch_size
 from seesys.core.errors import ConfigError
 
 _LOAD_WITHOUT_TORCH = """

@@ -26,7 +26,7 @@ restarted), which is logged and counted in ``takeovers``.
 
 Status. Every drop is counted per device by name: the broker's own (``queue_full``, ``no_worker``,
 ``out_of_order``, ``id_in_use``) and every reason the workers report (``settings_mismatch``,
-``shape_mismatch``, ``missing_rts``, ``missing_psd``, ``stale``: :data:`estimator.service.worker.DROP_REASONS`).
+``shape_mismatch``, ``missing_rts``, ``missing_psd``, ``stale``: :data:`estimator.service.worker_core.DROP_REASONS`).
 
 With ``[curve]`` set the ingest and estimates sockets are CurveZMQ servers and a ZAP handler admits only the
 clients in the allow-list.
@@ -49,7 +49,7 @@ from zmq.auth.thread import ThreadAuthenticator
 
 from estimator.service import envelope, keys, stages
 from estimator.service.config import ServiceConfig
-from estimator.service.worker import DROP_REASONS
+from estimator.service.worker_core import DROP_REASONS
 from seesys.core import messages
 from seesys.core.errors import SeesysError
 from seesys.core.messages import FeatureFrame, MessageError
