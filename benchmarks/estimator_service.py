@@ -3,8 +3,9 @@ on 1 and 2 worker processes.
 
 First, one device's latency beside the model's own cost, in one run: the served model alone (ONNX Runtime, batch 1,
 one intra-op thread, as a worker runs it) on the session's windows, back to back and paced at one device's window
-rate; then one simulated device against a fresh service with one worker for ``--latency-seconds``, its latency at
-the device beside the model's, and where each millisecond goes: the service's stage breakdown
+rate; then one simulated device for ``--latency-seconds`` against each of two fresh services in turn, one with one
+worker process (``worker process``) and one whose broker runs the model itself (``--workers 0``: ``in the broker``),
+its latency at the device beside the model's, and where each millisecond goes: each service's stage breakdown
 (:mod:`estimator.service.stages`, p50 and p99 of each stage from ``seesys estimator status``) and the transit
 (device → broker and broker → device: the device's latency less the server's). Beside them, the floor of any path
 through a broker and a worker process: a bare ZeroMQ round trip between two processes (DEALER ⇄ ROUTER over ipc, a
@@ -323,62 +324,66 @@ def _p(values, q: float) -> float:
     return float(np.percentile(values, q)) if len(values) else float("nan")
 
 
+def _row(name: str, p50: float, p99: float, n: int | None = None, sign: str = "") -> None:
+    print(f"{name:<60}{p50:>{sign}8.2f}{p99:>{sign}8.2f}" + (f"{n:>6}" if n is not None else ""))
+
+
 def print_latency(
-    model: dict[str, np.ndarray], row: dict, period_s: float, round_trip: np.ndarray, one_process: np.ndarray
+    model: dict[str, np.ndarray],
+    paths: dict[str, dict],
+    period_s: float,
+    round_trip: np.ndarray,
+    one_process: np.ndarray,
 ) -> None:
-    """The one-device table: model alone and service path side by side, the path's excess, the floor of two
-    round trips between processes and that of one process, and the breakdown."""
-    device = np.asarray(row["latencies"], dtype=float)
+    """The one-device table: the model alone and each service path (``paths``: by layout, as :func:`latency_run`
+    gives it) side by side, each path's excess over the model, the floors (two round trips between processes; one
+    process doing the path's stages), and each path's breakdown."""
     print(
         "\none device, window's last frame sent → estimate received, against the model alone (ONNX Runtime, "
         "batch 1, 1 thread); ms"
     )
-    print(f"{'':<46}{'p50':>8}{'p99':>8}{'n':>6}")
-    lines = [
-        ("model alone, back to back", model["back_to_back"]),
-        (f"model alone, one run every {period_s * 1000:.0f} ms", model["paced"]),
-        ("service path, one device", device),
+    print(f"{'':<60}{'p50':>8}{'p99':>8}{'n':>6}")
+    alone = [
+        ("back to back", model["back_to_back"]),
+        (f"one run every {period_s * 1000:.0f} ms", model["paced"]),
     ]
-    for name, values in lines:
-        print(f"{name:<46}{_p(values, 50):>8.2f}{_p(values, 99):>8.2f}{len(values):>6}")
-    for name, values in lines[:2]:
-        print(
-            f"{'service path − ' + name.removeprefix('model alone, '):<46}"
-            f"{_p(device, 50) - _p(values, 50):>+8.2f}{_p(device, 99) - _p(values, 99):>+8.2f}"
+    latencies = {layout: np.asarray(row["latencies"], dtype=float) for layout, row in paths.items()}
+    measured = [*latencies.items(), ("one process, the path's stages only", one_process)]
+    for name, values in [*((f"model alone, {base}", v) for base, v in alone), *measured]:
+        _row(
+            name if name.startswith(("model", "one process")) else f"service path, {name}",
+            _p(values, 50),
+            _p(values, 99),
+            len(values),
         )
-    print(
-        f"{'bare round trip between two processes':<46}{_p(round_trip, 50):>8.2f}{_p(round_trip, 99):>8.2f}"
-        f"{len(round_trip):>6}"
-    )
-    print(f"{'two of them (the path makes two)':<46}{2 * _p(round_trip, 50):>8.2f}{2 * _p(round_trip, 99):>8.2f}")
-    print(
-        f"{'one process, the same stages, no broker':<46}{_p(one_process, 50):>8.2f}{_p(one_process, 99):>8.2f}"
-        f"{len(one_process):>6}"
-    )
-    print(
-        f"{'one process − one run every ' + f'{period_s * 1000:.0f} ms':<46}"
-        f"{_p(one_process, 50) - _p(model['paced'], 50):>+8.2f}{_p(one_process, 99) - _p(model['paced'], 99):>+8.2f}"
-    )
-    stages_ms = row["status"]["stages_ms"]
-    if not stages_ms:
+    for name, values in measured:
+        for base, reference in alone:
+            _row(f"{name} − {base}", _p(values, 50) - _p(reference, 50), _p(values, 99) - _p(reference, 99), sign="+")
+    _row("bare round trip between two processes", _p(round_trip, 50), _p(round_trip, 99), len(round_trip))
+    _row("two of them (a path through a worker makes two)", 2 * _p(round_trip, 50), 2 * _p(round_trip, 99))
+    timed = {layout: row["status"]["stages_ms"] for layout, row in paths.items() if row["status"]["stages_ms"]}
+    if not timed:
         print("no stage times (no estimate reached the broker)")
         return
-    server = stages_ms["server"]
     print("\nwhere the time goes (each stage's own p50 and p99; p50s of parts need not add up to the total's)")
-    print(f"{'stage':<46}{'p50':>8}{'p99':>8}")
-    print(
-        f"{'transit, device ⇄ broker (path − server)':<46}{_p(device, 50) - server['p50']:>8.2f}"
-        f"{_p(device, 99) - server['p99']:>8.2f}"
-    )
+    print(f"{'':<60}" + "".join(f"{layout[:16]:>16}" for layout in timed))
+    print(f"{'stage':<60}" + f"{'p50':>8}{'p99':>8}" * len(timed))
+    transit = [
+        f"{_p(latencies[layout], q) - stages['server'][f'p{q}']:>8.2f}"
+        for layout, stages in timed.items()
+        for q in (50, 99)
+    ]
+    print(f"{'transit, device ⇄ broker (path − server)':<60}" + "".join(transit))
     for stage in STAGES:
-        print(f"{stage:<46}{stages_ms[stage]['p50']:>8.2f}{stages_ms[stage]['p99']:>8.2f}")
+        print(f"{stage:<60}" + "".join(f"{t[stage]['p50']:>8.2f}{t[stage]['p99']:>8.2f}" for t in timed.values()))
 
 
-def latency_run(folder: Path, model: Path, frames, seconds: float) -> dict:
-    """One simulated device against a fresh service with one worker: its latencies and the service's status."""
-    config_dir, endpoints = private_configs(folder / "latency", connect_device_stream=False)
-    log = folder / "serve-latency.log"
-    serve = start_service(config_dir, model, "--workers", "1", log=log)
+def latency_run(folder: Path, model: Path, frames, seconds: float, workers: int) -> dict:
+    """One simulated device against a fresh service with ``workers`` worker processes (0: the broker runs the
+    model): its latencies and the service's status."""
+    config_dir, endpoints = private_configs(folder / f"latency-{workers}", connect_device_stream=False)
+    log = folder / f"serve-latency-{workers}.log"
+    serve = start_service(config_dir, model, "--workers", str(workers), log=log)
     try:
         wait_ready(serve, endpoints["status"], START_TIMEOUT_S, log)
         windows = load_window_config()
@@ -438,9 +443,12 @@ def main() -> None:
             period_s = windows.end_stride / RATE_HZ
             alone = model_alone(model, frames, args.model_runs, period_s)
             round_trip = round_trip_ms(folder, paced_runs(args.model_runs), period_s)
-            one_device = latency_run(folder, model, frames, args.latency_seconds)
+            paths = {
+                layout: latency_run(folder, model, frames, args.latency_seconds, workers)
+                for layout, workers in (("worker process", 1), ("in the broker", 0))
+            }
             one_process = one_process_ms(folder, model, frames, args.latency_seconds)
-            print_latency(alone, one_device, period_s, round_trip, one_process)
+            print_latency(alone, paths, period_s, round_trip, one_process)
             with_psd, read_past, without = decode_cpu_us(frames)
             print(
                 f"decoding one feature message (the broker, every frame; CPU): {with_psd:.0f} µs with a PSD, "

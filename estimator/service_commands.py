@@ -23,18 +23,20 @@ def _serve(args: argparse.Namespace) -> int:
     from estimator.service.serve import serve
 
     config, network, windows = _configs()
-    if args.workers is not None and args.workers < 1:
-        raise SeesysError("--workers must be at least 1")
+    if args.workers is not None and args.workers < 0:
+        raise SeesysError("--workers must be at least 0 (0: the broker runs the model itself)")
     model = default_model(config, args.model)
     devices = list(args.device or [])
     if config.connect_device_stream and not config.curve.enabled:
         devices.insert(0, network.features_endpoint)
-    workers = args.workers or config.workers
+    workers = config.workers if args.workers is None else args.workers
 
     def ready(broker) -> None:
         endpoints = broker.endpoints
         print(
-            f"serving {broker.model_version} on {workers} worker(s): features in at {endpoints['ingest']}"
+            f"serving {broker.model_version} "
+            + (f"on {workers} worker(s)" if workers else "in the broker's process")
+            + f": features in at {endpoints['ingest']}"
             + "".join(f" and {d}" for d in devices)
             + f", estimates out at {endpoints['estimates']}, status at "
             f"{endpoints['status']}, workers at {endpoints['workers']}",
@@ -118,7 +120,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "SIGTERM.",
     )
     p.add_argument("--model", type=Path, help="ONNX model (default: model of configs/service.toml)")
-    p.add_argument("--workers", type=int, help="local worker processes (default: configs/service.toml)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        help="local worker processes; 0: the broker runs the model itself (default: configs/service.toml)",
+    )
     p.add_argument(
         "--device",
         action="append",

@@ -216,6 +216,59 @@ def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(set
             extra.kill()
 
 
+@pytest.mark.system
+def test_with_no_worker_process_the_broker_serves_exactly_and_a_worker_started_later_takes_devices(
+    setup_factory, tiny_model
+):
+    """``serve --workers 0``: the broker runs the model itself, serves what the model computes with every stage timed,
+    lists itself as the one worker (in the service's own process), refuses a device of other settings
+    as a worker does; a worker started beside it takes the next new device and each device's order is kept."""
+    setup = setup_factory()
+    service = ServiceProcess(setup, tiny_model, "--workers", "0")
+    extra = None
+    try:
+        status = service.wait_ready()
+        assert [(w["name"], w["pid"]) for w in status["workers"]] == [("in-broker", service.process.pid)]
+        client = Client(setup, [messages.ESTIMATE_TOPIC])
+        frames = device_frames("dev-0", 120, seed=5)
+        estimates = serve_in_lockstep(client, frames)
+        expected = expected_errors(tiny_model, frames)
+        assert [e.frame_index for e in estimates] == sorted(expected)
+        np.testing.assert_allclose(
+            [e.error_m for e in estimates], [expected[e.frame_index] for e in estimates], rtol=1e-4
+        )
+        settings = dataclasses.replace(frames[0].settings, orb_features=frames[0].settings.orb_features + 1)
+        for frame in device_frames("dev-other", 61, seed=6, settings=settings):
+            client.send(frame)
+        refused = wait_for(
+            lambda: (s := service.status()) and s["devices"].get("dev-other", {}).get("settings_refused") and s,
+            what="the device of other settings to be refused",
+        )
+        assert refused["devices"]["dev-other"]["dropped"]["settings_mismatch"] >= 1
+        assert refused["devices"]["dev-other"]["estimates"] == 0
+        assert list(refused["stages_ms"]) == list(STAGES) and refused["stages_ms"]["inference"]["p50"] > 0
+
+        extra = subprocess.Popen(
+            [sys.executable, "-m", "seesys", "estimator", "worker", "--model", str(tiny_model), "--name", "extra"],
+            env=setup.env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        wait_for(lambda: len(service.status()["workers"]) == 2, what="the worker to join")
+        later = device_frames("dev-1", 120, seed=7)
+        assert [e.frame_index for e in serve_in_lockstep(client, later)] == sorted(expected_errors(tiny_model, later))
+        workers = {w["name"]: w["devices"] for w in service.status()["workers"]}
+        assert workers == {"in-broker": ["dev-0", "dev-other"], "extra": ["dev-1"]}
+        client.close()
+        assert service.stop(signal.SIGTERM) == 0
+        assert extra.wait(60) == 0  # the broker told it to stop
+        assert "in the broker's process" in service.output()
+    finally:
+        service.kill()
+        if extra is not None and extra.poll() is None:
+            extra.kill()
+
+
 def test_default_endpoints_are_loopback():
     config, network = load_service_config(), load_network_config()
     endpoints = [

@@ -17,6 +17,12 @@ Sockets (endpoints in ``configs/service.toml`` and ``network.toml``):
   while a device moves between workers);
 - status, REP, bound at ``status_endpoint``: ``seesys estimator status`` asks, the broker answers in JSON.
 
+A worker in the broker. Given a :class:`~estimator.service.worker_core.WorkerCore` (``workers = 0``), the broker
+runs the model itself: that core is one more worker, listed in the status as the others are and given devices as
+they are, but its frames are handed to it in this process and its estimates published from the same loop, with no
+hop to another process and back. While it runs a batch the broker reads nothing else, so it suits a few devices;
+workers that connect to ``worker_endpoint`` still take their share.
+
 Device ids. A device id belongs to the stream that used it first: its stream session (a random number the device
 draws when it starts and carries in every frame) and, with Curve on, its public key (the ZAP handler's User-Id of
 the connection). Frames with the same id from another stream session or key are refused, logged once per stream
@@ -49,7 +55,7 @@ from zmq.auth.thread import ThreadAuthenticator
 
 from estimator.service import envelope, keys, stages
 from estimator.service.config import ServiceConfig
-from estimator.service.worker_core import DROP_REASONS
+from estimator.service.worker_core import DROP_REASONS, WorkerCore
 from seesys.core import messages
 from seesys.core.errors import SeesysError
 from seesys.core.messages import FeatureFrame, MessageError
@@ -64,6 +70,9 @@ _FORWARD_BATCH = 16
 # The longest device id an Estimate can carry (a u8 length in seesys.core.messages): a frame whose id, carried in its
 # topic, is longer could never be answered, and its estimate's encoding would fail in the worker.
 _MAX_DEVICE_ID_BYTES = 255
+# The routing id of the worker in the broker's own process: a worker's socket cannot have it (ZeroMQ reserves ids that
+# begin with a zero byte, and those it makes itself are five bytes long).
+_IN_BROKER = b"\x00in-broker"
 
 
 class ServiceError(SeesysError):
@@ -131,6 +140,7 @@ class Broker:
         network: NetworkConfig,
         device_endpoints: Iterable[str] = (),
         ctx: zmq.Context | None = None,
+        core: WorkerCore | None = None,
     ):
         self.config, self.network = config, network
         self.device_endpoints = list(device_endpoints)
@@ -167,6 +177,9 @@ class Broker:
             options={zmq.ROUTER_MANDATORY: 1},
         )
         self.endpoints = {"workers": bound_endpoint(self._backend)}
+        self._core = core
+        if core is not None:
+            self._worker_says(_IN_BROKER, core.report(), is_stats=True)
 
     # ----------------------------------------------------------------------------------------------- start-up
     def wait_for_workers(self, count: int, timeout_s: float, alive: Callable[[], bool] = lambda: True) -> bool:
@@ -240,12 +253,15 @@ class Broker:
         poller = zmq.Poller()
         for sock in (self._backend, ingest, status):
             poller.register(sock, zmq.POLLIN)
+        core = self._core
         while not self._stopping:
-            events = dict(poller.poll(self.config.heartbeat_ms))
+            events = dict(poller.poll(0 if core is not None and core.has_ready else self.config.heartbeat_ms))
             if self._backend in events:
                 self._from_workers()
             if ingest in events:
                 self._from_devices()
+            if core is not None and core.has_ready:
+                self._publish(_IN_BROKER, core.serve_batch())
             if status in events:
                 status.recv_multipart()
                 status.send(envelope.pack_json(self.status()))
@@ -254,6 +270,8 @@ class Broker:
     def close(self) -> None:
         """Tell the workers to stop, close every socket, stop the ZAP handler."""
         for identity in list(self.workers):
+            if identity == _IN_BROKER:
+                continue
             # Gone or full: it stops on SIGTERM or when its parent ends.
             with contextlib.suppress(zmq.ZMQError):
                 self._backend.send_multipart([identity, envelope.STOP], zmq.NOBLOCK)
@@ -367,9 +385,16 @@ class Broker:
 
     def _forward(self, identity: bytes, items: list[tuple[DeviceState, float, FeatureFrame]]) -> None:
         """Send ``items`` (device, token, frame) to the worker ``identity`` as one message, each frame with its age
-        at the broker; a full queue drops them all (``queue_full``), a worker gone loses them (``no_worker``)."""
+        at the broker; a full queue drops them all (``queue_full``), a worker gone loses them (``no_worker``). The
+        worker in the broker is handed them here instead."""
         worker = self.workers.get(identity)
         now = time.monotonic()
+        if identity == _IN_BROKER and worker is not None and self._core is not None:
+            arrived = time.perf_counter()
+            for _, token, frame in items:
+                self._core.add(token, (now - token) * 1000.0, token, arrived, frame)
+            worker.forwarded += len(items)
+            return
         try:
             if worker is None:
                 raise zmq.ZMQError(zmq.EHOSTUNREACH)
@@ -455,6 +480,8 @@ class Broker:
             self.devices[device_id].worker = None  # reassigned with its next frame
 
     def _expire_workers(self) -> None:
+        if self._core is not None:
+            self.workers[_IN_BROKER].last_seen = time.monotonic()  # alive while this loop runs
         limit = time.monotonic() - self.config.worker_timeout_ms / 1000.0
         for identity in [i for i, w in self.workers.items() if w.last_seen < limit]:
             self._remove_worker(identity)
@@ -463,6 +490,8 @@ class Broker:
     def status(self) -> dict:
         """Devices, workers, rates, queue depths, drops and latency percentiles, as plain data."""
         now, window = time.monotonic(), self.config.rate_window_s
+        if self._core is not None:
+            self.workers[_IN_BROKER].report = self._core.report()
         reported: dict[str, dict[str, int]] = {reason: {} for reason in DROP_REASONS}
         nonfinite: dict[str, int] = {}
         refused: dict[str, str] = {}

@@ -49,8 +49,9 @@ class ServiceConfig:
     curve: CurveConfig
 
     def __post_init__(self) -> None:
+        if self.workers < 0:
+            raise ConfigError(f"service.toml: workers must be at least 0, got {self.workers}")
         for name in (
-            "workers",
             "max_message_bytes",
             "max_batch",
             "worker_queue",

@@ -1,4 +1,5 @@
-"""``seesys estimator serve``: the broker in this process and a pool of local worker processes beside it.
+"""``seesys estimator serve``: the broker in this process and a pool of local worker processes beside it, or, with
+no worker processes, the model run by the broker itself.
 
 Start-up: the broker binds the worker endpoint, the workers (``spawn``-ed, each dying with this process) load the
 model and say ready, and only then does the broker bind the device-facing endpoints. Shutdown: SIGINT or SIGTERM
@@ -17,11 +18,14 @@ from estimator.service.broker import Broker
 from estimator.service.config import ServiceConfig
 from estimator.service.model import ServedModel
 from estimator.service.worker import worker_process_main
+from estimator.service.worker_core import WorkerCore
 from seesys.core.windows import WindowConfig
 from seesys.io.network import NetworkConfig
 
 # Seconds a stopping worker gets to finish its batch before it is killed.
 _WORKER_EXIT_S = 10.0
+#: The name ``status`` gives the worker in the broker's process (``workers = 0``).
+IN_BROKER_NAME = "in-broker"
 
 
 def serve(
@@ -33,11 +37,13 @@ def serve(
     device_endpoints: list[str],
     on_ready: Callable[[Broker], None] = lambda broker: None,
 ) -> Broker:
-    """Run the service until SIGINT/SIGTERM; returns the stopped broker (its final counters). A model made for
+    """Run the service until SIGINT/SIGTERM; returns the stopped broker (its final counters). ``workers`` worker
+    processes; 0: the broker runs the model in its own loop (:mod:`estimator.service.broker`). A model made for
     other inputs, or a file that is no model, is refused here with one message (``ModelMismatch``), not in each
     worker."""
-    ServedModel.load(model, windows, providers=config.providers)
-    broker = Broker(config, network, device_endpoints)
+    served = ServedModel.load(model, windows, threads=1, providers=config.providers)
+    core = WorkerCore(served, windows, config, IN_BROKER_NAME) if workers == 0 else None
+    broker = Broker(config, network, device_endpoints, core=core)
     context = multiprocessing.get_context("spawn")
     backend = broker.endpoints["workers"]
     processes = [
