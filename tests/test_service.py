@@ -22,6 +22,7 @@ from estimator.service.keys import ClientKeys, make_key_pair
 from estimator.service.model import ServedModel
 from estimator.service.stages import STAGES
 from seesys.core import messages
+from seesys.core.errors import ConfigError
 from seesys.core.windows import assemble_windows
 from seesys.io.core_settings import load_window_config
 from seesys.io.network import load_network_config
@@ -267,6 +268,13 @@ def test_with_no_worker_process_the_broker_serves_exactly_and_a_worker_started_l
         service.kill()
         if extra is not None and extra.poll() is None:
             extra.kill()
+
+
+def test_no_worker_process_is_a_setting_and_fewer_is_refused_naming_it():
+    config = load_service_config()
+    assert dataclasses.replace(config, workers=0).workers == 0  # the broker runs the model
+    with pytest.raises(ConfigError, match="service.toml: workers must be at least 0, got -1"):
+        dataclasses.replace(config, workers=-1)
 
 
 def test_default_endpoints_are_loopback():
