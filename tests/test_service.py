@@ -161,6 +161,18 @@ def test_with_curve_a_client_not_allowed_gets_nothing_and_is_not_served(setup_fa
         service.kill()
 
 
+def join_worker(service: ServiceProcess, model) -> subprocess.Popen:
+    """``seesys estimator worker --name extra`` started beside the running ``service``, once the service lists it."""
+    extra = subprocess.Popen(
+        [sys.executable, "-m", "seesys", "estimator", "worker", "--model", str(model), "--name", "extra"],
+        env=service.setup.env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    wait_for(lambda: "extra" in [w["name"] for w in service.status()["workers"]], what="the second worker to join")
+    return extra
+
+
 @pytest.mark.system
 def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(setup_factory, tiny_model):
     """``serve`` with one worker, then ``seesys estimator worker`` started beside it: new devices are shared
@@ -170,13 +182,7 @@ def test_a_worker_started_later_takes_devices_and_each_devices_order_is_kept(set
     extra = None
     try:
         service.wait_ready()
-        extra = subprocess.Popen(
-            [sys.executable, "-m", "seesys", "estimator", "worker", "--model", str(tiny_model), "--name", "extra"],
-            env=setup.env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        wait_for(lambda: len(service.status()["workers"]) == 2, what="the second worker to join")
+        extra = join_worker(service, tiny_model)
         names = [f"dev-{k}" for k in range(6)]
         client = Client(setup, [messages.ESTIMATE_TOPIC])
         serve_in_lockstep(client, device_frames("probe", 31))  # both connections are up
@@ -249,13 +255,7 @@ def test_with_no_worker_process_the_broker_serves_exactly_and_a_worker_started_l
         assert refused["devices"]["dev-other"]["estimates"] == 0
         assert list(refused["stages_ms"]) == list(STAGES) and refused["stages_ms"]["inference"]["p50"] > 0
 
-        extra = subprocess.Popen(
-            [sys.executable, "-m", "seesys", "estimator", "worker", "--model", str(tiny_model), "--name", "extra"],
-            env=setup.env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        wait_for(lambda: len(service.status()["workers"]) == 2, what="the worker to join")
+        extra = join_worker(service, tiny_model)
         later = device_frames("dev-1", 120, seed=7)
         assert [e.frame_index for e in serve_in_lockstep(client, later)] == sorted(expected_errors(tiny_model, later))
         workers = {w["name"]: w["devices"] for w in service.status()["workers"]}
