@@ -56,6 +56,15 @@ def bad_messages(count: int, max_bytes: int) -> tuple[list[list[bytes]], dict[st
     return out, kinds
 
 
+def served_exactly(client: Client, model, frames: list) -> list:
+    """``frames`` served in lockstep: an estimate for every window, each what the model computes for it."""
+    estimates = serve_in_lockstep(client, frames)
+    expected = expected_errors(model, frames)
+    assert [e.frame_index for e in estimates] == sorted(expected)
+    np.testing.assert_allclose([e.error_m for e in estimates], [expected[e.frame_index] for e in estimates], rtol=1e-4)
+    return estimates
+
+
 @pytest.mark.system
 def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exactly(setup_factory, tiny_model):
     setup = setup_factory()
@@ -81,12 +90,7 @@ def test_ten_thousand_bad_messages_are_counted_then_a_valid_device_is_served_exa
         assert list(status["devices"]) == ["probe"]  # nothing refused reached a worker
 
         frames = device_frames("dev-1", 120, seed=3)
-        estimates = serve_in_lockstep(client, frames)
-        expected = expected_errors(tiny_model, frames)
-        assert [e.frame_index for e in estimates] == sorted(expected)
-        np.testing.assert_allclose(
-            [e.error_m for e in estimates], [expected[e.frame_index] for e in estimates], rtol=1e-4
-        )
+        estimates = served_exactly(client, tiny_model, frames)
         assert all(
             e.device_id == "dev-1"
             and e.model_version.startswith("tiny-")
@@ -238,12 +242,7 @@ def test_with_no_worker_process_the_broker_serves_exactly_and_a_worker_started_l
         assert [(w["name"], w["pid"]) for w in status["workers"]] == [("in-broker", service.process.pid)]
         client = Client(setup, [messages.ESTIMATE_TOPIC])
         frames = device_frames("dev-0", 120, seed=5)
-        estimates = serve_in_lockstep(client, frames)
-        expected = expected_errors(tiny_model, frames)
-        assert [e.frame_index for e in estimates] == sorted(expected)
-        np.testing.assert_allclose(
-            [e.error_m for e in estimates], [expected[e.frame_index] for e in estimates], rtol=1e-4
-        )
+        served_exactly(client, tiny_model, frames)
         settings = dataclasses.replace(frames[0].settings, orb_features=frames[0].settings.orb_features + 1)
         for frame in device_frames("dev-other", 61, seed=6, settings=settings):
             client.send(frame)
@@ -256,8 +255,7 @@ def test_with_no_worker_process_the_broker_serves_exactly_and_a_worker_started_l
         assert list(refused["stages_ms"]) == list(STAGES) and refused["stages_ms"]["inference"]["p50"] > 0
 
         extra = join_worker(service, tiny_model)
-        later = device_frames("dev-1", 120, seed=7)
-        assert [e.frame_index for e in serve_in_lockstep(client, later)] == sorted(expected_errors(tiny_model, later))
+        served_exactly(client, tiny_model, device_frames("dev-1", 120, seed=7))
         workers = {w["name"]: w["devices"] for w in service.status()["workers"]}
         assert workers == {"in-broker": ["dev-0", "dev-other"], "extra": ["dev-1"]}
         client.close()
