@@ -65,6 +65,36 @@ def test_values_replaced_by_zero_are_counted_per_row():
     np.testing.assert_array_equal(out, rts_schema.normalise(rows))
 
 
+def test_normalise_is_each_channels_transform_and_scale_value_by_value():
+    """Every channel's transform (log1p of the value clipped at 0, signed log1p, none) and scale, on values of every
+    magnitude and sign with NaN and ±inf among them, and a model's columns taken after: as written out one value at a
+    time; each value without a finite result is 0 and counted in its row."""
+    rng = np.random.default_rng(4)
+    shape = (6, 5, rts_schema.NUM_CHANNELS)
+    rows = rng.normal(size=shape) * 10.0 ** rng.uniform(-4, 4, shape)
+    for value, share in ((np.nan, 0.05), (np.inf, 0.02), (-np.inf, 0.02), (-0.0, 0.02)):
+        rows[rng.random(rows.shape) < share] = value
+    columns = np.array([7, 0, 3, *range(8, rts_schema.NUM_CHANNELS, 2)])
+    expected = np.zeros(rows.shape[:-1] + (len(columns),))
+    counts = np.zeros(rows.shape[:-1], dtype=int)
+    for index in np.ndindex(rows.shape[:-1]):
+        for k, c in enumerate(columns):
+            channel, v = rts_schema.CHANNELS[c], rows[index][c]
+            with np.errstate(invalid="ignore"):
+                if channel.transform == "log1p":
+                    v = np.log1p(max(v, 0.0)) if not np.isnan(v) else v
+                elif channel.transform == "signed_log1p":
+                    v = np.sign(v) * np.log1p(abs(v))
+            v = v / channel.scale
+            expected[index + (k,)] = v if np.isfinite(v) else 0.0
+            counts[index] += not np.isfinite(v)
+    out, replaced = rts_schema.normalise_counted(rows, columns)
+    assert out.dtype == np.float32 and out.shape == expected.shape
+    np.testing.assert_allclose(out, expected.astype(np.float32), rtol=1e-6, atol=0)
+    np.testing.assert_array_equal(replaced, counts)
+    assert {"identity", "log1p"} <= {rts_schema.CHANNELS[c].transform for c in columns}  # both kinds are covered
+
+
 def test_a_model_takes_its_own_channels_from_a_later_schemas_rows():
     """A model records its input channels by name and fingerprint: one made with the first 16 channels (schema v1)
     takes those columns of today's rows; a channel unknown here, or defined otherwise, is refused by name."""
