@@ -133,17 +133,19 @@ class WindowAssembler:
             self.refused = MISSING_PSD if history_arrived else None
             return None
         rts_indices = cfg.rts_frame_indices(end.frame_index)
-        rts = np.full((cfg.rts_length, rts_schema.NUM_CHANNELS), np.nan, dtype=np.float32)
-        missing = 0
-        for k, i in enumerate(rts_indices):
-            row = self._rows.get(int(i))
-            if row is not None:
-                rts[k] = row.rts
-            if row is None or not row.tracking_state.tracked:
-                missing += 1
+        rows = [self._rows.get(i) for i in range(end.frame_index - cfg.rts_length + 1, end.frame_index + 1)]
+        missing = sum(row is None or not row.tracking_state.tracked for row in rows)
         if missing > cfg.max_missing_rts:
             self.refused = MISSING_RTS if history_arrived else None
             return None
+        arrived = [row.rts for row in rows if row is not None]
+        if len(arrived) == len(rows):  # the usual window: one stacking copy instead of a row at a time
+            rts = np.stack(arrived).astype(np.float32, copy=False)
+        else:
+            rts = np.full((cfg.rts_length, rts_schema.NUM_CHANNELS), np.nan, dtype=np.float32)
+            for k, row in enumerate(rows):
+                if row is not None:
+                    rts[k] = row.rts
         psd = np.stack([self._psds[int(i)] for i in psd_indices]) if self.keeps_psd else NO_PSD
         return WindowSample(end.device_id, end.frame_index, end.timestamp, rts, rts_indices, psd, psd_indices, missing)
 
