@@ -349,13 +349,13 @@ def print_latency(
     ]
     latencies = {layout: np.asarray(row["latencies"], dtype=float) for layout, row in paths.items()}
     measured = [*latencies.items(), ("one process, the path's stages only", one_process)]
-    for name, values in [*((f"model alone, {base}", v) for base, v in alone), *measured]:
-        _row(
-            name if name.startswith(("model", "one process")) else f"service path, {name}",
-            _p(values, 50),
-            _p(values, 99),
-            len(values),
-        )
+    labelled = [
+        *((f"model alone, {base}", values) for base, values in alone),
+        *((f"service path, {layout}", values) for layout, values in latencies.items()),
+        measured[-1],
+    ]
+    for name, values in labelled:
+        _row(name, _p(values, 50), _p(values, 99), len(values))
     for name, values in measured:
         for base, reference in alone:
             _row(f"{name} − {base}", _p(values, 50) - _p(reference, 50), _p(values, 99) - _p(reference, 99), sign="+")

@@ -133,7 +133,7 @@ class WindowAssembler:
             self.refused = MISSING_PSD if history_arrived else None
             return None
         rts_indices = cfg.rts_frame_indices(end.frame_index)
-        rows = [self._rows.get(i) for i in range(end.frame_index - cfg.rts_length + 1, end.frame_index + 1)]
+        rows = [self._rows.get(i) for i in rts_indices.tolist()]
         missing = sum(row is None or not row.tracking_state.tracked for row in rows)
         if missing > cfg.max_missing_rts:
             self.refused = MISSING_RTS if history_arrived else None
