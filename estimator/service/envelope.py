@@ -28,7 +28,7 @@ from estimator.service import stages
 from seesys.core.device_settings import DeviceSettings
 from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
-from seesys.core.upper_triangle import symmetric_from_upper, upper_triangle
+from seesys.core.upper_triangle import symmetric_3x3, upper_triangle
 
 FRAME = b"F"
 STOP = b"Q"
@@ -118,7 +118,7 @@ def _unpack_frame(data: bytes) -> tuple[float, float, FeatureFrame]:
     at += 4 * rts_values
     covariance = None
     if flags & _HAS_COVARIANCE:
-        covariance = symmetric_from_upper(np.array(_COVARIANCE.unpack_from(data, at)))
+        covariance = symmetric_3x3(*_COVARIANCE.unpack_from(data, at))
         at += _COVARIANCE.size
     psd = np.frombuffer(data, np.uint8, h * w * layers, at).reshape(h, w, layers) if h else None
     return (

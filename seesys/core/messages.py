@@ -56,7 +56,7 @@ from seesys.core.device_settings import SLAM_MODES, DeviceSettings
 from seesys.core.errors import SeesysError
 from seesys.core.psd import KEYPOINT_LAYER
 from seesys.core.tracking_state import TrackingState
-from seesys.core.upper_triangle import symmetric_from_upper, upper_triangle
+from seesys.core.upper_triangle import symmetric_3x3, upper_triangle
 
 # 4: estimates carry the ordinal head's thresholds and probabilities (3 had none). 6: a feature frame's device id
 # only in its topic, its RTS row as float16 where it can be, its PSD in the stream's own code (5: the log's code).
@@ -83,6 +83,8 @@ _STREAM_PSD_HEAD = struct.Struct("<HHHBBHHH")
 #: Bytes per RTS value on the wire, and their type.
 _ROW_TYPES: dict[int, np.dtype] = {2: np.dtype("<f2"), 4: np.dtype("<f4")}
 _FLOAT16_MAX = float(np.finfo(np.float16).max)
+#: The covariance's six values on the wire (the upper triangle, in mm²) by their width: float16 or float32.
+_COVARIANCE_TYPES = {2: struct.Struct("<6e"), 4: struct.Struct("<6f")}
 
 
 class MessageError(SeesysError):
@@ -242,13 +244,14 @@ def _wire_covariance(covariance: np.ndarray) -> np.ndarray:
     return half if np.isfinite(half).all() else values
 
 
-def _covariance_matrix(values_mm2: np.ndarray) -> np.ndarray:
-    return symmetric_from_upper(np.asarray(values_mm2, np.float64) / _MM2_PER_M2)
+def _covariance_matrix(values_mm2: tuple[float, ...]) -> np.ndarray:
+    # Python floats, not an array: numpy's per-call cost was half of decoding a frame that ends a window.
+    return symmetric_3x3(*(v / _MM2_PER_M2 for v in values_mm2))
 
 
 def covariance_resolution(covariance: np.ndarray) -> np.ndarray:
     """The 3×3 translation covariance ``covariance`` (m²) as a receiver decodes it (see the module docstring)."""
-    return _covariance_matrix(_wire_covariance(covariance))
+    return _covariance_matrix(tuple(_wire_covariance(covariance).tolist()))
 
 
 def _pack_covariance(covariance: np.ndarray | None) -> bytes:
@@ -262,14 +265,13 @@ def _read_covariance(r: _Reader) -> np.ndarray | None:
     (width,) = r.take(1, "covariance width")
     if width == 0:
         return None
-    dtype = _ROW_TYPES.get(width)
-    if dtype is None:
+    layout = _COVARIANCE_TYPES.get(width)
+    if layout is None:
         raise MessageError(f"covariance values of {width} bytes are not float16 or float32")
-    values = np.frombuffer(r.take(6 * width, "translation covariance"), dtype=dtype)
-    covariance = _covariance_matrix(values)
-    if not np.isfinite(covariance).all() or (np.diag(covariance) < 0).any():
+    values = r.unpack(layout, "translation covariance")
+    if not all(math.isfinite(v) for v in values) or min(values[0], values[3], values[5]) < 0:
         raise MessageError(f"a translation covariance must be finite with a non-negative diagonal, got {values}")
-    return covariance
+    return _covariance_matrix(values)
 
 
 def _pack_head(head: tuple[Exceedance, ...]) -> bytes:
