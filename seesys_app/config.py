@@ -29,6 +29,11 @@ class SupervisionConfig:
 
 
 @dataclass(frozen=True)
+class LocalEstimatorConfig:
+    workers: int
+
+
+@dataclass(frozen=True)
 class ViewConfig:
     sparkline_s: float
     latency_window: int
@@ -49,6 +54,7 @@ class OutputConfig:
 class AppConfig:
     device: DeviceConfig
     supervision: SupervisionConfig
+    local_estimator: LocalEstimatorConfig
     view: ViewConfig
     output: OutputConfig
 
@@ -76,6 +82,8 @@ def load_app_config(directory: Path | None = None) -> AppConfig:
     problems += [f"{name} must be positive (got {value})" for name, value in positive.items() if value <= 0]
     if s.restart_delay_s < 0 or s.max_restarts < 0:
         problems.append("restart_delay_s and max_restarts must not be negative")
+    if cfg.local_estimator.workers < 0:
+        problems.append(f"local_estimator.workers must not be negative (got {cfg.local_estimator.workers})")
     if problems:
         raise ConfigError("app.toml: " + "; ".join(problems))
     return cfg

@@ -341,7 +341,8 @@ class App:
         self._shown_view.update(self._observer.look(state.parts), state)
 
     def _estimator_args(self) -> tuple[str, ...]:
-        return ("estimator", "serve") + (("--model", str(self.o.model)) if self.o.model else ())
+        workers = ("--workers", str(self.cfg.local_estimator.workers))
+        return ("estimator", "serve", *workers) + (("--model", str(self.o.model)) if self.o.model else ())
 
     def _advisory_args(self) -> dict[str, tuple[str, ...]]:
         """``seesys advisory generator|player`` arguments (the advisory supervisor's, the player also writing what it

@@ -67,8 +67,12 @@ def test_local_and_remote_estimator_exclude_each_other(tmp_path):
 
 
 def test_app_config_is_checked(tmp_path):
-    configs = write_config_dir(tmp_path / "configs", {"app.mode": "stereo", "max_restarts": -1})
-    with pytest.raises(ConfigError, match="device.mode must be one of rgbd, mono .*max_restarts must not be negative"):
+    configs = write_config_dir(tmp_path / "configs", {"app.mode": "stereo", "max_restarts": -1, "app.workers": -1})
+    with pytest.raises(
+        ConfigError,
+        match="device.mode must be one of rgbd, mono .*max_restarts must not be negative; "
+        r"local_estimator.workers must not be negative \(got -1\)",
+    ):
         load_app_config(configs)
 
 

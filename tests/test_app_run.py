@@ -194,6 +194,7 @@ def run():
         seen["running"] = pane.wait(lambda: pane.showing("ago", "p95"), "the view with an estimate", 30)
         estimator_pid = int(events(out).query("part == 'estimator' and event == 'started'").detail.iloc[0].split()[1])
         seen["children"] = [p.pid for p in app.children(recursive=True)]
+        seen["estimator_children"] = psutil.Process(estimator_pid).children(recursive=True)
         seen["killed_after_frame"] = int(estimates(out).frame_index.max())
         os.kill(estimator_pid, signal.SIGKILL)
         pane.wait(lambda: (events(out).event == "restarted").any(), "the estimator's restart in app_events.csv")
@@ -250,6 +251,13 @@ def test_the_view_shows_tracking_estimate_pulses_latency_drops_and_sparkline(run
     ):
         assert field in screen, f"{field!r} not on the screen:\n{screen}"
     assert any(c in screen for c in SPARK), screen
+
+
+@pytest.mark.system
+def test_the_local_estimator_runs_its_model_in_one_process(run):
+    out, seen = run
+    assert seen["estimator_children"] == []  # no worker process, and no resource tracker for one
+    assert "in the broker's process" in (out / "logs" / "estimator.log").read_text()
 
 
 @pytest.mark.system
