@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -55,6 +56,23 @@ def test_missing_and_untracked_rows():
     row = list(s[60].rts_frame_indices).index(45)
     assert np.isnan(s[60].rts[row]).all()  # a missing frame is a NaN row, not its neighbour's row
     assert 50 not in s  # the end frame must be tracked
+
+
+def test_a_missing_row_is_never_an_older_frame_that_held_its_place():
+    # Frames up to 40, then 70 and from 72: the window ending at 100 needs rows 71..100. Frame 71 never came; the frame
+    # the assembler last kept in its place (40: 31 frames, the window's history + 1, earlier) must not stand in for it.
+    frames = [frame(i) for i in [*range(0, 41), 70, *range(72, 101)]]
+    s = {w.frame_index: w for w in assemble_windows(frames, CFG)}
+    assert s[100].missing_rts == 1 and np.isnan(s[100].rts[0]).all()
+    assert s[100].rts[1:, 0].tolist() == list(range(72, 101))
+    assert 90 not in s  # rows 61..71 missing: more than max_missing_rts
+
+
+def test_a_row_that_is_not_the_schemas_is_refused_by_name():
+    for shape in [(rts_schema.NUM_CHANNELS + 1,), (1, rts_schema.NUM_CHANNELS), ()]:
+        odd = dataclasses.replace(frame(3), rts=np.zeros(shape, dtype=np.float32))
+        with pytest.raises(ValueError, match=re.escape(f"frame 3: an RTS row of shape {shape}, the schema has")):
+            WindowAssembler(CFG).add(odd)
 
 
 def test_too_many_missing_rows_or_a_missing_psd_gives_no_window():

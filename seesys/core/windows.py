@@ -92,12 +92,19 @@ class WindowAssembler:
     """Collects one device's feature frames and emits a :class:`WindowSample` whenever one is complete. With ``psd``
     False it keeps no PSD and a window needs none (for a model that reads none): the window ends at the same frames,
     its ``psd`` is :data:`NO_PSD`, and the frames may come without theirs (read past by
-    ``messages.decode(..., psd=False)``)."""
+    ``messages.decode(..., psd=False)``). Frames come in increasing frame index (a receiver starts a new assembler
+    when a device restarts); raises ValueError for a row that is not one of the schema's."""
 
     def __init__(self, config: WindowConfig, psd: bool = True):
         self.config = config
         self.keeps_psd = psd
-        self._rows: dict[int, FeatureFrame] = {}
+        # The rows of the last history + 1 frames in a ring, a frame's row in slot index % size: a frame copies its
+        # row in, and a window is one gather of its slots, where a row at a time (and forgetting the old ones) cost
+        # four times as much in the service's path.
+        self._size = config.history + 1
+        self._ring = np.zeros((self._size, rts_schema.NUM_CHANNELS), dtype=np.float32)
+        self._slot_frame = np.full(self._size, -1, dtype=np.int64)  # which frame each slot holds (-1: none yet)
+        self._slot_tracked = np.zeros(self._size, dtype=bool)
         self._psds: dict[int, np.ndarray] = {}
         self._first: int | None = None
         #: Why the window ending at the last frame added was refused (:data:`MISSING_RTS`, :data:`MISSING_PSD`);
@@ -111,17 +118,21 @@ class WindowAssembler:
         self.refused = None
         if self._first is None:
             self._first = index
-        self._rows[index] = frame
+        if np.shape(frame.rts) != (rts_schema.NUM_CHANNELS,):  # not broadcast into the ring
+            raise ValueError(
+                f"frame {index}: an RTS row of shape {np.shape(frame.rts)}, the schema has {rts_schema.NUM_CHANNELS} "
+                "channels"
+            )
+        slot = index % self._size
+        self._ring[slot] = frame.rts  # float32, as the window is
+        self._slot_frame[slot] = index
+        self._slot_tracked[slot] = frame.tracking_state.tracked
         if frame.psd is not None and self.keeps_psd:
             self._psds[index] = frame.psd
-        sample = self._window(frame) if self.config.is_psd_frame(index) else None
-        self._forget_before(index - self.config.history)
-        return sample
-
-    def _forget_before(self, oldest: int) -> None:
-        for store in (self._rows, self._psds):
-            for old in [i for i in store if i < oldest]:
-                del store[old]
+            oldest = index - self.config.history
+            for old in [i for i in self._psds if i < oldest]:
+                del self._psds[old]
+        return self._window(frame) if self.config.is_psd_frame(index) else None
 
     def _window(self, end: FeatureFrame) -> WindowSample | None:
         cfg = self.config
@@ -133,19 +144,15 @@ class WindowAssembler:
             self.refused = MISSING_PSD if history_arrived else None
             return None
         rts_indices = cfg.rts_frame_indices(end.frame_index)
-        rows = [self._rows.get(i) for i in rts_indices.tolist()]
-        missing = sum(row is None or not row.tracking_state.tracked for row in rows)
+        slots = rts_indices % self._size
+        arrived = self._slot_frame[slots] == rts_indices
+        missing = cfg.rts_length - int(np.count_nonzero(arrived & self._slot_tracked[slots]))
         if missing > cfg.max_missing_rts:
             self.refused = MISSING_RTS if history_arrived else None
             return None
-        arrived = [row.rts for row in rows if row is not None]
-        if len(arrived) == len(rows):  # the usual window: one stacking copy instead of a row at a time
-            rts = np.stack(arrived).astype(np.float32, copy=False)
-        else:
-            rts = np.full((cfg.rts_length, rts_schema.NUM_CHANNELS), np.nan, dtype=np.float32)
-            for k, row in enumerate(rows):
-                if row is not None:
-                    rts[k] = row.rts
+        rts = self._ring[slots]  # a copy: the ring moves on
+        if missing:
+            rts[~arrived] = np.nan  # an untracked frame's row stays as it came
         psd = np.stack([self._psds[int(i)] for i in psd_indices]) if self.keeps_psd else NO_PSD
         return WindowSample(end.device_id, end.frame_index, end.timestamp, rts, rts_indices, psd, psd_indices, missing)
 
