@@ -337,7 +337,7 @@ def test_a_translation_covariance_travels_with_the_frame_and_its_estimate_at_the
 def test_a_covariance_that_cannot_be_one_is_refused():
     window_end = feature(np.ones((4, 4, 3), np.uint8))
     topic, body = encode(dataclasses.replace(window_end, translation_covariance=_covariance(1e-6)))
-    start = body.index(bytes([2]) + messages._wire_covariance(_covariance(1e-6)).tobytes())
+    start = body.index(messages._pack_covariance(_covariance(1e-6)))
     negative = np.array([-1, 0, 0, 1, 0, 1], "<f2").tobytes()
     with pytest.raises(MessageError, match="non-negative diagonal"):
         decode([topic, body[: start + 1] + negative + body[start + 13 :]])

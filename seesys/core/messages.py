@@ -56,7 +56,7 @@ from seesys.core.device_settings import SLAM_MODES, DeviceSettings
 from seesys.core.errors import SeesysError
 from seesys.core.psd import KEYPOINT_LAYER
 from seesys.core.tracking_state import TrackingState
-from seesys.core.upper_triangle import symmetric_3x3, upper_triangle
+from seesys.core.upper_triangle import symmetric_3x3
 
 # 4: estimates carry the ordinal head's thresholds and probabilities (3 had none). 6: a feature frame's device id
 # only in its topic, its RTS row as float16 where it can be, its PSD in the stream's own code (5: the log's code).
@@ -233,15 +233,23 @@ def _read_row(r: _Reader, n_channels: int) -> np.ndarray:
 _MM2_PER_M2 = 1e6
 
 
-def _wire_covariance(covariance: np.ndarray) -> np.ndarray:
-    """The upper triangle in mm² as it travels: float16 where every value fits, else float32."""
+def _wire_covariance(covariance: np.ndarray) -> tuple[int, bytes]:
+    """The upper triangle in mm² as it travels: its width (2: float16 where every value fits, else 4: float32) and
+    its six values."""
     c = np.asarray(covariance, dtype=np.float64)
     if c.shape != (3, 3):
         raise ValueError(f"a translation covariance is 3×3, got {c.shape}")
-    values = (upper_triangle(c) * _MM2_PER_M2).astype("<f4")
-    with np.errstate(over="ignore"):
-        half = values.astype("<f2")
-    return half if np.isfinite(half).all() else values
+    xx, xy, xz, _, yy, yz, _, _, zz = c.ravel().tolist()
+    # float32 first (numpy's cast: out of range is ±inf), then float16 from those values, as the wire always rounded;
+    # plain floats and struct, not arrays: an estimate's encoding spent two thirds of its time here.
+    single = np.array([v * _MM2_PER_M2 for v in (xx, xy, xz, yy, yz, zz)], dtype="<f4")
+    values = single.tolist()
+    if all(math.isfinite(v) for v in values):
+        try:
+            return 2, _COVARIANCE_TYPES[2].pack(*values)
+        except OverflowError:  # beyond float16's range
+            pass
+    return 4, single.tobytes()
 
 
 def _covariance_matrix(values_mm2: tuple[float, ...]) -> np.ndarray:
@@ -251,14 +259,15 @@ def _covariance_matrix(values_mm2: tuple[float, ...]) -> np.ndarray:
 
 def covariance_resolution(covariance: np.ndarray) -> np.ndarray:
     """The 3×3 translation covariance ``covariance`` (m²) as a receiver decodes it (see the module docstring)."""
-    return _covariance_matrix(tuple(_wire_covariance(covariance).tolist()))
+    width, values = _wire_covariance(covariance)
+    return _covariance_matrix(_COVARIANCE_TYPES[width].unpack(values))
 
 
 def _pack_covariance(covariance: np.ndarray | None) -> bytes:
     if covariance is None:
         return b"\x00"
-    values = _wire_covariance(covariance)
-    return bytes([values.itemsize]) + values.tobytes()
+    width, values = _wire_covariance(covariance)
+    return bytes([width]) + values
 
 
 def _read_covariance(r: _Reader) -> np.ndarray | None:
