@@ -27,12 +27,11 @@ from pathlib import Path
 
 import numpy as np
 import psutil
-from estimator_service import RATE_HZ, START_TIMEOUT_S, model_file, record_session, service_cpu_s
+from estimator_service import RATE_HZ, START_TIMEOUT_S, replay_inputs, service_cpu_s
 
 from estimator.service.sandbox import private_configs, start_service, wait_ready
 from estimator.service.simulate import DeviceFleet
 from seesys.io.core_settings import load_window_config
-from seesys.io.rts_log import read_feature_frames
 
 LAYOUTS = (("one worker process", 1), ("the broker runs the model", 0))
 
@@ -84,9 +83,7 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="svcf") as tmp:
         folder = Path(tmp)
-        session = args.session or record_session(folder)
-        frames = list(read_feature_frames(session, "replay"))
-        model = model_file(folder, args.model)
+        session, frames, model = replay_inputs(folder, args.session, args.model)
         print(
             f"local estimator footprint: {platform.node()}, {os.cpu_count()} CPUs, model {model.name}, session "
             f"{session} ({len(frames)} frames) replayed by one device at {RATE_HZ:g} Hz for {args.seconds:g} s a "

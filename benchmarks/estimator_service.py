@@ -120,6 +120,13 @@ def model_file(folder: Path, given: Path | None) -> Path:
     return path
 
 
+def replay_inputs(folder: Path, session: Path | None, model: Path | None) -> tuple[Path, list[FeatureFrame], Path]:
+    """The session to replay (a recording of the sample made in ``folder`` when none is given), its feature frames,
+    and the model to serve (:func:`model_file`)."""
+    session = session or record_session(folder)
+    return session, list(read_feature_frames(session, "replay")), model_file(folder, model)
+
+
 def service_cpu_s(process: psutil.Process, children: bool = True) -> float:
     """CPU seconds of ``process`` (the broker) and, with ``children``, of its workers."""
     total = 0.0
@@ -429,9 +436,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory(prefix="svcb") as tmp:
         folder = Path(tmp)
-        session = args.session or record_session(folder)
-        frames = list(read_feature_frames(session, "replay"))
-        model = model_file(folder, args.model)
+        session, frames, model = replay_inputs(folder, args.session, args.model)
         windows = load_window_config()
         print(
             f"estimator service benchmark: {platform.node()}, {os.cpu_count()} CPUs, model {model.name}, session "
