@@ -40,6 +40,6 @@ def symmetric_from_upper(values: np.ndarray) -> np.ndarray:
 
 def symmetric_3x3(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float) -> np.ndarray:
     """The symmetric 3×3 matrix of these six values (its upper triangle, row by row), float64: what
-    :func:`symmetric_from_upper` gives for one triangle, in a tenth of its time (a receiver builds one on every frame
-    that ends a window)."""
+    :func:`symmetric_from_upper` gives for one triangle, in about a third of its time (a receiver builds one on every
+    frame that ends a window)."""
     return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]], dtype=np.float64)
