@@ -36,10 +36,6 @@ from seesys.io.core_settings import load_window_config
 LAYOUTS = (("one worker process", 1), ("the broker runs the model", 0))
 
 
-def tree(process: psutil.Process) -> list[psutil.Process]:
-    return [process, *process.children(recursive=True)]
-
-
 def one_run(folder: Path, model: Path, frames, seconds: float, workers: int) -> dict[str, float]:
     """Start-up, processes, memory, CPU and latency of one fresh service with ``workers`` worker processes."""
     config_dir, endpoints = private_configs(folder, connect_device_stream=False)
@@ -49,15 +45,16 @@ def one_run(folder: Path, model: Path, frames, seconds: float, workers: int) -> 
     try:
         wait_ready(serve, endpoints["status"], START_TIMEOUT_S, log)
         ready_s = time.monotonic() - started
-        processes = tree(psutil.Process(serve.pid))
+        broker = psutil.Process(serve.pid)
+        processes = [broker, *broker.children(recursive=True)]
         rss = sum(p.memory_info().rss for p in processes) / 2**20
         uss = sum(p.memory_full_info().uss for p in processes) / 2**20
         fleet = DeviceFleet(endpoints["ingest"], endpoints["estimates"], ["footprint-0"])
         time.sleep(1.0)  # connections and subscriptions settle
         try:
-            cpu_before, wall_before = service_cpu_s(psutil.Process(serve.pid)), time.monotonic()
+            cpu_before, wall_before = service_cpu_s(broker), time.monotonic()
             result = fleet.replay(frames, seconds, RATE_HZ, load_window_config(), drain_s=0.5)
-            cores = (service_cpu_s(psutil.Process(serve.pid)) - cpu_before) / (time.monotonic() - wall_before)
+            cores = (service_cpu_s(broker) - cpu_before) / (time.monotonic() - wall_before)
         finally:
             fleet.close()
     finally:
