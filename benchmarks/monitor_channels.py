@@ -22,8 +22,13 @@ and Spearman's ρ with the configured values, on the frames where both have one)
 the channel's values, on which a model was trained: this says by how much, beside how far they move between two
 ORB-SLAM3 trials of the same source with the configured settings (the source is tracked a second time).
 
+With ``--library-calls`` it also times, inside the whole monitor thread back to back, each call into the compiled
+libraries whose work defines the channels (OpenCV's functions and scipy's k-d tree), and the rest beside them
+(Python, numpy, zlib, the logs): the calls' sum is what the monitor would cost with no Python around them, a floor
+that only other channel definitions (a smaller image, fewer points) lower.
+
     .venv/bin/python benchmarks/monitor_channels.py [--source tum:data/sample] [--mode rgbd] [--repeats 5]
-        [--flow-variants]
+        [--flow-variants] [--library-calls]
 """
 
 from __future__ import annotations
@@ -34,13 +39,16 @@ import os
 import statistics
 import tempfile
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections import defaultdict
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 from pacing import paced
+from scipy.spatial import cKDTree
 from scipy.stats import spearmanr
 
 from seesys.core import messages
@@ -48,6 +56,7 @@ from seesys.core.camera_normalisation import CameraNormalisation
 from seesys.core.units import MM_PER_M
 from seesys.io.config import replace_fields
 from seesys.io.core_settings import load_device_settings
+from slam_monitor import slam_features
 from slam_monitor.depth_features import (
     RegistrationFit,
     edge_crossings,
@@ -280,6 +289,76 @@ def flow_variants(
 
 PACED_ROW = "monitor thread, whole, paced: one frame every 33 ms, asleep in between"
 
+# The compiled calls that define the channels (--library-calls): OpenCV's functions the monitor calls, and scipy's
+# k-d tree of the keypoint pairing. What they cost is the floor of these channels' definitions, whatever the Python
+# and numpy around them cost.
+OPENCV_CALLS = (
+    "calcOpticalFlowPyrLK",
+    "solvePnPRansac",
+    "Laplacian",
+    "calcHist",
+    "meanStdDev",
+    "resize",
+    "countNonZero",
+    "cvtColor",
+    "copyMakeBorder",
+    "sumElems",
+    "norm",
+    "Rodrigues",
+)
+KD_TREE_BUILD, KD_TREE_QUERY = "scipy cKDTree (build)", "scipy cKDTree.query"
+
+
+@contextmanager
+def timed_library_calls(spent: dict[str, float]) -> Iterator[None]:
+    """While open, every call of :data:`OPENCV_CALLS` and of the pairing's k-d tree adds its thread CPU seconds to
+    ``spent`` under its name (the monitor looks both up at call time: ``cv2.<name>``, ``slam_features.cKDTree``)."""
+
+    def timed(name: str, call: Callable) -> Callable:
+        def run(*args: object, **kwargs: object) -> object:
+            start = time.thread_time()
+            try:
+                return call(*args, **kwargs)
+            finally:
+                spent[name] += time.thread_time() - start
+
+        return run
+
+    class TimedTree:
+        def __init__(self, *args: object, **kwargs: object):
+            self._tree = timed(KD_TREE_BUILD, cKDTree)(*args, **kwargs)
+            self.query = timed(KD_TREE_QUERY, self._tree.query)
+
+    originals = {name: getattr(cv2, name) for name in OPENCV_CALLS}
+    try:
+        for name, call in originals.items():
+            setattr(cv2, name, timed(f"cv2.{name}", call))
+        slam_features.cKDTree = TimedTree
+        yield
+    finally:
+        for name, call in originals.items():
+            setattr(cv2, name, call)
+        slam_features.cKDTree = cKDTree
+
+
+def library_calls(config: MonitorConfig, frames: Sequence[Prepared], repeats: int) -> dict[str, float]:
+    """The whole monitor thread back to back (features, PSD, encoding, logs), ``repeats`` passes with every library
+    call of :func:`timed_library_calls` timed: of the pass whose whole is the median, thread CPU ms per frame in each
+    call, in them together (``library``), the whole (``whole``) and the rest (``rest``: Python, numpy, zlib, logs)."""
+    passes = []
+    for _ in range(repeats):
+        spent: dict[str, float] = defaultdict(float)
+        with timed_library_calls(spent):
+            start = time.thread_time()
+            _whole_monitor(config, with_logs=True)(frames)
+            whole = time.thread_time() - start
+        passes.append((whole, spent))
+    whole, spent = sorted(passes, key=lambda p: p[0])[len(passes) // 2]
+    per_frame = {name: s * 1000.0 / len(frames) for name, s in sorted(spent.items(), key=lambda kv: -kv[1])}
+    library = sum(per_frame.values())
+    whole_ms = whole * 1000.0 / len(frames)
+    return {**per_frame, "library": library, "whole": whole_ms, "rest": whole_ms - library}
+
 
 def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> dict[str, tuple[Callable, str]]:
     """Row label → (a pass over the frames, where its work happens: FRAME, PSD or HOP)."""
@@ -360,6 +439,11 @@ def main() -> None:
     parser.add_argument(
         "--flow-variants", action="store_true", help="also time the second opinion with other settings (see above)"
     )
+    parser.add_argument(
+        "--library-calls",
+        action="store_true",
+        help="also time the OpenCV and k-d tree calls inside the whole monitor (see above)",
+    )
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error(f"--repeats must be at least 1, got {args.repeats}")
@@ -428,6 +512,21 @@ def main() -> None:
                 f"{row['difference_median_mm']:.2f} / {row['difference_p90_mm']:.2f} | {row['spearman']:.3f} |"
             )
         figures["flow_variants"] = variants
+    if args.library_calls:
+        calls = library_calls(config, frames, args.repeats)
+        print(
+            "inside the compiled calls that define the channels, in the whole monitor thread back to back "
+            "(the median of the passes):"
+        )
+        print("| call | thread CPU ms per frame |")
+        print("|---|---|")
+        for name, ms in calls.items():
+            if name not in ("library", "whole", "rest"):
+                print(f"| {name} | {ms:.3f} |")
+        print(f"| these calls, together | {calls['library']:.3f} |")
+        print(f"| the rest (Python, numpy, zlib, logs) | {calls['rest']:.3f} |")
+        print(f"| monitor thread, whole, in these passes | {calls['whole']:.3f} |")
+        figures["library_calls"] = calls
     if args.json:
         args.json.write_text(json.dumps(figures, indent=2) + "\n")
 
