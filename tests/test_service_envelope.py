@@ -61,7 +61,11 @@ def test_every_field_of_a_frame_reaches_the_worker_unchanged(with_psd, with_sett
 
 def test_an_estimates_times_come_back_with_it_and_the_broker_keeps_the_newest():
     times = stages.WorkerTimes(0.5, 4.0, (0.25, 0.5, 0.375, 0.75, 2.5, 0.125))  # exact in float32, as they travel
-    assert envelope.unpack_meta(envelope.pack_meta(7.5, 30, 99, times)) == (7.5, 30, 99, times)
+    served = [
+        envelope.ServedEstimate(b"E/dev-7\x00", b"body", "dev-7", 7.5, 30, 99, times),
+        envelope.ServedEstimate(b"E/d\xc3\xa9v\x00", b"", "d\u00e9v", 8.0, -1, 2**64 - 1, times),
+    ]
+    assert list(envelope.unpack_estimates(envelope.pack_estimates(served))) == served
     kept = stages.StageTimes(size=2)
     for server_ms in (100.0, 6.0, 8.0):  # the first is pushed out by the two after it
         kept.add(times, publish_ms=0.5, server_ms=server_ms)

@@ -428,7 +428,7 @@ class Broker:
                 self._worker_says(identity, envelope.unpack_json(rest[0]), kind == envelope.STATS)
             elif kind == envelope.ESTIMATES and identity in self.workers:
                 self.workers[identity].last_seen = time.monotonic()
-                self._publish(identity, rest)
+                self._publish(identity, envelope.unpack_estimates(rest))
 
     def _worker_says(self, identity: bytes, data: dict, is_stats: bool) -> None:
         worker = self.workers.get(identity)
@@ -447,30 +447,27 @@ class Broker:
         if is_stats:
             worker.report = data
 
-    def _publish(self, identity: bytes, parts: list[bytes]) -> None:
+    def _publish(self, identity: bytes, estimates: Iterable[envelope.ServedEstimate]) -> None:
         received = time.monotonic()
-        for k in range(0, len(parts) - 2, 3):
-            topic, body, meta = parts[k : k + 3]
-            device_id = topic[len(messages.ESTIMATE_TOPIC) : -len(messages.TOPIC_END)].decode("utf-8")
-            device = self.devices.get(device_id)
-            token, frame_index, stream_session, times = envelope.unpack_meta(meta)
+        for estimate in estimates:
+            device = self.devices.get(estimate.device_id)
             if (
                 device is None
                 or device.worker != identity
-                or frame_index <= device.last_published
-                or stream_session != device.stream_session
+                or estimate.frame_index <= device.last_published
+                or estimate.stream_session != device.stream_session
             ):
                 if device is not None:
                     device.out_of_order += 1
                 continue
-            self._opened(self._estimates).send_multipart([topic, body])
+            self._opened(self._estimates).send_multipart([estimate.topic, estimate.body])
             now = time.monotonic()
-            device.last_published = frame_index
+            device.last_published = estimate.frame_index
             device.estimates += 1
-            server_ms = (now - token) * 1000.0
+            server_ms = (now - estimate.token) * 1000.0
             device.latency_ms.append(server_ms)
             device.estimate_times.append(now)
-            self.stages.add(times, (now - received) * 1000.0, server_ms)
+            self.stages.add(estimate.times, (now - received) * 1000.0, server_ms)
 
     def _remove_worker(self, identity: bytes) -> None:
         worker = self.workers.pop(identity, None)

@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import json
 import struct
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from estimator.service import stages
+from seesys.core import messages
 from seesys.core.device_settings import DeviceSettings
 from seesys.core.messages import FeatureFrame
 from seesys.core.tracking_state import TrackingState
@@ -153,14 +155,40 @@ def _settings(data: bytes) -> DeviceSettings | None:
     )
 
 
-def pack_meta(token: float, frame_index: int, stream_session: int, times: stages.WorkerTimes) -> bytes:
-    return _META.pack(token, frame_index, stream_session) + stages.pack(times)
+@dataclass(frozen=True)
+class ServedEstimate:
+    """One estimate as a worker hands it to the broker: its message (``topic``, ``body``) and what the broker checks
+    and times it by, the window's last frame's device, token, frame index and stream session and the estimate's times
+    in the service so far. A worker process sends it packed (:func:`pack_estimates`); the broker's own worker hands
+    it over as it is."""
+
+    topic: bytes
+    body: bytes
+    device_id: str
+    token: float
+    frame_index: int
+    stream_session: int
+    times: stages.WorkerTimes
 
 
-def unpack_meta(data: bytes) -> tuple[float, int, int, stages.WorkerTimes]:
-    """Inverse of :func:`pack_meta`; ``struct.error`` for data of another length."""
-    token, frame_index, stream_session = _META.unpack_from(data)
-    return token, frame_index, stream_session, stages.unpack(data[_META.size :])
+def pack_estimates(estimates: Iterable[ServedEstimate]) -> list[bytes]:
+    """The parts of an ``E`` message after its kind: ``topic, body, meta`` for each estimate."""
+    parts: list[bytes] = []
+    for e in estimates:
+        parts += [e.topic, e.body, _META.pack(e.token, e.frame_index, e.stream_session) + stages.pack(e.times)]
+    return parts
+
+
+def unpack_estimates(parts: list[bytes]) -> Iterator[ServedEstimate]:
+    """Inverse of :func:`pack_estimates` (the device id read from each topic); ``struct.error`` for a meta part of
+    another length."""
+    for k in range(0, len(parts) - 2, 3):
+        topic, body, meta = parts[k : k + 3]
+        token, frame_index, stream_session = _META.unpack_from(meta)
+        device_id = topic[len(messages.ESTIMATE_TOPIC) : -len(messages.TOPIC_END)].decode("utf-8")
+        yield ServedEstimate(
+            topic, body, device_id, token, frame_index, stream_session, stages.unpack(meta[_META.size :])
+        )
 
 
 def pack_json(data: dict) -> bytes:

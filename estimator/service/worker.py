@@ -81,7 +81,7 @@ class Worker:
                 if core.has_ready and not self._stopping:
                     estimates = core.serve_batch()
                     if estimates:
-                        self._send([envelope.ESTIMATES, *estimates])
+                        self._send([envelope.ESTIMATES, *envelope.pack_estimates(estimates)])
                 if time.monotonic() >= next_heartbeat:
                     self._send([envelope.STATS, envelope.pack_json(core.report())])
                     next_heartbeat = time.monotonic() + self.config.heartbeat_ms / 1000.0

@@ -213,9 +213,9 @@ class WorkerCore:
             frame.translation_covariance,
         )
 
-    def serve_batch(self) -> list[bytes]:
+    def serve_batch(self) -> list[envelope.ServedEstimate]:
         """Drop the stale windows, run the freshest that fit in one batch and return their estimates as the broker
-        takes them: ``(topic, body, meta)`` for each (:func:`estimator.service.envelope.pack_meta`); empty when no
+        takes them (a worker process packs them: :func:`estimator.service.envelope.pack_estimates`); empty when no
         window was left to serve."""
         now = self.clock()
         limit = self.config.stale_after_ms / 1000.0
@@ -243,7 +243,6 @@ class WorkerCore:
         self.counters.batch_ms.append(elapsed_ms)
         self.counters.batch_sizes.append(len(batch))
         self.counters.batches += 1
-        parts: list[bytes] = []
         sent = self.clock()
         encoded = []
         for i, (ready, error_m, nonfinite) in enumerate(zip(batch, estimates.errors_m, estimates.nonfinite)):
@@ -265,12 +264,18 @@ class WorkerCore:
         # The stages end where the message leaves: every estimate of the batch carries the batch's encoding time.
         replied = time.perf_counter()
         batch_times = ((prepared - start) * 1000.0, (done - prepared) * 1000.0, (replied - done) * 1000.0)
-        for ready, message in encoded:
+        served = []
+        for ready, (topic, body) in encoded:
             times = stages.WorkerTimes(
                 ready.ingest_ms,
                 (replied - ready.arrived) * 1000.0,
                 (ready.unpack_ms, ready.assemble_ms, (start - ready.formed) * 1000.0, *batch_times),
             )
-            parts += [*message, envelope.pack_meta(ready.token, ready.sample.frame_index, ready.stream_session, times)]
+            sample = ready.sample
+            served.append(
+                envelope.ServedEstimate(
+                    topic, body, sample.device_id, ready.token, sample.frame_index, ready.stream_session, times
+                )
+            )
         self.counters.estimates += len(batch)
-        return parts
+        return served
