@@ -9,7 +9,8 @@ its latency at the device beside the model's, and where each millisecond goes: e
 (:mod:`estimator.service.stages`, p50 and p99 of each stage from ``seesys estimator status``) and the transit
 (device → broker and broker → device: the device's latency less the server's). Beside them, the floor of any path
 through a broker and a worker process: a bare ZeroMQ round trip between two processes (DEALER ⇄ ROUTER over ipc, a
-200-byte message, paced as one device's windows), of which the path makes two (device ⇄ broker, broker ⇄ worker);
+200-byte message, paced as one device's windows), of which the path makes two (device ⇄ broker, broker ⇄ worker),
+and the same round trip with both processes on one core (what crossing between cores adds to it on this machine);
 and the floor of a path with one crossing: one process that does in its loop what the broker and the worker do on
 the path (decode the frame, add it to its device's window, prepare and run the model, encode the estimate and publish
 it; the service's code for each), with no broker, no worker, no checks or counters, timed the same way at the device
@@ -216,8 +217,11 @@ def model_alone(model_path: Path, frames, runs: int, period_s: float) -> dict[st
     return {"back_to_back": back_to_back * 1000.0, "paced": once_per_period * 1000.0}
 
 
-def _echo(endpoint: str) -> None:
-    """The far end of :func:`round_trip_ms`: sends every message back until an empty one."""
+def _echo(endpoint: str, cpu: int | None) -> None:
+    """The far end of :func:`round_trip_ms`: sends every message back until an empty one (on core ``cpu`` alone
+    where one is given)."""
+    if cpu is not None:
+        os.sched_setaffinity(0, {cpu})
     with zmq.Context() as context, context.socket(zmq.ROUTER) as router:
         router.bind(endpoint)
         while True:
@@ -227,12 +231,17 @@ def _echo(endpoint: str) -> None:
                 return
 
 
-def round_trip_ms(folder: Path, runs: int, period_s: float) -> np.ndarray:
+def round_trip_ms(folder: Path, runs: int, period_s: float, cpu: int | None = None) -> np.ndarray:
     """Milliseconds per bare round trip between this process and another (DEALER ⇄ ROUTER over ipc, 200 bytes),
-    one every ``period_s``: the least any crossing to another process and back costs at one device's pace."""
+    one every ``period_s``: the least any crossing to another process and back costs at one device's pace. With
+    ``cpu``, both processes run on that core alone: a wake-up on the same core instead of a signal to another (on a
+    VM, where that signal leaves the guest, the difference is the cost of crossing cores)."""
     endpoint = f"ipc://{folder.resolve()}/echo"
-    echo = multiprocessing.get_context("spawn").Process(target=_echo, args=(endpoint,))
+    echo = multiprocessing.get_context("spawn").Process(target=_echo, args=(endpoint, cpu))
     echo.start()
+    cores = os.sched_getaffinity(0)
+    if cpu is not None:
+        os.sched_setaffinity(0, {cpu})
     message, times = b"\0" * 200, np.empty(runs)
     try:
         with zmq.Context() as context, context.socket(zmq.DEALER) as dealer:
@@ -248,6 +257,7 @@ def round_trip_ms(folder: Path, runs: int, period_s: float) -> np.ndarray:
             dealer.send(b"")
             dealer.recv()
     finally:
+        os.sched_setaffinity(0, cores)
         echo.join(10)
         if echo.is_alive():
             echo.kill()
@@ -340,11 +350,12 @@ def print_latency(
     paths: dict[str, dict],
     period_s: float,
     round_trip: np.ndarray,
+    round_trip_one_core: np.ndarray,
     one_process: np.ndarray,
 ) -> None:
     """The one-device table: the model alone and each service path (``paths``: by layout, as :func:`latency_run`
-    gives it) side by side, each path's excess over the model, the floors (two round trips between processes; one
-    process doing the path's stages), and each path's breakdown."""
+    gives it) side by side, each path's excess over the model, the floors (two round trips between processes, and
+    one with both processes on one core; one process doing the path's stages), and each path's breakdown."""
     print(
         "\none device, window's last frame sent → estimate received, against the model alone (ONNX Runtime, "
         "batch 1, 1 thread); ms"
@@ -368,6 +379,12 @@ def print_latency(
             _row(f"{name} − {base}", _p(values, 50) - _p(reference, 50), _p(values, 99) - _p(reference, 99), sign="+")
     _row("bare round trip between two processes", _p(round_trip, 50), _p(round_trip, 99), len(round_trip))
     _row("two of them (a path through a worker makes two)", 2 * _p(round_trip, 50), 2 * _p(round_trip, 99))
+    _row(
+        "bare round trip, both processes on one core",
+        _p(round_trip_one_core, 50),
+        _p(round_trip_one_core, 99),
+        len(round_trip_one_core),
+    )
     timed = {layout: row["status"]["stages_ms"] for layout, row in paths.items() if row["status"]["stages_ms"]}
     if not timed:
         print("no stage times (no estimate reached the broker)")
@@ -448,12 +465,13 @@ def main() -> None:
             period_s = windows.end_stride / RATE_HZ
             alone = model_alone(model, frames, args.model_runs, period_s)
             round_trip = round_trip_ms(folder, paced_runs(args.model_runs), period_s)
+            one_core = round_trip_ms(folder, paced_runs(args.model_runs), period_s, min(os.sched_getaffinity(0)))
             paths = {
                 layout: latency_run(folder, model, frames, args.latency_seconds, workers)
                 for layout, workers in (("worker process", 1), ("in the broker", 0))
             }
             one_process = one_process_ms(folder, model, frames, args.latency_seconds)
-            print_latency(alone, paths, period_s, round_trip, one_process)
+            print_latency(alone, paths, period_s, round_trip, one_core, one_process)
             with_psd, read_past, without = decode_cpu_us(frames)
             print(
                 f"decoding one feature message (the broker, every frame; CPU): {with_psd:.0f} µs with a PSD, "
