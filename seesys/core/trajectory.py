@@ -97,14 +97,6 @@ class Poses:
             timestamps=self.timestamps,
         )
 
-    @classmethod
-    def from_evo(cls, trajectory: PoseTrajectory3D) -> Poses:
-        return cls(
-            np.asarray(trajectory.timestamps, dtype=float),
-            np.asarray(trajectory.positions_xyz, dtype=float),
-            np.asarray(trajectory.orientations_quat_wxyz, dtype=float)[:, [1, 2, 3, 0]],
-        )
-
 
 def sim3_scale(source_xyz: np.ndarray, target_xyz: np.ndarray) -> float:
     """The scale c of the Sim(3) alignment (evo's Umeyama) that best maps the positions ``source_xyz`` (N×3) onto
