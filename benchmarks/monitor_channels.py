@@ -42,7 +42,7 @@ import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
@@ -341,10 +341,20 @@ def timed_library_calls(spent: dict[str, float]) -> Iterator[None]:
         slam_features.cKDTree = cKDTree
 
 
-def library_calls(config: MonitorConfig, frames: Sequence[Prepared], repeats: int) -> dict[str, float]:
+@dataclass(frozen=True)
+class LibraryCalls:
+    """Thread CPU ms per frame of one pass of the whole monitor: in each library call (costliest first), in them
+    together, the whole, and the rest (Python, numpy, zlib, the logs)."""
+
+    calls: dict[str, float]
+    library: float
+    whole: float
+    rest: float
+
+
+def library_calls(config: MonitorConfig, frames: Sequence[Prepared], repeats: int) -> LibraryCalls:
     """The whole monitor thread back to back (features, PSD, encoding, logs), ``repeats`` passes with every library
-    call of :func:`timed_library_calls` timed: of the pass whose whole is the median, thread CPU ms per frame in each
-    call, in them together (``library``), the whole (``whole``) and the rest (``rest``: Python, numpy, zlib, logs)."""
+    call of :func:`timed_library_calls` timed: the pass whose whole is the median."""
     passes = []
     for _ in range(repeats):
         spent: dict[str, float] = defaultdict(float)
@@ -357,7 +367,7 @@ def library_calls(config: MonitorConfig, frames: Sequence[Prepared], repeats: in
     per_frame = {name: s * 1000.0 / len(frames) for name, s in sorted(spent.items(), key=lambda kv: -kv[1])}
     library = sum(per_frame.values())
     whole_ms = whole * 1000.0 / len(frames)
-    return {**per_frame, "library": library, "whole": whole_ms, "rest": whole_ms - library}
+    return LibraryCalls(per_frame, library, whole_ms, whole_ms - library)
 
 
 def stages(config: MonitorConfig, encoded: dict[int, messages.FeatureFrame]) -> dict[str, tuple[Callable, str]]:
@@ -520,13 +530,12 @@ def main() -> None:
         )
         print("| call | thread CPU ms per frame |")
         print("|---|---|")
-        for name, ms in calls.items():
-            if name not in ("library", "whole", "rest"):
-                print(f"| {name} | {ms:.3f} |")
-        print(f"| these calls, together | {calls['library']:.3f} |")
-        print(f"| the rest (Python, numpy, zlib, logs) | {calls['rest']:.3f} |")
-        print(f"| monitor thread, whole, in these passes | {calls['whole']:.3f} |")
-        figures["library_calls"] = calls
+        for name, ms in calls.calls.items():
+            print(f"| {name} | {ms:.3f} |")
+        print(f"| these calls, together | {calls.library:.3f} |")
+        print(f"| the rest (Python, numpy, zlib, logs) | {calls.rest:.3f} |")
+        print(f"| monitor thread, whole, in these passes | {calls.whole:.3f} |")
+        figures["library_calls"] = asdict(calls)
     if args.json:
         args.json.write_text(json.dumps(figures, indent=2) + "\n")
 
