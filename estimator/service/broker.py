@@ -389,11 +389,11 @@ class Broker:
         worker in the broker is handed them here instead."""
         worker = self.workers.get(identity)
         now = time.monotonic()
-        if identity == _IN_BROKER and self._core is not None:
+        if worker is not None and identity == _IN_BROKER and self._core is not None:
             arrived = time.perf_counter()
             for _, token, frame in items:
                 self._core.add(token, (now - token) * 1000.0, token, arrived, frame)
-            self.workers[_IN_BROKER].forwarded += len(items)
+            worker.forwarded += len(items)
             return
         try:
             if worker is None:
