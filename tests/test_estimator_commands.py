@@ -36,6 +36,7 @@ from estimator.deepsee.report import (
     TIMESERIES_PNG,
     improvements,
 )
+from seesys.io import session_files
 from seesys.io.core_settings import load_pulse_settings, load_window_config
 from seesys_app.cli import main
 
@@ -52,6 +53,8 @@ def _model(trained_runs, row="deepsee"):
 @pytest.mark.system
 def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path, capsys):
     other = [write_session(tmp_path / "other_renderer" / f"s{k}", seed=100 + k, noise_scale=2.0) for k in range(2)]
+    for folder in other:  # two SLAM trials of one recording: each the other's ceiling
+        session_files.update_manifest(folder, source="tum:other_renderer")
     out = tmp_path / "report"
     assert (
         main(
@@ -98,7 +101,10 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
         "constant",
         "always_top",
         "motion_isotonic",
-    }  # the tiny dataset tracked each render once: no ceiling
+        "ceiling",
+    }
+    # The tiny dataset tracked each render once: a ceiling only where the sessions are trials of one recording.
+    assert set(scores[scores.row == "ceiling"].set) == {OUT_OF_DOMAIN, *each}
     by_session = scores[(scores.row == "deepsee") & scores.set.isin(each)].set_index("set").windows
     pooled = scores[(scores.row == "deepsee") & (scores.set == OUT_OF_DOMAIN)].windows.iloc[0]
     assert set(by_session.index) == each and by_session.sum() == pooled > 0

@@ -326,3 +326,46 @@ def test_the_ceiling_is_the_other_trials_truth_at_the_same_frame(tmp_path):
     np.testing.assert_allclose(ceiling[twice], other.reindex(data.meta.frame_index[twice]).to_numpy())
     assert np.isfinite(ceiling[twice]).all() and np.isnan(ceiling[~twice]).all()  # tracked once: no ceiling
     assert not np.allclose(ceiling[twice], data.error_m[twice])  # another trial, not its own truth
+
+
+def test_the_ceiling_of_sessions_is_the_other_sessions_of_the_same_source_and_mode(tmp_path):
+    """Two sessions of one recording (different errors), one of another recording, one of the first recording in
+    the other mode and one that names no source: only the first two are each other's trials."""
+    from testkit.deepsee import write_session
+
+    from estimator.deepsee.data import concat, session_frame_labels, session_windows
+    from estimator.deepsee.references import other_session_trials, session_ceiling_estimates
+    from seesys.io import session_files
+    from seesys.io.core_settings import load_window_config
+
+    folders = {}
+    for name, seed, source, mode in (
+        ("first", 0, "tum:recording", "rgbd"),
+        ("second", 1, "tum:recording", "rgbd"),
+        ("elsewhere", 2, "tum:another", "rgbd"),
+        ("mono", 3, "tum:recording", "mono"),
+        ("unnamed", 4, None, "rgbd"),
+        ("unnamed_too", 5, None, "rgbd"),
+    ):
+        folders[name] = write_session(tmp_path / name, seed=seed, frames=120)
+        if source is not None:
+            session_files.update_manifest(folders[name], source=source, mode=mode)
+    sessions = list(folders.values())
+    assert other_session_trials(sessions) == {
+        "first": ["second"],
+        "second": ["first"],
+        "elsewhere": [],
+        "mono": [],
+        "unnamed": [],
+        "unnamed_too": [],
+    }
+
+    windows = load_window_config()
+    data = concat([session_windows(folders[name], windows, labelled=True) for name in ("first", "elsewhere")])
+    ceiling = session_ceiling_estimates(sessions, data)
+    first = (data.meta.run == "first").to_numpy()
+    assert first.sum() > 5 and (~first).sum() > 5
+    other = session_frame_labels(folders["second"]).error_m
+    np.testing.assert_allclose(ceiling[first], other.reindex(data.meta.frame_index[first]).to_numpy())
+    assert np.isfinite(ceiling[first]).all() and np.isnan(ceiling[~first]).all()  # no other trial: no ceiling
+    assert not np.allclose(ceiling[first], data.error_m[first])  # another trial, not its own truth

@@ -139,6 +139,18 @@ def session_mode(folder: Path) -> str:
     return mode
 
 
+def session_frame_labels(folder: Path, mode: str | None = None) -> pd.DataFrame:
+    """Every frame's label of a session folder (its 10-frame error against the session's ground truth, as the
+    dataset labels its runs), indexed by frame index: ``status`` and ``error_m``. ``mode``: the session's SLAM mode
+    when the caller has read it (:func:`session_mode`)."""
+    folder = Path(folder)
+    mode = session_mode(folder) if mode is None else mode
+    labels = label_session(folder, mode == "mono", load_label_config()).to_frame()
+    frames = pd.read_csv(folder / session_layout.FRAMES_CSV, usecols=["frame_index"])
+    labels["frame_index"] = frames.frame_index.to_numpy()
+    return labels.set_index("frame_index")
+
+
 def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Windows:
     """Every window of a session folder's monitor logs (one per frame whose PSD was logged and whose history is
     complete). With ``labelled``, each gets its end frame's label and only usable windows (labelled end frame,
@@ -159,11 +171,7 @@ def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Wind
     meta = pd.DataFrame(rows, columns=["run", "frame_index", "timestamp", "missing_rts", NORMALISATION_COLUMN])
     error = np.full(len(rows), np.nan)
     if labelled and rows:
-        labels = label_session(folder, mode == "mono", load_label_config()).to_frame()
-        frames = pd.read_csv(folder / session_layout.FRAMES_CSV, usecols=["frame_index"])
-        labels["frame_index"] = frames.frame_index.to_numpy()
-        by_frame = labels.set_index("frame_index")
-        end = by_frame.reindex(meta.frame_index)
+        end = session_frame_labels(folder, mode).reindex(meta.frame_index)
         max_missing = windows.max_missing_rts
         usable = (end.status == LabelStatus.LABELLED.value).to_numpy() & (meta.missing_rts <= max_missing).to_numpy()
         error = end.error_m.to_numpy(np.float64)

@@ -9,10 +9,10 @@ renderer, a real camera) are a third set, judged by every round's model; with mo
 set of its own, ``session NAME`` (its folder's name), so sessions of different cameras are not only seen pooled.
 
 Every set is also judged for the reference rows of :mod:`estimator.deepsee.references` (a constant class, always
-the top class, the motion alone; fitted on the round's training windows) and, for dataset runs whose sequence was
-tracked more than once, the ceiling (another trial's true error), on the same windows and bins as the models.
-Beside the scores: the median ratio per camera model of each set and row (``cameras``), and the reliability diagram,
-Brier score and ECE of each head threshold (``calibration``).
+the top class, the motion alone; fitted on the round's training windows) and, where a run's sequence or a session's
+source was tracked more than once, the ceiling (another trial's true error), on the same windows and bins as the
+models. Beside the scores: the median ratio per camera model of each set and row (``cameras``), and the reliability
+diagram, Brier score and ECE of each head threshold (``calibration``).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from estimator.deepsee.references import (
     ceiling_estimates,
     fit_references,
     motion_statistic,
+    session_ceiling_estimates,
 )
 from estimator.deepsee.rows import DEEPSEE, RANDOM_FOREST, ROWS
 from estimator.deepsee.run_folder import MODEL_PT
@@ -187,12 +188,13 @@ def _judge_round(
     tables: _Tables,
     r: int,
     sets: dict[str, Windows],
-    dataset_sets: set[str],
+    ceilings: dict[str, np.ndarray],
     train: Windows,
     models: list[tuple[str, Path]],
     how: _Judging,
 ) -> None:
-    """The reference rows (fitted on ``train``), the ceiling (on the dataset sets) and every model of ``models``
+    """The reference rows (fitted on ``train``), the ceiling (``ceilings``: per set, each window's estimate by the
+    other trials, NaN where there is none; a set without an entry has no ceiling row) and every model of ``models``
     ((row name, model file)) on every set of round ``r``."""
     config, pulses = how.config, how.pulses
     transform = LabelTransform(config.label_transform.k)
@@ -206,8 +208,8 @@ def _judge_round(
             judge(
                 tables, {"set": name, "row": row_name, "round": r}, data, estimate, None, motion[name], config, pulses
             )
-        if name in dataset_sets:
-            ceiling = ceiling_estimates(how.roots, data)
+        if name in ceilings:
+            ceiling = ceilings[name]
             kept = np.flatnonzero(np.isfinite(ceiling))
             if len(kept):
                 judge(
@@ -353,6 +355,8 @@ def evaluate(
     device: torch.device,
 ) -> Evaluation:
     other = session_sets(sessions, windows)
+    # The sessions' ceilings do not depend on the round: the same windows, the same other trials.
+    session_ceilings = {name: session_ceiling_estimates(sessions, data) for name, data in other.items()}
     tables = _Tables()
     how = _Judging([Path(r) for r in roots], config, pulses, windows, device)
     for r in rounds:
@@ -365,9 +369,9 @@ def evaluate(
         environments, cameras = splits.heldout(r)
         index = set_indices(parts["test"].meta, environments, cameras)
         sets = {name: parts["test"].subset(rows) for name, rows in index.items()}
-        dataset_sets = set(sets)
+        ceilings = {name: ceiling_estimates(how.roots, data) for name, data in sets.items()} | session_ceilings
         sets.update(other)
-        _judge_round(tables, r, sets, dataset_sets, parts["train"], trained, how)
+        _judge_round(tables, r, sets, ceilings, parts["train"], trained, how)
         test = raw_set(readers["test"])
         raw_sets = {name: test.subset(rows) for name, rows in index.items()}
         _judge_channels(tables, r, raw_sets, raw_set(readers["train"]), how)
@@ -438,7 +442,8 @@ def evaluate_lockbox(
     train_reader = split_readers(roots, splits, round_index, ("train",))["train"]
     tables = _Tables()
     how = _Judging([Path(r) for r in [*roots, *(fresh or [])]], config, pulses, windows, device)
-    _judge_round(tables, round_index, sets, set(sets), reader_windows(train_reader), [(row, Path(model))], how)
+    ceilings = {name: ceiling_estimates(how.roots, data) for name, data in sets.items()}
+    _judge_round(tables, round_index, sets, ceilings, reader_windows(train_reader), [(row, Path(model))], how)
     raw = raw_set(reader)
     raw_sets = {name: raw.subset(rows) for name, rows in index.items()}
     _judge_channels(tables, round_index, raw_sets, raw_set(train_reader), how)

@@ -11,7 +11,9 @@
 - ``ceiling``: for a run of the dataset whose rendered sequence was tracked more than once (``trials`` of the
   build), the estimate of a window is the true error of the other trials at the same frame (their mean where there
   are several): how well one SLAM trial's error predicts another's. Windows whose frame no other trial labelled have
-  no ceiling estimate and are left out of the ceiling's row (its window count says how many remain).
+  no ceiling estimate and are left out of the ceiling's row (its window count says how many remain). For
+  out-of-domain session folders, the trials are the other sessions of the same source and mode
+  (:func:`session_ceiling_estimates`).
 
 Everything is fitted on the training part of the round (or, for fine-tuning, on the sessions it trains on); test
 data and the lockbox are only judged.
@@ -23,10 +25,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from sklearn.isotonic import IsotonicRegression
 
 from estimator.dataset.store import WITH_SAMPLES, DatasetReader, list_runs
-from estimator.deepsee.data import Windows
+from estimator.deepsee.data import Windows, session_frame_labels, session_mode
 from estimator.deepsee.metrics import advisory_bins, pulse_classes
 from estimator.deepsee.yardsticks import spearman
 from seesys.core import rts_schema
@@ -35,6 +38,7 @@ from seesys.core.errors import SeesysError
 from seesys.core.exceedance import class_boundaries_m
 from seesys.core.labels import LabelStatus
 from seesys.core.motion import translation_spread
+from seesys.io import session_files
 
 CONSTANT = "constant"
 ALWAYS_TOP = "always_top"
@@ -117,26 +121,65 @@ def other_trials(roots: list[Path]) -> dict[str, list[str]]:
     return {info.run: [r for r in by_sequence[(info.sequence, info.mode)] if r != info.run] for info in infos}
 
 
-def ceiling_estimates(roots: list[Path], windows: Windows) -> np.ndarray:
-    """Per window of dataset runs, the mean true error of the other trials of its run's sequence at its end frame;
-    NaN where there is no other trial or none labelled that frame (module docstring)."""
-    estimate = np.full(len(windows), np.nan)
-    if not len(windows):
-        return estimate
-    others = other_trials(roots)
-    wanted = sorted({o for run in set(windows.meta.run) for o in others.get(run, [])})
-    if not wanted:
-        return estimate
-    labels = DatasetReader(roots, runs=wanted).frame_labels()
-    labels = labels[labels.status == LabelStatus.LABELLED.value].set_index(["run", "frame_index"]).error_m
-    for run, rows in windows.meta.groupby("run", sort=False).groups.items():
+def mean_of_other_trials(meta: pd.DataFrame, labels: pd.Series, others: dict[str, list[str]]) -> np.ndarray:
+    """Per window (``meta``'s rows: ``run``, ``frame_index``, a positional index), the mean of the labelled true
+    errors ``labels`` (indexed by run and frame index) of the other trials ``others[run]`` at its end frame; NaN
+    where no other trial labelled that frame. Pure: the ceiling's estimate, wherever its trials come from."""
+    estimate = np.full(len(meta), np.nan)
+    labelled_runs = set(labels.index.get_level_values(0))
+    for run, rows in meta.groupby("run", sort=False).groups.items():
         per_trial = [
-            labels.loc[o].reindex(windows.meta.frame_index.to_numpy()[np.asarray(rows)]).to_numpy()
+            labels.loc[o].reindex(meta.frame_index.to_numpy()[np.asarray(rows)]).to_numpy()
             for o in others.get(run, [])
-            if o in labels.index.get_level_values(0)
+            if o in labelled_runs
         ]
         if per_trial:
             stacked = np.vstack(per_trial)
             finite = np.isfinite(stacked).any(axis=0)
             estimate[np.asarray(rows)[finite]] = np.nanmean(stacked[:, finite], axis=0)
     return estimate
+
+
+def ceiling_estimates(roots: list[Path], windows: Windows) -> np.ndarray:
+    """Per window of dataset runs, the mean true error of the other trials of its run's sequence at its end frame;
+    NaN where there is no other trial or none labelled that frame (module docstring)."""
+    if not len(windows):
+        return np.full(0, np.nan)
+    others = other_trials(roots)
+    wanted = sorted({o for run in set(windows.meta.run) for o in others.get(run, [])})
+    if not wanted:
+        return np.full(len(windows), np.nan)
+    labels = DatasetReader(roots, runs=wanted).frame_labels()
+    labels = labels[labels.status == LabelStatus.LABELLED.value].set_index(["run", "frame_index"]).error_m
+    return mean_of_other_trials(windows.meta, labels, others)
+
+
+def other_session_trials(sessions: list[Path]) -> dict[str, list[str]]:
+    """For every session folder (by its folder's name), the other folders that tracked the same source in the same
+    mode (their ``session.json``'s ``source`` and ``mode``, as written): SLAM trials of one recording. A session
+    whose ``session.json`` names no source has none."""
+    recorded: dict[str, tuple[str, str] | None] = {}
+    for folder in map(Path, sessions):
+        source = session_files.read_manifest(folder).get("source")
+        recorded[folder.name] = (str(source), session_mode(folder)) if source else None
+    return {
+        name: [o for o, key in recorded.items() if o != name and key is not None and key == recorded[name]]
+        for name in recorded
+    }
+
+
+def session_ceiling_estimates(sessions: list[Path], windows: Windows) -> np.ndarray:
+    """Per window of labelled session folders (``windows.meta.run``: the folder's name), the mean true error of the
+    other sessions of the same source and mode (:func:`other_session_trials`) at its end frame, labelled as
+    :func:`estimator.deepsee.data.session_windows` labels them; NaN where there is no such session or none labelled
+    that frame. The ceiling of out-of-domain sessions: track one recording several times to have it."""
+    if not len(windows):
+        return np.full(0, np.nan)
+    others = other_session_trials(sessions)
+    folders = {Path(s).name: Path(s) for s in sessions}
+    wanted = sorted({o for run in set(windows.meta.run) for o in others.get(run, [])})
+    if not wanted:
+        return np.full(len(windows), np.nan)
+    labels = pd.concat({name: session_frame_labels(folders[name]) for name in wanted}, names=["run", "frame_index"])
+    labels = labels[labels.status == LabelStatus.LABELLED.value].error_m
+    return mean_of_other_trials(windows.meta, labels, others)

@@ -410,7 +410,7 @@ def write_report(
             "- Reference rows, fitted on the round's training data only: the training bins' most frequent class "
             "(constant), always the top class, and the motion statistic mapped to an error by isotonic regression "
             "(motion only). Ceiling: the true error of another SLAM trial of the same render at the same frame, on the "
-            "windows such a trial labelled (dataset sets only).",
+            "windows such a trial labelled; for out-of-domain sessions, another session of the same source and mode.",
             "",
         ]
     )
