@@ -21,6 +21,7 @@ data and the lockbox are only judged.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -121,11 +122,18 @@ def other_trials(roots: list[Path]) -> dict[str, list[str]]:
     return {info.run: [r for r in by_sequence[(info.sequence, info.mode)] if r != info.run] for info in infos}
 
 
-def mean_of_other_trials(meta: pd.DataFrame, labels: pd.Series, others: dict[str, list[str]]) -> np.ndarray:
-    """Per window (``meta``'s rows: ``run``, ``frame_index``, a positional index), the mean of the labelled true
-    errors ``labels`` (indexed by run and frame index) of the other trials ``others[run]`` at its end frame; NaN
-    where no other trial labelled that frame. Pure: the ceiling's estimate, wherever its trials come from."""
+def mean_of_other_trials(
+    meta: pd.DataFrame, others: dict[str, list[str]], labels_of: Callable[[list[str]], pd.Series]
+) -> np.ndarray:
+    """Per window (``meta``'s rows: ``run``, ``frame_index``, a positional index), the mean true error of the other
+    trials ``others[run]`` at its end frame; NaN where no other trial labelled that frame. ``labels_of(runs)``: the
+    labelled frames' true errors of those runs, indexed by run and frame index (asked once, for the trials needed).
+    The ceiling's estimate, wherever its trials and their labels come from."""
     estimate = np.full(len(meta), np.nan)
+    wanted = sorted({o for run in set(meta.run) for o in others.get(run, [])})
+    if not wanted:
+        return estimate
+    labels = labels_of(wanted)
     labelled_runs = set(labels.index.get_level_values(0))
     for run, rows in meta.groupby("run", sort=False).groups.items():
         per_trial = [
@@ -143,15 +151,12 @@ def mean_of_other_trials(meta: pd.DataFrame, labels: pd.Series, others: dict[str
 def ceiling_estimates(roots: list[Path], windows: Windows) -> np.ndarray:
     """Per window of dataset runs, the mean true error of the other trials of its run's sequence at its end frame;
     NaN where there is no other trial or none labelled that frame (module docstring)."""
-    if not len(windows):
-        return np.full(0, np.nan)
-    others = other_trials(roots)
-    wanted = sorted({o for run in set(windows.meta.run) for o in others.get(run, [])})
-    if not wanted:
-        return np.full(len(windows), np.nan)
-    labels = DatasetReader(roots, runs=wanted).frame_labels()
-    labels = labels[labels.status == LabelStatus.LABELLED.value].set_index(["run", "frame_index"]).error_m
-    return mean_of_other_trials(windows.meta, labels, others)
+
+    def labels_of(runs: list[str]) -> pd.Series:
+        labels = DatasetReader(roots, runs=runs).frame_labels()
+        return labels[labels.status == LabelStatus.LABELLED.value].set_index(["run", "frame_index"]).error_m
+
+    return mean_of_other_trials(windows.meta, other_trials(roots) if len(windows) else {}, labels_of)
 
 
 def other_session_trials(sessions: list[Path]) -> dict[str, list[str]]:
@@ -173,13 +178,10 @@ def session_ceiling_estimates(sessions: list[Path], windows: Windows) -> np.ndar
     other sessions of the same source and mode (:func:`other_session_trials`) at its end frame, labelled as
     :func:`estimator.deepsee.data.session_windows` labels them; NaN where there is no such session or none labelled
     that frame. The ceiling of out-of-domain sessions: track one recording several times to have it."""
-    if not len(windows):
-        return np.full(0, np.nan)
-    others = other_session_trials(sessions)
     folders = {Path(s).name: Path(s) for s in sessions}
-    wanted = sorted({o for run in set(windows.meta.run) for o in others.get(run, [])})
-    if not wanted:
-        return np.full(len(windows), np.nan)
-    labels = pd.concat({name: session_frame_labels(folders[name]) for name in wanted}, names=["run", "frame_index"])
-    labels = labels[labels.status == LabelStatus.LABELLED.value].error_m
-    return mean_of_other_trials(windows.meta, labels, others)
+
+    def labels_of(runs: list[str]) -> pd.Series:
+        labels = pd.concat({run: session_frame_labels(folders[run]) for run in runs}, names=["run", "frame_index"])
+        return labels[labels.status == LabelStatus.LABELLED.value].error_m
+
+    return mean_of_other_trials(windows.meta, other_session_trials(sessions) if len(windows) else {}, labels_of)
