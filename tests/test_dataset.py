@@ -520,6 +520,7 @@ def test_the_covariance_is_judged_against_the_label_on_each_test_set_with_a_scal
         fitted_scale,
         model_scaled_coverage,
         read_predictions,
+        session_frames,
     )
     from estimator.dataset.splits import HELDOUT_ENVIRONMENTS, TEST_TRAJECTORIES, SplitRound, Splits
     from seesys.core import session_layout
@@ -543,6 +544,11 @@ def test_the_covariance_is_judged_against_the_label_on_each_test_set_with_a_scal
         of[i], of[j], where[round(logged.timestamp[i], 6)], where[round(logged.timestamp[j], 6)]
     )
     assert row[PAIR_SIGMA] == pytest.approx(np.sqrt(np.trace(c)))
+    # The run's session folder on its own (labelled as a device session) gives the frames the build gives its run.
+    alone = session_frames(session, delta, False, load_label_config())
+    built = frames[frames.run == row.run][list(alone.columns)].reset_index(drop=True)
+    assert len(alone) > 20
+    pd.testing.assert_frame_equal(alone, built)
     # The scale is fitted on the training run alone and applied to the test sets.
     environment = {r: frames[frames.run == r].environment.iloc[0] for r in runs}
     split = SplitRound([], [], [runs[0]], [], runs[1:], [], heldout_environments=[environment[runs[2]]])
@@ -577,3 +583,6 @@ def test_the_covariance_is_judged_against_the_label_on_each_test_set_with_a_scal
     shutil.rmtree(copy / "sessions" / row.run)
     with pytest.raises(DatasetError, match="pose_covariance.csv is missing"):
         build_frames([copy], delta)
+    (session_copy := copy / "sessions" / runs[1]).joinpath(session_layout.POSE_COVARIANCE_CSV).unlink()
+    with pytest.raises(DatasetError, match="pose_covariance.csv is missing: its monitor logged no pose covariance"):
+        session_frames(session_copy, delta, False, load_label_config())

@@ -25,10 +25,11 @@ from estimator.dataset.build import SESSIONS_DIR
 from estimator.dataset.splits import Splits, set_indices
 from estimator.dataset.store import FRAMES_CSV, WITH_SAMPLES, DatasetError, list_runs, run_folder
 from seesys.core import session_layout
-from seesys.core.labels import LabelStatus
+from seesys.core.labels import LabelConfig, LabelStatus
 from seesys.core.pose_covariance import pair_covariance
 from seesys.io.logfiles import read_csv_table
 from seesys.io.rts_log import read_pose_covariance_log
+from seesys.io.session_labels import label_session_by_frame
 from seesys.io.trajectory_files import read_tum
 
 #: Draws per frame for the share of a Gaussian within 1σ and 2σ; a fixed seed keeps a report reproducible.
@@ -83,25 +84,42 @@ def fitted_scale(frames: pd.DataFrame) -> float:
     return float(np.quantile(d[LABEL] / d[PAIR_SIGMA], d[GAUSSIAN_WITHIN[0]].mean()))
 
 
-def run_frames(root: Path, run: str, delta: int) -> pd.DataFrame:
-    """Every labelled frame of a build's run with its pair's σ and Gaussian shares; raises :class:`DatasetError`
-    when the run's device session (kept by ``keep_sessions``) or its covariance log is missing."""
-    session = Path(root) / SESSIONS_DIR / run
+def _labelled_frame_pairs(session: Path, labels: pd.DataFrame, run: str, delta: int, why: str) -> pd.DataFrame:
+    """The labelled frames of ``labels`` (``frame_index``, ``error_m``) of a device session folder with their pair's
+    σ and Gaussian shares, named ``run``; :class:`DatasetError` ending in ``why`` when the covariance log is
+    missing."""
     logged = read_pose_covariance_log(session)
     if logged is None:
-        raise DatasetError(
-            f"{session / session_layout.POSE_COVARIANCE_CSV} is missing: the covariance's coverage needs the build's "
-            "device sessions with their pose covariance (a build of RTS schema v4 with keep_sessions)"
-        )
+        raise DatasetError(f"{session / session_layout.POSE_COVARIANCE_CSV} is missing: {why}")
     covariances = logged.by_frame()
     positions = logged.positions(read_tum(session / session_layout.TRAJECTORY))
-    labels = pd.read_csv(run_folder(root, run) / FRAMES_CSV)
-    labels = labels[labels.status == LabelStatus.LABELLED.value].reset_index(drop=True)
     pairs = [pair_covariance(covariances, positions, int(j), delta) for j in labels.frame_index]
-    table = pd.concat([labels[["frame_index"]], pair_columns(pairs)], axis=1)
+    table = pd.concat([labels[["frame_index"]].reset_index(drop=True), pair_columns(pairs)], axis=1)
     table[LABEL] = labels.error_m.to_numpy(float)
     table.insert(0, "run", run)
     return table
+
+
+def run_frames(root: Path, run: str, delta: int) -> pd.DataFrame:
+    """Every labelled frame of a build's run with its pair's σ and Gaussian shares; raises :class:`DatasetError`
+    when the run's device session (kept by ``keep_sessions``) or its covariance log is missing."""
+    labels = pd.read_csv(run_folder(root, run) / FRAMES_CSV)
+    labels = labels[labels.status == LabelStatus.LABELLED.value]
+    why = (
+        "the covariance's coverage needs the build's device sessions with their pose covariance (a build of RTS "
+        "schema v4 with keep_sessions)"
+    )
+    return _labelled_frame_pairs(Path(root) / SESSIONS_DIR / run, labels, run, delta, why)
+
+
+def session_frames(folder: Path, delta: int, monocular: bool, config: LabelConfig) -> pd.DataFrame:
+    """Every labelled frame of a device session folder (labelled as :func:`seesys.io.session_labels.label_session`
+    labels it; ``run``: the folder's name) with its pair's σ and Gaussian shares; raises :class:`DatasetError` when
+    its monitor logged no pose covariance."""
+    labels = label_session_by_frame(folder, monocular, config).reset_index()
+    labels = labels[labels.status == LabelStatus.LABELLED.value]
+    why = "its monitor logged no pose covariance (RTS schema v4 or later logs it)"
+    return _labelled_frame_pairs(Path(folder), labels, Path(folder).name, delta, why)
 
 
 def build_frames(roots: list[Path], delta: int) -> pd.DataFrame:

@@ -29,7 +29,7 @@ from seesys.core.windows import WindowConfig, assemble_windows
 from seesys.io import session_files
 from seesys.io.core_settings import load_label_config
 from seesys.io.rts_log import read_feature_frames
-from seesys.io.session_labels import label_session
+from seesys.io.session_labels import label_session_by_frame
 
 PARTS = ("train", "validation", "test")
 #: The ``meta`` column of each window's camera normalisation version (NA where its source states none).
@@ -139,16 +139,10 @@ def session_mode(folder: Path) -> str:
     return mode
 
 
-def session_frame_labels(folder: Path, mode: str | None = None) -> pd.DataFrame:
+def session_frame_labels(folder: Path) -> pd.DataFrame:
     """Every frame's label of a session folder (its 10-frame error against the session's ground truth, as the
-    dataset labels its runs), indexed by frame index: ``status`` and ``error_m``. ``mode``: the session's SLAM mode
-    when the caller has read it (:func:`session_mode`)."""
-    folder = Path(folder)
-    mode = session_mode(folder) if mode is None else mode
-    labels = label_session(folder, mode == "mono", load_label_config()).to_frame()
-    frames = pd.read_csv(folder / session_layout.FRAMES_CSV, usecols=["frame_index"])
-    labels["frame_index"] = frames.frame_index.to_numpy()
-    return labels.set_index("frame_index")
+    dataset labels its runs, in the session's SLAM mode), indexed by frame index: ``status`` and ``error_m``."""
+    return label_session_by_frame(folder, session_mode(folder) == "mono", load_label_config())
 
 
 def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Windows:
@@ -171,7 +165,7 @@ def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Wind
     meta = pd.DataFrame(rows, columns=["run", "frame_index", "timestamp", "missing_rts", NORMALISATION_COLUMN])
     error = np.full(len(rows), np.nan)
     if labelled and rows:
-        end = session_frame_labels(folder, mode).reindex(meta.frame_index)
+        end = label_session_by_frame(folder, mode == "mono", load_label_config()).reindex(meta.frame_index)
         max_missing = windows.max_missing_rts
         usable = (end.status == LabelStatus.LABELLED.value).to_numpy() & (meta.missing_rts <= max_missing).to_numpy()
         error = end.error_m.to_numpy(np.float64)

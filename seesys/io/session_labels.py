@@ -57,3 +57,12 @@ def label_session(folder: Path, monocular: bool, config: LabelConfig) -> FrameLa
     """Labels of a device session folder (:func:`read_session_track`)."""
     track = read_session_track(folder)
     return label_frames(track.estimate, track.states, track.ground_truth, monocular, config)
+
+
+def label_session_by_frame(folder: Path, monocular: bool, config: LabelConfig) -> pd.DataFrame:
+    """:func:`label_session` indexed by each frame's index (``frames.csv``): one row per frame, its ``status`` and
+    ``error_m`` among the label's columns."""
+    labels = label_session(folder, monocular, config).to_frame()
+    frames = pd.read_csv(folder / session_layout.FRAMES_CSV, usecols=["frame_index"])
+    labels["frame_index"] = frames.frame_index.to_numpy()
+    return labels.set_index("frame_index")
