@@ -133,9 +133,10 @@ def test_evaluate_writes_the_table3_report(tiny_dataset, trained_runs, tmp_path,
     calibration = pd.read_csv(out / CALIBRATION_CSV)
     assert set(calibration.row) == {"deepsee", "wo_psd"} and calibration.threshold_m.nunique() == 3
     assert (out / RELIABILITY_PNG).stat().st_size > 5000
-    # The geometry channels alone, per dataset set, each by the feature chosen on the training windows.
+    # The geometry channels alone, per set (the sessions' too), each by the feature chosen on the training windows.
     channels = pd.read_csv(out / CHANNELS_CSV)
-    assert set(channels.set) == {"test trajectories", "held-out environments"}
+    assert set(channels.set) == {"test trajectories", "held-out environments", OUT_OF_DOMAIN, *each}
+    assert 0 < channels[channels.set == OUT_OF_DOMAIN].windows.max() <= pooled.windows
     assert set(channels.channel) == set(judged_channels())
     chosen = channels[channels.chosen]
     assert not chosen.empty and chosen.groupby(["set", "round", "channel"]).size().eq(1).all()

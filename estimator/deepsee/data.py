@@ -149,6 +149,18 @@ def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Wind
     """Every window of a session folder's monitor logs (one per frame whose PSD was logged and whose history is
     complete). With ``labelled``, each gets its end frame's label and only usable windows (labelled end frame,
     no missing RTS row: the dataset's rule) are kept; without, ``error_m`` is NaN."""
+    return normalised(session_raw_windows(folder, windows, labelled))
+
+
+def normalised(raw: Windows) -> Windows:
+    """``raw`` (windows whose ``rts`` is the raw RTS, as :func:`session_raw_windows` gives them) with the RTS
+    normalised as the models read it."""
+    return dataclasses.replace(raw, rts=prepare_rts(raw.rts)) if len(raw) else raw
+
+
+def session_raw_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Windows:
+    """:func:`session_windows` with the raw RTS in ``rts`` (NaN where missing), as the channel table
+    (:mod:`estimator.deepsee.channels`) reads it."""
     folder = Path(folder)
     mode = session_mode(folder)
     # Form a window wherever the PSDs were logged: every frame in a dataset build, every end_stride-th on a device.
@@ -183,7 +195,7 @@ def session_windows(folder: Path, windows: WindowConfig, labelled: bool) -> Wind
             error,
             meta,
         )
-    return Windows(prepare_rts(np.stack(rts)), np.stack(psd), error, meta)
+    return Windows(np.stack(rts), np.stack(psd), error, meta)
 
 
 def concat(parts: list[Windows]) -> Windows:

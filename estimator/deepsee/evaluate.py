@@ -29,7 +29,14 @@ from estimator.dataset.splits import PARTS, Lockbox, Splits, run_table, set_indi
 from estimator.dataset.store import DatasetReader
 from estimator.deepsee.channels import RawSet, channel_table, choose_features
 from estimator.deepsee.config import EstimatorConfig
-from estimator.deepsee.data import Windows, concat, reader_windows, session_windows, split_readers
+from estimator.deepsee.data import (
+    Windows,
+    concat,
+    normalised,
+    reader_windows,
+    session_raw_windows,
+    split_readers,
+)
 from estimator.deepsee.metrics import bootstrap_settings, equation2_head, judged, score
 from estimator.deepsee.predictors import load_predictor
 from estimator.deepsee.references import (
@@ -85,8 +92,9 @@ def session_set(name: str) -> str:
     return f"session {name}"
 
 
-def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windows]:
-    """The out-of-domain sets of labelled session folders: all pooled, and each alone when there are several."""
+def session_raw_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windows]:
+    """The out-of-domain sets of labelled session folders, their RTS raw (:func:`session_raw_windows`): all pooled,
+    and each alone when there are several."""
     if not sessions:
         return {}
     names = [Path(s).name for s in sessions]
@@ -95,11 +103,16 @@ def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windo
             f"two out-of-domain sessions share a folder name ({', '.join(names)}): each is reported "
             "under its folder's name, give folders with distinct names"
         )
-    each = [session_windows(s, windows, labelled=True) for s in sessions]
+    each = [session_raw_windows(s, windows, labelled=True) for s in sessions]
     sets = {OUT_OF_DOMAIN: concat(each)}
     if len(each) > 1:
         sets.update({session_set(name): data for name, data in zip(names, each)})
     return sets
+
+
+def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windows]:
+    """:func:`session_raw_sets` with the RTS as the models read it."""
+    return {name: normalised(raw) for name, raw in session_raw_sets(sessions, windows).items()}
 
 
 @dataclass
@@ -315,8 +328,8 @@ def raw_set(reader: DatasetReader) -> RawSet:
 
 
 def _judge_channels(tables: _Tables, r: int, sets: dict[str, RawSet], train: RawSet, how: _Judging) -> None:
-    """The geometry channels alone on every dataset set of round ``r``, each by its window feature chosen on the
-    round's training windows ``train``."""
+    """The geometry channels alone on every set of round ``r`` (``sets``: raw RTS), each by its window feature
+    chosen on the round's training windows ``train``."""
     chosen = choose_features(train)
     for name, data in sets.items():
         if len(data.error_m):
@@ -354,7 +367,11 @@ def evaluate(
     windows: WindowConfig,
     device: torch.device,
 ) -> Evaluation:
-    other = session_sets(sessions, windows)
+    other_raw = session_raw_sets(sessions, windows)
+    other = {name: normalised(raw) for name, raw in other_raw.items()}
+    other_channels = {
+        name: RawSet(raw.rts, raw.error_m, raw.meta.run.to_numpy().astype(str)) for name, raw in other_raw.items()
+    }
     # The sessions' ceilings do not depend on the round: the same windows, the same other trials.
     session_ceilings = {name: session_ceiling_estimates(sessions, data) for name, data in other.items()}
     tables = _Tables()
@@ -373,7 +390,7 @@ def evaluate(
         sets.update(other)
         _judge_round(tables, r, sets, ceilings, parts["train"], trained, how)
         test = raw_set(readers["test"])
-        raw_sets = {name: test.subset(rows) for name, rows in index.items()}
+        raw_sets = {name: test.subset(rows) for name, rows in index.items()} | other_channels
         _judge_channels(tables, r, raw_sets, raw_set(readers["train"]), how)
     return _evaluation(tables, runs)
 
