@@ -337,11 +337,11 @@ def test_the_report_gives_deepsees_gain_on_both_rmses_per_round_and_in_the_mean(
 
 
 def test_two_out_of_domain_sessions_of_one_folder_name_are_refused(tmp_path):
-    from estimator.deepsee.evaluate import session_sets
+    from estimator.deepsee.evaluate import session_raw_sets
     from seesys.core.errors import SeesysError
 
     with pytest.raises(SeesysError, match=r"two out-of-domain sessions share a folder name \(s, s\)"):
-        session_sets([tmp_path / "a" / "s", tmp_path / "b" / "s"], load_window_config())
+        session_raw_sets([tmp_path / "a" / "s", tmp_path / "b" / "s"], load_window_config())
 
 
 @pytest.mark.system

@@ -110,11 +110,6 @@ def session_raw_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, W
     return sets
 
 
-def session_sets(sessions: list[Path], windows: WindowConfig) -> dict[str, Windows]:
-    """:func:`session_raw_sets` with the RTS as the models read it."""
-    return {name: normalised(raw) for name, raw in session_raw_sets(sessions, windows).items()}
-
-
 @dataclass
 class _Tables:
     """What :func:`judge` collects, row by row."""
