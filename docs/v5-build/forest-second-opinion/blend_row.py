@@ -1,0 +1,139 @@
+"""Candidate D of this folder's README, the forest read with its second opinion, judged on every window of each
+set of the given rounds: per window the geometric mean of the forest's estimate and the second opinion at the
+window's end frame (``flow_disagreement``, mm, in metres) where that frame has one, the forest's estimate elsewhere.
+The forest's and the motion row's estimates are evaluate's (``predictions.csv`` of the same build, splits and
+rounds); D is scored as evaluate scores a row, paired over runs with both, and the set's ceiling κ is read from the
+same evaluation's ``scores.csv``. Prints the rule's verdict per held-out set.
+
+    .venv/bin/python docs/v5-build/forest-second-opinion/blend_row.py BUILD SPLITS --rounds 0,1 \
+        --evaluate EVALUATE --out blend_row.csv --differences blend_differences.csv --cameras blend_cameras.csv
+"""
+
+import argparse
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from estimator.dataset.splits import read_splits, set_indices
+from estimator.deepsee.config import load_estimator_config
+from estimator.deepsee.data import reader_windows, split_readers
+from estimator.deepsee.evaluate import paired_difference_values
+from estimator.deepsee.metrics import bootstrap_settings, judged, score
+from estimator.deepsee.references import CEILING, MOTION_ISOTONIC, motion_statistic
+from estimator.deepsee.rows import RANDOM_FOREST
+from estimator.deepsee.yardsticks import median_ratio
+from seesys.core import rts_schema
+from seesys.io.core_settings import load_pulse_settings
+
+ROW = "forest_second_opinion"
+CHANNEL = rts_schema.CHANNEL_NAMES.index("flow_disagreement")
+#: What the rule asks of D on each held-out set.
+KAPPA_OF_CEILING = 0.8
+RATIO_RANGE = (0.8, 1.25)
+
+
+def blend(forest_m: np.ndarray, second_opinion_m: np.ndarray) -> np.ndarray:
+    """The geometric mean of the two where the second opinion is known, the forest's estimate elsewhere."""
+    known = np.isfinite(second_opinion_m)
+    return np.where(known, np.sqrt(forest_m * np.where(known, second_opinion_m, 0.0)), forest_m)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("build", type=Path)
+    parser.add_argument("splits", type=Path)
+    parser.add_argument("--rounds", default="0,1")
+    parser.add_argument("--evaluate", type=Path, required=True, help="evaluate's output folder")
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--differences", type=Path, required=True)
+    parser.add_argument("--cameras", type=Path, required=True)
+    args = parser.parse_args()
+    predictions = pd.read_csv(args.evaluate / "predictions.csv")
+    evaluated = pd.read_csv(args.evaluate / "scores.csv")
+    config, pulses = load_estimator_config(), load_pulse_settings()
+    splits = read_splits(args.splits, [args.build])
+    records, cameras, differences, verdicts = [], [], [], []
+    for r in map(int, args.rounds.split(",")):
+        test = split_readers([args.build], splits, r, ("test",))["test"]
+        data, raw_rts = reader_windows(test), test.rts_windows()
+        for name, rows in set_indices(data.meta, *splits.heldout(r)).items():
+            part = data.subset(rows)
+            second_opinion = raw_rts[rows][:, -1, CHANNEL].astype(float) / 1000.0
+            keys = part.meta[["run", "frame_index"]]
+            of_set = predictions[(predictions.set == name) & (predictions["round"] == r)]
+            estimates = {}
+            for row in (MOTION_ISOTONIC, RANDOM_FOREST):
+                found = keys.merge(of_set[of_set.row == row], on=["run", "frame_index"], how="left")
+                if found.estimate_m.isna().any() or not np.allclose(found.true_m, part.error_m):
+                    raise SystemExit(f"{args.evaluate}: {row} on {name} (round {r}) is not this build's windows")
+                estimates[row] = found.estimate_m.to_numpy(float)
+            estimates[ROW] = blend(estimates[RANDOM_FOREST], second_opinion)
+            motion = motion_statistic(part.rts)
+            windows_of = {row: judged(part.meta, v, part.error_m, motion, pulses) for row, v in estimates.items()}
+            compared = {}
+            for against in (MOTION_ISOTONIC, RANDOM_FOREST):
+                compared[against] = paired_difference_values(
+                    windows_of[ROW],
+                    windows_of[against],
+                    pulses.max_pulses + 1,
+                    config.evaluation.large_error_m,
+                    bootstrap_settings(config.evaluation),
+                )
+                differences.append({"set": name, "round": r, "row": ROW, "against": against, **compared[against]})
+            ceiling = evaluated[(evaluated.set == name) & (evaluated["round"] == r) & (evaluated.row == CEILING)]
+            ceiling_kappa = float(ceiling.kappa.iloc[0]) if len(ceiling) else float("nan")
+            share = float(np.isfinite(second_opinion).mean())
+            ratios = {}
+            for row, values in estimates.items():
+                scores = score(part.meta, values, part.error_m, config.evaluation, pulses, motion=motion)
+                if row == ROW:
+                    d_kappa = scores.kappa
+                records.append(
+                    {
+                        "set": name,
+                        "round": r,
+                        "row": row,
+                        "second_opinion_share": share,
+                        "kappa_of_ceiling": scores.kappa / ceiling_kappa,
+                        **asdict(scores),
+                    }
+                )
+                for camera, at in part.meta.groupby("camera_model").groups.items():
+                    at = np.asarray(at)
+                    ratio = median_ratio(values[at], part.error_m[at])
+                    cameras.append({"set": name, "round": r, "row": row, "camera_model": camera, "median_ratio": ratio})
+                    if row == ROW:
+                        ratios[camera] = ratio
+            if name.startswith("held-out"):
+                low, high = RATIO_RANGE
+                verdicts.append(
+                    {
+                        "set": name,
+                        "round": r,
+                        **{
+                            f"{stat}_over_{against}": bool(compared[against][f"{stat}_low"] > 0)
+                            for against in (MOTION_ISOTONIC, RANDOM_FOREST)
+                            for stat in ("kappa", "aurg")
+                        },
+                        "kappa_of_ceiling": bool(d_kappa >= KAPPA_OF_CEILING * ceiling_kappa),
+                        "ratios_within": all(low <= v <= high for v in ratios.values()),
+                    }
+                )
+    table = pd.DataFrame(records)
+    table.to_csv(args.out, index=False)
+    pd.DataFrame(differences).to_csv(args.differences, index=False)
+    pd.DataFrame(cameras).to_csv(args.cameras, index=False)
+    shown = ["set", "round", "row", "windows", "runs", "second_opinion_share", "kappa", "kappa_of_ceiling", "aurg"]
+    print(table[shown + ["median_ratio"]].round(3).to_string(index=False))
+    shown = ["set", "round", "against", "kappa", "kappa_low", "kappa_high", "aurg", "aurg_low", "aurg_high"]
+    print(pd.DataFrame(differences)[shown].round(3).to_string(index=False))
+    verdict = pd.DataFrame(verdicts)
+    verdict["passes"] = verdict.drop(columns=["set", "round"]).all(axis=1)
+    print(verdict.to_string(index=False))
+    print("D passes the rule" if verdict.passes.all() else "D does not pass the rule")
+
+
+if __name__ == "__main__":
+    main()
