@@ -3,9 +3,10 @@ set of the given rounds: per window the geometric mean of the forest's estimate 
 window's end frame (``flow_disagreement``, mm, in metres) where that frame has one, the forest's estimate elsewhere.
 The forest's and the motion row's estimates are evaluate's (``predictions.csv`` of the same build, splits and
 rounds); D is scored as evaluate scores a row, paired over runs with both, and the set's ceiling κ is read from the
-same evaluation's ``scores.csv``. Prints the rule's verdict per held-out set.
+same evaluation's ``scores.csv``. Labelled session folders given after the splits (evaluate's ``--sessions``) are
+judged pooled, for the record. Prints the rule's verdict per held-out set.
 
-    .venv/bin/python docs/v5-build/forest-second-opinion/blend_row.py BUILD SPLITS --rounds 0,1 \
+    .venv/bin/python docs/v5-build/forest-second-opinion/blend_row.py BUILD SPLITS [SESSION ...] --rounds 0,1 \
         --evaluate EVALUATE --out blend_row.csv --differences blend_differences.csv --cameras blend_cameras.csv
 """
 
@@ -18,14 +19,14 @@ import pandas as pd
 
 from estimator.dataset.splits import read_splits, set_indices
 from estimator.deepsee.config import load_estimator_config
-from estimator.deepsee.data import reader_windows, split_readers
-from estimator.deepsee.evaluate import paired_difference_values
+from estimator.deepsee.data import Windows, concat, normalised, reader_windows, session_raw_windows, split_readers
+from estimator.deepsee.evaluate import OUT_OF_DOMAIN, paired_difference_values
 from estimator.deepsee.metrics import bootstrap_settings, judged, score
 from estimator.deepsee.references import CEILING, MOTION_ISOTONIC, motion_statistic
 from estimator.deepsee.rows import RANDOM_FOREST
 from estimator.deepsee.yardsticks import median_ratio
 from seesys.core import rts_schema
-from seesys.io.core_settings import load_pulse_settings
+from seesys.io.core_settings import load_pulse_settings, load_window_config
 
 ROW = "forest_second_opinion"
 CHANNEL = rts_schema.CHANNEL_NAMES.index("flow_disagreement")
@@ -44,6 +45,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("build", type=Path)
     parser.add_argument("splits", type=Path)
+    parser.add_argument("sessions", type=Path, nargs="*")
     parser.add_argument("--rounds", default="0,1")
     parser.add_argument("--evaluate", type=Path, required=True, help="evaluate's output folder")
     parser.add_argument("--out", type=Path, required=True)
@@ -54,13 +56,22 @@ def main() -> None:
     evaluated = pd.read_csv(args.evaluate / "scores.csv")
     config, pulses = load_estimator_config(), load_pulse_settings()
     splits = read_splits(args.splits, [args.build])
+    windows = load_window_config()
+    sessions = (
+        concat([session_raw_windows(s, windows, labelled=True) for s in args.sessions]) if args.sessions else None
+    )
     records, cameras, differences, verdicts = [], [], [], []
     for r in map(int, args.rounds.split(",")):
         test = split_readers([args.build], splits, r, ("test",))["test"]
         data, raw_rts = reader_windows(test), test.rts_windows()
-        for name, rows in set_indices(data.meta, *splits.heldout(r)).items():
-            part = data.subset(rows)
-            second_opinion = raw_rts[rows][:, -1, CHANNEL].astype(float) / 1000.0
+        sets: dict[str, tuple[Windows, np.ndarray]] = {
+            name: (data.subset(rows), raw_rts[rows])
+            for name, rows in set_indices(data.meta, *splits.heldout(r)).items()
+        }
+        if sessions is not None:
+            sets[OUT_OF_DOMAIN] = (normalised(sessions), sessions.rts)
+        for name, (part, raw) in sets.items():
+            second_opinion = raw[:, -1, CHANNEL].astype(float) / 1000.0
             keys = part.meta[["run", "frame_index"]]
             of_set = predictions[(predictions.set == name) & (predictions["round"] == r)]
             estimates = {}
@@ -100,7 +111,8 @@ def main() -> None:
                         **asdict(scores),
                     }
                 )
-                for camera, at in part.meta.groupby("camera_model").groups.items():
+                by_camera = part.meta.groupby("camera_model").groups if "camera_model" in part.meta else {}
+                for camera, at in by_camera.items():
                     at = np.asarray(at)
                     ratio = median_ratio(values[at], part.error_m[at])
                     cameras.append({"set": name, "round": r, "row": row, "camera_model": camera, "median_ratio": ratio})
