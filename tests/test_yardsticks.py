@@ -11,6 +11,7 @@ import pytest
 
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import Windows
+from estimator.deepsee.evaluate import predicted_estimates, prediction_table
 from estimator.deepsee.metrics import advisory_bins, score
 from estimator.deepsee.references import (
     ALWAYS_TOP,
@@ -32,6 +33,7 @@ from estimator.deepsee.yardsticks import (
     yardsticks,
 )
 from seesys.core import rts_schema
+from seesys.core.errors import SeesysError
 from seesys.io.core_settings import load_pulse_settings
 
 PULSES = load_pulse_settings()
@@ -369,3 +371,26 @@ def test_the_ceiling_of_sessions_is_the_other_sessions_of_the_same_source_and_mo
     np.testing.assert_allclose(ceiling[first], other.reindex(data.meta.frame_index[first]).to_numpy())
     assert np.isfinite(ceiling[first]).all() and np.isnan(ceiling[~first]).all()  # no other trial: no ceiling
     assert not np.allclose(ceiling[first], data.error_m[first])  # another trial, not its own truth
+
+
+def test_predicted_estimates_read_back_what_the_prediction_table_wrote_and_refuse_other_windows():
+    data = _windows([0.001, 0.002, 0.004], [0.003, 0.005, 0.009], windows_per_run=4)
+    data.meta["frame_index"] = np.tile(np.arange(4) * 10, 3)
+    key = {"set": "held-out environments", "row": "random_forest", "round": 1}
+    estimate = np.linspace(0.001, 0.012, len(data))
+    written = pd.concat(
+        [
+            prediction_table(key, data, estimate),
+            prediction_table({**key, "round": 0}, data, estimate * 2),  # another round: not read
+            prediction_table({**key, "row": "deepsee"}, data, estimate * 3),  # another row: not read
+        ]
+    ).sample(frac=1.0, random_state=0)  # the file's order is not the windows'
+    np.testing.assert_array_equal(predicted_estimates(written, key, data), estimate)
+    # Windows in another order are answered in theirs.
+    reordered = data.subset(np.arange(len(data))[::-1])
+    np.testing.assert_array_equal(predicted_estimates(written, key, reordered), estimate[::-1])
+    with pytest.raises(SeesysError, match="not of these windows"):  # a window the predictions do not hold
+        predicted_estimates(written[written.frame_index != 30], key, data)
+    relabelled = dataclasses.replace(data, error_m=data.error_m * 2)
+    with pytest.raises(SeesysError, match="held-out environments"):  # the same names, another build's truth
+        predicted_estimates(written, key, relabelled)

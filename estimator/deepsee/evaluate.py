@@ -137,6 +137,18 @@ def prediction_table(key: dict, data: Windows, estimate_m: np.ndarray) -> pd.Dat
     )
 
 
+def predicted_estimates(predictions: pd.DataFrame, key: dict, data: Windows) -> np.ndarray:
+    """The estimates of ``predictions`` (rows of ``predictions.csv``) under ``key`` (set, row, round) for the windows
+    of ``data``, in their order: what :func:`prediction_table` wrote, read back. Raises :class:`SeesysError` when a
+    window has no estimate there or its true error is not the one written (the predictions are of another build)."""
+    chosen = predictions[(predictions[list(key)] == pd.Series(key)).all(axis=1)]
+    found = data.meta[["run", "frame_index"]].merge(chosen, on=["run", "frame_index"], how="left")
+    if found.estimate_m.isna().any() or not np.allclose(found.true_m, data.error_m):
+        described = ", ".join(f"{name} {value}" for name, value in key.items())
+        raise SeesysError(f"the predictions of {described} are not of these windows (another build or splits?)")
+    return found.estimate_m.to_numpy(float)
+
+
 def judge(
     tables: _Tables,
     key: dict,

@@ -21,7 +21,7 @@ import pandas as pd
 from estimator.dataset.splits import read_splits, set_indices
 from estimator.deepsee.config import load_estimator_config
 from estimator.deepsee.data import concat, normalised, reader_windows, session_raw_windows, split_readers
-from estimator.deepsee.evaluate import OUT_OF_DOMAIN, paired_difference_values
+from estimator.deepsee.evaluate import OUT_OF_DOMAIN, paired_difference_values, predicted_estimates
 from estimator.deepsee.metrics import bootstrap_settings, judged, score
 from estimator.deepsee.references import MOTION_ISOTONIC, fit_references, motion_statistic
 from estimator.deepsee.yardsticks import median_ratio
@@ -68,11 +68,8 @@ def main() -> None:
             motion = motion_statistic(part.rts)
             rows = {ROW: estimate[known], MOTION_ISOTONIC: references.estimates(part)[MOTION_ISOTONIC]}
             if predictions is not None:
-                keys = part.meta[["run", "frame_index"]]
-                of_set = predictions[(predictions.set == name) & (predictions["round"] == r)]
                 for row in args.rows.split(","):
-                    found = keys.merge(of_set[of_set.row == row], on=["run", "frame_index"], how="left")
-                    rows[row] = found.estimate_m.to_numpy(float)
+                    rows[row] = predicted_estimates(predictions, {"set": name, "row": row, "round": r}, part)
             windows_of = {row: judged(part.meta, values, part.error_m, motion, pulses) for row, values in rows.items()}
             for row in windows_of:
                 if row != ROW:
